@@ -1,0 +1,10 @@
+#!/usr/bin/env bash
+# The whole test command: set-up, then ruff, mypy, import-linter contracts and pytest.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+scripts/bootstrap.sh
+export PATH="$PWD/.venv/bin:$PATH"
+echo "== ruff"; ruff check . && ruff format --check .
+echo "== mypy"; mypy core hardware app bench
+echo "== import-linter"; lint-imports
+echo "== pytest"; pytest "$@"
