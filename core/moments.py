@@ -1,0 +1,343 @@
+"""Moment matching (METHOD.md eq. (M3)), mutual information (M4) and the belief update (M5).
+
+The latent s ~ N(μ, Σ) of the touched object is unknown; for an action x the observation y has
+a non-Gaussian predictive distribution whose first two moments (and the cross-covariance with s)
+are available in closed form. Those moments define a joint Gaussian over (s, y) from which the
+mutual information I(s; y | x) and the updated belief follow.
+
+The computation uses the per-object structure of METHOD.md ("Structure that makes it fast"):
+the N training latents take only L distinct values, so everything splits into
+
+* **action statistics** (depend on x only, computed once per model for a fixed candidate set):
+  u_a(x)[l] = Σ_{i∈l} β_ai e_ai(x) and T_a(x)[l, l'] = Σ_{i∈l, j∈l'} (K_a⁻¹)_ij e_ai(x) e_aj(x);
+* **belief terms** (depend on (μ, Σ) only): the L-vectors c_a, the L×L matrices G_ab and the
+  L×ds offsets D_a[l] = Σ (Σ + Λ^s_a)⁻¹ (s_l - μ);
+
+and the moments are small contractions of the two, batched over C candidate actions. This is an
+exact rewrite of the appendix formula (checked against it in ``tests/core/test_moments.py``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from core.errors import InvalidInputError
+from core.types import GaussianBelief, ManifoldModel
+from core.validation import FloatArray, as_float_array
+
+# Relative floor on the eigenvalues of an updated covariance (update hygiene, METHOD.md).
+_EIGENVALUE_FLOOR = 1e-12
+
+
+@dataclass(frozen=True)
+class ActionStatistics:
+    """Action-only statistics of C candidate actions (METHOD.md, structure of (M3)).
+
+    They depend on the model and the actions but not on the belief: compute them once per model
+    for a fixed candidate set and reuse them at every touch.
+
+    Attributes:
+        actions: The candidate actions x. Shape (C, dx).
+        responses: u_a(x)[l] = Σ_{i∈l} β_ai e_ai(x). Shape (C, dy, L).
+        trace_blocks: T_a(x)[l, l'] = Σ_{i∈l, j∈l'} (K_a⁻¹)_ij e_ai(x) e_aj(x), with the noisy
+            K_a. Shape (C, dy, L, L).
+    """
+
+    actions: FloatArray
+    responses: FloatArray
+    trace_blocks: FloatArray
+
+    @property
+    def n_actions(self) -> int:
+        """C."""
+        return int(self.actions.shape[0])
+
+    def subset(self, indices: np.ndarray) -> ActionStatistics:
+        """The statistics of some of the candidates (same order as ``indices``)."""
+        return ActionStatistics(
+            actions=self.actions[indices],
+            responses=self.responses[indices],
+            trace_blocks=self.trace_blocks[indices],
+        )
+
+
+@dataclass(frozen=True)
+class BeliefTerms:
+    """Belief-only terms of the structured (M3) (independent of the action).
+
+    Attributes:
+        weights: c_a[l] = σ_f,a² |Σ (Λ^s_a)⁻¹ + I|^(-½) exp(-½ (μ - s_l)ᵀ (Σ + Λ^s_a)⁻¹ (μ - s_l)).
+            Shape (dy, L).
+        pair_weights: G_ab[l, l'], the belief part of Q_ab. Shape (dy, dy, L, L).
+        offsets: D_a[l] = Σ (Σ + Λ^s_a)⁻¹ (s_l - μ). Shape (dy, L, ds).
+    """
+
+    weights: FloatArray
+    pair_weights: FloatArray
+    offsets: FloatArray
+
+
+@dataclass(frozen=True)
+class PredictiveMoments:
+    """Moments of the joint Gaussian over (s, y) for C candidate actions (METHOD.md eq. (M3)).
+
+    Attributes:
+        mean: m = E[y], including the model's constant mean. Shape (C, dy).
+        cov: S = Cov[y], including the observation noise. Shape (C, dy, dy).
+        cross_cov: C = Cov[s, y]. Shape (C, ds, dy).
+        actions: The actions the moments belong to. Shape (C, dx).
+    """
+
+    mean: FloatArray
+    cov: FloatArray
+    cross_cov: FloatArray
+    actions: FloatArray
+
+    @property
+    def n_actions(self) -> int:
+        """C."""
+        return int(self.mean.shape[0])
+
+
+def object_indicator(model: ManifoldModel) -> FloatArray:
+    """One-hot matrix of the object of every touch. Shape (N, L)."""
+    data = model.data
+    indicator = np.zeros((data.n_touches, data.n_objects))
+    indicator[np.arange(data.n_touches), data.object_index] = 1.0
+    return indicator
+
+
+def action_kernels(model: ManifoldModel, actions: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """e_ai(x) for every feature, candidate and touch, and the scaled differences.
+
+    Args:
+        model: A conditioned model.
+        actions: Validated actions. Shape (C, dx).
+
+    Returns:
+        e (dy, C, N) and (x - x_i) / ℓ_a² (dy, C, N, dx).
+    """
+    h = model.hyperparameters
+    diff = actions[:, None, :] - model.data.actions[None, :, :]  # (C, N, dx)
+    inverse_sq = 1.0 / h.action_lengthscales**2  # (dy, dx)
+    scaled = diff[None, :, :, :] * inverse_sq[:, None, None, :]
+    kernels = np.exp(-0.5 * np.einsum("cnd,acnd->acn", diff, scaled))
+    return kernels, scaled
+
+
+def _check_actions(model: ManifoldModel, actions: FloatArray, name: str) -> FloatArray:
+    return as_float_array(actions, name, (None, model.hyperparameters.action_dim))
+
+
+def action_statistics(model: ManifoldModel, actions: FloatArray) -> ActionStatistics:
+    """Action statistics u_a(x) and T_a(x) of C candidate actions (METHOD.md, structure of (M3)).
+
+    Cost O(C · dy · N · (dx + N)); memory O(C · dy · N).
+
+    Args:
+        model: A conditioned model.
+        actions: Candidate actions. Shape (C, dx).
+
+    Raises:
+        InvalidInputError: ``actions`` has the wrong shape or non-finite entries.
+    """
+    actions = _check_actions(model, actions, "actions")
+    kernels, _ = action_kernels(model, actions)  # (dy, C, N)
+    indicator = object_indicator(model)  # (N, L)
+    beta = model.posterior.beta  # (dy, N)
+    gram_inverse = model.posterior.gram_inverse  # (dy, N, N)
+    n_features = beta.shape[0]
+    n_objects = indicator.shape[1]
+    n_actions = actions.shape[0]
+    members = [np.flatnonzero(indicator[:, obj]) for obj in range(n_objects)]
+    # u_a(x)[l] = Σ_{i∈l} β_ai e_ai(x)
+    responses = np.einsum("acn,an,nl->cal", kernels, beta, indicator)
+    trace_blocks = np.empty((n_actions, n_features, n_objects, n_objects))
+    for a in range(n_features):
+        for right, idx in enumerate(members):
+            # Y[c, i] = Σ_{j∈l'} (K_a⁻¹)_ij e_aj(x_c)
+            partial = kernels[a][:, idx] @ gram_inverse[a][idx, :]
+            trace_blocks[:, a, :, right] = (kernels[a] * partial) @ indicator
+    return ActionStatistics(actions=actions, responses=responses, trace_blocks=trace_blocks)
+
+
+def _check_belief(model: ManifoldModel, belief: GaussianBelief) -> None:
+    if belief.dim != model.latent_dim:
+        raise InvalidInputError(
+            f"belief: latent dimension {belief.dim} does not match the model's "
+            f"latent_dim={model.latent_dim}."
+        )
+
+
+def belief_terms(model: ManifoldModel, belief: GaussianBelief) -> BeliefTerms:
+    """Belief-only terms c_a, G_ab and D_a of the structured (M3). Cost O(dy² L² ds + dy² ds³).
+
+    Args:
+        model: A conditioned model (latents S of shape (L, ds)).
+        belief: s ~ N(μ, Σ), ds-dimensional.
+    """
+    _check_belief(model, belief)
+    h = model.hyperparameters
+    mu, sigma = belief.mean, belief.cov
+    latents = model.latents  # (L, ds)
+    lam = h.latent_lengthscales**2  # (dy, ds): diagonals of Λ^s_a
+    signal = h.signal_variance  # (dy,)
+    ds = mu.shape[0]
+
+    # METHOD.md eq. (M3): q_ai's belief part, c_a[l].
+    sigma_plus_lam = sigma[None, :, :] + lam[:, :, None] * np.eye(ds)[None]  # (dy, ds, ds)
+    diff = mu[None, :] - latents  # (L, ds): μ - s_l
+    rhs = np.broadcast_to(diff.T[None], (lam.shape[0], ds, latents.shape[0]))
+    solved = np.linalg.solve(sigma_plus_lam, rhs)  # (dy, ds, L): (Σ + Λ_a)⁻¹ (μ - s_l)
+    quad = np.einsum("ld,adl->al", diff, solved)
+    _, logdet_sum = np.linalg.slogdet(sigma_plus_lam)
+    log_det_ratio = logdet_sum - np.sum(np.log(lam), axis=1)  # log |Σ Λ_a⁻¹ + I|
+    weights = signal[:, None] * np.exp(-0.5 * log_det_ratio[:, None] - 0.5 * quad)
+    # D_a[l] = Σ (Σ + Λ_a)⁻¹ (s_l - μ)
+    offsets = -np.einsum("ij,ajl->ali", sigma, solved)
+
+    # METHOD.md eq. (M3): Q_ab,ij's belief part, G_ab[l, l'].
+    lam_a = lam[:, None, :]  # (dy, 1, ds)
+    lam_b = lam[None, :, :]  # (1, dy, ds)
+    lam_sum = lam_a + lam_b  # (dy, dy, ds): Λ_a + Λ_b
+    inv_sum = 1.0 / lam_a + 1.0 / lam_b  # Λ_a⁻¹ + Λ_b⁻¹
+    det_matrix = inv_sum[..., :, None] * sigma[None, None] + np.eye(ds)
+    _, logdet_pair = np.linalg.slogdet(det_matrix)  # log |(Λ_a⁻¹ + Λ_b⁻¹) Σ + I|
+    sep = latents[:, None, :] - latents[None, :, :]  # (L, L, ds): s_l - s_l'
+    sep_quad = np.einsum("lmd,abd->ablm", sep**2, 1.0 / lam_sum)
+    # s̄_ll' = Λ_b (Λ_a + Λ_b)⁻¹ s_l + Λ_a (Λ_a + Λ_b)⁻¹ s_l'
+    w_left = (lam_b / lam_sum)[:, :, None, None, :]
+    w_right = (lam_a / lam_sum)[:, :, None, None, :]
+    s_bar = w_left * latents[None, None, :, None, :] + w_right * latents[None, None, None, :, :]
+    centred = s_bar - mu  # (dy, dy, L, L, ds)
+    r_matrix = (1.0 / inv_sum)[..., :, None] * np.eye(ds) + sigma[None, None]  # R_ab
+    r_inverse = np.linalg.inv(r_matrix)  # (dy, dy, ds, ds)
+    mean_quad = np.einsum("ablmi,abij,ablmj->ablm", centred, r_inverse, centred)
+    pair_weights = (
+        (signal[:, None] * signal[None, :])[:, :, None, None]
+        * np.exp(-0.5 * logdet_pair)[:, :, None, None]
+        * np.exp(-0.5 * sep_quad - 0.5 * mean_quad)
+    )
+    return BeliefTerms(weights=weights, pair_weights=pair_weights, offsets=offsets)
+
+
+def moments_from_terms(
+    model: ManifoldModel, terms: BeliefTerms, stats: ActionStatistics
+) -> PredictiveMoments:
+    """Contract belief terms with action statistics into m, S and C (METHOD.md eq. (M3)).
+
+    Cost O(C · dy² · L²) on top of the terms.
+    """
+    h = model.hyperparameters
+    u = stats.responses  # (C, dy, L)
+    weights, pair = terms.weights, terms.pair_weights
+    centred_mean = np.einsum("al,cal->ca", weights, u)  # m_a - mean_a = c_aᵀ u_a
+    pair_u = np.einsum("ablm,cbm->cabl", pair, u)
+    cov = np.einsum("cal,cabl->cab", u, pair_u)  # u_aᵀ G_ab u_b
+    cov -= centred_mean[:, :, None] * centred_mean[:, None, :]
+    diagonal_pair = np.einsum("aalm->alm", pair)  # G_aa
+    trace = np.einsum("alm,calm->ca", diagonal_pair, stats.trace_blocks)  # tr(K_a⁻¹ Q_aa)
+    features = np.arange(h.observation_dim)
+    # METHOD.md eq. (M3): δ_ab (σ_f,a² - tr(K_a⁻¹ Q_aa)) + δ_ab σ_n,a²  (noise belongs in S)
+    cov[:, features, features] += h.signal_variance - trace + h.noise_variance
+    cov = 0.5 * (cov + np.swapaxes(cov, 1, 2))
+    cross_cov = np.einsum("al,cal,ald->cda", weights, u, terms.offsets)
+    return PredictiveMoments(
+        mean=centred_mean + model.data.observation_mean,
+        cov=cov,
+        cross_cov=cross_cov,
+        actions=stats.actions,
+    )
+
+
+def predictive_moments(
+    model: ManifoldModel, belief: GaussianBelief, stats: ActionStatistics
+) -> PredictiveMoments:
+    """Predictive moments m, S (with noise) and C of every candidate (METHOD.md eq. (M3)).
+
+    Args:
+        model: The model the statistics were computed with.
+        belief: s ~ N(μ, Σ).
+        stats: Action statistics from :func:`action_statistics` for this model.
+
+    Raises:
+        InvalidInputError: The belief or statistics do not match the model.
+    """
+    h = model.hyperparameters
+    expected = (h.observation_dim, model.data.n_objects)
+    if stats.responses.shape[1:] != expected or stats.actions.shape[1] != h.action_dim:
+        raise InvalidInputError(
+            f"stats: computed for (dy, L) = {stats.responses.shape[1:]} and "
+            f"dx = {stats.actions.shape[1]}, but the model has (dy, L) = {expected} and "
+            f"dx = {h.action_dim}; recompute them with action_statistics(model, actions)."
+        )
+    return moments_from_terms(model, belief_terms(model, belief), stats)
+
+
+def _check_moments(moments: PredictiveMoments, belief: GaussianBelief) -> None:
+    if moments.cross_cov.shape[1] != belief.dim:
+        raise InvalidInputError(
+            f"moments: cross-covariance is for ds={moments.cross_cov.shape[1]}, "
+            f"the belief has ds={belief.dim}."
+        )
+
+
+def mutual_information(moments: PredictiveMoments, belief: GaussianBelief) -> FloatArray:
+    """U1 = ½ [log det Σ - log det(Σ - C S⁻¹ Cᵀ)] for every candidate (METHOD.md eq. (M4)).
+
+    Computed as -½ Σ_k log(1 - ρ_k²) with ρ_k the canonical correlations of the moment-matched
+    joint (eigenvalues of Σ^(-½) C S⁻¹ Cᵀ Σ^(-½)), which avoids cancellation when U1 is small.
+
+    Args:
+        moments: Predictive moments of C candidates under ``belief``.
+        belief: The belief the moments were computed under.
+
+    Returns:
+        Mutual information in nats. Shape (C,).
+    """
+    _check_moments(moments, belief)
+    sigma_factor = np.linalg.cholesky(belief.cov)
+    s_factor = np.linalg.cholesky(moments.cov)  # (C, dy, dy)
+    # B = L_Σ⁻¹ C L_S⁻ᵀ, so B Bᵀ = L_Σ⁻¹ C S⁻¹ Cᵀ L_Σ⁻ᵀ
+    left = np.linalg.solve(sigma_factor[None], moments.cross_cov)  # (C, ds, dy)
+    whitened = np.linalg.solve(s_factor, np.swapaxes(left, 1, 2))  # (C, dy, ds) = Bᵀ
+    gram = np.swapaxes(whitened, 1, 2) @ whitened  # (C, ds, ds)
+    rho_sq = np.clip(np.linalg.eigvalsh(gram), 0.0, 1.0 - 1e-15)
+    return np.asarray(-0.5 * np.sum(np.log1p(-rho_sq), axis=1), dtype=np.float64)
+
+
+def update_belief(
+    belief: GaussianBelief, moments: PredictiveMoments, index: int, observation: FloatArray
+) -> GaussianBelief:
+    """Condition the belief on the observation of candidate ``index`` (METHOD.md eq. (M5)).
+
+    μ' = μ + C S⁻¹ (y - m),  Σ' = Σ - C S⁻¹ Cᵀ; Σ' is symmetrised and its eigenvalues are kept
+    above 1e-12 times the largest.
+
+    Args:
+        belief: The belief the moments were computed under.
+        moments: Predictive moments of C candidates.
+        index: Which candidate was performed, 0 ≤ index < C.
+        observation: The observation y. Shape (dy,).
+
+    Raises:
+        InvalidInputError: Bad index, or an observation of the wrong shape or non-finite.
+    """
+    _check_moments(moments, belief)
+    n = moments.n_actions
+    if isinstance(index, bool) or not isinstance(index, int | np.integer) or not 0 <= index < n:
+        raise InvalidInputError(f"index: expected an integer in 0..{n - 1}, received {index!r}.")
+    y = as_float_array(observation, "observation", (moments.mean.shape[1],))
+    cross = moments.cross_cov[index]  # (ds, dy)
+    gain = np.linalg.solve(moments.cov[index], cross.T).T  # C S⁻¹, (ds, dy)
+    mean = belief.mean + gain @ (y - moments.mean[index])
+    cov = belief.cov - gain @ cross.T
+    cov = 0.5 * (cov + cov.T)
+    eigenvalues, vectors = np.linalg.eigh(cov)
+    floor = _EIGENVALUE_FLOOR * max(float(np.max(np.abs(eigenvalues))), 1e-300)
+    if eigenvalues.min() < floor:
+        cov = (vectors * np.maximum(eigenvalues, floor)) @ vectors.T
+        cov = 0.5 * (cov + cov.T)
+    return GaussianBelief(mean=mean, cov=cov)
