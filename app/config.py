@@ -1,0 +1,95 @@
+"""Settings of the web app, read from the environment (prefix ``ACTIVETOUCH_``) and ``.env``.
+
+Nothing here is a module-level instance: :func:`app.main.create_app` is handed a
+:class:`Settings`, so tests build their own without patching.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, SecretStr
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+#: Repository root (``app/..``): where ``migrations/`` and ``frontend/`` live.
+PROJECT_ROOT = Path(__file__).resolve().parent.parent
+
+
+class ConfigurationError(RuntimeError):
+    """The settings are unsafe or inconsistent; the server refuses to start."""
+
+
+class Settings(BaseSettings):
+    """Everything the server needs to start.
+
+    Attributes:
+        host: Address to bind. Anything but a loopback address requires ``api_token``.
+        port: TCP port.
+        database_url: SQLAlchemy URL of the SQLite database.
+        api_token: Bearer token for mutating endpoints; required off loopback.
+        hardware: ``mock`` (simulated rig) or ``serial`` (real devices on the ports below).
+        turntable_port: Serial port of the GRBL turntable controller (serial hardware).
+        finger_port: Serial port of the Dynamixel bus (serial hardware).
+        tactile_port: Serial port of the tactile sensor stream (serial hardware).
+        max_upload_bytes: Largest request body accepted (uploads included).
+        event_log_size: How many events are kept for ``Last-Event-ID`` resume.
+        max_simulated_step_interval_s: Upper bound of the pause a client may ask between the
+            steps of a simulated trial.
+        frontend_dir: Folder of the static dashboard served at ``/`` (if it exists).
+        migrations_dir: Folder of the Alembic environment.
+    """
+
+    model_config = SettingsConfigDict(
+        env_prefix="ACTIVETOUCH_", env_file=".env", env_file_encoding="utf-8", extra="ignore"
+    )
+
+    host: str = "127.0.0.1"
+    port: int = Field(default=8000, ge=0, le=65535)
+    database_url: str = "sqlite:///activetouch.db"
+    api_token: SecretStr | None = None
+    hardware: Literal["mock", "serial"] = "mock"
+    turntable_port: str | None = None
+    finger_port: str | None = None
+    tactile_port: str | None = None
+    max_upload_bytes: int = Field(default=10 * 1024 * 1024, ge=1024)
+    event_log_size: int = Field(default=10_000, ge=100)
+    max_simulated_step_interval_s: float = Field(default=10.0, ge=0.0)
+    frontend_dir: Path = PROJECT_ROOT / "frontend"
+    migrations_dir: Path = PROJECT_ROOT / "migrations"
+
+    @property
+    def token(self) -> str | None:
+        """The API token in clear, or ``None`` when none is set."""
+        if self.api_token is None:
+            return None
+        value = self.api_token.get_secret_value()
+        return value or None
+
+    def check_safe_to_serve(self) -> None:
+        """Refuse to bind a non-loopback address without an API token.
+
+        Raises:
+            ConfigurationError: ``host`` is not a loopback address and no token is set, or
+                the database URL is not SQLite.
+        """
+        if not self.database_url.startswith("sqlite"):
+            raise ConfigurationError(
+                f"database_url: only SQLite is supported, received {self.database_url!r}."
+            )
+        if not is_loopback(self.host) and self.token is None:
+            raise ConfigurationError(
+                f"Refusing to bind {self.host!r} without an API token: set "
+                "ACTIVETOUCH_API_TOKEN (or --api-token), or bind 127.0.0.1."
+            )
+
+
+def is_loopback(host: str) -> bool:
+    """Whether ``host`` is a loopback address (``localhost``, 127.0.0.0/8, ``::1``)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False

@@ -1,0 +1,361 @@
+"""Every database query of the app, in one place.
+
+Functions take a :class:`~sqlalchemy.orm.Session` and either read or add/modify rows; the caller
+owns the transaction (``commit``), except where a function says it commits.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from datetime import datetime
+from typing import Any
+
+from sqlalchemy import delete, func, select, update
+from sqlalchemy.orm import Session
+
+from app.models import (
+    Dataset,
+    EventRecord,
+    FloatArray,
+    ModelRecord,
+    ObjectRecord,
+    Run,
+    Sample,
+    Trial,
+    TrialStep,
+    utc_now,
+)
+
+ACTIVE_STATES = ("queued", "running", "paused")
+
+# --- objects ----------------------------------------------------------------------------------
+
+
+def get_or_create_objects(session: Session, names: Iterable[str]) -> dict[str, ObjectRecord]:
+    """The object rows of ``names``, creating the missing ones."""
+    wanted = list(dict.fromkeys(names))
+    found = {
+        row.name: row
+        for row in session.scalars(select(ObjectRecord).where(ObjectRecord.name.in_(wanted)))
+    }
+    for name in wanted:
+        if name not in found:
+            row = ObjectRecord(name=name, notes="", properties={})
+            session.add(row)
+            found[name] = row
+    session.flush()
+    return found
+
+
+def set_object_slot(session: Session, name: str, slot: int) -> ObjectRecord:
+    """Record the turntable slot of an object (created if new)."""
+    row = get_or_create_objects(session, [name])[name]
+    row.slot = slot
+    return row
+
+
+def get_object_by_name(session: Session, name: str) -> ObjectRecord | None:
+    """The object called ``name``, if any."""
+    return session.scalars(select(ObjectRecord).where(ObjectRecord.name == name)).first()
+
+
+# --- datasets ---------------------------------------------------------------------------------
+
+
+def create_dataset(
+    session: Session,
+    *,
+    name: str,
+    source: str,
+    status: str,
+    object_names: Sequence[str],
+    action_dim: int,
+    observation_dim: int,
+) -> Dataset:
+    """Add an empty dataset row (flushed, so it has an id)."""
+    dataset = Dataset(
+        name=name,
+        source=source,
+        status=status,
+        object_names=list(object_names),
+        action_dim=action_dim,
+        observation_dim=observation_dim,
+        n_samples=0,
+    )
+    session.add(dataset)
+    session.flush()
+    return dataset
+
+
+def add_samples(
+    session: Session,
+    dataset: Dataset,
+    samples: Iterable[tuple[str, FloatArray, FloatArray, dict[str, Any] | None]],
+) -> int:
+    """Append ``(object name, action, observation, raw)`` samples; return how many were added."""
+    rows = list(samples)
+    objects = get_or_create_objects(session, (name for name, *_ in rows))
+    start = dataset.n_samples
+    for offset, (name, action, observation, raw) in enumerate(rows):
+        session.add(
+            Sample(
+                dataset_id=dataset.id,
+                position=start + offset,
+                object_id=objects[name].id,
+                action=action,
+                observation=observation,
+                raw=raw,
+            )
+        )
+    dataset.n_samples = start + len(rows)
+    names = list(dataset.object_names)
+    new_names = [name for name in dict.fromkeys(n for n, *_ in rows) if name not in names]
+    if new_names:
+        dataset.object_names = names + new_names
+    return len(rows)
+
+
+def get_dataset(session: Session, dataset_id: int) -> Dataset | None:
+    """The dataset with this id, if any."""
+    return session.get(Dataset, dataset_id)
+
+
+def list_datasets(session: Session, limit: int, offset: int) -> tuple[list[Dataset], int]:
+    """Datasets, newest first, and the total count."""
+    rows = session.scalars(
+        select(Dataset).order_by(Dataset.id.desc()).limit(limit).offset(offset)
+    ).all()
+    count = session.scalar(select(func.count()).select_from(Dataset)) or 0
+    return list(rows), count
+
+
+def dataset_samples(session: Session, dataset_id: int) -> list[tuple[str, FloatArray, FloatArray]]:
+    """``(object name, action, observation)`` of every sample, in upload order."""
+    rows = session.execute(
+        select(ObjectRecord.name, Sample.action, Sample.observation)
+        .join(ObjectRecord, Sample.object_id == ObjectRecord.id)
+        .where(Sample.dataset_id == dataset_id)
+        .order_by(Sample.position)
+    ).all()
+    return [(str(name), action, observation) for name, action, observation in rows]
+
+
+# --- models -----------------------------------------------------------------------------------
+
+
+def create_model(session: Session, **fields: Any) -> ModelRecord:
+    """Add a model row (flushed, so it has an id)."""
+    model = ModelRecord(**fields)
+    session.add(model)
+    session.flush()
+    return model
+
+
+def get_model(session: Session, model_id: int) -> ModelRecord | None:
+    """The model with this id, if any."""
+    return session.get(ModelRecord, model_id)
+
+
+def list_models(
+    session: Session, status: str | None, limit: int, offset: int
+) -> tuple[list[ModelRecord], int]:
+    """Models, newest first (optionally of one status), and the count."""
+    query = select(ModelRecord)
+    count_query = select(func.count()).select_from(ModelRecord)
+    if status is not None:
+        query = query.where(ModelRecord.status == status)
+        count_query = count_query.where(ModelRecord.status == status)
+    rows = session.scalars(query.order_by(ModelRecord.id.desc()).limit(limit).offset(offset))
+    return list(rows.all()), session.scalar(count_query) or 0
+
+
+# --- trials -----------------------------------------------------------------------------------
+
+
+def create_trial(session: Session, **fields: Any) -> Trial:
+    """Add a trial row (flushed, so it has an id)."""
+    trial = Trial(**fields)
+    session.add(trial)
+    session.flush()
+    return trial
+
+
+def get_trial(session: Session, trial_id: int) -> Trial | None:
+    """The trial with this id, if any."""
+    return session.get(Trial, trial_id)
+
+
+def list_trials(
+    session: Session, model_id: int | None, status: str | None, limit: int, offset: int
+) -> tuple[list[Trial], int]:
+    """Trials, newest first, filtered by model and status, and the count."""
+    query = select(Trial)
+    count_query = select(func.count()).select_from(Trial)
+    if model_id is not None:
+        query = query.where(Trial.model_id == model_id)
+        count_query = count_query.where(Trial.model_id == model_id)
+    if status is not None:
+        query = query.where(Trial.status == status)
+        count_query = count_query.where(Trial.status == status)
+    rows = session.scalars(query.order_by(Trial.id.desc()).limit(limit).offset(offset)).all()
+    return list(rows), session.scalar(count_query) or 0
+
+
+def trial_steps(session: Session, trial_id: int) -> list[TrialStep]:
+    """Every step of a trial, in order."""
+    return list(
+        session.scalars(
+            select(TrialStep).where(TrialStep.trial_id == trial_id).order_by(TrialStep.step)
+        ).all()
+    )
+
+
+def add_trial_step(session: Session, trial: Trial, **fields: Any) -> TrialStep:
+    """Add step ``trial.n_steps + 1`` and bump the trial's step count."""
+    step = TrialStep(trial_id=trial.id, step=trial.n_steps + 1, **fields)
+    session.add(step)
+    trial.n_steps = step.step
+    return step
+
+
+def set_trial_status(
+    session: Session, trial: Trial, status: str, reason: str | None = None
+) -> None:
+    """Change a trial's status (timestamps follow); the caller checked the transition."""
+    trial.status = status
+    if reason is not None:
+        trial.reason = reason
+    now = utc_now()
+    if status == "running" and trial.started_at is None:
+        trial.started_at = now
+    if status not in ACTIVE_STATES:
+        trial.finished_at = now
+
+
+# --- runs -------------------------------------------------------------------------------------
+
+
+def create_run(session: Session, **fields: Any) -> Run:
+    """Add a run row (flushed, so it has an id)."""
+    run = Run(**fields)
+    session.add(run)
+    session.flush()
+    return run
+
+
+def get_run(session: Session, run_id: int, kind: str | None = None) -> Run | None:
+    """The run with this id (and kind, if given), if any."""
+    run = session.get(Run, run_id)
+    if run is None or (kind is not None and run.kind != kind):
+        return None
+    return run
+
+
+def list_runs(
+    session: Session, kind: str, status: str | None, limit: int, offset: int
+) -> tuple[list[Run], int]:
+    """Runs of a kind, newest first, and the count."""
+    query = select(Run).where(Run.kind == kind)
+    count_query = select(func.count()).select_from(Run).where(Run.kind == kind)
+    if status is not None:
+        query = query.where(Run.status == status)
+        count_query = count_query.where(Run.status == status)
+    rows = session.scalars(query.order_by(Run.id.desc()).limit(limit).offset(offset)).all()
+    return list(rows), session.scalar(count_query) or 0
+
+
+def set_run_status(session: Session, run: Run, status: str, reason: str | None = None) -> None:
+    """Change a run's status (timestamps follow); the caller checked the transition."""
+    run.status = status
+    if reason is not None:
+        run.reason = reason
+    now = utc_now()
+    if status == "running" and run.started_at is None:
+        run.started_at = now
+    if status not in ACTIVE_STATES:
+        run.finished_at = now
+
+
+# --- recovery after a restart -----------------------------------------------------------------
+
+
+def fail_interrupted(session: Session, reason: str) -> dict[str, list[int]]:
+    """Mark trials and runs left running/paused, and models left fitting, as failed.
+
+    Steps and samples already recorded are kept. Commits.
+
+    Returns:
+        The ids that were changed, per kind (``trials``, ``runs``, ``models``).
+    """
+    now = utc_now()
+    changed: dict[str, list[int]] = {}
+    for kind, table, states in (
+        ("trials", Trial, ("queued", "running", "paused")),
+        ("runs", Run, ("queued", "running", "paused")),
+    ):
+        ids = list(session.scalars(select(table.id).where(table.status.in_(states))).all())
+        if ids:
+            session.execute(
+                update(table)
+                .where(table.id.in_(ids))
+                .values(status="failed", reason=reason, finished_at=now)
+            )
+        changed[kind] = ids
+    model_ids = list(
+        session.scalars(select(ModelRecord.id).where(ModelRecord.status == "fitting")).all()
+    )
+    if model_ids:
+        session.execute(
+            update(ModelRecord)
+            .where(ModelRecord.id.in_(model_ids))
+            .values(status="failed", reason=reason, finished_at=now)
+        )
+    changed["models"] = model_ids
+    collecting = list(
+        session.scalars(select(Dataset.id).where(Dataset.status == "collecting")).all()
+    )
+    if collecting:
+        session.execute(update(Dataset).where(Dataset.id.in_(collecting)).values(status="failed"))
+    changed["datasets"] = collecting
+    session.commit()
+    return changed
+
+
+# --- events -----------------------------------------------------------------------------------
+
+
+def add_event(session: Session, type_: str, data: dict[str, Any], created_at: datetime) -> int:
+    """Store an event; return its sequence id. Commits."""
+    record = EventRecord(type=type_, data=data, created_at=created_at)
+    session.add(record)
+    session.commit()
+    return record.id
+
+
+def events_after(session: Session, after_id: int, limit: int) -> list[EventRecord]:
+    """Events with id > ``after_id``, oldest first."""
+    return list(
+        session.scalars(
+            select(EventRecord)
+            .where(EventRecord.id > after_id)
+            .order_by(EventRecord.id)
+            .limit(limit)
+        ).all()
+    )
+
+
+def last_event_id(session: Session) -> int:
+    """The id of the newest stored event (0 when there is none)."""
+    return session.scalar(select(func.max(EventRecord.id))) or 0
+
+
+def prune_events(session: Session, keep: int) -> None:
+    """Delete all but the newest ``keep`` events. Commits."""
+    newest = last_event_id(session)
+    session.execute(delete(EventRecord).where(EventRecord.id <= newest - keep))
+    session.commit()
+
+
+def ping(session: Session) -> None:
+    """A trivial query: raises if the database cannot be read."""
+    session.execute(select(1))

@@ -1,0 +1,116 @@
+"""Errors of the app and the one place that maps every package's errors to HTTP.
+
+- :class:`NotFoundError` → 404, :class:`ConflictError` → 409 (with the current state),
+  :class:`BadInputError` and :class:`core.errors.CoreError` → 422 (naming field, row, column),
+  a device unavailable → 503, a device timeout → 504.
+- Bodies are ``{"detail": message, ...}`` with extra machine-readable keys (``current_state``,
+  ``row``, ``column``, ``field``, ``held_by``).
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.responses import JSONResponse
+
+from core.errors import CoreError
+
+logger = logging.getLogger(__name__)
+
+
+class AppError(Exception):
+    """Base error of :mod:`app`: carries its HTTP status and extra fields for the body.
+
+    Args:
+        message: What was wrong, for a person.
+        **extra: Machine-readable fields added to the response body (``None`` values dropped).
+    """
+
+    status_code = 400
+
+    def __init__(self, message: str, **extra: Any) -> None:
+        super().__init__(message)
+        self.message = message
+        self.extra = {key: value for key, value in extra.items() if value is not None}
+
+
+class NotFoundError(AppError):
+    """A resource id does not exist."""
+
+    status_code = 404
+
+
+class ConflictError(AppError):
+    """The request is not allowed in the current state (give ``current_state``)."""
+
+    status_code = 409
+
+
+class BadInputError(AppError):
+    """Well-formed request with unusable content (name ``field``, ``row`` or ``column``)."""
+
+    status_code = 422
+
+
+class DeviceUnavailableError(AppError):
+    """A device is not connected, disconnected or faulted."""
+
+    status_code = 503
+
+
+class DeviceTimeoutError(AppError):
+    """A device did not answer in time."""
+
+    status_code = 504
+
+
+def _body(message: str, **extra: Any) -> dict[str, Any]:
+    return {"detail": message, **{k: v for k, v in extra.items() if v is not None}}
+
+
+def error_response(exc: Exception) -> JSONResponse:
+    """The HTTP response for an error raised by app, core or hardware code."""
+    if isinstance(exc, AppError):
+        return JSONResponse(_body(exc.message, **exc.extra), status_code=exc.status_code)
+    if isinstance(exc, CoreError):
+        row = getattr(exc, "row", None)
+        column = getattr(exc, "column", None)
+        return JSONResponse(_body(str(exc), row=row, column=column), status_code=422)
+    mapped = map_hardware_error(exc)
+    if mapped is not None:
+        return error_response(mapped)
+    logger.exception("unhandled error", exc_info=exc)
+    return JSONResponse({"detail": "Internal server error."}, status_code=500)
+
+
+def map_hardware_error(exc: Exception) -> AppError | None:
+    """Translate a :class:`hardware.errors.HardwareError` into a 503 or 504 app error."""
+    try:
+        from hardware import errors as hardware_errors
+    except ImportError:  # pragma: no cover - the hardware package always ships with the app
+        return None
+    base = getattr(hardware_errors, "HardwareError", None)
+    if base is None or not isinstance(exc, base):
+        return None
+    timeout = getattr(hardware_errors, "DeviceTimeout", None)
+    if (timeout is not None and isinstance(exc, timeout)) or isinstance(exc, TimeoutError):
+        return DeviceTimeoutError(f"Device timeout: {exc}", device_error=type(exc).__name__)
+    return DeviceUnavailableError(f"Device unavailable: {exc}", device_error=type(exc).__name__)
+
+
+async def _handle(request: Request, exc: Exception) -> JSONResponse:
+    return error_response(exc)
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    """Register the handler for app, core and hardware errors (and a logged 500 for bugs)."""
+    app.add_exception_handler(AppError, _handle)
+    app.add_exception_handler(CoreError, _handle)
+    try:
+        from hardware.errors import HardwareError
+    except ImportError:  # pragma: no cover
+        pass
+    else:
+        app.add_exception_handler(HardwareError, _handle)

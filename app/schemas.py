@@ -1,0 +1,338 @@
+"""Request and response bodies of the REST API (``/api/v1``), as families per resource.
+
+Field names follow DESIGN.md. Arrays are lists of finite floats: NaN/inf in a JSON body is a 422
+naming the field.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Annotated, Any, Generic, Literal, TypeVar
+
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, StringConstraints
+
+T = TypeVar("T")
+
+Name = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=200)]
+Vector = Annotated[list[FiniteFloat], Field(min_length=1, max_length=64)]
+Matrix = Annotated[list[Vector], Field(min_length=1, max_length=64)]
+Seed = Annotated[int, Field(ge=0, le=2**32 - 1)]
+RunStatus = Literal["queued", "running", "paused", "completed", "stopped", "aborted", "failed"]
+
+
+class Page(BaseModel, Generic[T]):
+    """A list response: ``{"data": [...], "count": n}`` (``count``: rows matching the filter)."""
+
+    data: list[T]
+    count: int
+
+
+class Health(BaseModel):
+    """``GET /health``."""
+
+    status: Literal["ok"]
+    version: str
+    database: str
+    hardware: str
+    auth_required: bool
+
+
+# --- datasets ---------------------------------------------------------------------------------
+
+
+class SampleIn(BaseModel):
+    """One touch: object name, action x (dx,), observation y (dy,)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    object: Name
+    action: Vector
+    observation: Vector
+
+
+class DatasetCreate(BaseModel):
+    """JSON upload of a dataset."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: Annotated[str, Field(max_length=200)] = ""
+    samples: Annotated[list[SampleIn], Field(min_length=1, max_length=200_000)]
+
+
+class DatasetPublic(BaseModel):
+    """A dataset's summary (``POST /datasets``, ``GET /datasets/{id}``)."""
+
+    id: int
+    name: str
+    source: str
+    status: str
+    objects: list[str]
+    n_samples: int
+    action_dim: int
+    observation_dim: int
+    created_at: datetime
+
+
+# --- models -----------------------------------------------------------------------------------
+
+
+class ModelCreate(BaseModel):
+    """``POST /models``: fit a manifold to a dataset in the background."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    dataset_id: Annotated[int, Field(ge=1)]
+    latent_dim: Annotated[int, Field(ge=1, le=8)] = 2
+    optimizer: Literal["lbfgs", "de"] = "lbfgs"
+    restarts: Annotated[int, Field(ge=0, le=50)] = 2
+    seed: Seed | None = None
+    max_iterations: Annotated[int, Field(ge=1, le=20_000)] | None = None
+
+
+class ModelAccepted(BaseModel):
+    """202 answer of ``POST /models``."""
+
+    id: int
+    status: str
+
+
+class ObjectLatent(BaseModel):
+    """An object's name and latent point s_l (ds,)."""
+
+    name: str
+    latent: list[float]
+
+
+class FeatureHyperparameters(BaseModel):
+    """GP hyperparameters of one feature (length-scales, not squared)."""
+
+    feature: int
+    signal_variance: float
+    noise_variance: float
+    latent_lengthscales: list[float]
+    action_lengthscales: list[float]
+
+
+class ModelPublic(BaseModel):
+    """``GET /models/{id}``."""
+
+    id: int
+    status: Literal["fitting", "ready", "failed"]
+    reason: str | None
+    dataset_id: int
+    latent_dim: int
+    action_dim: int
+    observation_dim: int
+    optimizer: str
+    restarts: int
+    seed: int | None
+    objects: list[ObjectLatent]
+    log_likelihood: float | None
+    hyperparameters: list[FeatureHyperparameters]
+    fit_seconds: float | None
+    diagnostics: dict[str, Any] | None
+    progress: dict[str, Any] | None
+    created_at: datetime
+    finished_at: datetime | None
+
+
+# --- trials -----------------------------------------------------------------------------------
+
+
+class ActionBounds(BaseModel):
+    """Box of allowed actions: ``lower`` (dx,) ≤ x ≤ ``upper`` (dx,)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    lower: Vector
+    upper: Vector
+
+
+class SimulationOptions(BaseModel):
+    """How a ``simulated`` trial's world is made.
+
+    ``experiment1``: the paper's Experiment 1 (objects O1..O4, dx=1, dy=3); ``experiment2``: an
+    Experiment-2-like random world drawn from ``world_seed`` (dx=6, dy=5); ``rig``: the simulated
+    rig (mock hardware).
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    world: Literal["experiment1", "experiment2", "rig"] = "experiment1"
+    noise_std: Annotated[float, Field(ge=0.0, le=10.0)] | None = None
+    world_seed: Seed = 0
+    step_interval_s: Annotated[float, Field(ge=0.0, le=60.0)] = 0.0
+
+
+class TrialCreate(BaseModel):
+    """``POST /trials``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    model_id: Annotated[int, Field(ge=1)]
+    mode: Literal["scripted", "simulated", "rig"]
+    policy: Literal["active", "passive", "fixed"] = "active"
+    max_steps: Annotated[int, Field(ge=1, le=1000)] = 20
+    tolerance: Annotated[float, Field(ge=0.0, le=1e6)] = 1e-3
+    confidence_threshold: Annotated[float, Field(gt=0.0, le=1.0)] | None = None
+    prior_mean: Vector | None = None
+    prior_cov: Matrix | None = None
+    action_bounds: ActionBounds | None = None
+    fixed_action: Vector | None = None
+    target: Name | None = None
+    target_slot: Annotated[int, Field(ge=0, le=1000)] | None = None
+    seed: Seed | None = None
+    simulation: SimulationOptions | None = None
+
+
+class Belief(BaseModel):
+    """Gaussian belief over the latent point: mean (ds,), cov (ds, ds)."""
+
+    mean: list[float]
+    cov: list[list[float]]
+
+
+class TrialResult(BaseModel):
+    """The trial's answer; ``correct`` only when the target is known."""
+
+    object: str
+    correct: bool | None = None
+
+
+class StepPublic(BaseModel):
+    """One recorded touch of a trial."""
+
+    step: int
+    action: list[float]
+    observation: list[float]
+    trajectory: dict[str, Any] | None
+    mutual_information: float | None
+    belief: Belief
+    probabilities: dict[str, float]
+    nearest_object: str
+    duration_s: float
+    created_at: datetime
+
+
+class TrialSummary(BaseModel):
+    """A trial without its steps (list view)."""
+
+    id: int
+    model_id: int
+    mode: str
+    policy: str
+    status: RunStatus
+    reason: str | None
+    max_steps: int
+    tolerance: float
+    confidence_threshold: float | None
+    prior_mean: list[float]
+    prior_cov: list[list[float]]
+    action_bounds: ActionBounds | None
+    target: str | None
+    seed: int | None
+    options: dict[str, Any]
+    n_steps: int
+    result: TrialResult | None
+    created_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+
+
+class TrialPublic(TrialSummary):
+    """``GET /trials/{id}``: the trial with all its steps."""
+
+    steps: list[StepPublic]
+
+
+class NextAction(BaseModel):
+    """``GET /trials/{id}/next-action``: advice for step ``step``."""
+
+    step: int
+    action: list[float]
+    mutual_information: float | None
+
+
+class ObservationIn(BaseModel):
+    """``POST /trials/{id}/observations``: the action actually performed and what was felt."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    action: Vector
+    observation: Vector
+    trajectory: dict[str, Any] | None = None
+
+
+class ObservationResult(BaseModel):
+    """Belief after an observation."""
+
+    step: int
+    belief: Belief
+    nearest_object: str
+    probabilities: dict[str, float]
+    done: bool
+    status: RunStatus
+    result: TrialResult | None
+
+
+# --- rig and collections ----------------------------------------------------------------------
+
+
+class TurntableRequest(BaseModel):
+    """``POST /rig/turntable``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    slot: Annotated[int, Field(ge=0, le=1000)]
+
+
+class RigPublic(BaseModel):
+    """``GET /rig``: connection, state and which run holds the rig."""
+
+    hardware: str
+    connected: bool
+    state: str
+    held_by: str | None
+    detail: dict[str, Any]
+
+
+class CollectionObject(BaseModel):
+    """An object to collect: its name and turntable slot."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: Name
+    slot: Annotated[int, Field(ge=0, le=1000)]
+
+
+class CollectionCreate(BaseModel):
+    """``POST /collections``: touch each object ``samples_per_object`` times on the rig.
+
+    ``action_design``: ``random`` draws x ~ N(0, action_scale² I) per touch (the paper's
+    design); ``teaching`` repeats the teaching action x = 0.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: Annotated[str, Field(max_length=200)] = ""
+    objects: Annotated[list[CollectionObject], Field(min_length=2, max_length=100)]
+    samples_per_object: Annotated[int, Field(ge=2, le=1000)] = 20
+    action_design: Literal["random", "teaching"] = "random"
+    action_scale: Annotated[float, Field(gt=0.0, le=100.0)] = 1.0
+    seed: Seed | None = None
+
+
+class RunPublic(BaseModel):
+    """A collection run with its progress."""
+
+    id: int
+    kind: str
+    status: RunStatus
+    reason: str | None
+    done: int
+    total: int
+    dataset_id: int | None
+    params: dict[str, Any]
+    created_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None

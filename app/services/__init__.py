@@ -1,0 +1,1 @@
+"""Services: the work behind the routes (datasets, fitting, trials, runs, rig, events)."""

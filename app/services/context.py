@@ -1,0 +1,45 @@
+"""The app context: everything one app instance owns, built at start-up and closed at shutdown."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+from app import crud
+from app.config import Settings
+from app.db import Database, upgrade_to_head
+from app.services.events import EventBus
+
+logger = logging.getLogger(__name__)
+
+INTERRUPTED = "interrupted"
+
+
+@dataclass
+class AppContext:
+    """Settings, database, event bus and the services that own background work."""
+
+    settings: Settings
+    database: Database
+    events: EventBus
+
+    def close(self) -> None:
+        """Stop background work and close the database."""
+        self.database.dispose()
+
+
+def start_context(settings: Settings) -> AppContext:
+    """Open the database, migrate it to head, fail runs a previous process left running."""
+    database = Database(settings.database_url)
+    upgrade_to_head(database.engine, settings.migrations_dir)
+    with database.session() as session:
+        changed = crud.fail_interrupted(session, INTERRUPTED)
+    events = EventBus(database, keep=settings.event_log_size)
+    for kind, ids in changed.items():
+        for item_id in ids:
+            logger.warning("%s %d was left running by a previous process: failed", kind, item_id)
+            events.publish(
+                f"{kind.rstrip('s')}.status",
+                {f"{kind.rstrip('s')}_id": item_id, "status": "failed", "reason": INTERRUPTED},
+            )
+    return AppContext(settings=settings, database=database, events=events)

@@ -1,0 +1,214 @@
+"""Datasets: upload (CSV or JSON), read, export, and load as :class:`core.types.TrainingData`."""
+
+from __future__ import annotations
+
+import csv
+import io
+
+import numpy as np
+from sqlalchemy.orm import Session
+
+from app import crud
+from app.documents import read_training_csv, write_training_csv
+from app.errors import BadInputError, ConflictError, NotFoundError
+from app.models import Dataset
+from app.schemas import DatasetCreate, DatasetPublic, Page, SampleIn
+from app.services.events import EventBus
+from core.errors import InvalidInputError
+from core.types import TrainingData
+
+
+def to_public(dataset: Dataset) -> DatasetPublic:
+    """The API view of a dataset row."""
+    return DatasetPublic(
+        id=dataset.id,
+        name=dataset.name,
+        source=dataset.source,
+        status=dataset.status,
+        objects=list(dataset.object_names),
+        n_samples=dataset.n_samples,
+        action_dim=dataset.action_dim,
+        observation_dim=dataset.observation_dim,
+        created_at=dataset.created_at,
+    )
+
+
+def store_training_data(session: Session, data: TrainingData, name: str, source: str) -> Dataset:
+    """Add a complete dataset holding ``data`` (not committed)."""
+    dataset = crud.create_dataset(
+        session,
+        name=name,
+        source=source,
+        status="ready",
+        object_names=data.object_names,
+        action_dim=data.action_dim,
+        observation_dim=data.observation_dim,
+    )
+    crud.add_samples(
+        session,
+        dataset,
+        (
+            (data.object_names[obj], action, observation, None)
+            for obj, action, observation in zip(
+                data.object_index, data.actions, data.observations, strict=True
+            )
+        ),
+    )
+    return dataset
+
+
+def _commit_and_announce(
+    session: Session, events: EventBus, data: TrainingData, name: str, source: str
+) -> DatasetPublic:
+    dataset = store_training_data(session, data, name, source)
+    session.commit()
+    public = to_public(dataset)
+    events.publish(
+        "dataset.created",
+        {"dataset_id": public.id, "n_samples": public.n_samples, "objects": public.objects},
+    )
+    return public
+
+
+def create_from_csv(session: Session, events: EventBus, text: str, name: str) -> DatasetPublic:
+    """Parse a training CSV and store it.
+
+    Raises:
+        app.documents.DocumentError: (→ 422) the message names the row and column.
+    """
+    data = read_training_csv(text)
+    return _commit_and_announce(session, events, data, name, "upload")
+
+
+def training_data_from_samples(samples: list[SampleIn]) -> TrainingData:
+    """Check a JSON upload's samples and build training data.
+
+    Raises:
+        BadInputError: Ragged action/observation lengths (naming ``samples[i].field``), fewer
+            than 2 objects or an object with fewer than 2 samples.
+    """
+    first = samples[0]
+    dx, dy = len(first.action), len(first.observation)
+    names: list[str] = []
+    index: list[int] = []
+    for i, sample in enumerate(samples):
+        for field, values, expected in (
+            ("action", sample.action, dx),
+            ("observation", sample.observation, dy),
+        ):
+            if len(values) != expected:
+                raise BadInputError(
+                    f"samples[{i}].{field}: has {len(values)} values, but samples[0].{field} "
+                    f"has {expected}; every sample needs the same length.",
+                    field=f"samples[{i}].{field}",
+                )
+        if sample.object not in names:
+            names.append(sample.object)
+        index.append(names.index(sample.object))
+    try:
+        return TrainingData(
+            object_names=tuple(names),
+            object_index=np.asarray(index, dtype=np.int64),
+            actions=np.asarray([s.action for s in samples], dtype=np.float64),
+            observations=np.asarray([s.observation for s in samples], dtype=np.float64),
+        )
+    except InvalidInputError as exc:
+        raise BadInputError(f"samples: {exc}", field="samples") from exc
+
+
+def create_from_json(session: Session, events: EventBus, body: DatasetCreate) -> DatasetPublic:
+    """Store a JSON upload."""
+    data = training_data_from_samples(body.samples)
+    return _commit_and_announce(session, events, data, body.name, "upload")
+
+
+def require(session: Session, dataset_id: int) -> Dataset:
+    """The dataset, or a 404."""
+    dataset = crud.get_dataset(session, dataset_id)
+    if dataset is None:
+        raise NotFoundError(f"Dataset {dataset_id} does not exist.", dataset_id=dataset_id)
+    return dataset
+
+
+def get(session: Session, dataset_id: int) -> DatasetPublic:
+    """One dataset's summary."""
+    return to_public(require(session, dataset_id))
+
+
+def list_page(session: Session, limit: int, offset: int) -> Page[DatasetPublic]:
+    """Datasets, newest first."""
+    rows, count = crud.list_datasets(session, limit, offset)
+    return Page[DatasetPublic](data=[to_public(r) for r in rows], count=count)
+
+
+def load_training_data(session: Session, dataset_id: int) -> TrainingData:
+    """The dataset's touches as training data.
+
+    Raises:
+        NotFoundError: No such dataset.
+        ConflictError: The dataset is still being collected (or its collection failed).
+        BadInputError: It cannot make training data (e.g. an interrupted collection).
+    """
+    dataset = require(session, dataset_id)
+    if dataset.status != "ready":
+        raise ConflictError(
+            f"Dataset {dataset_id} is {dataset.status}; only a ready dataset can be used.",
+            current_state=dataset.status,
+        )
+    return _training_data(session, dataset)
+
+
+def _training_data(session: Session, dataset: Dataset) -> TrainingData:
+    rows = crud.dataset_samples(session, dataset.id)
+    names = list(dataset.object_names)
+    position = {name: i for i, name in enumerate(names)}
+    try:
+        return TrainingData(
+            object_names=tuple(names),
+            object_index=np.asarray([position[name] for name, _, _ in rows], dtype=np.int64),
+            actions=np.asarray([a for _, a, _ in rows], dtype=np.float64).reshape(
+                len(rows), dataset.action_dim
+            ),
+            observations=np.asarray([o for _, _, o in rows], dtype=np.float64).reshape(
+                len(rows), dataset.observation_dim
+            ),
+        )
+    except InvalidInputError as exc:
+        raise BadInputError(
+            f"Dataset {dataset.id} cannot be used as training data: {exc}",
+            field="dataset_id",
+        ) from exc
+
+
+def export_csv(session: Session, dataset_id: int) -> str:
+    """The dataset as training CSV (floats written with ``repr``: exact round trip).
+
+    A ready dataset is written by :func:`app.documents.write_training_csv`; a partial one (a
+    collection in progress or interrupted) row by row in the same format.
+    """
+    dataset = require(session, dataset_id)
+    if dataset.status == "ready":
+        return write_training_csv(_training_data(session, dataset))
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(
+        ["object"]
+        + [f"x_{i + 1}" for i in range(dataset.action_dim)]
+        + [f"y_{i + 1}" for i in range(dataset.observation_dim)]
+    )
+    for name, action, observation in crud.dataset_samples(session, dataset.id):
+        writer.writerow([name, *map(repr, action.tolist()), *map(repr, observation.tolist())])
+    return out.getvalue()
+
+
+def export_json(session: Session, dataset_id: int) -> DatasetCreate:
+    """The dataset in the JSON upload format."""
+    dataset = require(session, dataset_id)
+    rows = crud.dataset_samples(session, dataset.id)
+    return DatasetCreate(
+        name=dataset.name,
+        samples=[
+            SampleIn(object=name, action=action.tolist(), observation=observation.tolist())
+            for name, action, observation in rows
+        ],
+    )
