@@ -35,6 +35,8 @@ class Settings(BaseSettings):
         tactile_port: Serial port of the tactile sensor stream (serial hardware).
         max_upload_bytes: Largest request body accepted (uploads included).
         event_log_size: How many events are kept for ``Last-Event-ID`` resume.
+        max_training_touches: Largest number of touches a fit or imported model may have (the
+            GP costs O(N³) time and O(N²) memory per feature).
         max_simulated_step_interval_s: Upper bound of the pause a client may ask between the
             steps of a simulated trial.
         frontend_dir: Folder of the static dashboard served at ``/`` (if it exists).
@@ -55,6 +57,7 @@ class Settings(BaseSettings):
     tactile_port: str | None = None
     max_upload_bytes: int = Field(default=10 * 1024 * 1024, ge=1024)
     event_log_size: int = Field(default=10_000, ge=100)
+    max_training_touches: int = Field(default=5000, ge=4)
     max_simulated_step_interval_s: float = Field(default=10.0, ge=0.0)
     frontend_dir: Path = PROJECT_ROOT / "frontend"
     migrations_dir: Path = PROJECT_ROOT / "migrations"

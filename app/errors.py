@@ -54,6 +54,12 @@ class BadInputError(AppError):
     status_code = 422
 
 
+class PayloadTooLargeError(AppError):
+    """A request body over the upload limit."""
+
+    status_code = 413
+
+
 class DeviceUnavailableError(AppError):
     """A device is not connected, disconnected or faulted."""
 

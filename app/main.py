@@ -6,12 +6,15 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
 from fastapi import APIRouter, Depends, FastAPI
+from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
+from starlette.datastructures import Headers
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from app.config import Settings
 from app.deps import require_token
-from app.errors import install_error_handlers
-from app.routes import datasets, events, health
+from app.errors import PayloadTooLargeError, install_error_handlers
+from app.routes import datasets, events, health, models
 from app.services.context import start_context
 from app.services.health import version
 
@@ -27,6 +30,50 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         yield
     finally:
         context.close()
+
+
+class BodySizeLimit:
+    """Answer a JSON 413 to a request body over the limit.
+
+    A declared Content-Length over the limit is refused before reading; a chunked body is
+    counted as it is read and cut with :class:`PayloadTooLargeError`.
+    """
+
+    def __init__(self, app: ASGIApp, max_body_size: int) -> None:
+        self.app = app
+        self.max_body_size = max_body_size
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] == "http":
+            declared = Headers(scope=scope).get("content-length", "")
+            if declared.isdigit() and int(declared) > self.max_body_size:
+                response = JSONResponse(
+                    {
+                        "detail": f"Request body of {declared} bytes is over the limit of "
+                        f"{self.max_body_size} bytes.",
+                        "limit_bytes": self.max_body_size,
+                    },
+                    status_code=413,
+                )
+                await response(scope, receive, send)
+                return
+            received = 0
+
+            async def counting_receive() -> Message:
+                nonlocal received
+                message = await receive()
+                if message["type"] == "http.request":
+                    received += len(message.get("body", b""))
+                    if received > self.max_body_size:
+                        raise PayloadTooLargeError(
+                            f"Request body is over the limit of {self.max_body_size} bytes.",
+                            limit_bytes=self.max_body_size,
+                        )
+                return message
+
+            await self.app(scope, counting_receive, send)
+            return
+        await self.app(scope, receive, send)
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -45,12 +92,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         openapi_url=f"{API_PREFIX}/openapi.json",
         docs_url=f"{API_PREFIX}/docs",
         redoc_url=None,
-        max_body_size=settings.max_upload_bytes,
     )
     app.state.settings = settings
+    app.add_middleware(BodySizeLimit, max_body_size=settings.max_upload_bytes)
     install_error_handlers(app)
     api = APIRouter(prefix=API_PREFIX, dependencies=[Depends(require_token)])
-    for module in (health, datasets, events):
+    for module in (health, datasets, models, events):
         api.include_router(module.router)
     app.include_router(api)
     if settings.frontend_dir.is_dir():

@@ -55,6 +55,23 @@ class FloatArrayType(TypeDecorator[FloatArray]):
         return np.asarray(json.loads(value), dtype=np.float64)
 
 
+class UTCDateTime(TypeDecorator[datetime]):
+    """A timezone-aware UTC datetime (SQLite stores it naive; UTC is put back on reading)."""
+
+    impl = DateTime
+    cache_ok = True
+
+    def process_bind_param(self, value: datetime | None, dialect: Dialect) -> datetime | None:
+        if value is None:
+            return None
+        if value.tzinfo is None:
+            raise ValueError("UTCDateTime: refusing a naive datetime.")
+        return value.astimezone(UTC).replace(tzinfo=None)
+
+    def process_result_value(self, value: datetime | None, dialect: Dialect) -> datetime | None:
+        return None if value is None else value.replace(tzinfo=UTC)
+
+
 class Base(DeclarativeBase):
     """Declarative base of every table."""
 
@@ -69,7 +86,7 @@ class ObjectRecord(Base):
     slot: Mapped[int | None] = mapped_column(Integer, default=None)
     notes: Mapped[str] = mapped_column(Text, default="")
     properties: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
-    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utc_now)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utc_now)
 
 
 class Dataset(Base):
@@ -88,7 +105,7 @@ class Dataset(Base):
     action_dim: Mapped[int] = mapped_column(Integer)
     observation_dim: Mapped[int] = mapped_column(Integer)
     n_samples: Mapped[int] = mapped_column(Integer, default=0)
-    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utc_now)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utc_now)
 
     samples: Mapped[list[Sample]] = relationship(
         back_populates="dataset", cascade="all, delete-orphan", order_by="Sample.position"
@@ -139,8 +156,8 @@ class ModelRecord(Base):
     fit_seconds: Mapped[float | None] = mapped_column(Float, default=None)
     diagnostics: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)
     progress: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)
-    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utc_now)
-    finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), default=None)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utc_now)
+    finished_at: Mapped[datetime | None] = mapped_column(UTCDateTime, default=None)
 
     dataset: Mapped[Dataset] = relationship()
 
@@ -169,9 +186,9 @@ class Trial(Base):
     result_object: Mapped[str | None] = mapped_column(String(200), default=None)
     result_correct: Mapped[bool | None] = mapped_column(Boolean, default=None)
     n_steps: Mapped[int] = mapped_column(Integer, default=0)
-    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utc_now)
-    started_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), default=None)
-    finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), default=None)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utc_now)
+    started_at: Mapped[datetime | None] = mapped_column(UTCDateTime, default=None)
+    finished_at: Mapped[datetime | None] = mapped_column(UTCDateTime, default=None)
 
     model: Mapped[ModelRecord] = relationship()
     steps: Mapped[list[TrialStep]] = relationship(
@@ -197,7 +214,7 @@ class TrialStep(Base):
     probabilities: Mapped[FloatArray] = mapped_column(FloatArrayType)
     nearest_object: Mapped[str] = mapped_column(String(200))
     duration_s: Mapped[float] = mapped_column(Float, default=0.0)
-    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utc_now)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utc_now)
 
     trial: Mapped[Trial] = relationship(back_populates="steps")
 
@@ -215,9 +232,9 @@ class Run(Base):
     done: Mapped[int] = mapped_column(Integer, default=0)
     total: Mapped[int] = mapped_column(Integer, default=0)
     dataset_id: Mapped[int | None] = mapped_column(ForeignKey("datasets.id"), default=None)
-    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utc_now)
-    started_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), default=None)
-    finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), default=None)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utc_now)
+    started_at: Mapped[datetime | None] = mapped_column(UTCDateTime, default=None)
+    finished_at: Mapped[datetime | None] = mapped_column(UTCDateTime, default=None)
 
 
 class EventRecord(Base):
@@ -229,4 +246,4 @@ class EventRecord(Base):
     id: Mapped[int] = mapped_column(primary_key=True)
     type: Mapped[str] = mapped_column(String(50))
     data: Mapped[dict[str, Any]] = mapped_column(JSON)
-    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utc_now)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utc_now)

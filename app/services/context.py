@@ -9,6 +9,7 @@ from app import crud
 from app.config import Settings
 from app.db import Database, upgrade_to_head
 from app.services.events import EventBus
+from app.services.models import ModelStore
 
 logger = logging.getLogger(__name__)
 
@@ -22,9 +23,11 @@ class AppContext:
     settings: Settings
     database: Database
     events: EventBus
+    models: ModelStore
 
     def close(self) -> None:
         """Stop background work and close the database."""
+        self.models.close()
         self.database.dispose()
 
 
@@ -42,4 +45,5 @@ def start_context(settings: Settings) -> AppContext:
                 f"{kind.rstrip('s')}.status",
                 {f"{kind.rstrip('s')}_id": item_id, "status": "failed", "reason": INTERRUPTED},
             )
-    return AppContext(settings=settings, database=database, events=events)
+    models = ModelStore(database, events, max_training_touches=settings.max_training_touches)
+    return AppContext(settings=settings, database=database, events=events, models=models)

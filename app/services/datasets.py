@@ -158,6 +158,11 @@ def load_training_data(session: Session, dataset_id: int) -> TrainingData:
     return _training_data(session, dataset)
 
 
+def training_data(session: Session, dataset_id: int) -> TrainingData:
+    """A dataset's touches as training data, whatever its status."""
+    return _training_data(session, require(session, dataset_id))
+
+
 def _training_data(session: Session, dataset: Dataset) -> TrainingData:
     rows = crud.dataset_samples(session, dataset.id)
     names = list(dataset.object_names)

@@ -1,0 +1,387 @@
+"""Models: fit in the background with progress events, read, export and import documents.
+
+The GP posterior is not stored; :class:`ModelStore` rebuilds a :class:`ManifoldModel` from the
+dataset, latents and hyperparameters with :func:`core.posterior.condition` (deterministic) and
+keeps recent ones in memory.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import OrderedDict
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import numpy as np
+from sqlalchemy.orm import Session
+
+from app import crud
+from app.db import Database
+from app.documents import DocumentError, model_from_document, model_to_document
+from app.errors import BadInputError, ConflictError, NotFoundError
+from app.models import ModelRecord, utc_now
+from app.schemas import (
+    FeatureHyperparameters,
+    ModelAccepted,
+    ModelCreate,
+    ModelPublic,
+    ObjectLatent,
+    Page,
+)
+from app.services import datasets
+from app.services.events import EventBus
+from core.errors import CoreError
+from core.posterior import condition
+from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
+
+logger = logging.getLogger(__name__)
+
+#: Seconds between two progress events (and progress writes) of one fit.
+PROGRESS_INTERVAL_S = 0.25
+
+
+def _diagnostics_dict(diagnostics: FitDiagnostics | None) -> dict[str, Any] | None:
+    if diagnostics is None:
+        return None
+    return {
+        "starts_log_likelihood": [float(v) for v in diagnostics.starts_log_likelihood],
+        "best_start": int(diagnostics.best_start),
+        "iterations": int(diagnostics.iterations),
+        "converged": bool(diagnostics.converged),
+        "message": str(diagnostics.message),
+        "jitter_used": float(diagnostics.jitter_used),
+        "hyperparameters_at_bounds": list(diagnostics.hyperparameters_at_bounds),
+    }
+
+
+def _diagnostics_from_dict(values: dict[str, Any] | None) -> FitDiagnostics | None:
+    if values is None:
+        return None
+    return FitDiagnostics(
+        starts_log_likelihood=tuple(values["starts_log_likelihood"]),
+        best_start=values["best_start"],
+        iterations=values["iterations"],
+        converged=values["converged"],
+        message=values["message"],
+        jitter_used=values["jitter_used"],
+        hyperparameters_at_bounds=tuple(values["hyperparameters_at_bounds"]),
+    )
+
+
+def store_fitted(row: ModelRecord, model: ManifoldModel, fit_seconds: float | None) -> None:
+    """Copy a fitted model's latents, hyperparameters and diagnostics into its row; mark ready."""
+    h = model.hyperparameters
+    row.latents = model.latents
+    row.signal_variance = h.signal_variance
+    row.noise_variance = h.noise_variance
+    row.latent_lengthscales = h.latent_lengthscales
+    row.action_lengthscales = h.action_lengthscales
+    row.log_likelihood = float(model.log_likelihood)
+    row.diagnostics = _diagnostics_dict(model.diagnostics)
+    row.fit_seconds = fit_seconds
+    row.status = "ready"
+    row.finished_at = utc_now()
+
+
+def to_public(row: ModelRecord) -> ModelPublic:
+    """The API view of a model row."""
+    objects: list[ObjectLatent] = []
+    hyper: list[FeatureHyperparameters] = []
+    if row.latents is not None:
+        objects = [
+            ObjectLatent(name=name, latent=latent.tolist())
+            for name, latent in zip(row.dataset.object_names, row.latents, strict=True)
+        ]
+    if (
+        row.signal_variance is not None
+        and row.noise_variance is not None
+        and row.latent_lengthscales is not None
+        and row.action_lengthscales is not None
+    ):
+        hyper = [
+            FeatureHyperparameters(
+                feature=a,
+                signal_variance=float(row.signal_variance[a]),
+                noise_variance=float(row.noise_variance[a]),
+                latent_lengthscales=row.latent_lengthscales[a].tolist(),
+                action_lengthscales=row.action_lengthscales[a].tolist(),
+            )
+            for a in range(row.signal_variance.shape[0])
+        ]
+    status = row.status if row.status in ("fitting", "ready", "failed") else "failed"
+    return ModelPublic(
+        id=row.id,
+        status=status,
+        reason=row.reason,
+        dataset_id=row.dataset_id,
+        latent_dim=row.latent_dim,
+        action_dim=row.dataset.action_dim,
+        observation_dim=row.dataset.observation_dim,
+        optimizer=row.optimizer,
+        restarts=row.restarts,
+        seed=row.seed,
+        objects=objects,
+        log_likelihood=row.log_likelihood,
+        hyperparameters=hyper,
+        fit_seconds=row.fit_seconds,
+        diagnostics=row.diagnostics,
+        progress=row.progress,
+        created_at=row.created_at,
+        finished_at=row.finished_at,
+    )
+
+
+def require(session: Session, model_id: int) -> ModelRecord:
+    """The model row, or a 404."""
+    row = crud.get_model(session, model_id)
+    if row is None:
+        raise NotFoundError(f"Model {model_id} does not exist.", model_id=model_id)
+    return row
+
+
+def get(session: Session, model_id: int) -> ModelPublic:
+    """One model."""
+    return to_public(require(session, model_id))
+
+
+def list_page(session: Session, status: str | None, limit: int, offset: int) -> Page[ModelPublic]:
+    """Models, newest first."""
+    rows, count = crud.list_models(session, status, limit, offset)
+    return Page[ModelPublic](data=[to_public(r) for r in rows], count=count)
+
+
+class ModelStore:
+    """Fits models in a background thread and rebuilds fitted ones for use (cached).
+
+    Args:
+        database: Where models live.
+        events: Where progress is announced.
+        max_training_touches: Largest N accepted for a fit or an imported document.
+        cache_size: How many rebuilt models are kept in memory.
+    """
+
+    def __init__(
+        self,
+        database: Database,
+        events: EventBus,
+        max_training_touches: int = 5000,
+        cache_size: int = 8,
+    ) -> None:
+        self._database = database
+        self._events = events
+        self._max_touches = max_training_touches
+        self._cache: OrderedDict[int, ManifoldModel] = OrderedDict()
+        self._cache_size = cache_size
+        self._lock = threading.Lock()
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fit")
+        self._closing = threading.Event()
+
+    # --- fitting ------------------------------------------------------------------------------
+
+    def submit(self, session: Session, body: ModelCreate) -> ModelAccepted:
+        """Check the request, add a ``fitting`` model and queue the fit."""
+        data = datasets.load_training_data(session, body.dataset_id)
+        self._check_size(data.n_touches, "dataset_id")
+        row = crud.create_model(
+            session,
+            dataset_id=body.dataset_id,
+            status="fitting",
+            latent_dim=body.latent_dim,
+            optimizer=body.optimizer,
+            restarts=body.restarts,
+            seed=body.seed,
+        )
+        session.commit()
+        self._events.publish(
+            "model.status", {"model_id": row.id, "status": "fitting", "dataset_id": row.dataset_id}
+        )
+        self._executor.submit(self._fit, row.id, data, body)
+        return ModelAccepted(id=row.id, status="fitting")
+
+    def _check_size(self, n_touches: int, field: str) -> None:
+        if n_touches > self._max_touches:
+            raise BadInputError(
+                f"{field}: {n_touches} touches is more than this server fits "
+                f"({self._max_touches}); subsample the data.",
+                field=field,
+            )
+
+    def _fit(self, model_id: int, data: TrainingData, body: ModelCreate) -> None:
+        try:
+            self._run_fit(model_id, data, body)
+        except Exception as exc:  # a bug must still leave the model failed, not "fitting"
+            logger.exception("fit of model %d failed", model_id)
+            self._finish_failed(model_id, f"internal error: {type(exc).__name__}: {exc}")
+
+    def _run_fit(self, model_id: int, data: TrainingData, body: ModelCreate) -> None:
+        from core.manifold import FitOptions, iter_fit
+
+        options_kwargs: dict[str, Any] = {"optimizer": body.optimizer, "restarts": body.restarts}
+        if body.max_iterations is not None:
+            options_kwargs["max_iterations"] = body.max_iterations
+        rng = np.random.default_rng(body.seed)
+        started = time.perf_counter()
+        last_report = 0.0
+        fitted: ManifoldModel | None = None
+        try:
+            for progress in iter_fit(data, body.latent_dim, rng, FitOptions(**options_kwargs)):
+                if self._closing.is_set():
+                    self._finish_failed(model_id, "server shut down during the fit")
+                    return
+                if progress.model is not None:
+                    fitted = progress.model
+                now = time.perf_counter()
+                if now - last_report >= PROGRESS_INTERVAL_S or progress.model is not None:
+                    last_report = now
+                    self._report(model_id, progress, now - started)
+        except (CoreError, ValueError, ArithmeticError) as exc:
+            self._finish_failed(model_id, f"{type(exc).__name__}: {exc}")
+            return
+        if fitted is None:
+            self._finish_failed(model_id, "the fit ended without a model")
+            return
+        fit_seconds = time.perf_counter() - started
+        with self._database.session() as session:
+            row = require(session, model_id)
+            store_fitted(row, fitted, fit_seconds)
+            session.commit()
+        with self._lock:
+            self._remember(model_id, fitted)
+        self._events.publish(
+            "model.status",
+            {
+                "model_id": model_id,
+                "status": "ready",
+                "log_likelihood": float(fitted.log_likelihood),
+                "fit_seconds": fit_seconds,
+            },
+        )
+
+    def _report(self, model_id: int, progress: Any, elapsed_s: float) -> None:
+        values = {
+            "start": int(progress.start),
+            "n_starts": int(progress.n_starts),
+            "iteration": int(progress.iteration),
+            "log_likelihood": _finite_or_none(progress.log_likelihood),
+            "best_log_likelihood": _finite_or_none(progress.best_log_likelihood),
+            "elapsed_s": elapsed_s,
+        }
+        with self._database.session() as session:
+            row = require(session, model_id)
+            row.progress = values
+            session.commit()
+        self._events.publish("model.progress", {"model_id": model_id, **values})
+
+    def _finish_failed(self, model_id: int, reason: str) -> None:
+        with self._database.session() as session:
+            row = require(session, model_id)
+            row.status = "failed"
+            row.reason = reason
+            row.finished_at = utc_now()
+            session.commit()
+        self._events.publish(
+            "model.status", {"model_id": model_id, "status": "failed", "reason": reason}
+        )
+
+    def close(self) -> None:
+        """Stop running fits (they end ``failed``) and wait for the worker."""
+        self._closing.set()
+        self._executor.shutdown(wait=True, cancel_futures=True)
+
+    # --- use ----------------------------------------------------------------------------------
+
+    def _remember(self, model_id: int, model: ManifoldModel) -> None:
+        self._cache[model_id] = model
+        self._cache.move_to_end(model_id)
+        while len(self._cache) > self._cache_size:
+            self._cache.popitem(last=False)
+
+    def load(self, session: Session, model_id: int) -> ManifoldModel:
+        """The fitted model, ready to predict and plan.
+
+        Raises:
+            NotFoundError: No such model.
+            ConflictError: The model is still fitting or failed.
+        """
+        with self._lock:
+            cached = self._cache.get(model_id)
+        if cached is not None:
+            return cached
+        row = require(session, model_id)
+        if row.status != "ready":
+            raise ConflictError(
+                f"Model {model_id} is {row.status}; only a ready model can be used.",
+                current_state=row.status,
+            )
+        data = datasets.training_data(session, row.dataset_id)
+        assert row.latents is not None
+        assert row.signal_variance is not None
+        assert row.noise_variance is not None
+        assert row.latent_lengthscales is not None
+        assert row.action_lengthscales is not None
+        hyper = Hyperparameters(
+            signal_variance=row.signal_variance,
+            noise_variance=row.noise_variance,
+            latent_lengthscales=row.latent_lengthscales,
+            action_lengthscales=row.action_lengthscales,
+        )
+        model = condition(data, row.latents, hyper, _diagnostics_from_dict(row.diagnostics))
+        with self._lock:
+            self._remember(model_id, model)
+        return model
+
+    def export_document(self, session: Session, model_id: int) -> dict[str, Any]:
+        """The model document (``activetouch-model/1``) of a ready model."""
+        model = self.load(session, model_id)
+        return model_to_document(model, fit_seconds=require(session, model_id).fit_seconds)
+
+    def import_document(self, session: Session, document: dict[str, Any]) -> ModelPublic:
+        """Store a model document as a new dataset (source ``import``) and a ready model.
+
+        Raises:
+            BadInputError: The document is malformed (the message names the field).
+        """
+        training = document.get("training_data")
+        if isinstance(training, dict) and isinstance(training.get("actions"), list):
+            self._check_size(len(training["actions"]), "training_data.actions")
+        try:
+            model = model_from_document(document)
+        except DocumentError:
+            raise
+        except (TypeError, ValueError, KeyError, AttributeError, OverflowError) as exc:
+            raise BadInputError(f"model document: malformed ({exc})", field="document") from exc
+        fit_seconds = document.get("fit_seconds")
+        dataset = datasets.store_training_data(
+            session,
+            model.data,
+            name=str(document.get("name", "imported model"))[:200],
+            source="import",
+        )
+        row = crud.create_model(
+            session,
+            dataset_id=dataset.id,
+            status="fitting",
+            latent_dim=model.latent_dim,
+            optimizer="import",
+            restarts=0,
+            seed=None,
+        )
+        store_fitted(
+            row, model, float(fit_seconds) if isinstance(fit_seconds, int | float) else None
+        )
+        session.commit()
+        with self._lock:
+            self._remember(row.id, model)
+        self._events.publish("model.status", {"model_id": row.id, "status": "ready"})
+        session.refresh(row)
+        return to_public(row)
+
+
+def _finite_or_none(value: Any) -> float | None:
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return None
+    return number if np.isfinite(number) else None
