@@ -11,3 +11,4 @@ if [ ! -x .tools/bin/uv ] || [ "$(.tools/bin/uv --version | cut -d' ' -f2)" != "
   .tools/bin/pip install --quiet "uv==$UV_VERSION"
 fi
 .tools/bin/uv sync --frozen --all-extras --python "$PYTHON" --quiet
+scripts/install_frontend.sh
