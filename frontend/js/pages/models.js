@@ -1,0 +1,174 @@
+// Models: fit a manifold (latent dim, optimizer, restarts), its progress, the manifold plot with
+// object labels, the hyperparameters, export and import of the model document.
+
+import { api } from "../api.js";
+import { manifoldChart } from "../charts.js";
+import { formatDuration } from "../lib/analysis.js";
+import * as store from "../store.js";
+import { $, badge, el, fill, guarded, num, setOptions, throttle, timeOf, toast } from "../ui.js";
+
+let selected = null;
+
+function progressText(model) {
+  const p = model.progress || {};
+  const parts = [];
+  if (p.start !== undefined && p.n_starts) parts.push(`start ${Math.min(p.start + 1, p.n_starts)} of ${p.n_starts}`);
+  if (p.iteration !== undefined) parts.push(`iteration ${p.iteration}`);
+  if (p.best_log_likelihood !== undefined && p.best_log_likelihood !== null) parts.push(`best log-lik ${num(p.best_log_likelihood, 6)}`);
+  return parts.join(" · ") || "starting…";
+}
+
+function progressFraction(model) {
+  const p = model.progress || {};
+  if (!p.n_starts) return 0;
+  return Math.min(1, (p.start ?? 0) / p.n_starts);
+}
+
+async function refreshList() {
+  const [models, datasets] = await Promise.all([store.models(true), store.datasets()]);
+  setOptions(
+    $("fit-dataset"),
+    datasets.map((d) => ({ value: d.id, label: `#${d.id} ${d.name || d.source} — ${d.objects.length} objects, ${d.n_samples} touches` })),
+  );
+  fill(
+    $("models-body"),
+    models.map((m) =>
+      el(
+        "tr",
+        {
+          "data-testid": "model-row",
+          class: selected === m.id ? "selected" : "",
+          tabindex: 0,
+          onclick: () => select(m.id),
+          onkeydown: (e) => e.key === "Enter" && select(m.id),
+        },
+        el("td", {}, m.id),
+        el("td", {}, `#${m.dataset_id}`),
+        el("td", {}, m.latent_dim),
+        el("td", {}, badge(m.status)),
+        el("td", {}, num(m.log_likelihood, 6)),
+        el("td", {}, m.fit_seconds !== null && m.fit_seconds !== undefined ? formatDuration(m.fit_seconds) : "—"),
+      ),
+    ),
+  );
+  const fitting = models.filter((m) => m.status === "fitting");
+  fill(
+    $("fit-progress"),
+    fitting.map((m) =>
+      el(
+        "div",
+        { "data-testid": "fit-running" },
+        el("p", { class: "small" }, `Model #${m.id} fitting: ${progressText(m)}`),
+        el("div", { class: "progress" }, el("div", { class: "progress-bar", style: `width:${100 * progressFraction(m)}%` })),
+      ),
+    ),
+  );
+  if (selected === null && models.length) {
+    const ready = models.find((m) => m.status === "ready");
+    if (ready) await select(ready.id);
+  }
+}
+
+export async function select(id) {
+  selected = id;
+  for (const row of $("models-body").querySelectorAll("tr")) {
+    row.classList.toggle("selected", row.firstChild.textContent === String(id));
+  }
+  const model = await api(`/models/${id}`);
+  $("model-detail").hidden = false;
+  $("model-detail-title").textContent = `Model #${model.id} — ds = ${model.latent_dim}, dataset #${model.dataset_id}`;
+  $("model-export").href = `api/v1/models/${model.id}/export`;
+  $("model-export").setAttribute("download", `model-${model.id}.json`);
+  if (model.status === "ready" && model.objects.length) manifoldChart("chart-manifold", model.objects);
+  const ds = model.latent_dim;
+  const dx = model.action_dim;
+  fill(
+    $("hyper-head"),
+    el(
+      "tr",
+      {},
+      el("th", {}, "feature"),
+      el("th", {}, "σ²_f"),
+      el("th", {}, "σ²_n"),
+      el("th", {}, `latent ℓ (${ds})`),
+      el("th", {}, `action ℓ (${dx})`),
+    ),
+  );
+  fill(
+    $("hyper-body"),
+    (model.hyperparameters || []).map((h) =>
+      el(
+        "tr",
+        {},
+        el("td", {}, `y_${h.feature + 1}`),
+        el("td", {}, num(h.signal_variance)),
+        el("td", {}, num(h.noise_variance)),
+        el("td", {}, h.latent_lengthscales.map((v) => num(v, 3)).join(", ")),
+        el("td", {}, h.action_lengthscales.map((v) => num(v, 3)).join(", ")),
+      ),
+    ),
+  );
+  const diag = model.diagnostics || {};
+  fill(
+    $("model-facts"),
+    [
+      ["status", model.status + (model.reason ? ` — ${model.reason}` : "")],
+      ["objects", model.objects.map((o) => o.name).join(", ")],
+      ["optimizer", `${model.optimizer}, ${model.restarts} restarts, seed ${model.seed ?? "—"}`],
+      ["log-likelihood", num(model.log_likelihood, 8)],
+      ["fit time", formatDuration(model.fit_seconds)],
+      ["converged", diag.converged === undefined ? "—" : String(diag.converged)],
+      ["at bounds", (diag.hyperparameters_at_bounds || []).join(", ") || "none"],
+      ["finished", timeOf(model.finished_at)],
+    ].flatMap(([k, v]) => [el("dt", {}, k), el("dd", {}, v)]),
+  );
+}
+
+async function fit() {
+  const body = {
+    dataset_id: Number($("fit-dataset").value),
+    latent_dim: Number($("fit-dim").value),
+    optimizer: $("fit-optimizer").value,
+    restarts: Number($("fit-restarts").value),
+  };
+  if ($("fit-seed").value !== "") body.seed = Number($("fit-seed").value);
+  const created = await api("/models", { method: "POST", body });
+  toast(`Model #${created.id} is fitting in the background.`, "ok");
+  selected = created.id;
+  await refreshList();
+}
+
+async function importModel() {
+  const file = $("import-file").files[0];
+  if (!file) throw new Error("Choose a model JSON document first.");
+  const text = await file.text();
+  const created = await api("/models/import", { method: "POST", body: text, headers: { "Content-Type": "application/json" } });
+  toast(`Model imported as #${created.id}.`, "ok");
+  await refreshList();
+  await select(created.id);
+}
+
+const refreshSoon = throttle(async () => {
+  await refreshList();
+  if (selected !== null) await select(selected);
+}, 500);
+
+export function init() {
+  $("fit-form").addEventListener("submit", (e) => {
+    e.preventDefault();
+    guarded(fit, e.submitter);
+  });
+  $("import-form").addEventListener("submit", (e) => {
+    e.preventDefault();
+    guarded(importModel, e.submitter);
+  });
+}
+
+export async function show() {
+  await refreshList();
+  if (selected !== null) await select(selected);
+}
+
+export function onEvent(event, kind) {
+  if ((kind === "model" || kind === "dataset" || kind === "collection") && !$("page-models").hidden) refreshSoon();
+}

@@ -1,0 +1,275 @@
+// Trials: start one (model, target, policy, T, prior); follow it live: the belief on the manifold
+// (mean path and ellipse), mutual information per touch, the posterior over objects, the joint
+// trajectories, the steps; pause/resume/stop; the result. The 3D view (viser) is embedded.
+
+import { api, apiList, apiOptional } from "../api.js";
+import { lineChart, manifoldChart, posteriorChart } from "../charts.js";
+import { formatDuration, isotropicCov, normalizeTrajectory, rankedProbabilities } from "../lib/analysis.js";
+import * as store from "../store.js";
+import { $, badge, el, fill, guarded, num, setOptions, throttle, toast, vec } from "../ui.js";
+
+const ACTIVE = ["queued", "running", "paused"];
+let trial = null; // GET /trials/{id}
+let trialModel = null; // GET /models/{id} of that trial
+let plannedTrajectory = null; // from a plan event, if the server sends one
+let pollTimer = null;
+let viserLoaded = false;
+
+function worldFor(model) {
+  if (model.action_dim === 1 && model.observation_dim === 3) return "experiment1";
+  return "rig";
+}
+
+async function refreshForm() {
+  const models = (await store.models()).filter((m) => m.status === "ready");
+  const select = $("trial-model");
+  setOptions(
+    select,
+    models
+      .sort((a, b) => b.id - a.id)
+      .map((m) => ({ value: m.id, label: `#${m.id} — ${m.objects.length} objects, ds = ${m.latent_dim}` })),
+  );
+  $("page-trials").querySelector("[data-testid=start-trial]").disabled = !models.length;
+  if (!models.length) {
+    fill($("trial-target"), el("option", { value: "" }, "no ready model yet"));
+    return;
+  }
+  await modelChosen();
+}
+
+async function modelChosen() {
+  const id = $("trial-model").value;
+  if (!id) return;
+  const model = await store.model(id);
+  const target = $("trial-target");
+  const keep = target.value;
+  setOptions(target, model.objects.map((o) => ({ value: o.name, label: o.name })), { placeholder: "unknown (no target)" });
+  if (keep && model.objects.some((o) => o.name === keep)) target.value = keep;
+  else if (model.objects.length) target.value = model.objects[Math.floor(Math.random() * model.objects.length)].name;
+  $("trial-world").value = worldFor(model);
+  if (!trial) drawManifold(model, null);
+}
+
+function modeChanged() {
+  const simulated = $("trial-mode").value === "simulated";
+  $("trial-world").disabled = !simulated;
+  $("trial-interval").disabled = !simulated;
+}
+
+async function startTrial() {
+  const modelId = Number($("trial-model").value);
+  const model = await store.model(modelId);
+  const body = {
+    model_id: modelId,
+    mode: $("trial-mode").value,
+    policy: $("trial-policy").value,
+    max_steps: Number($("trial-steps").value),
+    tolerance: Number($("trial-tolerance").value),
+    prior_cov: isotropicCov(model.latent_dim, Number($("trial-prior").value)),
+  };
+  if ($("trial-target").value) body.target = $("trial-target").value;
+  if ($("trial-seed").value !== "") body.seed = Number($("trial-seed").value);
+  if (body.mode === "simulated") {
+    body.simulation = { world: $("trial-world").value, step_interval_s: Number($("trial-interval").value || 0) };
+  }
+  const created = await api("/trials", { method: "POST", body });
+  plannedTrajectory = null;
+  toast(`Trial #${created.id} started.`, "ok");
+  await load(created.id);
+}
+
+export async function load(id) {
+  const record = await api(`/trials/${id}`);
+  if (!trial || trial.id !== record.id) plannedTrajectory = null;
+  trial = record;
+  if (!trialModel || trialModel.id !== trial.model_id) trialModel = await store.model(trial.model_id);
+  render();
+  schedulePoll();
+}
+
+function schedulePoll() {
+  clearTimeout(pollTimer);
+  if (trial && ACTIVE.includes(trial.status)) {
+    // A fallback beside the event stream: refetch while the trial runs.
+    pollTimer = setTimeout(() => load(trial.id).catch(() => schedulePoll()), 1500);
+  }
+}
+
+function beliefPath() {
+  const path = [];
+  if (trial.prior_mean) path.push(trial.prior_mean);
+  for (const step of trial.steps) path.push(step.belief.mean);
+  return path;
+}
+
+function drawManifold(model, currentTrial) {
+  if (!model || model.status !== "ready") return;
+  if (!currentTrial) {
+    manifoldChart("chart-belief", model.objects);
+    return;
+  }
+  const last = currentTrial.steps[currentTrial.steps.length - 1];
+  const belief = last ? last.belief : { mean: currentTrial.prior_mean, cov: currentTrial.prior_cov };
+  manifoldChart("chart-belief", model.objects, {
+    belief,
+    path: beliefPath(),
+    nearest: last ? last.nearest_object : null,
+  });
+}
+
+function fact(label, value, testid) {
+  return el("div", { class: "fact" }, el("div", { class: "label" }, label), el("div", { class: "value", "data-testid": testid }, value));
+}
+
+function render() {
+  const steps = trial.steps || [];
+  const last = steps[steps.length - 1] || null;
+  const names = trialModel.objects.map((o) => o.name);
+  $("trial-title").textContent = `Trial #${trial.id} — ${trial.policy}, ${trial.mode}${trial.target ? `, target ${trial.target}` : ""}`;
+  $("trial-status").textContent = trial.status;
+  $("trial-status").className = `badge ${trial.status}`;
+
+  const started = trial.started_at ? new Date(trial.started_at).getTime() : null;
+  const ended = trial.finished_at ? new Date(trial.finished_at).getTime() : Date.now();
+  const ranked = last ? rankedProbabilities(last.probabilities) : [];
+  fill(
+    $("trial-facts"),
+    fact("touches", `${steps.length} / ${trial.max_steps}`, "trial-touches"),
+    fact("nearest object", last ? last.nearest_object : "—", "trial-nearest"),
+    fact("p(nearest)", ranked.length ? num(ranked[0].p, 3) : "—"),
+    fact("last MI (nats)", last ? num(last.mutual_information, 3) : "—"),
+    fact("elapsed", started ? formatDuration((ended - started) / 1000) : "—"),
+  );
+
+  const result = $("trial-result");
+  if (!ACTIVE.includes(trial.status)) {
+    result.hidden = false;
+    if (trial.result && trial.result.object) {
+      const correct = trial.result.correct;
+      result.className = `result ${correct === true ? "correct" : correct === false ? "wrong" : "unknown"}`;
+      fill(
+        result,
+        "Recognised: ",
+        el("strong", { "data-testid": "trial-result-object" }, trial.result.object),
+        correct === true ? " ✓ correct" : correct === false ? ` ✗ wrong (target ${trial.target})` : "",
+        el("div", { class: "small muted" }, `after ${steps.length} touch${steps.length === 1 ? "" : "es"} · ${trial.status}${trial.reason ? ` — ${trial.reason}` : ""}`),
+      );
+    } else {
+      result.className = "result wrong";
+      fill(result, `Trial ${trial.status}`, trial.reason ? `: ${trial.reason}` : "", " — no answer.");
+    }
+  } else {
+    result.hidden = true;
+  }
+
+  for (const button of document.querySelectorAll("[data-trial-action]")) {
+    const action = button.dataset.trialAction;
+    button.disabled =
+      !ACTIVE.includes(trial.status) ||
+      (action === "pause" && trial.status !== "running") ||
+      (action === "resume" && trial.status !== "paused");
+  }
+
+  drawManifold(trialModel, trial);
+  posteriorChart("chart-posterior", names, last ? last.probabilities : {}, last ? last.nearest_object : null);
+  lineChart(
+    "chart-mi",
+    [{ label: "I(s; y | x) of the chosen action", x: steps.map((s) => s.step), y: steps.map((s) => s.mutual_information ?? null) }],
+    { xTitle: "touch", yTitle: "mutual information (nats)", yMin: 0 },
+  );
+
+  const trajectory = normalizeTrajectory(plannedTrajectory) || normalizeTrajectory(last && last.trajectory);
+  if (trajectory) {
+    lineChart(
+      "chart-plan",
+      trajectory.joints.map((j) => ({ label: `${j.name} (deg)`, x: trajectory.times, y: j.angles })),
+      { xTitle: "time (s)", yTitle: "joint angle (deg)" },
+    );
+    $("plan-note").textContent = plannedTrajectory ? "Next planned touch." : `Touch ${last.step}: the DMP trajectory sent to the finger.`;
+  } else {
+    $("plan-note").textContent = last ? `Action x of touch ${last.step}: ${vec(last.action)} (this world has no joint trajectories).` : "";
+  }
+
+  fill(
+    $("steps-body"),
+    [...steps].reverse().map((s) =>
+      el(
+        "tr",
+        { "data-testid": "step-row" },
+        el("td", {}, s.step),
+        el("td", {}, vec(s.action)),
+        el("td", {}, vec(s.observation)),
+        el("td", {}, num(s.mutual_information, 3)),
+        el("td", {}, vec(s.belief.mean)),
+        el("td", {}, s.nearest_object),
+        el("td", {}, num((s.probabilities || {})[s.nearest_object], 3)),
+        el("td", {}, formatDuration(s.duration_s)),
+      ),
+    ),
+  );
+}
+
+async function loadViser() {
+  if (viserLoaded) return;
+  viserLoaded = true;
+  let info = null;
+  try {
+    info = await apiOptional("/viz");
+  } catch {
+    info = null;
+  }
+  const params = new URLSearchParams(location.search);
+  let url = params.get("viser");
+  if (!url && info && info.port) url = `${location.protocol}//${location.hostname}:${info.port}/`;
+  if (!url) return;
+  const frame = el("iframe", { src: url, title: "3D view of the manifold, belief and finger (viser)", "data-testid": "viser-frame", loading: "lazy" });
+  fill($("viser-box"), frame);
+  $("viser-open").href = url;
+  $("viser-open").hidden = false;
+}
+
+const reloadSoon = throttle(async () => {
+  if (trial) await load(trial.id);
+}, 250);
+
+export function init() {
+  $("trial-form").addEventListener("submit", (e) => {
+    e.preventDefault();
+    guarded(startTrial, e.submitter);
+  });
+  $("trial-model").addEventListener("change", () => guarded(modelChosen));
+  $("trial-mode").addEventListener("change", modeChanged);
+  for (const button of document.querySelectorAll("[data-trial-action]")) {
+    button.addEventListener("click", () =>
+      guarded(async () => {
+        if (!trial) return;
+        await api(`/trials/${trial.id}/${button.dataset.trialAction}`, { method: "POST" });
+        await load(trial.id);
+      }, button),
+    );
+  }
+  for (const button of document.querySelectorAll("[data-trial-action]")) button.disabled = true;
+  fill($("trial-facts"), el("p", { class: "muted" }, "Choose a model and a target, then start a trial: its touches, belief and answer appear here live."));
+  modeChanged();
+}
+
+export async function show() {
+  await refreshForm();
+  loadViser();
+  if (trial) await load(trial.id);
+  else {
+    const recent = await apiList("/trials?status=running", { max: 1, pageSize: 1 }).catch(() => []);
+    if (recent.length) await load(recent[0].id);
+  }
+}
+
+export function onEvent(event, kind) {
+  if (kind === "model" && !$("page-trials").hidden) refreshForm();
+  if (kind !== "trial") return;
+  const data = event.data || {};
+  const id = data.trial_id ?? data.id;
+  if (trial && id === trial.id) {
+    if (data.trajectory && /plan/.test(event.type)) plannedTrajectory = data.trajectory;
+    reloadSoon();
+  }
+}
