@@ -3,6 +3,7 @@
 - :class:`NotFoundError` → 404, :class:`ConflictError` → 409 (with the current state),
   :class:`BadInputError` and :class:`core.errors.CoreError` → 422 (naming field, row, column),
   a device unavailable → 503, a device timeout → 504.
+- Hardware: a busy rig → 409, a refused command or unsafe trajectory → 422.
 - Bodies are ``{"detail": message, ...}`` with extra machine-readable keys (``current_state``,
   ``row``, ``column``, ``field``, ``held_by``).
 """
@@ -16,6 +17,8 @@ from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 
 from core.errors import CoreError
+from core.recognition import RecognitionFinishedError
+from hardware import errors as hw
 
 logger = logging.getLogger(__name__)
 
@@ -80,6 +83,8 @@ def error_response(exc: Exception) -> JSONResponse:
     """The HTTP response for an error raised by app, core or hardware code."""
     if isinstance(exc, AppError):
         return JSONResponse(_body(exc.message, **exc.extra), status_code=exc.status_code)
+    if isinstance(exc, RecognitionFinishedError):
+        return JSONResponse(_body(str(exc), current_state="completed"), status_code=409)
     if isinstance(exc, CoreError):
         row = getattr(exc, "row", None)
         column = getattr(exc, "column", None)
@@ -92,18 +97,19 @@ def error_response(exc: Exception) -> JSONResponse:
 
 
 def map_hardware_error(exc: Exception) -> AppError | None:
-    """Translate a :class:`hardware.errors.HardwareError` into a 503 or 504 app error."""
-    try:
-        from hardware import errors as hardware_errors
-    except ImportError:  # pragma: no cover - the hardware package always ships with the app
+    """Translate a :class:`hardware.errors.HardwareError` into an app error (409/422/503/504)."""
+    if not isinstance(exc, hw.HardwareError):
         return None
-    base = getattr(hardware_errors, "HardwareError", None)
-    if base is None or not isinstance(exc, base):
-        return None
-    timeout = getattr(hardware_errors, "DeviceTimeout", None)
-    if (timeout is not None and isinstance(exc, timeout)) or isinstance(exc, TimeoutError):
-        return DeviceTimeoutError(f"Device timeout: {exc}", device_error=type(exc).__name__)
-    return DeviceUnavailableError(f"Device unavailable: {exc}", device_error=type(exc).__name__)
+    name = type(exc).__name__
+    if isinstance(exc, hw.DeviceTimeout):
+        return DeviceTimeoutError(f"Device timeout: {exc}", device_error=name)
+    if isinstance(exc, hw.RigBusy):
+        return ConflictError(str(exc), held_by=exc.owner, device_error=name)
+    if isinstance(exc, hw.LeaseError):
+        return ConflictError(str(exc), device_error=name)
+    if isinstance(exc, hw.ConfigurationError | hw.UnsafeTrajectoryError | hw.CommandRejected):
+        return BadInputError(str(exc), device_error=name)
+    return DeviceUnavailableError(f"Device unavailable: {exc}", device_error=name)
 
 
 async def _handle(request: Request, exc: Exception) -> JSONResponse:
@@ -114,9 +120,4 @@ def install_error_handlers(app: FastAPI) -> None:
     """Register the handler for app, core and hardware errors (and a logged 500 for bugs)."""
     app.add_exception_handler(AppError, _handle)
     app.add_exception_handler(CoreError, _handle)
-    try:
-        from hardware.errors import HardwareError
-    except ImportError:  # pragma: no cover
-        pass
-    else:
-        app.add_exception_handler(HardwareError, _handle)
+    app.add_exception_handler(hw.HardwareError, _handle)

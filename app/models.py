@@ -213,6 +213,8 @@ class TrialStep(Base):
     belief_cov: Mapped[FloatArray] = mapped_column(FloatArrayType)
     probabilities: Mapped[FloatArray] = mapped_column(FloatArrayType)
     nearest_object: Mapped[str] = mapped_column(String(200))
+    answer: Mapped[str] = mapped_column(String(200))
+    stop_reason: Mapped[str | None] = mapped_column(String(20), default=None)
     duration_s: Mapped[float] = mapped_column(Float, default=0.0)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utc_now)
 

@@ -210,6 +210,8 @@ class StepPublic(BaseModel):
     belief: Belief
     probabilities: dict[str, float]
     nearest_object: str
+    answer: str
+    stop_reason: str | None
     duration_s: float
     created_at: datetime
 
@@ -269,6 +271,7 @@ class ObservationResult(BaseModel):
     step: int
     belief: Belief
     nearest_object: str
+    answer: str
     probabilities: dict[str, float]
     done: bool
     status: RunStatus

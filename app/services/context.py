@@ -10,6 +10,9 @@ from app.config import Settings
 from app.db import Database, upgrade_to_head
 from app.services.events import EventBus
 from app.services.models import ModelStore
+from app.services.runs import RunManager
+from app.services.trials import TrialService
+from app.services.worlds import WorldFactory
 
 logger = logging.getLogger(__name__)
 
@@ -24,9 +27,12 @@ class AppContext:
     database: Database
     events: EventBus
     models: ModelStore
+    runs: RunManager
+    trials: TrialService
 
     def close(self) -> None:
         """Stop background work and close the database."""
+        self.runs.close()
         self.models.close()
         self.database.dispose()
 
@@ -46,4 +52,13 @@ def start_context(settings: Settings) -> AppContext:
                 {f"{kind.rstrip('s')}_id": item_id, "status": "failed", "reason": INTERRUPTED},
             )
     models = ModelStore(database, events, max_training_touches=settings.max_training_touches)
-    return AppContext(settings=settings, database=database, events=events, models=models)
+    runs = RunManager()
+    trials = TrialService(settings, database, events, models, runs, WorldFactory())
+    return AppContext(
+        settings=settings,
+        database=database,
+        events=events,
+        models=models,
+        runs=runs,
+        trials=trials,
+    )

@@ -144,6 +144,8 @@ def upgrade() -> None:
     sa.Column('belief_cov', sa.Text(), nullable=False),
     sa.Column('probabilities', sa.Text(), nullable=False),
     sa.Column('nearest_object', sa.String(length=200), nullable=False),
+    sa.Column('answer', sa.String(length=200), nullable=False),
+    sa.Column('stop_reason', sa.String(length=20), nullable=True),
     sa.Column('duration_s', sa.Float(), nullable=False),
     sa.Column('created_at', sa.DateTime(), nullable=False),
     sa.ForeignKeyConstraint(['trial_id'], ['trials.id'], ondelete='CASCADE'),

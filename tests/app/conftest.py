@@ -18,7 +18,10 @@ with warnings.catch_warnings():
 
 from app.config import Settings
 from app.main import create_app
-from core.worlds import sample_experiment1
+from app.documents import model_to_document
+from core.posterior import condition
+from core.types import Hyperparameters
+from core.worlds import EXPERIMENT1_THETAS, sample_experiment1
 
 
 def make_settings(tmp_path: Path, **overrides: object) -> Settings:
@@ -53,3 +56,31 @@ def experiment1_csv(seed: int = 0, touches_per_object: int = 12) -> str:
         values = [repr(float(v)) for v in (*x, *y)]
         lines.append(",".join([data.object_names[obj], *values]))
     return "\n".join(lines) + "\n"
+
+
+def experiment1_document(seed: int = 0, touches_per_object: int = 15) -> dict[str, object]:
+    """A model document for Experiment 1 built without fitting (fast).
+
+    Latents are the true θ, normalised (centred, RMS 1) as a fit returns them; the
+    hyperparameters are plausible fixed values. Recognition with it is a real GP computation.
+    """
+    data = sample_experiment1(np.random.default_rng(seed), touches_per_object=touches_per_object)
+    thetas = np.asarray(EXPERIMENT1_THETAS)[:, None]
+    centred = thetas - thetas.mean()
+    latents = centred / np.sqrt(np.mean(np.sum(centred**2, axis=1)))
+    dy = data.observation_dim
+    hyper = Hyperparameters(
+        signal_variance=np.full(dy, 0.3),
+        noise_variance=np.full(dy, 0.01),
+        latent_lengthscales=np.full((dy, 1), 0.6),
+        action_lengthscales=np.full((dy, 1), 0.8),
+    )
+    return model_to_document(condition(data, latents, hyper))
+
+
+def import_model(client: TestClient, seed: int = 0) -> int:
+    """Import an Experiment 1 model through the API; return its id."""
+    response = client.post("/api/v1/models/import", json=experiment1_document(seed))
+    assert response.status_code == 201, response.text
+    model_id: int = response.json()["id"]
+    return model_id
