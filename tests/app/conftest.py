@@ -17,8 +17,8 @@ with warnings.catch_warnings():
     from fastapi.testclient import TestClient
 
 from app.config import Settings
-from app.main import create_app
 from app.documents import model_to_document
+from app.main import create_app
 from core.posterior import condition
 from core.types import Hyperparameters
 from core.worlds import EXPERIMENT1_THETAS, sample_experiment1
