@@ -27,21 +27,44 @@ from core.types import GaussianBelief, ManifoldModel
 from core.validation import FloatArray, as_float_array
 
 
+class GradientCache:
+    """Per-model arrays reused by every gradient evaluation (build once per model)."""
+
+    def __init__(self, model: ManifoldModel) -> None:
+        self.indicator = object_indicator(model)  # (N, L)
+        # β_ai [obj_i = l], (dy, N, L)
+        self.weighted_beta = model.posterior.beta[:, :, None] * self.indicator[None]
+        # x_id [obj_i = l], laid out (dx·L, N)
+        actions = model.data.actions
+        n = actions.shape[0]
+        self.located_actions = np.ascontiguousarray(
+            (actions[:, :, None] * self.indicator[:, None, :]).reshape(n, -1).T
+        )
+        self.inverse_sq_lengthscales = 1.0 / model.hyperparameters.action_lengthscales**2
+
+
 def _statistics_with_derivatives(
-    model: ManifoldModel, action: FloatArray, indicator: FloatArray
+    model: ManifoldModel, action: FloatArray, cache: GradientCache
 ) -> tuple[ActionStatistics, FloatArray, FloatArray]:
     """u, T of one action and their derivatives du/dx (dy, dx, L), dT/dx (dy, dx, L, L)."""
     kernels, scaled = action_kernels(model, action[None, :])
     e = kernels[:, 0, :]  # (dy, N)
-    de = -e[:, :, None] * scaled[:, 0, :, :]  # (dy, N, dx)
-    beta = model.posterior.beta
-    weighted = beta[:, :, None] * indicator[None]  # (dy, N, L): β_ai [obj_i = l]
-    responses = np.einsum("an,anl->al", e, weighted)
-    d_responses = np.einsum("and,anl->adl", de, weighted)
+    de_t = -np.swapaxes(scaled[:, 0, :, :], 1, 2) * e[:, None, :]  # (dy, dx, N): ∂e_ai/∂x_d
+    responses = (e[:, None, :] @ cache.weighted_beta)[:, 0, :]  # (dy, L)
+    d_responses = de_t @ cache.weighted_beta  # (dy, dx, L)
+    indicator = cache.indicator
     masked = e[:, :, None] * indicator[None]  # (dy, N, L): e_ai [obj_i = l]
     partial = model.posterior.gram_inverse @ masked  # (dy, N, L): Y[i, l'] = Σ_{j∈l'} K⁻¹_ij e_j
     trace_blocks = np.swapaxes(masked, 1, 2) @ partial  # (dy, L, L)
-    half = np.einsum("and,anl,anm->adlm", de, indicator[None], partial)
+    # half[a, d, l, l'] = Σ_{i∈l} ∂e_ai/∂x_d Y[i, l']
+    #                   = -(1/ℓ_ad²) (x_d T_a[l, l'] - Σ_{i∈l} x_id e_ai Y[i, l'])
+    # and dT = half + halfᵀ.
+    dy, dx = de_t.shape[:2]
+    n_objects = indicator.shape[1]
+    located = cache.located_actions @ (e[:, :, None] * partial)  # (dy, dx·L, L)
+    located = located.reshape(dy, dx, n_objects, n_objects)
+    half = action[None, :, None, None] * trace_blocks[:, None, :, :] - located
+    half *= -cache.inverse_sq_lengthscales[:, :, None, None]
     d_trace = half + np.swapaxes(half, 2, 3)
     stats = ActionStatistics(
         actions=action[None, :], responses=responses[None], trace_blocks=trace_blocks[None]
@@ -54,6 +77,7 @@ def mutual_information_and_gradient(
     belief: GaussianBelief,
     action: FloatArray,
     terms: BeliefTerms | None = None,
+    cache: GradientCache | None = None,
 ) -> tuple[float, FloatArray]:
     """U1 at one action and its gradient dU1/dx (METHOD.md eq. (M4)).
 
@@ -65,6 +89,8 @@ def mutual_information_and_gradient(
         action: The action x. Shape (dx,).
         terms: Belief terms of ``belief`` (from :func:`core.moments.belief_terms`), to reuse
             across calls with the same belief; computed when ``None``.
+        cache: Per-model arrays (:class:`GradientCache`) to reuse across calls; built when
+            ``None``.
 
     Returns:
         The mutual information (nats) and its gradient. Shape of the gradient (dx,).
@@ -72,8 +98,9 @@ def mutual_information_and_gradient(
     x = as_float_array(action, "action", (model.hyperparameters.action_dim,))
     if terms is None:
         terms = belief_terms(model, belief)
-    indicator = object_indicator(model)
-    stats, d_responses, d_trace = _statistics_with_derivatives(model, x, indicator)
+    if cache is None:
+        cache = GradientCache(model)
+    stats, d_responses, d_trace = _statistics_with_derivatives(model, x, cache)
     moments = moments_from_terms(model, terms, stats)
     s_cov = moments.cov[0]
     cross = moments.cross_cov[0]  # (ds, dy)

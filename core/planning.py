@@ -1,0 +1,306 @@
+"""Choosing the next touch: maximise the mutual information over a bounded action box (M4).
+
+The active planner scores a fixed, scrambled Sobol set of candidate actions spread over the box
+(their action statistics are computed once per model and reused at every touch, METHOD.md
+"Structure that makes it fast"), then refines the best few with L-BFGS-B inside the box using the
+analytic gradient of the mutual information. The passive policy draws from the action prior and
+the fixed policy repeats one action; every policy reports the mutual information of its action
+under the belief it was given.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import scipy.optimize
+from scipy.stats import qmc
+
+from core.errors import InvalidInputError
+from core.information_gradient import GradientCache, mutual_information_and_gradient
+from core.moments import (
+    ActionStatistics,
+    action_statistics,
+    belief_terms,
+    moments_from_terms,
+    mutual_information,
+    predictive_moments,
+)
+from core.types import GaussianBelief, ManifoldModel
+from core.validation import FloatArray, as_float_array
+
+PolicyName = Literal["active", "passive", "fixed"]
+
+
+@dataclass(frozen=True)
+class ActionBox:
+    """Allowed actions: lower ≤ x ≤ upper, element-wise.
+
+    Attributes:
+        lower: Shape (dx,).
+        upper: Shape (dx,), ≥ ``lower``.
+    """
+
+    lower: FloatArray
+    upper: FloatArray
+
+    def __post_init__(self) -> None:
+        lower = as_float_array(self.lower, "box lower", (None,))
+        upper = as_float_array(self.upper, "box upper", (lower.shape[0],))
+        if np.any(upper < lower):
+            raise InvalidInputError(
+                f"box: every upper bound must be ≥ its lower bound, received lower={lower} and "
+                f"upper={upper}."
+            )
+        lower.flags.writeable = False
+        upper.flags.writeable = False
+        object.__setattr__(self, "lower", lower)
+        object.__setattr__(self, "upper", upper)
+
+    @property
+    def dim(self) -> int:
+        """dx."""
+        return int(self.lower.shape[0])
+
+    def clip(self, actions: FloatArray) -> FloatArray:
+        """Clip actions (…, dx) into the box."""
+        return np.asarray(np.clip(actions, self.lower, self.upper), dtype=np.float64)
+
+    def contains(self, actions: FloatArray) -> bool:
+        """Whether every action (…, dx) lies in the box."""
+        return bool(np.all((actions >= self.lower) & (actions <= self.upper)))
+
+    @classmethod
+    def from_model(cls, model: ManifoldModel) -> ActionBox:
+        """The range of the training actions: where the GP has seen data."""
+        actions = model.data.actions
+        return cls(lower=actions.min(axis=0), upper=actions.max(axis=0))
+
+
+@dataclass(frozen=True)
+class ActionPrior:
+    """The distribution passive actions are drawn from: x ~ N(mean, cov), clipped to the box.
+
+    Attributes:
+        mean: Shape (dx,).
+        cov: Symmetric positive semi-definite. Shape (dx, dx).
+    """
+
+    mean: FloatArray
+    cov: FloatArray
+
+    def __post_init__(self) -> None:
+        mean = as_float_array(self.mean, "action prior mean", (None,))
+        cov = as_float_array(self.cov, "action prior cov", (mean.shape[0], mean.shape[0]))
+        if not np.allclose(cov, cov.T, rtol=1e-8, atol=1e-12):
+            raise InvalidInputError("action prior cov: must be symmetric.")
+        if np.linalg.eigvalsh(cov).min() < -1e-10 * max(1.0, float(np.abs(cov).max())):
+            raise InvalidInputError("action prior cov: must be positive semi-definite.")
+        mean.flags.writeable = False
+        cov.flags.writeable = False
+        object.__setattr__(self, "mean", mean)
+        object.__setattr__(self, "cov", cov)
+
+    @classmethod
+    def from_model(cls, model: ManifoldModel) -> ActionPrior:
+        """Mean and covariance of the training actions (the design the data was collected with)."""
+        actions = model.data.actions
+        cov = np.atleast_2d(np.cov(actions, rowvar=False))
+        return cls(mean=actions.mean(axis=0), cov=0.5 * (cov + cov.T))
+
+    def sample(self, rng: np.random.Generator) -> FloatArray:
+        """One draw. Shape (dx,)."""
+        return np.asarray(
+            rng.multivariate_normal(self.mean, self.cov, method="eigh"), dtype=np.float64
+        )
+
+
+@dataclass(frozen=True)
+class ActivePolicy:
+    """Maximise the mutual information between the object latent and the next observation."""
+
+    name: PolicyName = field(default="active", init=False)
+
+
+@dataclass(frozen=True)
+class PassivePolicy:
+    """Random actions from the action prior, clipped to the box."""
+
+    name: PolicyName = field(default="passive", init=False)
+
+
+@dataclass(frozen=True)
+class FixedPolicy:
+    """Always the same action (e.g. the teaching action).
+
+    Attributes:
+        action: Shape (dx,).
+    """
+
+    action: FloatArray
+    name: PolicyName = field(default="fixed", init=False)
+
+    def __post_init__(self) -> None:
+        action = as_float_array(self.action, "fixed action", (None,))
+        action.flags.writeable = False
+        object.__setattr__(self, "action", action)
+
+
+Policy = ActivePolicy | PassivePolicy | FixedPolicy
+
+
+@dataclass(frozen=True)
+class PlannedAction:
+    """The action a policy chose.
+
+    Attributes:
+        action: Shape (dx,).
+        mutual_information: U1 of ``action`` under the belief it was planned for, in nats
+            (reported for every policy).
+        policy: Name of the policy that chose it.
+    """
+
+    action: FloatArray
+    mutual_information: float
+    policy: PolicyName
+
+
+def sobol_candidates(box: ActionBox, n_candidates: int, seed: int) -> FloatArray:
+    """A scrambled Sobol set mapped into the box. Shape (n_candidates, dx).
+
+    The first ``n_candidates`` points of a base-2 sequence of the next power of two.
+    """
+    if n_candidates < 1:
+        raise InvalidInputError(f"n_candidates: must be ≥ 1, received {n_candidates}.")
+    m = int(np.ceil(np.log2(n_candidates)))
+    unit = qmc.Sobol(box.dim, scramble=True, rng=np.random.default_rng(seed)).random_base2(m)
+    return np.asarray(box.lower + unit[:n_candidates] * (box.upper - box.lower), dtype=np.float64)
+
+
+class Planner:
+    """Chooses actions for a model under a policy.
+
+    The candidate set and its action statistics are built once, on the first active plan (or at
+    construction for the active policy), and reused for every belief.
+
+    Args:
+        model: A conditioned model.
+        policy: :class:`ActivePolicy`, :class:`PassivePolicy` or :class:`FixedPolicy`.
+        box: Allowed actions; the range of the training actions when ``None``.
+        prior: Distribution of passive actions; mean/cov of the training actions when ``None``.
+        n_candidates: Size of the Sobol candidate set (active policy).
+        n_refine: How many of the best candidates are refined by L-BFGS-B (0 = no refinement).
+        refine_iterations: L-BFGS-B iteration cap per refinement.
+        candidate_seed: Seed of the Sobol scrambling (fixed, so a model's candidate set and its
+            cached statistics do not depend on the trial's random stream).
+
+    Raises:
+        InvalidInputError: Box, prior or fixed action of the wrong dimension, or bad settings.
+    """
+
+    def __init__(
+        self,
+        model: ManifoldModel,
+        policy: Policy,
+        box: ActionBox | None = None,
+        prior: ActionPrior | None = None,
+        n_candidates: int = 256,
+        n_refine: int = 1,
+        refine_iterations: int = 30,
+        candidate_seed: int = 0,
+    ) -> None:
+        dx = model.hyperparameters.action_dim
+        self.model = model
+        self.policy = policy
+        self.box = box if box is not None else ActionBox.from_model(model)
+        self.prior = prior if prior is not None else ActionPrior.from_model(model)
+        if self.box.dim != dx:
+            raise InvalidInputError(f"box: has dx={self.box.dim}, the model has dx={dx}.")
+        if self.prior.mean.shape[0] != dx:
+            raise InvalidInputError(
+                f"prior: has dx={self.prior.mean.shape[0]}, the model has dx={dx}."
+            )
+        if isinstance(policy, FixedPolicy) and policy.action.shape[0] != dx:
+            raise InvalidInputError(
+                f"policy: the fixed action has dx={policy.action.shape[0]}, the model has dx={dx}."
+            )
+        if n_refine < 0 or refine_iterations < 0:
+            raise InvalidInputError(
+                f"n_refine and refine_iterations: must be ≥ 0, received {n_refine} and "
+                f"{refine_iterations}."
+            )
+        self.n_candidates = int(n_candidates)
+        self.n_refine = int(n_refine)
+        self.refine_iterations = int(refine_iterations)
+        self.candidate_seed = int(candidate_seed)
+        self._statistics: ActionStatistics | None = None
+        self._gradient_cache: GradientCache | None = None
+        if self.n_candidates < 1:
+            raise InvalidInputError(f"n_candidates: must be ≥ 1, received {n_candidates}.")
+        if isinstance(policy, ActivePolicy):
+            self._statistics = self.candidate_statistics
+
+    @property
+    def candidate_statistics(self) -> ActionStatistics:
+        """Action statistics of the Sobol candidate set (computed once, then cached)."""
+        if self._statistics is None:
+            candidates = sobol_candidates(self.box, self.n_candidates, self.candidate_seed)
+            self._statistics = action_statistics(self.model, candidates)
+        return self._statistics
+
+    def mutual_information(self, belief: GaussianBelief, actions: FloatArray) -> FloatArray:
+        """U1 of arbitrary actions (C, dx) under ``belief``. Shape (C,)."""
+        stats = action_statistics(self.model, actions)
+        return mutual_information(predictive_moments(self.model, belief, stats), belief)
+
+    def plan(self, belief: GaussianBelief, rng: np.random.Generator) -> PlannedAction:
+        """Choose the next action under ``belief``.
+
+        Args:
+            belief: s ~ N(μ, Σ) to plan for.
+            rng: Source of randomness (passive draws).
+        """
+        policy = self.policy
+        if isinstance(policy, ActivePolicy):
+            return self._plan_active(belief)
+        if isinstance(policy, PassivePolicy):
+            action = self.box.clip(self.prior.sample(rng))
+        else:
+            action = np.array(policy.action, dtype=np.float64)
+        value = float(self.mutual_information(belief, action[None, :])[0])
+        return PlannedAction(action=action, mutual_information=value, policy=policy.name)
+
+    def _plan_active(self, belief: GaussianBelief) -> PlannedAction:
+        stats = self.candidate_statistics
+        terms = belief_terms(self.model, belief)
+        scores = mutual_information(moments_from_terms(self.model, terms, stats), belief)
+        order = np.argsort(-scores)
+        best = int(order[0])
+        best_action = stats.actions[best].copy()
+        best_value = float(scores[best])
+        bounds = list(zip(self.box.lower, self.box.upper, strict=True))
+        if self._gradient_cache is None:
+            self._gradient_cache = GradientCache(self.model)
+        cache = self._gradient_cache
+
+        def negative(x: FloatArray) -> tuple[float, FloatArray]:
+            value, gradient = mutual_information_and_gradient(self.model, belief, x, terms, cache)
+            return -value, -gradient
+
+        for index in order[: self.n_refine]:
+            if self.refine_iterations == 0:
+                break
+            result = scipy.optimize.minimize(
+                negative,
+                stats.actions[index],
+                jac=True,
+                method="L-BFGS-B",
+                bounds=bounds,
+                options={"maxiter": self.refine_iterations},
+            )
+            value = -float(result.fun)
+            if np.isfinite(value) and value > best_value:
+                best_value = value
+                best_action = self.box.clip(np.asarray(result.x, dtype=np.float64))
+        return PlannedAction(action=best_action, mutual_information=best_value, policy="active")
