@@ -91,6 +91,7 @@ class GrblAlarm(DeviceFault):
 class ServoHardwareErrorFlags(enum.IntFlag):
     """Dynamixel X-series Hardware Error Status (control table address 70)."""
 
+    NONE = 0x00
     INPUT_VOLTAGE = 0x01
     OVERHEATING = 0x04
     MOTOR_ENCODER = 0x08

@@ -308,6 +308,23 @@ class GrblLink:
                 return index
         return -1
 
+    def _push(self, line: str) -> bool:
+        """Handle a push message; False if ``line`` is not one."""
+        if line.startswith("<"):
+            self.last_status = parse_status(line)
+            return True
+        if line.startswith("ALARM:"):
+            raise grbl_alarm(_code(line, "ALARM:"))
+        version = parse_banner(line)
+        if version is not None:
+            self.banner_version = version
+            self.resets_seen += 1
+            return True
+        if line.startswith("[") and line.endswith("]"):
+            self.messages.append(line)
+            return True
+        return False
+
     def next_message(self, timeout_s: float) -> str | None:
         """Read lines until one that is not a push message; handle push messages on the way.
 
@@ -318,24 +335,13 @@ class GrblLink:
         Raises:
             GrblAlarm: An ``ALARM:N`` line arrived.
         """
+        deadline = self.transport.now() + max(0.0, timeout_s)
         while True:
-            line = self.read_line(timeout_s)
+            line = self.read_line(max(0.0, deadline - self.transport.now()))
             if line is None:
                 return None
-            if line.startswith("<"):
-                self.last_status = parse_status(line)
-                continue
-            if line.startswith("ALARM:"):
-                raise grbl_alarm(_code(line, "ALARM:"))
-            version = parse_banner(line)
-            if version is not None:
-                self.banner_version = version
-                self.resets_seen += 1
-                continue
-            if line.startswith("[") and line.endswith("]"):
-                self.messages.append(line)
-                continue
-            return line
+            if not self._push(line):
+                return line
 
     def request(self, line: str, timeout_s: float) -> GrblReply:
         """Send a command line and wait for its ``ok``.
@@ -365,24 +371,22 @@ class GrblLink:
 
         Raises:
             GrblAlarm: An alarm arrived while waiting.
+            ProtocolError: An ``ok`` / ``error`` arrived, answering no command of ours.
         """
         self.last_status = None
         self.send_realtime(STATUS_QUERY)
         deadline = self.transport.now() + timeout_s
-        while self.last_status is None:
-            remaining = deadline - self.transport.now()
-            if remaining <= 0:
+        while True:
+            line = self.read_line(max(0.0, deadline - self.transport.now()))
+            if line is None:
                 return None
-            answer = self.next_message(remaining)
-            if answer is None:
-                return None
-            if answer.startswith("error:") or answer == "ok":
-                # An answer to no command of ours: out of step with the device.
-                raise ProtocolError(
-                    f"{self.transport.name}: unexpected {answer!r} while waiting for a status "
-                    f"report."
-                )
-        return self.last_status
+            if self._push(line):
+                if self.last_status is not None:
+                    return self.last_status
+                continue
+            raise ProtocolError(
+                f"{self.transport.name}: unexpected {line!r} while waiting for a status report."
+            )
 
 
 def _code(line: str, prefix: str) -> int:

@@ -229,7 +229,9 @@ class Turntable:
                 return False
             line = self.link.next_message(remaining)
             if line is None:
-                return False
+                break
+        if self.link.banner_version is None:
+            return False
         # Let the rest of the start-up output ([MSG:...]) arrive.
         while self.link.next_message(0.05) is not None:
             pass

@@ -1,0 +1,261 @@
+"""Simulated rigs: the real drivers on simulated devices.
+
+Two levels, both running the same drivers (turntable, finger, tactile sensor and rig):
+
+- :func:`in_process_rig` — the devices are called directly through
+  :class:`~hardware.transport.InProcessTransport`; with the default
+  :class:`~hardware.clock.VirtualClock` a touch costs only its computation and runs are
+  deterministic for a seed.
+- :func:`pty_rig` — each device runs behind a pseudo-terminal
+  (:class:`~hardware.sim.pty.PtyEmulator`) and the drivers open ``/dev/pts/N`` with pyserial,
+  at 115200 / 1 000 000 / 460800 baud as on the
+  real rig; simulated time runs ``speed`` times faster than real time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from types import TracebackType
+
+import numpy as np
+
+from hardware.clock import Clock, ScaledClock, VirtualClock
+from hardware.errors import ConfigurationError
+from hardware.finger import DYNAMIXEL_BAUDRATE, Finger, FingerConfig
+from hardware.rig import Rig, RigConfig
+from hardware.sim.dynamixel_device import DynamixelBus
+from hardware.sim.grbl_device import GrblDevice
+from hardware.sim.materials import PAPER_CUPS, TactileObject, get_object
+from hardware.sim.pty import PtyEmulator
+from hardware.sim.tactile_device import TactileSource
+from hardware.sim.world import FingerModel, NoiseModel, Plant
+from hardware.tactile import TACTILE_BAUDRATE, TactileConfig, TactileSensor
+from hardware.transport import InProcessTransport, SerialTransport, Transport
+from hardware.turntable import GRBL_BAUDRATE, Turntable, TurntableConfig
+
+
+@dataclass
+class SimulatedDevices:
+    """The simulated world and its three devices.
+
+    Attributes:
+        clock: Simulation clock.
+        plant: Shared physical state.
+        grbl: Turntable controller.
+        bus: Servo bus.
+        sensor: Tactile sensor.
+        objects_by_slot: What stands where.
+    """
+
+    clock: Clock
+    plant: Plant
+    grbl: GrblDevice
+    bus: DynamixelBus
+    sensor: TactileSource
+    objects_by_slot: dict[int, TactileObject] = field(default_factory=dict)
+
+    def slot_of(self, name: str) -> int:
+        """The slot holding the object called ``name``."""
+        for slot, item in self.objects_by_slot.items():
+            if item.name == name:
+                return slot
+        raise ConfigurationError(
+            f"no object {name!r} on the table; it holds "
+            f"{', '.join(o.name for o in self.objects_by_slot.values())}."
+        )
+
+
+def simulated_devices(
+    objects: Sequence[str | TactileObject] = PAPER_CUPS,
+    *,
+    clock: Clock,
+    seed: int = 0,
+    slot_count: int = 10,
+    frame_rate_hz: float = 100.0,
+    grbl_settings: dict[int, float] | None = None,
+    noise: NoiseModel | None = None,
+    finger_model: FingerModel | None = None,
+) -> SimulatedDevices:
+    """Build the world: objects in slots 0, 1, ... and the three devices.
+
+    Args:
+        objects: Preset names or objects, one per slot from slot 0.
+        clock: Simulation clock.
+        seed: Seed of the world's randomness.
+        slot_count: Slots on the table.
+        frame_rate_hz: Tactile frames per simulated second.
+        grbl_settings: Overrides of the GRBL emulator's settings.
+        noise: Noise model.
+        finger_model: Finger constants.
+    """
+    if len(objects) > slot_count:
+        raise ConfigurationError(f"{len(objects)} objects do not fit in {slot_count} slots.")
+    placed = {
+        slot: (get_object(item) if isinstance(item, str) else item)
+        for slot, item in enumerate(objects)
+    }
+    plant = Plant(
+        placed,
+        clock,
+        np.random.default_rng(seed),
+        slot_count=slot_count,
+        finger=finger_model,
+        noise=noise,
+    )
+    grbl = GrblDevice(clock, grbl_settings)
+    plant.attach_table(grbl.position)
+    bus = DynamixelBus(plant)
+    sensor = TactileSource(plant, frame_rate_hz=frame_rate_hz)
+    return SimulatedDevices(clock, plant, grbl, bus, sensor, placed)
+
+
+class SimulatedRig:
+    """A :class:`~hardware.rig.Rig` wired to simulated devices (a context manager).
+
+    Attributes:
+        devices: The simulated devices (for fault injection and inspection).
+        rig: The rig, built from the real drivers.
+        emulators: The pseudo-terminal emulators (empty in process).
+    """
+
+    def __init__(
+        self, devices: SimulatedDevices, rig: Rig, emulators: Sequence[PtyEmulator] = ()
+    ) -> None:
+        self.devices = devices
+        self.rig = rig
+        self.emulators = list(emulators)
+
+    @property
+    def object_names(self) -> list[str]:
+        """Objects on the table, by slot."""
+        return [self.devices.objects_by_slot[s].name for s in sorted(self.devices.objects_by_slot)]
+
+    def slot_of(self, name: str) -> int:
+        """The slot of an object."""
+        return self.devices.slot_of(name)
+
+    def close(self) -> None:
+        """Close the drivers' ports and stop the emulators."""
+        for transport in (
+            self.rig.turntable.transport,
+            self.rig.finger.transport,
+            self.rig.tactile.transport,
+        ):
+            transport.close()
+        for emulator in self.emulators:
+            emulator.stop()
+
+    def __enter__(self) -> SimulatedRig:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def _assemble(
+    transports: tuple[Transport, Transport, Transport],
+    clock: Clock,
+    rig_config: RigConfig | None,
+    turntable_config: TurntableConfig | None,
+    finger_config: FingerConfig | None,
+    tactile_config: TactileConfig | None,
+) -> Rig:
+    table, bus, sensor = transports
+    return Rig(
+        Turntable(table, turntable_config or TurntableConfig(banner_timeout_s=0.3)),
+        Finger(bus, finger_config),
+        TactileSensor(sensor, tactile_config),
+        rig_config,
+        clock,
+    )
+
+
+def in_process_rig(
+    objects: Sequence[str | TactileObject] = PAPER_CUPS,
+    *,
+    seed: int = 0,
+    clock: Clock | None = None,
+    frame_rate_hz: float = 100.0,
+    rig_config: RigConfig | None = None,
+    turntable_config: TurntableConfig | None = None,
+    finger_config: FingerConfig | None = None,
+    tactile_config: TactileConfig | None = None,
+    noise: NoiseModel | None = None,
+) -> SimulatedRig:
+    """A rig on in-process simulated devices (fast; deterministic with the default clock).
+
+    Args:
+        objects: Objects in slots 0, 1, ...
+        seed: World seed.
+        clock: Simulation clock (default: a new :class:`~hardware.clock.VirtualClock`).
+        frame_rate_hz: Tactile frame rate.
+        rig_config, turntable_config, finger_config, tactile_config: Driver settings.
+        noise: Noise model of the world.
+    """
+    sim_clock: Clock = clock or VirtualClock()
+    devices = simulated_devices(
+        objects, clock=sim_clock, seed=seed, frame_rate_hz=frame_rate_hz, noise=noise
+    )
+    transports = (
+        InProcessTransport(devices.grbl, sim_clock, "simulated GRBL"),
+        InProcessTransport(devices.bus, sim_clock, "simulated Dynamixel bus"),
+        InProcessTransport(devices.sensor, sim_clock, "simulated tactile sensor"),
+    )
+    rig = _assemble(
+        transports, sim_clock, rig_config, turntable_config, finger_config, tactile_config
+    )
+    return SimulatedRig(devices, rig)
+
+
+def start_emulators(devices: SimulatedDevices) -> dict[str, PtyEmulator]:
+    """Serve the three devices on pseudo-terminals; keys ``turntable``, ``finger``, ``tactile``."""
+    emulators = {
+        "turntable": PtyEmulator(devices.grbl, "grbl"),
+        "finger": PtyEmulator(devices.bus, "dynamixel"),
+        "tactile": PtyEmulator(devices.sensor, "tactile"),
+    }
+    for emulator in emulators.values():
+        emulator.start()
+    return emulators
+
+
+def pty_rig(
+    objects: Sequence[str | TactileObject] = PAPER_CUPS,
+    *,
+    seed: int = 0,
+    speed: float = 20.0,
+    frame_rate_hz: float = 100.0,
+    rig_config: RigConfig | None = None,
+    turntable_config: TurntableConfig | None = None,
+    finger_config: FingerConfig | None = None,
+    tactile_config: TactileConfig | None = None,
+    noise: NoiseModel | None = None,
+) -> SimulatedRig:
+    """A rig whose drivers talk to emulators on pseudo-terminals through pyserial.
+
+    Args:
+        objects: Objects in slots 0, 1, ...
+        seed: World seed.
+        speed: Simulated seconds per real second.
+        frame_rate_hz: Tactile frame rate.
+        rig_config, turntable_config, finger_config, tactile_config: Driver settings.
+        noise: Noise model of the world.
+    """
+    clock = ScaledClock(speed)
+    devices = simulated_devices(
+        objects, clock=clock, seed=seed, frame_rate_hz=frame_rate_hz, noise=noise
+    )
+    emulators = start_emulators(devices)
+    transports = (
+        SerialTransport(emulators["turntable"].port, GRBL_BAUDRATE),
+        SerialTransport(emulators["finger"].port, DYNAMIXEL_BAUDRATE),
+        SerialTransport(emulators["tactile"].port, TACTILE_BAUDRATE),
+    )
+    rig = _assemble(transports, clock, rig_config, turntable_config, finger_config, tactile_config)
+    return SimulatedRig(devices, rig, list(emulators.values()))
