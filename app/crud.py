@@ -359,3 +359,11 @@ def prune_events(session: Session, keep: int) -> None:
 def ping(session: Session) -> None:
     """A trivial query: raises if the database cannot be read."""
     session.execute(select(1))
+
+
+def list_objects(session: Session, limit: int, offset: int) -> tuple[list[ObjectRecord], int]:
+    """Registered objects by name, and the count."""
+    rows = session.scalars(
+        select(ObjectRecord).order_by(ObjectRecord.name).limit(limit).offset(offset)
+    ).all()
+    return list(rows), session.scalar(select(func.count()).select_from(ObjectRecord)) or 0

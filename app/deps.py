@@ -6,13 +6,19 @@ import secrets
 from collections.abc import Iterator
 from typing import Annotated
 
-from fastapi import Depends, Request
+from fastapi import Depends, Path, Request
 from sqlalchemy.orm import Session
 
 from app.errors import AppError
 from app.services.context import AppContext
 
 MUTATING_METHODS = frozenset({"POST", "PUT", "PATCH", "DELETE"})
+
+#: Largest id accepted in a path (SQLite integers are 64-bit signed).
+MAX_ID = 2**63 - 1
+
+#: A resource id in a path: a positive 64-bit integer (else 422, not a database error).
+IdPath = Annotated[int, Path(ge=1, le=MAX_ID)]
 
 
 class UnauthorizedError(AppError):

@@ -17,6 +17,7 @@ Name = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max
 Vector = Annotated[list[FiniteFloat], Field(min_length=1, max_length=64)]
 Matrix = Annotated[list[Vector], Field(min_length=1, max_length=64)]
 Seed = Annotated[int, Field(ge=0, le=2**32 - 1)]
+Id = Annotated[int, Field(ge=1, le=2**63 - 1)]
 RunStatus = Literal["queued", "running", "paused", "completed", "stopped", "aborted", "failed"]
 
 
@@ -81,7 +82,7 @@ class ModelCreate(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    dataset_id: Annotated[int, Field(ge=1)]
+    dataset_id: Id
     latent_dim: Annotated[int, Field(ge=1, le=8)] = 2
     optimizer: Literal["lbfgs", "de"] = "lbfgs"
     restarts: Annotated[int, Field(ge=0, le=50)] = 2
@@ -169,7 +170,7 @@ class TrialCreate(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    model_id: Annotated[int, Field(ge=1)]
+    model_id: Id
     mode: Literal["scripted", "simulated", "rig"]
     policy: Literal["active", "passive", "fixed"] = "active"
     max_steps: Annotated[int, Field(ge=1, le=1000)] = 20
@@ -339,3 +340,14 @@ class RunPublic(BaseModel):
     created_at: datetime
     started_at: datetime | None
     finished_at: datetime | None
+
+
+class ObjectPublic(BaseModel):
+    """A registered object: name, turntable slot, notes, known properties."""
+
+    id: int
+    name: str
+    slot: int | None
+    notes: str
+    properties: dict[str, Any]
+    created_at: datetime

@@ -8,7 +8,7 @@ from fastapi import APIRouter, Query, Request, Response
 from pydantic import ValidationError
 from starlette.concurrency import run_in_threadpool
 
-from app.deps import ContextDep, SessionDep
+from app.deps import ContextDep, IdPath, SessionDep
 from app.errors import BadInputError
 from app.schemas import DatasetCreate, DatasetPublic, Page
 from app.services import datasets
@@ -111,7 +111,7 @@ def list_datasets(
 
 
 @router.get("/{dataset_id}")
-def get_dataset(dataset_id: int, session: SessionDep) -> DatasetPublic:
+def get_dataset(dataset_id: IdPath, session: SessionDep) -> DatasetPublic:
     """One dataset's summary."""
     return datasets.get(session, dataset_id)
 
@@ -128,7 +128,7 @@ def get_dataset(dataset_id: int, session: SessionDep) -> DatasetPublic:
     },
 )
 def export_dataset(
-    dataset_id: int,
+    dataset_id: IdPath,
     session: SessionDep,
     format: Literal["csv", "json"] = "csv",
 ) -> Response:

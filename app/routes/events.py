@@ -17,7 +17,7 @@ router = APIRouter(tags=["events"])
 def _start_id(
     context: ContextDep,
     last_event_id: Annotated[str | None, Header()] = None,
-    after: Annotated[int | None, Query(ge=0)] = None,
+    after: Annotated[int | None, Query(ge=0, le=2**63 - 1)] = None,
 ) -> int:
     """Where the stream starts: ``Last-Event-ID``, else ``after``, else the newest event."""
     if last_event_id is not None and last_event_id.strip():
@@ -28,8 +28,10 @@ def _start_id(
                 f"Last-Event-ID: expected an event sequence number, received {last_event_id!r}.",
                 field="Last-Event-ID",
             ) from None
-        if value < 0:
-            raise BadInputError("Last-Event-ID: must be ≥ 0.", field="Last-Event-ID")
+        if not 0 <= value < 2**63:
+            raise BadInputError(
+                "Last-Event-ID: must be a non-negative 64-bit integer.", field="Last-Event-ID"
+            )
         return value
     if after is not None:
         return after

@@ -8,7 +8,7 @@ from fastapi import APIRouter, Body, Query
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
-from app.deps import ContextDep, SessionDep
+from app.deps import ContextDep, IdPath, SessionDep
 from app.schemas import ModelAccepted, ModelCreate, ModelPublic, Page
 from app.services import models
 
@@ -33,13 +33,13 @@ def list_models(
 
 
 @router.get("/{model_id}")
-def get_model(model_id: int, session: SessionDep) -> ModelPublic:
+def get_model(model_id: IdPath, session: SessionDep) -> ModelPublic:
     """A model: status, object latents, hyperparameters per feature, fit time and progress."""
     return models.get(session, model_id)
 
 
 @router.get("/{model_id}/export")
-def export_model(model_id: int, session: SessionDep, context: ContextDep) -> JSONResponse:
+def export_model(model_id: IdPath, session: SessionDep, context: ContextDep) -> JSONResponse:
     """The model as a self-contained JSON document (format ``activetouch-model/1``)."""
     document = context.models.export_document(session, model_id)
     return JSONResponse(

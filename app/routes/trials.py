@@ -6,7 +6,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query
 
-from app.deps import ContextDep, SessionDep
+from app.deps import MAX_ID, ContextDep, IdPath, SessionDep
 from app.schemas import (
     NextAction,
     ObservationIn,
@@ -31,7 +31,7 @@ def create_trial(body: TrialCreate, session: SessionDep, context: ContextDep) ->
 @router.get("")
 def list_trials(
     session: SessionDep,
-    model_id: Annotated[int | None, Query(ge=1)] = None,
+    model_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
     status: RunStatus | None = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
     offset: Annotated[int, Query(ge=0)] = 0,
@@ -41,44 +41,44 @@ def list_trials(
 
 
 @router.get("/{trial_id}")
-def get_trial(trial_id: int, session: SessionDep) -> TrialPublic:
+def get_trial(trial_id: IdPath, session: SessionDep) -> TrialPublic:
     """A trial with all its steps and its result."""
     return trials.get(session, trial_id)
 
 
 @router.get("/{trial_id}/next-action")
-def next_action(trial_id: int, session: SessionDep, context: ContextDep) -> NextAction:
+def next_action(trial_id: IdPath, session: SessionDep, context: ContextDep) -> NextAction:
     """Scripted trials: the action the planner advises for the next touch."""
     return context.trials.next_action(session, trial_id)
 
 
 @router.post("/{trial_id}/observations")
 def post_observation(
-    trial_id: int, body: ObservationIn, session: SessionDep, context: ContextDep
+    trial_id: IdPath, body: ObservationIn, session: SessionDep, context: ContextDep
 ) -> ObservationResult:
     """Scripted trials: the action actually performed and the observation; returns the belief."""
     return context.trials.observe(session, trial_id, body)
 
 
 @router.post("/{trial_id}/pause")
-def pause_trial(trial_id: int, session: SessionDep, context: ContextDep) -> TrialPublic:
+def pause_trial(trial_id: IdPath, session: SessionDep, context: ContextDep) -> TrialPublic:
     """Pause a running trial (409 otherwise)."""
     return context.trials.control(session, trial_id, "pause")
 
 
 @router.post("/{trial_id}/resume")
-def resume_trial(trial_id: int, session: SessionDep, context: ContextDep) -> TrialPublic:
+def resume_trial(trial_id: IdPath, session: SessionDep, context: ContextDep) -> TrialPublic:
     """Resume a paused trial (409 otherwise)."""
     return context.trials.control(session, trial_id, "resume")
 
 
 @router.post("/{trial_id}/stop")
-def stop_trial(trial_id: int, session: SessionDep, context: ContextDep) -> TrialPublic:
+def stop_trial(trial_id: IdPath, session: SessionDep, context: ContextDep) -> TrialPublic:
     """Stop a trial; the answer so far becomes its result."""
     return context.trials.control(session, trial_id, "stop")
 
 
 @router.post("/{trial_id}/abort")
-def abort_trial(trial_id: int, session: SessionDep, context: ContextDep) -> TrialPublic:
+def abort_trial(trial_id: IdPath, session: SessionDep, context: ContextDep) -> TrialPublic:
     """Abort a trial at once (the rig is halted); no result."""
     return context.trials.control(session, trial_id, "abort")
