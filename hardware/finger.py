@@ -9,7 +9,8 @@ builds no packet itself: it calls the SDK's packet handler and group writers. Wh
   in a busy loop, :meth:`SdkPort.readPort` blocks until bytes arrive or the packet times out.
 - Late replies: the SDK flushes the input before each instruction, but a status packet arriving
   after the SDK gave up can still be taken for the next answer. After a timeout or a corrupt reply
-  the driver waits for the line to go quiet and flushes again before it retries.
+  the driver waits for the line to stay quiet for one reply timeout, dropping what arrives, and
+  flushes again before it retries.
 - Every status packet's error byte is checked: the alert bit (0x80) makes the driver read the
   Hardware Error Status and raise :class:`~hardware.errors.ServoHardwareError` with the decoded
   :class:`~hardware.errors.ServoHardwareErrorFlags`; other errors raise
@@ -189,12 +190,18 @@ class SdkPort:
             return True
         return False
 
-    def drain_late_replies(self, quiet_ms: float = 5.0, limit_ms: float = 100.0) -> int:
+    def drain_late_replies(self, quiet_ms: float | None = None, limit_ms: float = 250.0) -> int:
         """Read and drop bytes until the line has been quiet for ``quiet_ms``.
+
+        The default quiet time is one reply timeout: a reply up to twice the timeout late is
+        caught here instead of being read as the answer to the next instruction (Protocol 2.0
+        has no sequence numbers; a reply later than that cannot be told from an answer).
 
         Returns:
             The number of bytes dropped.
         """
+        if quiet_ms is None:
+            quiet_ms = max(self.min_packet_timeout_ms, self.latency_timer_ms * 2.0 + 2.0)
         dropped = 0
         deadline = self._now_ms() + limit_ms
         while self._now_ms() < deadline:

@@ -308,7 +308,7 @@ class GrblLink:
                 return index
         return -1
 
-    def _push(self, line: str) -> bool:
+    def handle_push(self, line: str) -> bool:
         """Handle a push message; False if ``line`` is not one."""
         if line.startswith("<"):
             self.last_status = parse_status(line)
@@ -340,7 +340,7 @@ class GrblLink:
             line = self.read_line(max(0.0, deadline - self.transport.now()))
             if line is None:
                 return None
-            if not self._push(line):
+            if not self.handle_push(line):
                 return line
 
     def request(self, line: str, timeout_s: float) -> GrblReply:
@@ -380,7 +380,7 @@ class GrblLink:
             line = self.read_line(max(0.0, deadline - self.transport.now()))
             if line is None:
                 return None
-            if self._push(line):
+            if self.handle_push(line):
                 if self.last_status is not None:
                     return self.last_status
                 continue

@@ -222,18 +222,18 @@ class Turntable:
         )
 
     def _banner_within(self, timeout_s: float) -> bool:
+        link = self.link
         deadline = self.transport.now() + timeout_s
-        while self.link.banner_version is None:
+        while link.banner_version is None:
             remaining = deadline - self.transport.now()
             if remaining <= 0:
                 return False
-            line = self.link.next_message(remaining)
+            line = link.read_line(remaining)
             if line is None:
-                break
-        if self.link.banner_version is None:
-            return False
+                return False
+            link.handle_push(line)  # anything else before the banner is noise from before the reset
         # Let the rest of the start-up output ([MSG:...]) arrive.
-        while self.link.next_message(0.05) is not None:
+        while link.next_message(0.05) is not None:
             pass
         return True
 

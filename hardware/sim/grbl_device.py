@@ -46,7 +46,7 @@ DEFAULT_SETTINGS: dict[int, float] = {
     22: 1,
     23: 0,
     24: 25.0,
-    25: 500.0,
+    25: 1800.0,
     26: 250,
     27: 1.0,
     30: 1000,
@@ -65,7 +65,8 @@ DEFAULT_SETTINGS: dict[int, float] = {
     131: 200.0,
     132: 200.0,
 }
-"""GRBL 1.1 factory settings, except the X rate and acceleration (a turntable's: 60°/s, 180°/s²).
+"""GRBL 1.1 factory settings, except a turntable's X rate, acceleration and homing seek rate
+(60°/s, 180°/s², 30°/s).
 ``$100`` keeps the factory 250 so that a driver must set it."""
 
 _INTEGER_SETTINGS = {0, 2, 3, 4, 5, 6, 10, 13, 20, 21, 22, 23, 26, 30, 31, 32}

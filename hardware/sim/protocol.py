@@ -40,7 +40,7 @@ class ExpectedProtocol(Transport):
         self._index = 0
         self._matched = 0  # bytes of the current expected write matched so far
         self._input = bytearray()
-        self._open = False
+        self._open = True  # handed over ready, like an opened port
         self.written = bytearray()
         self.flushes = 0
         self._release_unprompted()

@@ -1,0 +1,16 @@
+"""Project-wide pytest options (pytest only reads ``pytest_addoption`` here, at the root).
+
+``--turntable-port``, ``--finger-port``, ``--tactile-port``: serial ports of real devices; the
+``*_with_device.py`` tests are skipped unless the port they need is given.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    group = parser.getgroup("activetouch hardware", "tests against real devices")
+    group.addoption("--turntable-port", default=None, help="GRBL turntable port (115200 baud)")
+    group.addoption("--finger-port", default=None, help="Dynamixel bus port (1 Mbaud)")
+    group.addoption("--tactile-port", default=None, help="tactile sensor port (460800 baud)")
