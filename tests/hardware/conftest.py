@@ -6,10 +6,10 @@ from collections.abc import Iterator
 
 import pytest
 
+from hardware.records import FloatArray
 from hardware.rig import RigConfig
 from hardware.sim.rig import SimulatedRig, in_process_rig
 from hardware.teaching import teaching_trajectory
-from hardware.records import FloatArray
 
 
 def _port(request: pytest.FixtureRequest, option: str) -> str:

@@ -107,7 +107,8 @@ def test_connect_sequence() -> None:
     finger = Finger(link, config)
     assert finger.connect() == {"FFJ3": 1020, "FFJ4": 1020}
     link.assert_done()
-    assert finger.connected and finger.torque_enabled
+    assert finger.connected
+    assert finger.torque_enabled
 
 
 def connected_raw(
@@ -155,14 +156,15 @@ def test_alert_bit_reads_and_decodes_the_hardware_error() -> None:
         finger.read_state()
     link.assert_done()
     error = raised.value
-    assert error.joint == "FFJ3" and error.servo_id == 1
+    assert error.joint == "FFJ3"
+    assert error.servo_id == 1
     assert error.flags == ServoHardwareErrorFlags.OVERLOAD | ServoHardwareErrorFlags.OVERHEATING
     assert "OVERHEATING|OVERLOAD" in str(error)
     assert not finger.connected
 
 
 def test_packet_error_is_a_command_error() -> None:
-    finger, link = connected_raw([(write(1, 64, 1, 1), status(1, 6))])
+    finger, _link = connected_raw([(write(1, 64, 1, 1), status(1, 6))])
     with pytest.raises(ServoCommandError, match="data limit") as raised:
         finger.set_torque(True)
     assert raised.value.code == 6

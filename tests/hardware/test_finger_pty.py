@@ -119,7 +119,11 @@ def test_unplugged_bus_is_a_disconnect(bus: tuple[DynamixelBus, PtyEmulator]) ->
     device, emulator = bus
     finger = open_finger(emulator)
     device.unplug()
-    with pytest.raises(DeviceDisconnected):
+
+    def keep_reading() -> None:
         for _ in range(50):
             finger.read_state()
             time.sleep(0.01)
+
+    with pytest.raises(DeviceDisconnected):
+        keep_reading()

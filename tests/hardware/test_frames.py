@@ -45,7 +45,8 @@ def test_round_trip_byte_by_byte() -> None:
         (7, 1000, VALUES),
         (8, 2000, VALUES),
     ]
-    assert decoder.stats.dropped == 0 and decoder.stats.discarded_bytes == 0
+    assert decoder.stats.dropped == 0
+    assert decoder.stats.discarded_bytes == 0
 
 
 def test_resynchronises_after_garbage_and_counts_it() -> None:
@@ -90,7 +91,8 @@ def test_reset_forgets_counters_and_sequence() -> None:
     decoder.feed(encode_frame(1, 1, VALUES) + b"junk")
     decoder.reset()
     decoder.feed(encode_frame(40, 2, VALUES))
-    assert decoder.stats.dropped == 0 and decoder.stats.discarded_bytes == 0
+    assert decoder.stats.dropped == 0
+    assert decoder.stats.discarded_bytes == 0
     assert decoder.stats.frames == 1
 
 
@@ -102,7 +104,7 @@ def test_other_channel_count_is_rejected() -> None:
 
 
 def test_bad_channel_counts_raise() -> None:
-    with pytest.raises(ConfigurationError, match="1..32"):
+    with pytest.raises(ConfigurationError, match=r"1\.\.32"):
         encode_frame(0, 0, ())
     with pytest.raises(ConfigurationError, match="channel_count"):
         FrameDecoder(channel_count=0)

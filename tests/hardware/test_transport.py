@@ -79,10 +79,14 @@ def test_pty_round_trip_reconnect_and_unplug() -> None:
             received += port.read(100, 0.5)
         assert received == b"again"
         device.plugged = False  # the emulator hangs up the line
-        with pytest.raises(DeviceDisconnected):
+
+        def keep_talking() -> None:
             for _ in range(50):
                 port.read(100, 0.1)
                 port.write(b"x")
+
+        with pytest.raises(DeviceDisconnected):
+            keep_talking()
         port.close()
 
 

@@ -153,7 +153,7 @@ def test_move_that_stops_short_is_a_fault() -> None:
             (b"?", b"<Idle|MPos:70.000,0.000,0.000|FS:0,0>\r\n"),
         ]
     )
-    with pytest.raises(Exception, match="stopped at 70.000"):
+    with pytest.raises(Exception, match=r"stopped at 70\.000"):
         table.move_to_slot(2)
 
 
@@ -179,7 +179,7 @@ def test_slot_angles_are_evenly_spaced_at_the_resolution() -> None:
     assert table.slot_angle(6) == 308.6
     ten = Turntable(ExpectedProtocol([]))
     assert [ten.slot_angle(k) for k in range(10)] == [36.0 * k for k in range(10)]
-    with pytest.raises(ConfigurationError, match="0..9"):
+    with pytest.raises(ConfigurationError, match=r"0\.\.9"):
         ten.slot_angle(10)
     with pytest.raises(ConfigurationError, match="integer"):
         ten.slot_angle(1.5)  # type: ignore[arg-type]
@@ -187,7 +187,8 @@ def test_slot_angles_are_evenly_spaced_at_the_resolution() -> None:
 
 def test_status_and_setting_parsers() -> None:
     status = parse_status("<Hold:1|MPos:1.500,2.000,-3.250|Bf:15,128|FS:600,0|WCO:0,0,0>")
-    assert status.state == "Hold" and status.substate == 1
+    assert status.state == "Hold"
+    assert status.substate == 1
     assert status.machine_position == (1.5, 2.0, -3.25)
     assert status.fields["Bf"] == "15,128"
     with pytest.raises(ProtocolError):

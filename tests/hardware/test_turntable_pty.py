@@ -84,9 +84,13 @@ def test_soft_reset_during_motion_is_alarm_3(grbl: tuple[GrblDevice, PtyEmulator
     table = open_table(emulator)
     table.link.request("G90 G0 X300.000", 0.5)
     table.emergency_stop()
-    with pytest.raises(GrblAlarm, match="ALARM:3"):
+
+    def keep_listening() -> None:
         for _ in range(20):
             table.link.next_message(0.1)
+
+    with pytest.raises(GrblAlarm, match="ALARM:3"):
+        keep_listening()
     assert device.state == "Alarm"
 
 
@@ -111,7 +115,11 @@ def test_unplugged_controller_is_a_disconnect(grbl: tuple[GrblDevice, PtyEmulato
     device, emulator = grbl
     table = open_table(emulator)
     device.unplug()
-    with pytest.raises(DeviceDisconnected):
+
+    def keep_moving() -> None:
         for _ in range(20):
             table.move_to_slot(4)
             time.sleep(0.05)
+
+    with pytest.raises(DeviceDisconnected):
+        keep_moving()
