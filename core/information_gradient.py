@@ -41,15 +41,17 @@ class GradientCache:
             (actions[:, :, None] * self.indicator[:, None, :]).reshape(n, -1).T
         )
         self.inverse_sq_lengthscales = 1.0 / model.hyperparameters.action_lengthscales**2
+        self.actions_t = np.ascontiguousarray(actions.T)  # (dx, N)
 
 
 def _statistics_with_derivatives(
     model: ManifoldModel, action: FloatArray, cache: GradientCache
 ) -> tuple[ActionStatistics, FloatArray, FloatArray]:
     """u, T of one action and their derivatives du/dx (dy, dx, L), dT/dx (dy, dx, L, L)."""
-    kernels, scaled = action_kernels(model, action[None, :])
-    e = kernels[:, 0, :]  # (dy, N)
-    de_t = -np.swapaxes(scaled[:, 0, :, :], 1, 2) * e[:, None, :]  # (dy, dx, N): ∂e_ai/∂x_d
+    e = action_kernels(model, action[None, :])[:, 0, :]  # (dy, N)
+    diff_t = (action[:, None] - cache.actions_t)[None]  # (1, dx, N): x_d - x_id
+    # ∂e_ai/∂x_d = -e_ai (x_d - x_id) / ℓ_ad², (dy, dx, N)
+    de_t = -diff_t * cache.inverse_sq_lengthscales[:, :, None] * e[:, None, :]
     responses = (e[:, None, :] @ cache.weighted_beta)[:, 0, :]  # (dy, L)
     d_responses = de_t @ cache.weighted_beta  # (dy, dx, L)
     indicator = cache.indicator

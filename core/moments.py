@@ -29,6 +29,8 @@ from core.validation import FloatArray, as_float_array
 
 # Relative floor on the eigenvalues of an updated covariance (update hygiene, METHOD.md).
 _EIGENVALUE_FLOOR = 1e-12
+# Candidates processed together in action_statistics (bounds memory at O(chunk · N · (dy + dx))).
+_CHUNK = 256
 
 
 @dataclass(frozen=True)
@@ -109,22 +111,20 @@ def object_indicator(model: ManifoldModel) -> FloatArray:
     return indicator
 
 
-def action_kernels(model: ManifoldModel, actions: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """e_ai(x) for every feature, candidate and touch, and the scaled differences.
+def action_kernels(model: ManifoldModel, actions: FloatArray) -> FloatArray:
+    """e_ai(x) = exp(-½ (x - x_i)ᵀ (Λ^x_a)⁻¹ (x - x_i)) for every feature, action and touch.
 
     Args:
         model: A conditioned model.
         actions: Validated actions. Shape (C, dx).
 
     Returns:
-        e (dy, C, N) and (x - x_i) / ℓ_a² (dy, C, N, dx).
+        Shape (dy, C, N).
     """
-    h = model.hyperparameters
-    diff = actions[:, None, :] - model.data.actions[None, :, :]  # (C, N, dx)
-    inverse_sq = 1.0 / h.action_lengthscales**2  # (dy, dx)
-    scaled = diff[None, :, :, :] * inverse_sq[:, None, None, :]
-    kernels = np.exp(-0.5 * np.einsum("cnd,acnd->acn", diff, scaled))
-    return kernels, scaled
+    inverse_sq = 1.0 / model.hyperparameters.action_lengthscales**2  # (dy, dx)
+    diff_sq = (actions[:, None, :] - model.data.actions[None, :, :]) ** 2  # (C, N, dx)
+    exponent = diff_sq @ inverse_sq.T  # (C, N, dy)
+    return np.asarray(np.exp(-0.5 * np.moveaxis(exponent, 2, 0)), dtype=np.float64)
 
 
 def _check_actions(model: ManifoldModel, actions: FloatArray, name: str) -> FloatArray:
@@ -134,7 +134,7 @@ def _check_actions(model: ManifoldModel, actions: FloatArray, name: str) -> Floa
 def action_statistics(model: ManifoldModel, actions: FloatArray) -> ActionStatistics:
     """Action statistics u_a(x) and T_a(x) of C candidate actions (METHOD.md, structure of (M3)).
 
-    Cost O(C · dy · N · (dx + N)); memory O(C · dy · N).
+    Cost O(C · dy · N · (dx + N)); memory O(C · dy · L²) plus a bounded working set.
 
     Args:
         model: A conditioned model.
@@ -143,23 +143,27 @@ def action_statistics(model: ManifoldModel, actions: FloatArray) -> ActionStatis
     Raises:
         InvalidInputError: ``actions`` has the wrong shape or non-finite entries.
     """
-    actions = _check_actions(model, actions, "actions")
-    kernels, _ = action_kernels(model, actions)  # (dy, C, N)
+    actions = _check_actions(model, actions, "actions").copy()
     indicator = object_indicator(model)  # (N, L)
     beta = model.posterior.beta  # (dy, N)
     gram_inverse = model.posterior.gram_inverse  # (dy, N, N)
-    n_features = beta.shape[0]
-    n_objects = indicator.shape[1]
-    n_actions = actions.shape[0]
+    n_features, n_objects, n_actions = beta.shape[0], indicator.shape[1], actions.shape[0]
     members = [np.flatnonzero(indicator[:, obj]) for obj in range(n_objects)]
-    # u_a(x)[l] = Σ_{i∈l} β_ai e_ai(x)
-    responses = np.einsum("acn,an,nl->cal", kernels, beta, indicator)
+    weighted_beta = beta[:, :, None] * indicator[None]  # (dy, N, L): β_ai [obj_i = l]
+    responses = np.empty((n_actions, n_features, n_objects))
     trace_blocks = np.empty((n_actions, n_features, n_objects, n_objects))
-    for a in range(n_features):
-        for right, idx in enumerate(members):
-            # Y[c, i] = Σ_{j∈l'} (K_a⁻¹)_ij e_aj(x_c)
-            partial = kernels[a][:, idx] @ gram_inverse[a][idx, :]
-            trace_blocks[:, a, :, right] = (kernels[a] * partial) @ indicator
+    for start in range(0, n_actions, _CHUNK):
+        chunk = slice(start, min(start + _CHUNK, n_actions))
+        kernels = action_kernels(model, actions[chunk])  # (dy, c, N)
+        # u_a(x)[l] = Σ_{i∈l} β_ai e_ai(x)
+        responses[chunk] = np.swapaxes(kernels @ weighted_beta, 0, 1)
+        for a in range(n_features):
+            for right, idx in enumerate(members):
+                # Y[c, i] = Σ_{j∈l'} (K_a⁻¹)_ij e_aj(x_c)
+                partial = kernels[a][:, idx] @ gram_inverse[a][idx, :]
+                trace_blocks[chunk, a, :, right] = (kernels[a] * partial) @ indicator
+    for array in (actions, responses, trace_blocks):
+        array.flags.writeable = False
     return ActionStatistics(actions=actions, responses=responses, trace_blocks=trace_blocks)
 
 

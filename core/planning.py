@@ -46,8 +46,8 @@ class ActionBox:
     upper: FloatArray
 
     def __post_init__(self) -> None:
-        lower = as_float_array(self.lower, "box lower", (None,))
-        upper = as_float_array(self.upper, "box upper", (lower.shape[0],))
+        lower = as_float_array(self.lower, "box lower", (None,)).copy()
+        upper = as_float_array(self.upper, "box upper", (lower.shape[0],)).copy()
         if np.any(upper < lower):
             raise InvalidInputError(
                 f"box: every upper bound must be ≥ its lower bound, received lower={lower} and "
@@ -91,8 +91,8 @@ class ActionPrior:
     cov: FloatArray
 
     def __post_init__(self) -> None:
-        mean = as_float_array(self.mean, "action prior mean", (None,))
-        cov = as_float_array(self.cov, "action prior cov", (mean.shape[0], mean.shape[0]))
+        mean = as_float_array(self.mean, "action prior mean", (None,)).copy()
+        cov = as_float_array(self.cov, "action prior cov", (mean.shape[0], mean.shape[0])).copy()
         if not np.allclose(cov, cov.T, rtol=1e-8, atol=1e-12):
             raise InvalidInputError("action prior cov: must be symmetric.")
         if np.linalg.eigvalsh(cov).min() < -1e-10 * max(1.0, float(np.abs(cov).max())):
@@ -142,7 +142,7 @@ class FixedPolicy:
     name: PolicyName = field(default="fixed", init=False)
 
     def __post_init__(self) -> None:
-        action = as_float_array(self.action, "fixed action", (None,))
+        action = as_float_array(self.action, "fixed action", (None,)).copy()
         action.flags.writeable = False
         object.__setattr__(self, "action", action)
 
