@@ -265,6 +265,8 @@ class Plant:
         self._sampler: Sampler | None = None
         self._sample_period = 0.0
         self._next_sample = math.inf
+        self._sample_origin = self._time
+        self._sample_index = 0
         self._last_sample = self._time
         self._skin_temperature = self.finger.core_temperature_c
         self._contact_time = 0.0
@@ -290,6 +292,8 @@ class Plant:
         with self.lock:
             self._sampler = sampler
             self._sample_period = float(period_s)
+            self._sample_origin = self._time
+            self._sample_index = 1
             self._next_sample = self._time + period_s
 
     # -- time ---------------------------------------------------------------------------------
@@ -307,7 +311,9 @@ class Plant:
                 moment = self._next_sample
                 self._integrate(moment)
                 self._take_sample(moment)
-                self._next_sample = moment + self._sample_period
+                # Sample k is at origin + k * period: no drift from summing periods.
+                self._sample_index += 1
+                self._next_sample = self._sample_origin + self._sample_index * self._sample_period
             self._integrate(target)
 
     def _integrate(self, until_s: float) -> None:
