@@ -24,6 +24,8 @@ surface to the right (+x); the planned joint trajectories and the animated finge
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import threading
 import time
@@ -452,7 +454,12 @@ class ManifoldView:
 
         _check_n_sigma(n_sigma)
         self._lock = threading.RLock()
-        self._server = viser.ViserServer(host=host, port=port, label="ActiveTouch", verbose=verbose)
+        # viser prints its address banner unconditionally; keep it off stdout unless asked.
+        quiet = contextlib.nullcontext() if verbose else contextlib.redirect_stdout(io.StringIO())
+        with quiet:
+            self._server = viser.ViserServer(
+                host=host, port=port, label="ActiveTouch", verbose=verbose
+            )
         self._host = host
         self._n_sigma = n_sigma
         self._model: ManifoldModel | None = None
@@ -887,6 +894,7 @@ class TrialFollower:
         self._model_id: Any = None
         self._trial_id: Any = None
         self._last_event_id = ""
+        self._response: Any = None
         self._thread = threading.Thread(target=self._run, name="viz-follower", daemon=True)
 
     def start(self) -> TrialFollower:
@@ -895,10 +903,14 @@ class TrialFollower:
         return self
 
     def stop(self) -> None:
-        """Stop following and close the HTTP client."""
+        """Stop following: close the event stream (so the server sees the client go), join."""
         self._stop.set()
-        self._thread.join(timeout=3.0)
+        response = self._response
+        if response is not None:
+            with contextlib.suppress(Exception):
+                response.close()
         self._client.close()
+        self._thread.join(timeout=3.0)
 
     def show_model(self, model_id: Any) -> None:
         """Load model ``model_id`` from the app and show it."""
@@ -944,6 +956,7 @@ class TrialFollower:
                 with self._client.stream(
                     "GET", "/api/v1/events", headers=headers, timeout=None
                 ) as response:
+                    self._response = response
                     response.raise_for_status()
                     for event_id, event_type, data in sse_events(response.iter_lines()):
                         if self._stop.is_set():
@@ -952,6 +965,8 @@ class TrialFollower:
                             self._last_event_id = event_id
                         self._handle(event_type, data)
             except Exception as exc:  # the follower must outlive a dropped stream
+                if self._stop.is_set():
+                    return
                 if self._on_error is not None:
                     self._on_error(exc)
                 self._stop.wait(1.0)
@@ -963,6 +978,8 @@ class TrialFollower:
             return
         if not isinstance(payload, dict):
             return
+        if isinstance(payload.get("type"), str) and isinstance(payload.get("data"), dict):
+            event_type, payload = payload["type"], payload["data"]  # {"id","type","time","data"}
         trial_id = payload.get("trial_id")
         if trial_id is None and event_type.startswith("trial") and "id" in payload:
             trial_id = payload["id"]
