@@ -32,6 +32,24 @@ from hardware.errors import (
     NotConnectedError,
 )
 
+try:  # POSIX: pyserial lets termios errors through (e.g. tcflush on a hung-up tty)
+    import termios
+
+    _PORT_ERRORS: tuple[type[BaseException], ...] = (
+        serial.SerialException,
+        OSError,
+        termios.error,
+    )
+except ImportError:  # pragma: no cover - Windows
+    _PORT_ERRORS = (serial.SerialException, OSError)
+
+_OPEN_ERRORS: tuple[type[BaseException], ...] = (*_PORT_ERRORS, ValueError)
+_FILENO_ERRORS: tuple[type[BaseException], ...] = (
+    AttributeError,
+    NotImplementedError,
+    *_PORT_ERRORS,
+)
+
 
 class Transport(ABC):
     """A bidirectional byte stream to one device.
@@ -189,7 +207,7 @@ class SerialTransport(Transport):
         try:
             port = serial.serial_for_url(self.port, **kwargs)
             port.open()
-        except (serial.SerialException, OSError, ValueError) as exc:
+        except _OPEN_ERRORS as exc:
             raise DeviceUnavailable(f"{self.name}: cannot open the port: {exc}") from exc
         self._serial = port
 
@@ -197,7 +215,7 @@ class SerialTransport(Transport):
         """Close the port; errors while closing a dead port are ignored."""
         port, self._serial = self._serial, None
         if port is not None:
-            with contextlib.suppress(serial.SerialException, OSError):
+            with contextlib.suppress(*_PORT_ERRORS):
                 port.close()
 
     def _port(self) -> Any:
@@ -212,7 +230,7 @@ class SerialTransport(Transport):
             port.flush()
         except serial.SerialTimeoutException as exc:
             raise DeviceDisconnected(f"{self.name}: write timed out: {exc}") from exc
-        except (serial.SerialException, OSError) as exc:
+        except _PORT_ERRORS as exc:
             raise DeviceDisconnected(f"{self.name}: write failed: {exc}") from exc
         if written is not None and written != len(data):
             raise DeviceDisconnected(f"{self.name}: wrote {written} of {len(data)} bytes.")
@@ -223,14 +241,14 @@ class SerialTransport(Transport):
         deadline = time.monotonic() + max(0.0, timeout_s)
         try:
             fileno: int | None = port.fileno()
-        except (AttributeError, NotImplementedError, serial.SerialException, OSError):
+        except _FILENO_ERRORS:
             fileno = None
         while True:
             try:
                 waiting = int(port.in_waiting)
                 if waiting:
                     return bytes(port.read(min(waiting, max_bytes)))
-            except (serial.SerialException, OSError) as exc:
+            except _PORT_ERRORS as exc:
                 raise DeviceDisconnected(f"{self.name}: read failed: {exc}") from exc
             remaining = deadline - time.monotonic()
             if remaining <= 0:
@@ -246,7 +264,7 @@ class SerialTransport(Transport):
                 # Readable: data, or a hang-up, which read() reports as an error.
                 try:
                     data = bytes(port.read(max_bytes))
-                except (serial.SerialException, OSError) as exc:
+                except _PORT_ERRORS as exc:
                     raise DeviceDisconnected(f"{self.name}: read failed: {exc}") from exc
                 if data:
                     return data
@@ -255,7 +273,7 @@ class SerialTransport(Transport):
         """Discard buffered input (``tcflush``)."""
         try:
             self._port().reset_input_buffer()
-        except (serial.SerialException, OSError) as exc:
+        except _PORT_ERRORS as exc:
             raise DeviceDisconnected(f"{self.name}: flush failed: {exc}") from exc
 
 

@@ -15,6 +15,7 @@ import contextlib
 import os
 import select
 import threading
+import time
 import tty
 from types import TracebackType
 
@@ -60,6 +61,18 @@ class PtyEmulator:
         if not self._port:
             raise HardwareError(f"{self.name}: the emulator is not started.")
         return self._port
+
+    @property
+    def serving(self) -> bool:
+        """Whether the emulator thread is running (False once the device is unplugged)."""
+        return self._thread is not None and self._thread.is_alive()
+
+    def wait_hung_up(self, timeout_s: float = 2.0) -> bool:
+        """Wait until an unplugged device's line is hung up; returns whether it is."""
+        deadline = time.monotonic() + timeout_s
+        while self.serving and time.monotonic() < deadline:
+            time.sleep(0.005)
+        return not self.serving
 
     def start(self) -> str:
         """Open the pseudo-terminal and start serving; returns the port path."""

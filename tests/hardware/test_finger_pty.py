@@ -119,11 +119,7 @@ def test_unplugged_bus_is_a_disconnect(bus: tuple[DynamixelBus, PtyEmulator]) ->
     device, emulator = bus
     finger = open_finger(emulator)
     device.unplug()
-
-    def keep_reading() -> None:
-        for _ in range(50):
-            finger.read_state()
-            time.sleep(0.01)
+    assert emulator.wait_hung_up()
 
     with pytest.raises(DeviceDisconnected):
-        keep_reading()
+        finger.read_state()

@@ -115,11 +115,7 @@ def test_unplugged_controller_is_a_disconnect(grbl: tuple[GrblDevice, PtyEmulato
     device, emulator = grbl
     table = open_table(emulator)
     device.unplug()
-
-    def keep_moving() -> None:
-        for _ in range(20):
-            table.move_to_slot(4)
-            time.sleep(0.05)
+    assert emulator.wait_hung_up()
 
     with pytest.raises(DeviceDisconnected):
-        keep_moving()
+        table.move_to_slot(4)
