@@ -59,10 +59,11 @@ PALETTE: tuple[tuple[int, int, int], ...] = (
 BELIEF_COLOR = (20, 20, 20)
 HIGHLIGHT_COLOR = (255, 196, 0)
 
-#: Where the parts of the scene sit (scene units; latents are normalised to RMS spread 1).
-RESPONSE_ORIGIN = (4.5, 0.0, 0.0)
-PLAN_ORIGIN = (0.0, 4.0, 0.0)
-FINGER_ORIGIN = (-2.5, 4.5, 0.0)
+#: Sizes of the side panels (scene units): response surface box, trajectory plot.
+RESPONSE_SIZE = 3.0
+RESPONSE_HEIGHT = 1.5
+PLAN_WIDTH = 3.0
+PLAN_HEIGHT = 1.5
 
 
 def object_color(index: int) -> tuple[int, int, int]:
@@ -420,6 +421,49 @@ def trajectory_plot_points(
     return [np.stack([t, np.zeros_like(t), z[:, j]], axis=1) for j in range(angles.shape[1])]
 
 
+@dataclass(frozen=True)
+class SceneLayout:
+    """Where the parts of the scene go, sized to the model's latent points.
+
+    The manifold's grid is centred on the origin (half-width ``extent``); the response surface
+    stands to its right (+x), the trajectory plot and the finger behind it (+y), and the camera
+    looks at the whole from the front (-y), from above.
+    """
+
+    extent: float
+    response_origin: tuple[float, float, float]
+    plan_origin: tuple[float, float, float]
+    finger_origin: tuple[float, float, float]
+    camera_position: tuple[float, float, float]
+    camera_look_at: tuple[float, float, float]
+
+
+def scene_layout(latents: Any = None) -> SceneLayout:
+    """Lay out the scene around latent points (shape (L, ds)); ``None``: a default size."""
+    if latents is None:
+        extent = 2.0
+    else:
+        positions = embed_latents(latents)
+        extent = float(np.ceil(max(1.0, 1.25 * float(np.abs(positions[:, :2]).max())) * 2) / 2)
+    gap = 0.8
+    response = (extent + gap, -RESPONSE_SIZE / 2, 0.0)
+    plan = (-extent, extent + gap, 0.0)
+    finger = (-extent - 1.0, extent + gap, 1.7)
+    x_low, x_high = -extent - 1.6, extent + gap + RESPONSE_SIZE
+    y_low, y_high = -extent, extent + gap + 0.5
+    span = max(x_high - x_low, y_high - y_low)
+    centre = (0.5 * (x_low + x_high), 0.5 * (y_low + y_high), 0.4)
+    camera = (centre[0], centre[1] - 0.75 * span, 0.6 * span)
+    return SceneLayout(
+        extent=extent,
+        response_origin=response,
+        plan_origin=plan,
+        finger_origin=finger,
+        camera_position=camera,
+        camera_look_at=centre,
+    )
+
+
 def _check_n_sigma(n_sigma: float) -> None:
     if not np.isfinite(n_sigma) or n_sigma <= 0:
         raise ValueError(f"n_sigma: expected a positive number, received {n_sigma}.")
@@ -503,10 +547,24 @@ class ManifoldView:
     def _build_scene(self) -> None:
         scene = self._server.scene
         scene.set_up_direction("+z")
-        scene.add_grid("/manifold/grid", width=6.0, height=6.0, cell_size=0.5, section_size=1.0)
-        scene.add_label("/manifold/title", "object manifold (latent space)", position=(-3, -3, 0))
-        self._server.initial_camera.position = (3.5, -9.0, 6.5)
-        self._server.initial_camera.look_at = (1.5, 1.0, 0.0)
+        self._apply_layout(scene_layout())
+
+    def _apply_layout(self, layout: SceneLayout) -> None:
+        """Grid, titles and camera for ``layout`` (also for browsers already connected)."""
+        self._layout = layout
+        scene = self._server.scene
+        e = layout.extent
+        scene.add_grid(
+            "/manifold/grid", width=2 * e, height=2 * e, cell_size=0.25, section_size=1.0
+        )
+        scene.add_label(
+            "/manifold/title", "object manifold (latent s₁, s₂)", position=(-e, -e - 0.15, 0.0)
+        )
+        self._server.initial_camera.position = layout.camera_position
+        self._server.initial_camera.look_at = layout.camera_look_at
+        for client in self._server.get_clients().values():
+            client.camera.position = layout.camera_position
+            client.camera.look_at = layout.camera_look_at
 
     def _build_gui(self) -> None:
         gui = self._server.gui
@@ -539,6 +597,7 @@ class ManifoldView:
             )
         with self._lock:
             self._model = model
+            self._apply_layout(scene_layout(model.latents))
             self.clear_trial()
             scene = self._server.scene
             positions = embed_latents(model.latents)
@@ -576,7 +635,7 @@ class ManifoldView:
             if model is None:
                 return
             if not self._show_response.value:
-                scene.add_frame("/response", show_axes=False, position=RESPONSE_ORIGIN)
+                scene.add_frame("/response", show_axes=False, position=self._layout.response_origin)
                 return
             feature = int(str(self._feature.value).split("_")[1]) - 1
             action_axis = int(str(self._action_axis.value).split("_")[1]) - 1
@@ -586,13 +645,13 @@ class ManifoldView:
 
     def _draw_response(self, model: ManifoldModel, grid: ResponseGrid) -> None:
         scene = self._server.scene
-        size, height = 3.0, 1.5
+        size, height = RESPONSE_SIZE, RESPONSE_HEIGHT
         u = scale_to_box(grid.latent_values, 0.0, size)
         v = scale_to_box(grid.action_values, 0.0, size)
         z_low, z_high = float(grid.mean.min()), float(grid.mean.max())
         heights = scale_to_box(grid.mean, 0.0, height)
         vertices, faces = surface_mesh(u, v, heights)
-        scene.add_frame("/response", show_axes=False, position=RESPONSE_ORIGIN)
+        scene.add_frame("/response", show_axes=False, position=self._layout.response_origin)
         scene.add_mesh_simple(
             "/response/surface",
             vertices,
@@ -618,15 +677,24 @@ class ManifoldView:
                 thickness=0.03,
             )
         k, j, a = grid.latent_axis + 1, grid.action_axis + 1, grid.feature + 1
+        base = np.array([[0, 0, 0], [size, 0, 0], [size, size, 0], [0, size, 0], [0, 0, 0]])
+        scene.add_line_segments(
+            "/response/base", polyline_segments(base), (150, 150, 150), thickness=0.01
+        )
         scene.add_label(
             "/response/title",
-            f"GP response y_{a} = f(s_{k}, x_{j})",
-            position=(0.0, -0.3, height + 0.3),
+            f"GP response y_{a} = f(s_{k}, x_{j}),  y_{a} ∈ [{z_low:.3g}, {z_high:.3g}]",
+            position=(0.5 * size, 0.0, height + 0.25),
+            anchor="bottom-center",
         )
-        scene.add_label("/response/s_axis", f"s_{k} →", position=(size, -0.2, 0.0))
-        scene.add_label("/response/x_axis", f"x_{j} →", position=(-0.2, size, 0.0))
         scene.add_label(
-            "/response/range", f"y_{a} ∈ [{z_low:.3g}, {z_high:.3g}]", position=(size, size, height)
+            "/response/s_axis", f"s_{k}", position=(0.5 * size, -0.1, 0.0), anchor="top-center"
+        )
+        scene.add_label(
+            "/response/x_axis",
+            f"x_{j}",
+            position=(size + 0.1, 0.5 * size, 0.0),
+            anchor="center-left",
         )
 
     # -- trial overlay ------------------------------------------------------------------------
@@ -638,8 +706,8 @@ class ManifoldView:
             self._belief = None
             scene = self._server.scene
             scene.add_frame("/belief", show_axes=False)
-            scene.add_frame("/plan", show_axes=False, position=PLAN_ORIGIN)
-            scene.add_frame("/finger", show_axes=False, position=FINGER_ORIGIN)
+            scene.add_frame("/plan", show_axes=False, position=self._layout.plan_origin)
+            scene.add_frame("/finger", show_axes=False, position=self._layout.finger_origin)
 
     def show_belief(
         self,
@@ -746,27 +814,37 @@ class ManifoldView:
             )
         if not timestep_s > 0:
             raise ValueError(f"timestep_s: expected > 0, received {timestep_s}.")
-        lines = trajectory_plot_points(angles)
+        lines = trajectory_plot_points(angles, width=PLAN_WIDTH, height=PLAN_HEIGHT)
         with self._lock:
             self._stop_animation()
             scene = self._server.scene
-            scene.add_frame("/plan", show_axes=False, position=PLAN_ORIGIN)
+            scene.add_frame("/plan", show_axes=False, position=self._layout.plan_origin)
             duration_s = timestep_s * (angles.shape[0] - 1)
+            axes = np.array([[0.0, 0.0, PLAN_HEIGHT], [0.0, 0.0, 0.0], [PLAN_WIDTH, 0.0, 0.0]])
+            scene.add_line_segments(
+                "/plan/axes", polyline_segments(axes), (150, 150, 150), thickness=0.012
+            )
             scene.add_label(
                 "/plan/title",
-                f"next action: joint trajectories ({duration_s:.2f} s)",
-                position=(0.0, 0.0, 1.9),
+                f"next touch: joint trajectories over {duration_s:.2f} s",
+                position=(0.0, 0.0, PLAN_HEIGHT + 0.25),
+                anchor="bottom-left",
             )
+            label_heights: list[float] = []
             for j, (line, name) in enumerate(zip(lines, joint_names, strict=True)):
                 color = PALETTE[(j + 3) % len(PALETTE)]
                 scene.add_line_segments(
                     f"/plan/joint_{j}", polyline_segments(line), color, thickness=0.03
                 )
                 low, high = float(angles[:, j].min()), float(angles[:, j].max())
+                z = float(line[-1, 2])
+                while any(abs(z - other) < 0.2 for other in label_heights):
+                    z -= 0.2  # keep the joint names apart when the lines end together
+                label_heights.append(z)
                 scene.add_label(
                     f"/plan/label_{j}",
-                    f"{name}: {low:.1f}° … {high:.1f}°",
-                    position=line[-1] + np.array([0.1, 0.0, 0.0]),
+                    f"{name} {low:.0f}…{high:.0f}°",
+                    position=(PLAN_WIDTH + 0.08, 0.0, z),
                     anchor="center-left",
                 )
             flexion = angles[:, 0]
@@ -795,7 +873,7 @@ class ManifoldView:
     def _animate(
         self, flexion: FloatArray, abduction: FloatArray, timestep_s: float, stop: threading.Event
     ) -> None:
-        frame_s = max(timestep_s, 1.0 / 30.0)  # at most 30 frames a second
+        frame_s = max(timestep_s, 1.0 / 15.0)  # at most 15 frames a second
         stride = max(1, round(frame_s / timestep_s))
         while not stop.is_set():
             for i in range(0, flexion.shape[0], stride):

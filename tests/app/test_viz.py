@@ -18,6 +18,7 @@ from app.viz import (
     polyline_segments,
     response_grid,
     scale_to_box,
+    scene_layout,
     sse_events,
     surface_mesh,
     trajectory_plot_points,
@@ -167,6 +168,19 @@ def test_trajectory_plot_points_share_one_scale() -> None:
     assert lines[0][:, 2].max() == pytest.approx(1.0)  # the largest angle reaches the top
     assert lines[1][:, 2].max() == pytest.approx(0.5)  # 20° is half of 0..40°
     assert lines[0][-1, 0] == pytest.approx(2.0)
+
+
+def test_scene_layout_keeps_the_panels_apart() -> None:
+    latents = np.array([[-2.2, 0.5], [1.0, -1.9], [0.3, 0.3]])
+    layout = scene_layout(latents)
+    assert layout.extent >= 1.25 * 2.2  # every point on the grid, with a margin
+    assert layout.response_origin[0] > layout.extent  # the surface stands right of the grid
+    assert layout.plan_origin[1] > layout.extent  # the trajectory plot stands behind it
+    assert layout.finger_origin[0] < layout.plan_origin[0]  # the finger left of the plot
+    camera, target = np.array(layout.camera_position), np.array(layout.camera_look_at)
+    assert camera[1] < target[1]  # from the front
+    assert camera[2] > target[2]  # from above
+    assert scene_layout(None).extent == 2.0
 
 
 def test_response_grid_matches_predict() -> None:
