@@ -164,12 +164,15 @@ class DMPActionSpace:
         dominant: Indices of the dominant weights, ascending per joint. Shape (J, k).
         offset_scale: Weight offset per unit of action. Shape (J, k).
         offset_deg_per_unit: Peak trajectory change caused by one unit of one action component.
+        responses: Basis responses on the teaching time grid (reused for every trajectory
+            generated on that grid).
     """
 
     dmp: DMP
     dominant: IntArray
     offset_scale: FloatArray
     offset_deg_per_unit: float
+    responses: BasisResponses
 
     @property
     def action_dim(self) -> int:
@@ -415,6 +418,7 @@ def action_space(dmp: DMP, n_dominant: int = 3, offset_deg_per_unit: float = 2.0
         dominant=dominant,
         offset_scale=np.asarray(scale, dtype=np.float64),
         offset_deg_per_unit=float(offset_deg_per_unit),
+        responses=responses,
     )
 
 
@@ -447,8 +451,11 @@ def trajectory_for_action(
         action: x. Shape (dx,).
         dt_s: Output sample period; defaults to the teaching one.
         duration_s: Movement duration; defaults to the teaching one.
-        responses: Precomputed :func:`basis_responses` for the output grid.
+        responses: Precomputed :func:`basis_responses` for the output grid (the teaching grid's
+            are used when neither ``dt_s`` nor ``duration_s`` is given).
     """
+    if responses is None and dt_s is None and duration_s is None:
+        responses = space.responses
     return rollout(
         space.dmp,
         weights_for_action(space, action),
