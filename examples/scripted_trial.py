@@ -107,7 +107,8 @@ def run_trial(
     model_id: int,
     target: str,
     seed: int,
-    max_steps: int = 10,
+    max_steps: int = 20,
+    confidence: float = 0.99,
 ) -> dict:
     """One scripted trial on object ``target``; return the finished trial."""
     trial = check(
@@ -140,7 +141,7 @@ def run_trial(
 def run(
     client: httpx.Client,
     trials_per_object: int = 1,
-    touches: int = 15,
+    touches: int = 25,
     seed: int = 0,
     model_id: int | None = None,
 ) -> list[dict]:

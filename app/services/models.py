@@ -264,6 +264,7 @@ class ModelStore:
             "start": int(progress.start),
             "n_starts": int(progress.n_starts),
             "iteration": int(progress.iteration),
+            "phase": str(getattr(progress, "phase", "")),
             "log_likelihood": _finite_or_none(progress.log_likelihood),
             "best_log_likelihood": _finite_or_none(progress.best_log_likelihood),
             "elapsed_s": elapsed_s,
