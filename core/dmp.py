@@ -385,7 +385,7 @@ def rollout(
     return np.asarray(trajectory, dtype=np.float64)
 
 
-def action_space(dmp: DMP, n_dominant: int = 3, offset_deg_per_unit: float = 2.0) -> DMPActionSpace:
+def action_space(dmp: DMP, n_dominant: int = 3, offset_deg_per_unit: float = 1.0) -> DMPActionSpace:
     """Pick the dominant weights of each joint and scale the action offsets.
 
     A weight's contribution is ``|w_i| · max_t |response_i(t)|`` (how far it moves the

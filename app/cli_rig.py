@@ -1,0 +1,336 @@
+"""``activetouch rig``: check a rig before any run.
+
+Each command opens the three ports (or a simulated rig with ``--sim``), does one thing and
+closes them again::
+
+    activetouch rig status --turntable-port /dev/ttyACM0 --finger-port /dev/ttyUSB0 \\
+        --tactile-port /dev/ttyUSB1
+    activetouch rig home --sim
+    activetouch rig slot 3 --sim
+    activetouch rig touch --slot 3 --action 0,0,0,1,0,0 --sim --json
+    activetouch rig estop --turntable-port /dev/ttyACM0 --finger-port /dev/ttyUSB0
+
+Ports can also come from ``ACTIVETOUCH_TURNTABLE_PORT``, ``ACTIVETOUCH_FINGER_PORT`` and
+``ACTIVETOUCH_TACTILE_PORT``. Exit codes: 0 success, 1 a device error, 2 bad usage.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+from rich.console import Console
+
+from app.rig_factory import RigHandle, RigPorts, SimulationMode, TouchActions, open_rig
+from core.errors import CoreError
+from hardware.errors import HardwareError
+from hardware.finger import DYNAMIXEL_BAUDRATE, Finger
+from hardware.records import TouchRecord
+from hardware.rig import RigConfig, RigStatus
+from hardware.transport import SerialTransport
+from hardware.turntable import GRBL_BAUDRATE, Turntable
+
+rig_app = typer.Typer(
+    help="Check the rig: status, homing, turning a slot under the finger, a touch, e-stop.",
+    no_args_is_help=True,
+)
+console = Console(stderr=True)
+
+TurntablePort = Annotated[
+    str | None,
+    typer.Option(
+        "--turntable-port", envvar="ACTIVETOUCH_TURNTABLE_PORT", help="GRBL port, 115200 baud."
+    ),
+]
+FingerPort = Annotated[
+    str | None,
+    typer.Option(
+        "--finger-port", envvar="ACTIVETOUCH_FINGER_PORT", help="Dynamixel bus port, 1 Mbaud."
+    ),
+]
+TactilePort = Annotated[
+    str | None,
+    typer.Option(
+        "--tactile-port", envvar="ACTIVETOUCH_TACTILE_PORT", help="Tactile sensor, 460800 baud."
+    ),
+]
+Simulate = Annotated[
+    bool, typer.Option("--sim", help="Use a simulated rig (the paper's four cups in slots 0-3).")
+]
+SimTransport = Annotated[
+    SimulationMode,
+    typer.Option(
+        "--sim-transport",
+        help="in-process: simulated devices called directly; pty: emulators on "
+        "pseudo-terminals, driven through pyserial.",
+    ),
+]
+Seed = Annotated[int, typer.Option("--seed", help="Seed of the simulated world.")]
+AsJson = Annotated[bool, typer.Option("--json", help="Print a JSON document on stdout.")]
+
+
+def _fail(message: str, code: int) -> typer.Exit:
+    console.print(f"[red]error:[/red] {message}")
+    return typer.Exit(code=code)
+
+
+@contextmanager
+def _rig(
+    turntable_port: str | None,
+    finger_port: str | None,
+    tactile_port: str | None,
+    sim: bool,
+    sim_transport: SimulationMode,
+    seed: int,
+) -> Iterator[RigHandle]:
+    """Open the rig, yield it, close it; device errors become exit code 1."""
+    if sim:
+        handle = open_rig(simulate=sim_transport, seed=seed, rig_config=RigConfig())
+    else:
+        missing = [
+            name
+            for name, port in (
+                ("--turntable-port", turntable_port),
+                ("--finger-port", finger_port),
+                ("--tactile-port", tactile_port),
+            )
+            if not port
+        ]
+        if missing:
+            raise _fail(f"missing {', '.join(missing)} (or use --sim).", 2)
+        assert turntable_port is not None
+        assert finger_port is not None
+        assert tactile_port is not None
+        handle = open_rig(ports=RigPorts(turntable_port, finger_port, tactile_port))
+    try:
+        yield handle
+    except HardwareError as exc:
+        raise _fail(f"{type(exc).__name__}: {exc}", 1) from None
+    finally:
+        handle.close()
+
+
+def _status_document(status: RigStatus, handle: RigHandle) -> dict[str, Any]:
+    rig = handle.rig
+    document: dict[str, Any] = {
+        "state": status.state.value,
+        "slot": status.slot,
+        "table_angle_deg": status.table_angle_deg,
+        "finger_deg": None if status.finger_deg is None else list(status.finger_deg),
+        "fault": status.fault,
+        "devices": status.devices,
+        "grbl_version": rig.turntable.version,
+        "servo_models": rig.finger.models,
+        "tactile_channels": list(rig.tactile.config.channel_names),
+    }
+    last = rig.tactile.last_frame
+    if last is not None:
+        document["tactile_sample"] = dict(
+            zip(rig.tactile.config.channel_names, last.channels, strict=True)
+        )
+    if handle.object_names is not None:
+        document["simulated_objects"] = handle.object_names
+    return document
+
+
+def _print(document: dict[str, Any], as_json: bool) -> None:
+    if as_json:
+        sys.stdout.write(json.dumps(document) + "\n")
+        return
+    for key, value in document.items():
+        if isinstance(value, float):
+            value = f"{value:.3f}"
+        elif isinstance(value, dict):
+            value = ", ".join(
+                f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in value.items()
+            )
+        console.print(f"[bold]{key}[/bold]: {value}")
+
+
+@rig_app.command()
+def status(
+    turntable_port: TurntablePort = None,
+    finger_port: FingerPort = None,
+    tactile_port: TactilePort = None,
+    sim: Simulate = False,
+    sim_transport: SimTransport = SimulationMode.in_process,
+    seed: Seed = 0,
+    as_json: AsJson = False,
+) -> None:
+    """Connect the three devices and report what they say (GRBL version, servo models,...)."""
+    with (
+        _rig(turntable_port, finger_port, tactile_port, sim, sim_transport, seed) as handle,
+        handle.rig.acquire("activetouch rig status") as lease,
+    ):
+        lease.connect()
+        _print(_status_document(lease.status(), handle), as_json)
+
+
+@rig_app.command()
+def home(
+    turntable_port: TurntablePort = None,
+    finger_port: FingerPort = None,
+    tactile_port: TactilePort = None,
+    sim: Simulate = False,
+    sim_transport: SimTransport = SimulationMode.in_process,
+    seed: Seed = 0,
+    as_json: AsJson = False,
+) -> None:
+    """Retract the finger and run the turntable's homing cycle ($H)."""
+    with (
+        _rig(turntable_port, finger_port, tactile_port, sim, sim_transport, seed) as handle,
+        handle.rig.acquire("activetouch rig home") as lease,
+    ):
+        lease.connect()
+        lease.home()
+        _print(_status_document(lease.status(), handle), as_json)
+
+
+@rig_app.command()
+def slot(
+    k: Annotated[int, typer.Argument(help="Slot to turn under the finger (0-based).")],
+    turntable_port: TurntablePort = None,
+    finger_port: FingerPort = None,
+    tactile_port: TactilePort = None,
+    sim: Simulate = False,
+    sim_transport: SimTransport = SimulationMode.in_process,
+    seed: Seed = 0,
+    as_json: AsJson = False,
+) -> None:
+    """Turn slot K under the finger (the finger is retracted first)."""
+    with (
+        _rig(turntable_port, finger_port, tactile_port, sim, sim_transport, seed) as handle,
+        handle.rig.acquire("activetouch rig slot") as lease,
+    ):
+        lease.connect()
+        lease.move_to_slot(k)
+        _print(_status_document(lease.status(), handle), as_json)
+
+
+def _parse_action(text: str, dimension: int) -> np.ndarray:
+    try:
+        values = [float(part) for part in text.split(",")] if text.strip() else []
+    except ValueError:
+        raise _fail(
+            f"--action: expected {dimension} comma-separated numbers, got {text!r}.", 2
+        ) from None
+    if len(values) != dimension:
+        raise _fail(f"--action: expected {dimension} numbers, got {len(values)}.", 2)
+    return np.asarray(values, dtype=np.float64)
+
+
+def _touch_document(record: TouchRecord, action: np.ndarray) -> dict[str, Any]:
+    return {
+        "slot": record.slot,
+        "action": action.tolist(),
+        "observation": dict(zip(record.channel_names, record.observation.tolist(), strict=True)),
+        "frames": record.n_frames,
+        "dropped_frames": record.dropped_frames,
+        "corrupt_frames": record.corrupt_frames,
+        "late_setpoints": record.late_steps,
+        "duration_s": record.duration_s,
+        "peak_current_ma": dict(
+            zip(
+                record.joint_names,
+                np.abs(record.joint_currents_ma).max(axis=0).tolist(),
+                strict=True,
+            )
+        )
+        if record.joint_currents_ma.size
+        else {},
+    }
+
+
+@rig_app.command()
+def touch(
+    slot_k: Annotated[
+        int | None, typer.Option("--slot", help="Turn this slot under the finger first.")
+    ] = None,
+    action: Annotated[
+        str, typer.Option(help="Action x: 6 comma-separated numbers (0 = the teaching touch).")
+    ] = "0,0,0,0,0,0",
+    duration_s: Annotated[
+        float, typer.Option("--duration", min=1.0, help="Touch duration in seconds.")
+    ] = 14.4,
+    turntable_port: TurntablePort = None,
+    finger_port: FingerPort = None,
+    tactile_port: TactilePort = None,
+    sim: Simulate = False,
+    sim_transport: SimTransport = SimulationMode.in_process,
+    seed: Seed = 0,
+    as_json: AsJson = False,
+) -> None:
+    """Execute one touch (action → DMP → trajectory) and print its observation y."""
+    try:
+        actions = TouchActions.from_teaching(
+            dt_s=RigConfig().control_period_s, duration_s=duration_s
+        )
+    except CoreError as exc:
+        raise _fail(str(exc), 2) from None
+    x = _parse_action(action, actions.action_dim)
+    with (
+        _rig(turntable_port, finger_port, tactile_port, sim, sim_transport, seed) as handle,
+        handle.rig.acquire("activetouch rig touch") as lease,
+    ):
+        lease.connect()
+        record = actions.touch(lease, x, slot=slot_k)
+        _print(_touch_document(record, x), as_json)
+
+
+@rig_app.command()
+def estop(
+    turntable_port: TurntablePort = None,
+    finger_port: FingerPort = None,
+    tactile_port: TactilePort = None,
+    sim: Simulate = False,
+    sim_transport: SimTransport = SimulationMode.in_process,
+    seed: Seed = 0,
+) -> None:
+    """Emergency stop: GRBL soft reset and servo torque off, without waiting for anything.
+
+    Only the turntable and finger ports are used (``--tactile-port`` is accepted and ignored).
+    A port held by another program (a running server) cannot be opened: stop the rig through
+    that program (``POST /api/v1/rig/estop``).
+    """
+    handle: RigHandle | None = None
+    if sim:
+        handle = open_rig(simulate=sim_transport, seed=seed)
+        turntable: Turntable | None = handle.rig.turntable
+        finger: Finger | None = handle.rig.finger
+    else:
+        if not turntable_port and not finger_port:
+            raise _fail("give --turntable-port and/or --finger-port (or use --sim).", 2)
+        turntable = (
+            Turntable(SerialTransport(turntable_port, GRBL_BAUDRATE)) if turntable_port else None
+        )
+        finger = Finger(SerialTransport(finger_port, DYNAMIXEL_BAUDRATE)) if finger_port else None
+    stopped = []
+    try:
+        if turntable is not None:
+            try:
+                turntable.transport.open()
+                turntable.emergency_stop()
+                stopped.append("turntable (soft reset)")
+            except HardwareError as exc:
+                console.print(f"[yellow]warning:[/yellow] turntable: {exc}")
+        if finger is not None:
+            try:
+                finger.transport.open()
+                finger.emergency_stop(torque_off=True)
+                stopped.append("finger (torque off)")
+            except HardwareError as exc:
+                console.print(f"[yellow]warning:[/yellow] finger: {exc}")
+    finally:
+        for device in (turntable, finger):
+            if device is not None:
+                device.transport.close()
+        if handle is not None:
+            handle.close()
+    if not stopped:
+        raise _fail("no device could be reached.", 1)
+    console.print(f"emergency stop sent to: {', '.join(stopped)}")
