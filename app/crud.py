@@ -201,13 +201,25 @@ def list_trials(
     return list(rows), session.scalar(count_query) or 0
 
 
-def trial_steps(session: Session, trial_id: int) -> list[TrialStep]:
-    """Every step of a trial, in order."""
+def trial_steps(session: Session, trial_id: int, after_step: int = 0) -> list[TrialStep]:
+    """The steps of a trial numbered above ``after_step`` (all by default), in order."""
     return list(
         session.scalars(
-            select(TrialStep).where(TrialStep.trial_id == trial_id).order_by(TrialStep.step)
+            select(TrialStep)
+            .where(TrialStep.trial_id == trial_id, TrialStep.step > after_step)
+            .order_by(TrialStep.step)
         ).all()
     )
+
+
+def model_object_names(session: Session, model_id: int) -> list[str]:
+    """Object names of a model (its dataset's order)."""
+    names = session.scalar(
+        select(Dataset.object_names)
+        .join(ModelRecord, ModelRecord.dataset_id == Dataset.id)
+        .where(ModelRecord.id == model_id)
+    )
+    return list(names or [])
 
 
 def add_trial_step(session: Session, trial: Trial, **fields: Any) -> TrialStep:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, Query, Response
 
 from app.deps import MAX_ID, ContextDep, IdPath, SessionDep
 from app.schemas import (
@@ -40,10 +40,12 @@ def list_trials(
     return trials.list_page(session, model_id, status, limit, offset)
 
 
-@router.get("/{trial_id}")
-def get_trial(trial_id: IdPath, session: SessionDep) -> TrialPublic:
+@router.get("/{trial_id}", response_model=TrialPublic)
+def get_trial(trial_id: IdPath, session: SessionDep, context: ContextDep) -> Response:
     """A trial with all its steps and its result."""
-    return trials.get(session, trial_id)
+    return Response(
+        context.trial_views.trial_json(session, trial_id), media_type="application/json"
+    )
 
 
 @router.get("/{trial_id}/next-action")

@@ -11,7 +11,7 @@ from app.db import Database, upgrade_to_head
 from app.services.events import EventBus
 from app.services.models import ModelStore
 from app.services.runs import RunManager
-from app.services.trials import TrialService
+from app.services.trials import TrialService, TrialViews
 from app.services.worlds import WorldFactory
 
 logger = logging.getLogger(__name__)
@@ -29,6 +29,7 @@ class AppContext:
     models: ModelStore
     runs: RunManager
     trials: TrialService
+    trial_views: TrialViews
 
     def close(self) -> None:
         """Stop background work and close the database."""
@@ -61,4 +62,5 @@ def start_context(settings: Settings) -> AppContext:
         models=models,
         runs=runs,
         trials=trials,
+        trial_views=TrialViews(),
     )

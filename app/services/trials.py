@@ -125,6 +125,53 @@ def to_public(session: Session, trial: Trial) -> TrialPublic:
     return TrialPublic(**_summary_fields(trial), steps=steps)
 
 
+class TrialViews:
+    """Serialised steps of recent trials, kept in memory: a recorded step never changes, so a
+    read of a running trial only converts the steps recorded since the last read.
+    """
+
+    def __init__(self, max_trials: int = 64) -> None:
+        self._lock = threading.Lock()
+        self._steps: OrderedDict[int, list[str]] = OrderedDict()
+        self._names: dict[int, list[str]] = {}
+        self._max_trials = max_trials
+
+    def names(self, session: Session, model_id: int) -> list[str]:
+        """Object names of a model (cached: they never change)."""
+        with self._lock:
+            cached = self._names.get(model_id)
+        if cached is None:
+            cached = crud.model_object_names(session, model_id)
+            with self._lock:
+                self._names[model_id] = cached
+        return cached
+
+    def steps(self, session: Session, trial: Trial) -> list[str]:
+        """The JSON text of each of the trial's first ``trial.n_steps`` steps."""
+        with self._lock:
+            cached = list(self._steps.get(trial.id, ()))
+        if len(cached) < trial.n_steps:
+            names = self.names(session, trial.model_id)
+            cached += [
+                step_public(row, names).model_dump_json()
+                for row in crud.trial_steps(session, trial.id, after_step=len(cached))
+            ]
+            with self._lock:
+                if len(cached) > len(self._steps.get(trial.id, ())):
+                    self._steps[trial.id] = cached
+                self._steps.move_to_end(trial.id)
+                while len(self._steps) > self._max_trials:
+                    self._steps.popitem(last=False)
+        return cached[: trial.n_steps]
+
+    def trial_json(self, session: Session, trial_id: int) -> bytes:
+        """``GET /trials/{id}`` as JSON bytes."""
+        trial = require(session, trial_id)
+        summary = TrialSummary(**_summary_fields(trial)).model_dump_json()
+        steps = ",".join(self.steps(session, trial))
+        return f'{summary[:-1]},"steps":[{steps}]}}'.encode()
+
+
 def require(session: Session, trial_id: int) -> Trial:
     """The trial, or a 404."""
     trial = crud.get_trial(session, trial_id)
