@@ -1,0 +1,805 @@
+"""Object manifold learning: maximise Σ_a log p(y_a | S, X, γ_a) over S and γ (METHOD.md M2).
+
+How a fit runs (:func:`iter_fit`):
+
+1. **Starts.** Start 0 is data-driven (:func:`core.initialisation.pca_latents`); starts
+   1..R draw S ~ N(0, I) (``FitOptions.restarts``). Every start has unit latent spread, the
+   data-relative initial hyperparameters of :func:`core.parameters.initial_hyperparameters`
+   and latent length-scales ≈10× the spread. Start 0 first fits the hyperparameters with S
+   frozen, then everything jointly; random starts go straight to the joint fit (with frozen
+   random latents the hyperparameters adapt to a meaningless arrangement: on Experiment 1
+   that took 10-20× more joint iterations).
+2. **Screening.** When some object has more touches than ``screen_touches_per_object``,
+   every start is first optimised (at most ``screen_iterations``) on one random subsample of
+   that many touches per object, which costs ~(N/n)³ less per evaluation. The
+   ``polish_starts`` best screened starts are then optimised on all the data, from their
+   screened latents with fresh initial hyperparameters (hyperparameters fitted to a subsample
+   transfer badly, see :meth:`_FitRun._transfer`). Without screening (every object has at
+   most that many touches, or ``screen_touches_per_object=0``) every start is optimised on all
+   the data.
+3. **Differential evolution** (``optimizer="de"``): one more start, a
+   :func:`scipy.optimize.differential_evolution` search over the same bounded vector on the
+   screening data (value only), seeded with the best start so far, refined with L-BFGS-B and
+   always polished on all the data.
+4. **Choice.** The best full-data likelihood among the polished starts wins, except that a
+   *degenerate* winner is replaced by a non-degenerate polished start; if every polished
+   start is degenerate, the next screened starts are polished until one is not (or none is
+   left). Degenerate: some latent length-scale sits on its lower bound (objects uncorrelated
+   in a feature), or every feature's length-scale of some latent dimension sits on its upper
+   bound (an unused dimension). ``FitDiagnostics.starts_log_likelihood`` holds the full-data
+   log-likelihood of every start: after polishing for the polished ones, at the screened
+   parameters for the others.
+5. **Normalisation.** Latents are centred and scaled to RMS distance 1 from their centre, and
+   the latent length-scales divided by the same factor, which leaves the likelihood unchanged;
+   the model is built with :func:`core.posterior.condition`.
+
+Bounds (log space, relative to the data): see :func:`core.parameters.parameter_bounds`.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+from collections.abc import Callable, Generator, Iterator
+from dataclasses import dataclass
+from typing import Any, Literal, TypeVar
+
+import numpy as np
+import scipy.optimize
+
+from core.errors import ConvergenceError, CoreError, InvalidInputError, NotPositiveDefiniteError
+from core.initialisation import normalise_spread, pca_latents, random_latents
+from core.likelihood import ManifoldLikelihood
+from core.parameters import ParameterLayout, initial_hyperparameters, parameter_bounds
+from core.posterior import condition
+from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
+from core.validation import FloatArray, as_float_array
+
+Optimizer = Literal["lbfgs", "de"]
+OPTIMIZERS: tuple[str, ...] = ("lbfgs", "de")
+
+#: A value returned to the optimiser where the Gram matrix stays singular even with jitter.
+_FAILED_VALUE = 1e30
+#: Distance (log units) from a bound that counts as sitting on it.
+_AT_BOUND = 1e-4
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """Settings of :func:`iter_fit` / :func:`fit_manifold`.
+
+    Attributes:
+        optimizer: ``"lbfgs"`` (PCA start + random restarts, L-BFGS-B) or ``"de"`` (the same,
+            plus one differential-evolution start polished with L-BFGS-B).
+        restarts: Random restarts on top of the data-driven start 0 (≥ 0).
+        max_iterations: L-BFGS-B iteration limit of each joint optimisation (≥ 1).
+        hyperparameter_iterations: Iteration limit of start 0's first stage, hyperparameters
+            with S frozen (≥ 0; 0 skips the stage).
+        ftol: L-BFGS-B relative reduction tolerance (> 0).
+        gtol: L-BFGS-B projected-gradient tolerance (> 0).
+        screen_touches_per_object: Touches per object in the screening subsample (0 = no
+            screening; otherwise ≥ 2).
+        screen_iterations: L-BFGS-B iteration limit of each start on the screening subsample
+            (≥ 1); starts still crawling then are not promising.
+        polish_starts: How many of the best screened starts are optimised on all the data
+            (≥ 1).
+        latent_bound: Latents are boxed in [-latent_bound, latent_bound] during the fit
+            (starts have unit spread; > 0).
+        initial_latent_lengthscale: Initial latent length-scale in units of the latent spread
+            (> 0).
+        de_population: Population size multiplier of differential evolution (scipy's
+            ``popsize``, ≥ 1).
+        de_generations: Generations of differential evolution (≥ 1).
+        progress_every: Yield a :class:`FitProgress` every this many optimiser iterations (≥ 1).
+    """
+
+    optimizer: Optimizer = "lbfgs"
+    restarts: int = 4
+    max_iterations: int = 3000
+    hyperparameter_iterations: int = 200
+    ftol: float = 1e-12
+    gtol: float = 1e-6
+    screen_touches_per_object: int = 25
+    screen_iterations: int = 200
+    polish_starts: int = 1
+    latent_bound: float = 5.0
+    initial_latent_lengthscale: float = 10.0
+    de_population: int = 8
+    de_generations: int = 40
+    progress_every: int = 10
+
+    def __post_init__(self) -> None:
+        if self.optimizer not in OPTIMIZERS:
+            raise InvalidInputError(
+                f"optimizer: expected one of {', '.join(OPTIMIZERS)}, received {self.optimizer!r}."
+            )
+        minimums = {
+            "restarts": 0,
+            "max_iterations": 1,
+            "hyperparameter_iterations": 0,
+            "screen_touches_per_object": 0,
+            "screen_iterations": 1,
+            "polish_starts": 1,
+            "de_population": 1,
+            "de_generations": 1,
+            "progress_every": 1,
+        }
+        for name, minimum in minimums.items():
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer):
+                raise InvalidInputError(f"{name}: expected an integer, received {value!r}.")
+            if value < minimum:
+                raise InvalidInputError(f"{name}: must be ≥ {minimum}, received {value}.")
+        if self.screen_touches_per_object == 1:
+            raise InvalidInputError(
+                "screen_touches_per_object: must be 0 (no screening) or ≥ 2, received 1."
+            )
+        for name in ("ftol", "gtol", "latent_bound", "initial_latent_lengthscale"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float | np.floating):
+                raise InvalidInputError(f"{name}: expected a number, received {value!r}.")
+            if not np.isfinite(value) or value <= 0:
+                raise InvalidInputError(f"{name}: must be a finite number > 0, received {value}.")
+
+
+@dataclass(frozen=True)
+class FitProgress:
+    """One progress event of :func:`iter_fit`.
+
+    Attributes:
+        start: Index of the start being optimised (0 = data-driven; the DE start comes last).
+        n_starts: Number of starts.
+        iteration: Optimiser iterations of this start so far (generations for DE).
+        log_likelihood: Current log-likelihood of this start — of the screening subsample
+            while ``phase`` is ``"screen"`` or ``"de"``, of all the data otherwise.
+        best_log_likelihood: Best full-data log-likelihood so far (-inf before any).
+        phase: ``"hyperparameters"`` (S frozen), ``"screen"``, ``"de"``, ``"joint"``
+            (all data), ``"start done"``, or ``"done"`` (the final event).
+        model: The fitted model, on the final event only.
+    """
+
+    start: int
+    n_starts: int
+    iteration: int
+    log_likelihood: float
+    best_log_likelihood: float
+    phase: str = "joint"
+    model: ManifoldModel | None = None
+
+
+class FitCancelledError(CoreError):
+    """A :func:`fit_manifold` callback returned ``False``.
+
+    Attributes:
+        best_so_far: The best model reached before the cancellation (normalised, conditioned
+            on all the data), or ``None`` if no start had produced parameters yet.
+    """
+
+    def __init__(self, message: str, best_so_far: ManifoldModel | None) -> None:
+        super().__init__(message)
+        self.best_so_far = best_so_far
+
+
+def normalise_latents(
+    latents: FloatArray, hyperparameters: Hyperparameters
+) -> tuple[FloatArray, Hyperparameters]:
+    """Centre S, scale it to RMS distance 1 from its centre, and rescale ℓ^s to match.
+
+    s' = (s - centre) / c and ℓ^s' = ℓ^s / c leave every kernel value, hence the likelihood,
+    unchanged (the model is identifiable only up to such maps, METHOD.md M2).
+
+    Args:
+        latents: Shape (L, ds).
+        hyperparameters: Hyperparameters with ds latent dimensions.
+
+    Returns:
+        The normalised latents (L, ds) and hyperparameters.
+    """
+    latents = as_float_array(latents, "latents", (None, hyperparameters.latent_dim))
+    normalised, _, scale = normalise_spread(latents)
+    h = hyperparameters
+    return normalised, Hyperparameters(
+        signal_variance=h.signal_variance,
+        noise_variance=h.noise_variance,
+        latent_lengthscales=h.latent_lengthscales / scale,
+        action_lengthscales=h.action_lengthscales,
+    )
+
+
+def iter_fit(
+    data: TrainingData,
+    latent_dim: int,
+    rng: np.random.Generator,
+    options: FitOptions = FitOptions(),
+) -> Iterator[FitProgress]:
+    """Fit the object manifold, yielding progress (a generator; see the module docstring).
+
+    Events come every ``options.progress_every`` optimiser iterations and at the end of each
+    stage; the last event has ``phase="done"`` and carries the model. Close the generator to
+    stop early (the running optimiser is stopped cleanly).
+
+    Args:
+        data: Training touches (L ≥ 2 objects).
+        latent_dim: ds ≥ 1.
+        rng: Random generator (random starts, screening subsample, DE).
+        options: Fit settings.
+
+    Yields:
+        :class:`FitProgress` events.
+
+    Raises:
+        InvalidInputError: Bad ``latent_dim``, ``rng`` or ``options``.
+        ConvergenceError: Every start failed.
+    """
+    return _FitRun(data, latent_dim, rng, options).events()
+
+
+def fit_manifold(
+    data: TrainingData,
+    latent_dim: int,
+    rng: np.random.Generator,
+    options: FitOptions = FitOptions(),
+    callback: Callable[[FitProgress], bool | None] | None = None,
+) -> ManifoldModel:
+    """Fit the object manifold (METHOD.md M2) and return the normalised model.
+
+    Args:
+        data: Training touches.
+        latent_dim: ds ≥ 1.
+        rng: Random generator.
+        options: Fit settings.
+        callback: Receives every :class:`FitProgress`; returning ``False`` (not ``None``)
+            cancels the fit.
+
+    Returns:
+        The fitted model (latents normalised; ``diagnostics`` filled in).
+
+    Raises:
+        FitCancelledError: The callback returned ``False``; its ``best_so_far`` holds the best
+            model reached.
+        InvalidInputError: Bad arguments.
+        ConvergenceError: Every start failed.
+    """
+    run = _FitRun(data, latent_dim, rng, options)
+    events = run.events()
+    model: ManifoldModel | None = None
+    try:
+        for event in events:
+            if callback is not None and callback(event) is False:
+                events.close()
+                raise FitCancelledError(
+                    f"manifold fit cancelled by the callback at start {event.start} of "
+                    f"{event.n_starts}, iteration {event.iteration}.",
+                    run.best_model_so_far(),
+                )
+            if event.model is not None:
+                model = event.model
+    finally:
+        events.close()
+    if model is None:  # pragma: no cover - the generator always ends with a model
+        raise ConvergenceError("the manifold fit ended without a model.")
+    return model
+
+
+def fit_hyperparameters(
+    data: TrainingData,
+    latents: FloatArray,
+    options: FitOptions = FitOptions(),
+) -> ManifoldModel:
+    """Fit only the hyperparameters, with the latents held fixed (e.g. the paper's
+    "randomly-set object parameter" baseline).
+
+    The latents are normalised first (which does not change what the model can fit); the
+    hyperparameters start from :func:`core.parameters.initial_hyperparameters` and are
+    optimised with L-BFGS-B on all the data (``options.max_iterations``, ``ftol``, ``gtol``).
+
+    Args:
+        data: Training touches.
+        latents: Fixed object latents. Shape (L, ds).
+        options: Fit settings (only the L-BFGS-B ones are used).
+
+    Returns:
+        The model; ``diagnostics`` describe the single start.
+    """
+    latents = as_float_array(latents, "latents", (data.n_objects, None))
+    if latents.shape[1] < 1:
+        raise InvalidInputError(f"latents: need at least one column, received {latents.shape}.")
+    normalised, _, _ = normalise_spread(latents)
+    likelihood = ManifoldLikelihood(data, latents.shape[1])
+    layout = likelihood.layout
+    lower, upper = parameter_bounds(data, layout, max(options.latent_bound, 1.0))
+    hyper = initial_hyperparameters(data, layout.latent_dim, options.initial_latent_lengthscale)
+    vector = layout.pack(normalised, hyper)
+    free = np.zeros(layout.size, dtype=bool)
+    free[layout.hyperparameters] = True
+    result = _minimize(likelihood, vector, free, lower, upper, options, options.max_iterations)
+    final = vector.copy()
+    final[free] = result.x
+    s, h = layout.unpack(final)
+    at_bounds = _at_bounds(final, lower, upper, layout, free)
+    diagnostics = FitDiagnostics(
+        starts_log_likelihood=(-float(result.fun),),
+        best_start=0,
+        iterations=int(result.nit),
+        converged=bool(result.success),
+        message=str(result.message),
+        jitter_used=likelihood.max_jitter,
+        hyperparameters_at_bounds=at_bounds,
+    )
+    s, h = normalise_latents(s, h)
+    return condition(data, s, h, diagnostics)
+
+
+# --------------------------------------------------------------------------------------------
+# Internals
+
+
+@dataclass
+class _Start:
+    """Book-keeping of one start."""
+
+    index: int
+    kind: str  # "pca", "random", "de"
+    vector: FloatArray
+    iterations: int = 0
+    screen_value: float = np.inf  # -log p on the screening data
+    full_value: float = np.inf  # -log p on all the data
+    polished: bool = False
+    converged: bool = False
+    message: str = ""
+
+
+@dataclass
+class _Problem:
+    """A likelihood with its bounds (all the data, or the screening subsample)."""
+
+    likelihood: ManifoldLikelihood
+    lower: FloatArray
+    upper: FloatArray
+
+
+_Result = TypeVar("_Result")
+
+
+class _FitRun:
+    """State of one fit; :meth:`events` is the generator behind :func:`iter_fit`."""
+
+    def __init__(
+        self,
+        data: TrainingData,
+        latent_dim: int,
+        rng: np.random.Generator,
+        options: FitOptions,
+    ) -> None:
+        if not isinstance(data, TrainingData):
+            raise InvalidInputError(f"data: expected TrainingData, received {type(data).__name__}.")
+        if isinstance(latent_dim, bool) or not isinstance(latent_dim, int | np.integer):
+            raise InvalidInputError(f"latent_dim: expected an integer, received {latent_dim!r}.")
+        if latent_dim < 1:
+            raise InvalidInputError(f"latent_dim: must be ≥ 1, received {latent_dim}.")
+        if not isinstance(rng, np.random.Generator):
+            raise InvalidInputError(
+                f"rng: expected numpy.random.Generator, received {type(rng).__name__}."
+            )
+        if not isinstance(options, FitOptions):
+            raise InvalidInputError(
+                f"options: expected FitOptions, received {type(options).__name__}."
+            )
+        self.data = data
+        self.latent_dim = int(latent_dim)
+        self.rng = rng
+        self.options = options
+        full = ManifoldLikelihood(data, self.latent_dim)
+        self.layout: ParameterLayout = full.layout
+        lower, upper = parameter_bounds(data, self.layout, options.latent_bound)
+        self.full = _Problem(full, lower, upper)
+        self.screen: _Problem | None = None
+        counts = data.touches_per_object()
+        k = options.screen_touches_per_object
+        if k and np.any(counts > k):
+            subset = self._subsample(k)
+            screen_likelihood = ManifoldLikelihood(subset, self.latent_dim)
+            # Bounds stay those of all the data, so screened vectors are valid full vectors.
+            self.screen = _Problem(screen_likelihood, lower, upper)
+        self.starts: list[_Start] = []
+        self.best_full = np.inf
+
+    # -- set-up ------------------------------------------------------------------------------
+
+    def _subsample(self, per_object: int) -> TrainingData:
+        data = self.data
+        keep: list[np.ndarray[Any, np.dtype[np.intp]]] = []
+        for obj in range(data.n_objects):
+            idx = np.flatnonzero(data.object_index == obj)
+            if idx.size > per_object:
+                idx = np.sort(self.rng.choice(idx, size=per_object, replace=False))
+            keep.append(idx)
+        rows = np.concatenate(keep)
+        return TrainingData(
+            object_names=data.object_names,
+            object_index=data.object_index[rows],
+            actions=data.actions[rows],
+            observations=data.observations[rows],
+        )
+
+    def _initial_vector(self, latents: FloatArray) -> FloatArray:
+        hyper = initial_hyperparameters(
+            self.data, self.latent_dim, self.options.initial_latent_lengthscale
+        )
+        vector = self.layout.pack(np.clip(latents, -self.options.latent_bound, None), hyper)
+        return np.clip(vector, self.full.lower, self.full.upper)
+
+    # -- the generator -----------------------------------------------------------------------
+
+    def events(self) -> Generator[FitProgress, None, None]:
+        """Run the fit, yielding progress; the last event carries the model."""
+        options = self.options
+        layout = self.layout
+        n_objects = self.data.n_objects
+        pca_vector = self._initial_vector(pca_latents(self.data, layout.latent_dim, self.rng))
+        self.starts.append(_Start(0, "pca", pca_vector))
+        for i in range(options.restarts):
+            latents = random_latents(n_objects, layout.latent_dim, self.rng)
+            self.starts.append(_Start(i + 1, "random", self._initial_vector(latents)))
+        n_starts = len(self.starts) + (1 if options.optimizer == "de" else 0)
+        working = self.screen if self.screen is not None else self.full
+        hyper_only = np.zeros(layout.size, dtype=bool)
+        hyper_only[layout.hyperparameters] = True
+        everything = np.ones(layout.size, dtype=bool)
+        phase = "screen" if self.screen is not None else "joint"
+
+        # 1. Every L-BFGS start on the working data (screening subsample or all the data).
+        limit = options.screen_iterations if self.screen is not None else options.max_iterations
+        for start in self.starts:
+            if start.kind == "pca" and options.hyperparameter_iterations > 0:
+                yield from self._optimise(
+                    start,
+                    working,
+                    hyper_only,
+                    options.hyperparameter_iterations,
+                    "hyperparameters",
+                    n_starts,
+                )
+            yield from self._optimise(start, working, everything, limit, phase, n_starts)
+
+        # 2. Differential evolution on the working data, seeded with the best start so far.
+        if options.optimizer == "de":
+            seed_vector = self._best_working(working).vector.copy()
+            de_start = _Start(len(self.starts), "de", seed_vector)
+            self.starts.append(de_start)
+            yield from self._differential_evolution(de_start, working, n_starts)
+            yield from self._optimise(de_start, working, everything, limit, phase, n_starts)
+
+        # 3. Polish the best screened starts on all the data (and the DE start), from their
+        #    screened latents with fresh hyperparameters; if the best polished start is
+        #    degenerate, polish the next ones until one is not (or none is left).
+        if self.screen is not None:
+            for start in self.starts:
+                start.full_value = self._full_value(start.vector)
+            ranked = sorted(self.starts, key=lambda s: s.screen_value)
+            queue_ = ranked[: options.polish_starts]
+            queue_ += [s for s in self.starts if s.kind == "de" and s not in queue_]
+            rest = [s for s in ranked if s not in queue_]
+            while queue_:
+                start = queue_.pop(0)
+                start.vector = self._transfer(start.vector)
+                yield from self._optimise(
+                    start, self.full, everything, options.max_iterations, "joint", n_starts
+                )
+                start.polished = True
+                if not queue_ and rest and self._all_polished_degenerate():
+                    queue_.append(rest.pop(0))
+        else:
+            for start in self.starts:
+                start.polished = True
+
+        model = self._final_model()
+        yield FitProgress(
+            start=model.diagnostics.best_start if model.diagnostics else 0,
+            n_starts=n_starts,
+            iteration=model.diagnostics.iterations if model.diagnostics else 0,
+            log_likelihood=model.log_likelihood,
+            best_log_likelihood=model.log_likelihood,
+            phase="done",
+            model=model,
+        )
+
+    # -- pieces ------------------------------------------------------------------------------
+
+    def _all_polished_degenerate(self) -> bool:
+        polished = [s for s in self.starts if s.polished and np.isfinite(s.full_value)]
+        return all(self._is_degenerate(s.vector) for s in polished)
+
+    def _transfer(self, vector: FloatArray) -> FloatArray:
+        """The full-data starting point of a screened start: its screened latents
+        (normalised) with fresh initial hyperparameters. Hyperparameters fitted to a subsample
+        transfer badly (measured on Experiment 1: a feature left at ℓ^s ≈ 48, where the full
+        fit stays on a plateau 65 nats below the optimum, and 2-20x more iterations)."""
+        latents, _ = self.layout.unpack(vector)
+        normalised, _, _ = normalise_spread(latents)
+        return self._initial_vector(normalised)
+
+    def _best_working(self, working: _Problem) -> _Start:
+        key = (lambda s: s.screen_value) if working is self.screen else (lambda s: s.full_value)
+        return min(self.starts, key=key)
+
+    def _full_value(self, vector: FloatArray) -> float:
+        try:
+            return self.full.likelihood.value(vector)
+        except NotPositiveDefiniteError:
+            return np.inf
+
+    def _record(self, start: _Start, problem: _Problem, value: float) -> None:
+        if problem is self.full:
+            start.full_value = value
+            self.best_full = min(self.best_full, value)
+        else:
+            start.screen_value = value
+
+    def _optimise(
+        self,
+        start: _Start,
+        problem: _Problem,
+        free: np.ndarray[Any, np.dtype[np.bool_]],
+        max_iterations: int,
+        phase: str,
+        n_starts: int,
+    ) -> Generator[FitProgress, None, None]:
+        """L-BFGS-B on the ``free`` entries of ``start.vector``, streaming progress."""
+        options = self.options
+        base = start.vector.copy()
+        initial_iterations = start.iterations
+
+        def run(callback: Callable[[Any], None]) -> scipy.optimize.OptimizeResult:
+            return _minimize(
+                problem.likelihood,
+                base,
+                free,
+                problem.lower,
+                problem.upper,
+                options,
+                max_iterations,
+                callback,
+            )
+
+        stream = _stream(run, options.progress_every)
+        try:
+            while True:
+                iteration, value = next(stream)
+                yield FitProgress(
+                    start=start.index,
+                    n_starts=n_starts,
+                    iteration=initial_iterations + iteration,
+                    log_likelihood=-value,
+                    best_log_likelihood=-self.best_full,
+                    phase=phase,
+                )
+        except StopIteration as stop:
+            result: scipy.optimize.OptimizeResult = stop.value
+        finally:
+            stream.close()
+        start.vector = base.copy()
+        start.vector[free] = result.x
+        start.iterations = initial_iterations + int(result.nit)
+        start.converged = bool(result.success)
+        start.message = str(result.message)
+        self._record(start, problem, float(result.fun))
+        yield FitProgress(
+            start=start.index,
+            n_starts=n_starts,
+            iteration=start.iterations,
+            log_likelihood=-float(result.fun),
+            best_log_likelihood=-self.best_full,
+            phase="start done" if problem is self.full else phase,
+        )
+
+    def _differential_evolution(
+        self, start: _Start, problem: _Problem, n_starts: int
+    ) -> Generator[FitProgress, None, None]:
+        """Differential evolution over the whole bounded vector, seeded with ``start``."""
+        options = self.options
+        likelihood = problem.likelihood
+        seed = np.random.default_rng(self.rng.integers(2**63))
+
+        def objective(vector: FloatArray) -> float:
+            try:
+                return likelihood.value(vector)
+            except NotPositiveDefiniteError:
+                return _FAILED_VALUE
+
+        def run(callback: Callable[[Any], None]) -> scipy.optimize.OptimizeResult:
+            return scipy.optimize.differential_evolution(
+                objective,
+                bounds=scipy.optimize.Bounds(problem.lower, problem.upper),
+                x0=start.vector,
+                popsize=options.de_population,
+                maxiter=options.de_generations,
+                polish=False,
+                init="latinhypercube",
+                rng=seed,
+                callback=callback,
+                updating="immediate",
+            )
+
+        stream = _stream(run, 1)
+        try:
+            while True:
+                generation, value = next(stream)
+                yield FitProgress(
+                    start=start.index,
+                    n_starts=n_starts,
+                    iteration=generation,
+                    log_likelihood=-value,
+                    best_log_likelihood=-self.best_full,
+                    phase="de",
+                )
+        except StopIteration as stop:
+            result: scipy.optimize.OptimizeResult = stop.value
+        finally:
+            stream.close()
+        start.vector = np.asarray(result.x, dtype=np.float64).copy()
+        start.iterations = int(result.nit)
+        start.message = str(result.message)
+        self._record(start, problem, float(result.fun))
+
+    def _is_degenerate(self, vector: FloatArray) -> bool:
+        layout = self.layout
+        sl = layout.log_latent_lengthscales
+        log_ls = vector[sl].reshape(layout.observation_dim, layout.latent_dim)
+        low = self.full.lower[sl].reshape(log_ls.shape)
+        high = self.full.upper[sl].reshape(log_ls.shape)
+        at_low = log_ls <= low + _AT_BOUND
+        at_high = log_ls >= high - _AT_BOUND
+        return bool(np.any(at_low) or np.any(np.all(at_high, axis=0)))
+
+    def _final_model(self) -> ManifoldModel:
+        candidates = [s for s in self.starts if s.polished and np.isfinite(s.full_value)]
+        if not candidates:
+            raise ConvergenceError(
+                "every start of the manifold fit failed (the Gram matrices stayed singular): "
+                "check for duplicate touches with conflicting observations."
+            )
+        candidates.sort(key=lambda s: s.full_value)
+        winner = candidates[0]
+        if self._is_degenerate(winner.vector):
+            healthy = [s for s in candidates if not self._is_degenerate(s.vector)]
+            if healthy:
+                winner = healthy[0]
+        everything = np.ones(self.layout.size, dtype=bool)
+        at_bounds = _at_bounds(
+            winner.vector, self.full.lower, self.full.upper, self.layout, everything
+        )
+        diagnostics = FitDiagnostics(
+            starts_log_likelihood=tuple(-s.full_value for s in self.starts),
+            best_start=winner.index,
+            iterations=winner.iterations,
+            converged=winner.converged,
+            message=winner.message,
+            jitter_used=max(
+                self.full.likelihood.max_jitter,
+                self.screen.likelihood.max_jitter if self.screen is not None else 0.0,
+            ),
+            hyperparameters_at_bounds=at_bounds,
+        )
+        latents, hyper = self.layout.unpack(winner.vector)
+        latents, hyper = normalise_latents(latents, hyper)
+        return condition(self.data, latents, hyper, diagnostics)
+
+    def best_model_so_far(self) -> ManifoldModel | None:
+        """The best parameters reached so far, conditioned on all the data (or ``None``)."""
+        done = [s for s in self.starts if np.isfinite(s.full_value)]
+        if not done:
+            done = [s for s in self.starts if np.isfinite(s.screen_value)]
+            for s in done:
+                s.full_value = self._full_value(s.vector)
+            done = [s for s in done if np.isfinite(s.full_value)]
+        if not done:
+            return None
+        best = min(done, key=lambda s: s.full_value)
+        latents, hyper = normalise_latents(*self.layout.unpack(best.vector))
+        return condition(self.data, latents, hyper)
+
+
+def _at_bounds(
+    vector: FloatArray,
+    lower: FloatArray,
+    upper: FloatArray,
+    layout: ParameterLayout,
+    free: np.ndarray[Any, np.dtype[np.bool_]],
+) -> tuple[str, ...]:
+    names = layout.names()
+    hits = []
+    for i in np.flatnonzero(free):
+        if vector[i] <= lower[i] + _AT_BOUND:
+            hits.append(f"{names[i]} (lower)")
+        elif vector[i] >= upper[i] - _AT_BOUND:
+            hits.append(f"{names[i]} (upper)")
+    return tuple(hits)
+
+
+def _minimize(
+    likelihood: ManifoldLikelihood,
+    base: FloatArray,
+    free: np.ndarray[Any, np.dtype[np.bool_]],
+    lower: FloatArray,
+    upper: FloatArray,
+    options: FitOptions,
+    max_iterations: int,
+    callback: Callable[[Any], None] | None = None,
+) -> scipy.optimize.OptimizeResult:
+    """L-BFGS-B with the analytic gradient over ``base[free]`` (the rest held fixed)."""
+    vector = base.copy()
+
+    def objective(x: FloatArray) -> tuple[float, FloatArray]:
+        vector[free] = x
+        try:
+            value, grad = likelihood.value_and_gradient(vector)
+        except NotPositiveDefiniteError:
+            return _FAILED_VALUE, np.zeros(x.shape[0])
+        return value, grad[free]
+
+    x0 = np.clip(base[free], lower[free], upper[free])
+    return scipy.optimize.minimize(
+        objective,
+        x0,
+        jac=True,
+        method="L-BFGS-B",
+        bounds=scipy.optimize.Bounds(lower[free], upper[free]),
+        callback=callback,
+        options={"maxiter": max_iterations, "ftol": options.ftol, "gtol": options.gtol},
+    )
+
+
+def _stream(
+    run: Callable[[Callable[[Any], None]], _Result], every: int
+) -> Generator[tuple[int, float], None, _Result]:
+    """Run an optimiser in a helper thread and yield (iteration, value) every ``every``
+    iterations; the generator's return value is the optimiser's result.
+
+    The two threads strictly take turns (the optimiser waits while the consumer handles an
+    event), so results are deterministic. Closing the generator stops the optimiser: its
+    callback raises ``StopIteration``, which scipy treats as a request to halt.
+    """
+    to_consumer: queue.Queue[tuple[str, Any]] = queue.Queue(maxsize=1)
+    to_worker: queue.Queue[bool] = queue.Queue(maxsize=1)
+    count = 0
+
+    def callback(intermediate_result: scipy.optimize.OptimizeResult) -> None:
+        nonlocal count
+        count += 1
+        if count % every == 0:
+            to_consumer.put(("progress", (count, float(intermediate_result.fun))))
+            if not to_worker.get():
+                raise StopIteration
+
+    def work() -> None:
+        try:
+            to_consumer.put(("done", run(callback)))
+        except BaseException as exc:  # handed to the consumer thread
+            to_consumer.put(("error", exc))
+
+    thread = threading.Thread(target=work, name="manifold-optimiser", daemon=True)
+    thread.start()
+    finished = False
+    try:
+        while True:
+            kind, payload = to_consumer.get()
+            if kind == "progress":
+                yield payload
+                to_worker.put(True)
+            elif kind == "done":
+                finished = True
+                return payload  # type: ignore[no-any-return]
+            else:
+                finished = True
+                raise payload
+    finally:
+        if not finished:
+            # The consumer stopped early: release the optimiser with a stop request and wait.
+            to_worker.put(False)
+            while True:
+                kind, _ = to_consumer.get()
+                if kind != "progress":
+                    break
+                to_worker.put(False)
+        thread.join()
