@@ -14,7 +14,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from app.config import Settings
 from app.deps import require_token
 from app.errors import PayloadTooLargeError, install_error_handlers
-from app.routes import datasets, events, health, models, objects, trials
+from app.routes import collections, datasets, events, health, models, objects, rig, trials
 from app.services.context import start_context
 from app.services.health import version
 
@@ -97,7 +97,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(BodySizeLimit, max_body_size=settings.max_upload_bytes)
     install_error_handlers(app)
     api = APIRouter(prefix=API_PREFIX, dependencies=[Depends(require_token)])
-    for module in (health, objects, datasets, models, trials, events):
+    for module in (health, objects, datasets, models, trials, rig, collections, events):
         api.include_router(module.router)
     app.include_router(api)
     if settings.frontend_dir.is_dir():

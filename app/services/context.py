@@ -8,8 +8,10 @@ from dataclasses import dataclass
 from app import crud
 from app.config import Settings
 from app.db import Database, upgrade_to_head
+from app.services.collections import CollectionService
 from app.services.events import EventBus
 from app.services.models import ModelStore
+from app.services.rig import RigService
 from app.services.runs import RunManager
 from app.services.trials import TrialService, TrialViews
 from app.services.worlds import WorldFactory
@@ -30,11 +32,14 @@ class AppContext:
     runs: RunManager
     trials: TrialService
     trial_views: TrialViews
+    rig: RigService
+    collections: CollectionService
 
     def close(self) -> None:
-        """Stop background work and close the database."""
+        """Stop background work, close the rig and the database."""
         self.runs.close()
         self.models.close()
+        self.rig.close()
         self.database.dispose()
 
 
@@ -54,7 +59,8 @@ def start_context(settings: Settings) -> AppContext:
             )
     models = ModelStore(database, events, max_training_touches=settings.max_training_touches)
     runs = RunManager()
-    trials = TrialService(settings, database, events, models, runs, WorldFactory())
+    rig = RigService(settings, runs, events)
+    trials = TrialService(settings, database, events, models, runs, WorldFactory(rig), rig)
     return AppContext(
         settings=settings,
         database=database,
@@ -63,4 +69,6 @@ def start_context(settings: Settings) -> AppContext:
         runs=runs,
         trials=trials,
         trial_views=TrialViews(),
+        rig=rig,
+        collections=CollectionService(database, events, runs, rig),
     )

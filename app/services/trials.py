@@ -38,6 +38,7 @@ from app.schemas import (
 from app.services import states
 from app.services.events import EventBus
 from app.services.models import ModelStore
+from app.services.rig import RigService
 from app.services.runs import RunCancelled, RunHandle, RunManager
 from app.services.worlds import Touch, TouchSource, WorldFactory
 from core.errors import CoreError, InvalidInputError
@@ -223,6 +224,7 @@ class TrialService:
         models: Loads fitted models.
         runs: Owns background runs and the rig.
         worlds: Makes the touch sources of simulated and rig trials.
+        rig: This server's rig (slots of its simulated objects).
     """
 
     def __init__(
@@ -233,6 +235,7 @@ class TrialService:
         models: ModelStore,
         runs: RunManager,
         worlds: WorldFactory,
+        rig: RigService,
     ) -> None:
         self._settings = settings
         self._database = database
@@ -240,6 +243,7 @@ class TrialService:
         self._models = models
         self._runs = runs
         self._worlds = worlds
+        self._rig = rig
         self._planners: OrderedDict[tuple[Any, ...], tuple[ManifoldModel, Planner]] = OrderedDict()
         self._planner_lock = threading.Lock()
         self._scripted: dict[int, _Live] = {}
@@ -305,11 +309,15 @@ class TrialService:
             options["fixed_action"] = list(body.fixed_action)
         if simulation is not None:
             options["simulation"] = simulation.model_dump()
-        if body.target_slot is not None:
-            options["target_slot"] = body.target_slot
+        target_slot = body.target_slot
+        if body.mode == "rig" and target_slot is None and body.target is not None:
+            known = crud.get_object_by_name(session, body.target)
+            target_slot = known.slot if known is not None else self._rig.slot_of(body.target)
+        if target_slot is not None:
+            options["target_slot"] = target_slot
         if body.mode != "scripted":
             # Validates the world/rig and the target before anything is stored.
-            self._worlds.check(body.mode, simulation, model, body.target, body.target_slot)
+            self._worlds.check(body.mode, simulation, model, body.target, target_slot)
         if body.mode == "rig" and self._runs.rig_holder is not None:
             raise ConflictError(
                 f"The rig is in use by {self._runs.rig_holder}.", held_by=self._runs.rig_holder
@@ -589,7 +597,12 @@ class TrialService:
                 simulation = trial.options.get("simulation")
                 options = SimulationOptions(**simulation) if simulation else None
                 source = self._worlds.open(
-                    trial.mode, options, model, trial.target, trial.options.get("target_slot")
+                    trial.mode,
+                    options,
+                    model,
+                    trial.target,
+                    trial.options.get("target_slot"),
+                    owner=f"trial {trial_id}",
                 )
                 interval_s = options.step_interval_s if options is not None else 0.0
                 rng = np.random.default_rng(trial.seed)

@@ -1,41 +1,27 @@
 """Touch sources of server-driven trials: synthetic worlds (core.worlds) and the rig.
 
-A :class:`TouchSource` performs an action on the target object and returns what was felt.
+A :class:`~app.services.touch.TouchSource` performs an action on the target object and returns
+what was felt.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Protocol
 
 import numpy as np
 
-from app.errors import BadInputError, DeviceUnavailableError
+from app.errors import BadInputError
+from app.rig_factory import SimulationMode, open_rig
 from app.schemas import SimulationOptions
+from app.services.rig import RigService, RigTouchSource
+from app.services.touch import Touch, TouchSource
 from core.types import ManifoldModel
 from core.validation import FloatArray
 from core.worlds import Experiment1World, World, random_experiment2_world
+from hardware.rig import RigState
+from hardware.sim.materials import PAPER_CUPS
 
-
-@dataclass(frozen=True)
-class Touch:
-    """One touch: the action performed (dx,), the observation (dy,), optional trajectory."""
-
-    action: FloatArray
-    observation: FloatArray
-    trajectory: dict[str, Any] | None = None
-
-
-class TouchSource(Protocol):
-    """Something that touches the target object."""
-
-    def touch(self, action: FloatArray, rng: np.random.Generator) -> Touch:
-        """Perform ``action`` (dx,) and return the touch."""
-        ...
-
-    def close(self) -> None:
-        """Release what the source holds."""
-        ...
+__all__ = ["Touch", "TouchSource", "WorldFactory", "WorldTouchSource", "make_world"]
 
 
 @dataclass
@@ -92,7 +78,24 @@ def _target_index(names: tuple[str, ...], target: str | None) -> int:
 
 
 class WorldFactory:
-    """Checks and opens the touch source of a simulated or rig trial."""
+    """Checks and opens the touch source of a simulated or rig trial.
+
+    Args:
+        rig: This server's rig (for ``rig`` trials and the DMP action map).
+    """
+
+    def __init__(self, rig: RigService) -> None:
+        self._rig = rig
+
+    def _check_rig_dims(self, model: ManifoldModel, field: str) -> None:
+        h = model.hyperparameters
+        dx, dy = self._rig.action_dim, self._rig.observation_dim
+        if (h.action_dim, h.observation_dim) != (dx, dy):
+            raise BadInputError(
+                f"{field}: rig touches have dx={dx}, dy={dy} but the model has "
+                f"dx={h.action_dim}, dy={h.observation_dim}; fit it on a rig collection.",
+                field=field,
+            )
 
     def check(
         self,
@@ -103,14 +106,23 @@ class WorldFactory:
         target_slot: int | None,
     ) -> None:
         """Raise a 422/503 error now if :meth:`open` would fail for these settings."""
-        if mode == "simulated" and simulation is not None and simulation.world != "rig":
-            world = make_world(simulation)
+        if mode == "simulated":
+            options = simulation or SimulationOptions()
+            if options.world == "rig":
+                self._check_rig_dims(model, "simulation.world")
+                _target_index(tuple(PAPER_CUPS), target)
+                return
+            world = make_world(options)
             _check_dims(world, model, "simulation.world")
             _target_index(world.object_names, target)
             return
-        raise DeviceUnavailableError(
-            "No rig is available on this server (the hardware layer is not installed)."
-        )
+        self._check_rig_dims(model, "mode")
+        if target_slot is None:
+            raise BadInputError(
+                "target_slot: a rig trial needs the slot to touch (or a target whose slot is "
+                "known from a collection).",
+                field="target_slot",
+            )
 
     def open(
         self,
@@ -119,12 +131,35 @@ class WorldFactory:
         model: ManifoldModel,
         target: str | None,
         target_slot: int | None,
+        owner: str,
     ) -> TouchSource:
         """The touch source for a trial (checked by :meth:`check` at creation)."""
         self.check(mode, simulation, model, target, target_slot)
-        assert simulation is not None
-        world = make_world(simulation)
-        return WorldTouchSource(world, _target_index(world.object_names, target))
+        if mode == "simulated":
+            options = simulation or SimulationOptions()
+            if options.world != "rig":
+                world = make_world(options)
+                return WorldTouchSource(world, _target_index(world.object_names, target))
+            handle = open_rig(simulate=SimulationMode.in_process, seed=options.world_seed)
+            try:
+                lease = handle.rig.acquire(owner)
+                lease.connect()
+                slot = _target_index(tuple(PAPER_CUPS), target)
+            except BaseException:
+                handle.close()
+                raise
+            return RigTouchSource(lease, self._rig.actions(), slot, release=handle.close)
+        assert target_slot is not None
+        rig = self._rig.handle().rig
+        lease = rig.acquire(owner, timeout_s=30.0)
+        try:
+            if rig.state is RigState.DISCONNECTED:
+                lease.connect()
+        except BaseException:
+            lease.release()
+            raise
+        return RigTouchSource(lease, self._rig.actions(), target_slot)
 
     def halt(self) -> None:
         """Stop the rig at once (abort of a rig trial)."""
+        self._rig.halt()

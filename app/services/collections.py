@@ -1,0 +1,235 @@
+"""Collections: a dataset gathered on the rig as a run with progress.
+
+Each touch is stored as a sample (with its raw tactile series) the moment it is recorded; the
+dataset is ``collecting`` during the run, then ``ready`` (or ``failed`` if too little was
+gathered to learn from).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from typing import Literal
+
+import numpy as np
+from sqlalchemy.orm import Session
+
+from app import crud
+from app.db import Database
+from app.errors import AppError, BadInputError, ConflictError, NotFoundError
+from app.models import Run
+from app.rig_factory import iter_collect
+from app.schemas import CollectionCreate, Page, RunPublic
+from app.services import states
+from app.services.events import EventBus
+from app.services.rig import RigService, raw_series
+from app.services.runs import RunCancelled, RunHandle, RunManager
+from core.errors import CoreError
+from core.validation import FloatArray
+from hardware.errors import HardwareError
+from hardware.records import TouchRecord
+
+logger = logging.getLogger(__name__)
+KIND: Literal["collection"] = "collection"
+
+
+def to_public(run: Run) -> RunPublic:
+    """The API view of a run."""
+    return RunPublic(
+        id=run.id,
+        kind=run.kind,
+        status=run.status,
+        reason=run.reason,
+        done=run.done,
+        total=run.total,
+        dataset_id=run.dataset_id,
+        params=run.params,
+        created_at=run.created_at,
+        started_at=run.started_at,
+        finished_at=run.finished_at,
+    )
+
+
+def require(session: Session, run_id: int) -> Run:
+    """The collection run, or a 404."""
+    run = crud.get_run(session, run_id, KIND)
+    if run is None:
+        raise NotFoundError(f"Collection {run_id} does not exist.", collection_id=run_id)
+    return run
+
+
+def get(session: Session, run_id: int) -> RunPublic:
+    """One collection run."""
+    return to_public(require(session, run_id))
+
+
+def list_page(session: Session, status: str | None, limit: int, offset: int) -> Page[RunPublic]:
+    """Collection runs, newest first."""
+    rows, count = crud.list_runs(session, KIND, status, limit, offset)
+    return Page[RunPublic](data=[to_public(r) for r in rows], count=count)
+
+
+class CollectionService:
+    """Starts, drives and controls collection runs on the rig."""
+
+    def __init__(
+        self, database: Database, events: EventBus, runs: RunManager, rig: RigService
+    ) -> None:
+        self._database = database
+        self._events = events
+        self._runs = runs
+        self._rig = rig
+
+    def create(self, session: Session, body: CollectionCreate) -> RunPublic:
+        """Check a collection request, store the run and its (empty) dataset, start it."""
+        for field, values in (
+            ("name", [o.name for o in body.objects]),
+            ("slot", [o.slot for o in body.objects]),
+        ):
+            repeated = [v for v, n in Counter(values).items() if n > 1]
+            if repeated:
+                raise BadInputError(
+                    f"objects: each object needs its own {field}; repeated: {repeated}.",
+                    field=f"objects[].{field}",
+                )
+        if self._runs.rig_holder is not None:
+            raise ConflictError(
+                f"The rig is in use by {self._runs.rig_holder}.", held_by=self._runs.rig_holder
+            )
+        dx, dy = self._rig.action_dim, self._rig.observation_dim
+        dataset = crud.create_dataset(
+            session,
+            name=body.name or "rig collection",
+            source="collection",
+            status="collecting",
+            object_names=[o.name for o in body.objects],
+            action_dim=dx,
+            observation_dim=dy,
+        )
+        for item in body.objects:
+            crud.set_object_slot(session, item.name, item.slot)
+        run = crud.create_run(
+            session,
+            kind=KIND,
+            status="queued",
+            params=body.model_dump(mode="json"),
+            done=0,
+            total=len(body.objects) * body.samples_per_object,
+            dataset_id=dataset.id,
+        )
+        session.commit()
+        self._announce(run)
+        try:
+            self._runs.start(KIND, run.id, lambda handle: self._collect(handle, run.id), True)
+        except AppError as exc:
+            self._finish(run.id, "failed", f"could not start: {exc.message}")
+            raise
+        session.refresh(run)
+        return to_public(run)
+
+    def _announce(self, run: Run) -> None:
+        self._events.publish(
+            "collection.status",
+            {
+                "collection_id": run.id,
+                "status": run.status,
+                "reason": run.reason,
+                "done": run.done,
+                "total": run.total,
+                "dataset_id": run.dataset_id,
+            },
+        )
+
+    def _collect(self, handle: RunHandle, run_id: int) -> None:
+        try:
+            with self._database.session() as session:
+                run = require(session, run_id)
+                body = CollectionCreate.model_validate(run.params)
+            rng = np.random.default_rng(body.seed)
+            dx = self._rig.action_dim
+            if body.action_design == "random":
+                design = body.action_scale * rng.standard_normal((body.samples_per_object, dx))
+            else:
+                design = np.zeros((body.samples_per_object, dx))
+            slots = {o.name: o.slot for o in body.objects}
+            with self._rig.lease(handle.label) as lease:
+                with self._runs.run_lock(KIND, run_id), self._database.session() as session:
+                    run = require(session, run_id)
+                    if run.status != "queued":
+                        return
+                    crud.set_run_status(session, run, "running")
+                    session.commit()
+                self._announce(run)
+                for touch in iter_collect(lease, self._rig.actions(), slots, design):
+                    self._store(run_id, touch.object_name, touch.action, touch.record)
+                    if touch.index + 1 < touch.total:
+                        handle.checkpoint()
+            self._finish(run_id, "completed", None)
+        except RunCancelled as cancelled:
+            if cancelled.kind == "shutdown":
+                self._finish(run_id, "failed", "server shut down")
+            else:
+                self._finish(run_id, None, None)
+        except (HardwareError, CoreError, AppError, ValueError) as exc:
+            self._finish(run_id, "failed", f"{type(exc).__name__}: {exc}")
+        except Exception as exc:
+            logger.exception("collection %d crashed", run_id)
+            self._finish(run_id, "failed", f"internal error: {type(exc).__name__}: {exc}")
+
+    def _store(self, run_id: int, name: str, action: FloatArray, record: TouchRecord) -> None:
+        with self._runs.run_lock(KIND, run_id), self._database.session() as session:
+            run = require(session, run_id)
+            dataset = crud.get_dataset(session, run.dataset_id or 0)
+            assert dataset is not None
+            crud.add_samples(
+                session, dataset, [(name, action, record.observation, raw_series(record))]
+            )
+            run.done += 1
+            session.commit()
+            done, total, status = run.done, run.total, run.status
+        self._events.publish(
+            "collection.progress",
+            {
+                "collection_id": run_id,
+                "done": done,
+                "total": total,
+                "status": status,
+                "object": name,
+                "observation": record.observation.tolist(),
+            },
+        )
+
+    def _finish(self, run_id: int, status: str | None, reason: str | None) -> None:
+        """End the run (``status=None``: a stop/abort already set it) and settle its dataset."""
+        with self._runs.run_lock(KIND, run_id), self._database.session() as session:
+            run = require(session, run_id)
+            if status is not None and run.status in states.ACTIVE:
+                crud.set_run_status(session, run, status, reason)
+            dataset = crud.get_dataset(session, run.dataset_id or 0)
+            if dataset is not None and dataset.status == "collecting":
+                counts = Counter(name for name, _, _ in crud.dataset_samples(session, dataset.id))
+                usable = len(counts) >= 2 and min(counts.values()) >= 2
+                complete = usable and all(counts[n] >= 2 for n in dataset.object_names)
+                dataset.status = "ready" if complete else "failed"
+            session.commit()
+        self._announce(run)
+
+    def control(self, session: Session, run_id: int, action: states.Action) -> RunPublic:
+        """Pause, resume, stop or abort a collection (409 with the current state if not allowed)."""
+        with self._runs.run_lock(KIND, run_id):
+            run = require(session, run_id)
+            target = states.check_action(f"collection {run_id}", run.status, action)
+            crud.set_run_status(session, run, target, reason=f"{action} requested")
+            session.commit()
+            handle = self._runs.handle(KIND, run_id)
+            if handle is not None:
+                if action == "pause":
+                    handle.pause()
+                elif action == "resume":
+                    handle.resume()
+                else:
+                    handle.request_stop("stopped" if action == "stop" else "aborted")
+        if action == "abort":
+            self._rig.halt()
+        self._announce(run)
+        return to_public(run)

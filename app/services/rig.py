@@ -1,0 +1,288 @@
+"""The rig of this server (mock or serial) and what may drive it.
+
+- The rig is built on first use from the settings (``hardware=mock``: an in-process simulated
+  rig with the paper's four cups; ``serial``: the configured ports).
+- Operator actions (connect, home, turntable) take the rig for their duration; a run (a rig
+  trial or a collection) holds it from start to end. A second taker gets a 409 naming the holder
+  (:class:`app.services.runs.RunManager`).
+- ``estop`` works in any state and bypasses every lock; it also asks the run holding the rig to
+  abort.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager, suppress
+from typing import Any
+
+import numpy as np
+
+from app.config import Settings
+from app.errors import DeviceUnavailableError
+from app.rig_factory import RigHandle, RigPorts, SimulationMode, TouchActions, open_rig
+from app.schemas import RigPublic
+from app.services.events import EventBus
+from app.services.runs import RunManager
+from app.services.touch import Touch
+from core.validation import FloatArray
+from hardware.errors import HardwareError
+from hardware.records import TouchRecord
+from hardware.rig import RigLease, RigState
+
+OPERATOR = "operator"
+
+
+def touch_trajectory(record: TouchRecord) -> dict[str, Any]:
+    """What a step keeps of a touch: the commanded trajectory and the stream's health."""
+    return {
+        "joint_names": list(record.joint_names),
+        "dt_s": record.dt_s,
+        "commanded_deg": record.commanded_deg.tolist(),
+        "n_frames": record.n_frames,
+        "dropped_frames": record.dropped_frames,
+        "corrupt_frames": record.corrupt_frames,
+        "late_steps": record.late_steps,
+        "slot": record.slot,
+    }
+
+
+def raw_series(record: TouchRecord) -> dict[str, Any]:
+    """The raw tactile time series of a touch (kept with a collected sample)."""
+    return {
+        "channel_names": list(record.channel_names),
+        "tactile_times_s": record.tactile_times_s.tolist(),
+        "tactile": record.tactile.tolist(),
+        "joint_times_s": record.joint_times_s.tolist(),
+        "joint_positions_deg": record.joint_positions_deg.tolist(),
+        **touch_trajectory(record),
+    }
+
+
+class RigService:
+    """Owns this server's rig.
+
+    Args:
+        settings: ``hardware`` and the device ports.
+        runs: The run manager (who holds the rig).
+        events: Where rig state changes are announced.
+    """
+
+    def __init__(self, settings: Settings, runs: RunManager, events: EventBus) -> None:
+        self._settings = settings
+        self._runs = runs
+        self._events = events
+        self._lock = threading.Lock()
+        self._handle: RigHandle | None = None
+        self._actions: TouchActions | None = None
+
+    # --- construction -------------------------------------------------------------------------
+
+    def handle(self) -> RigHandle:
+        """The rig, built on first use.
+
+        Raises:
+            DeviceUnavailableError: Serial hardware without all three ports.
+        """
+        with self._lock:
+            if self._handle is None:
+                self._handle = self._open()
+            return self._handle
+
+    def _open(self) -> RigHandle:
+        s = self._settings
+        if s.hardware == "mock":
+            return open_rig(simulate=SimulationMode.in_process, seed=0)
+        missing = [
+            name
+            for name, port in (
+                ("turntable_port", s.turntable_port),
+                ("finger_port", s.finger_port),
+                ("tactile_port", s.tactile_port),
+            )
+            if not port
+        ]
+        if missing:
+            raise DeviceUnavailableError(
+                f"Serial hardware needs ports: {', '.join(missing)} not set "
+                "(ACTIVETOUCH_TURNTABLE_PORT, ... or activetouch serve --turntable-port ...).",
+                missing=missing,
+            )
+        assert s.turntable_port
+        assert s.finger_port
+        assert s.tactile_port
+        return open_rig(ports=RigPorts(s.turntable_port, s.finger_port, s.tactile_port))
+
+    def actions(self) -> TouchActions:
+        """Action → trajectory map of the rig (DMPs of the teaching trajectory)."""
+        with self._lock:
+            if self._actions is None:
+                self._actions = TouchActions.from_teaching()
+            return self._actions
+
+    @property
+    def action_dim(self) -> int:
+        """dx of rig actions."""
+        return self.actions().action_dim
+
+    @property
+    def observation_dim(self) -> int:
+        """dy of rig observations (tactile channels)."""
+        return len(self.handle().rig.tactile.config.channel_names)
+
+    def close(self) -> None:
+        """Close the ports (or the simulation)."""
+        with self._lock:
+            handle, self._handle = self._handle, None
+        if handle is not None:
+            handle.close()
+
+    # --- status and operator actions ----------------------------------------------------------
+
+    def status(self) -> RigPublic:
+        """What the rig is doing and who holds it (no device I/O)."""
+        with self._lock:
+            handle = self._handle
+        if handle is None:
+            return RigPublic(
+                hardware=self._settings.hardware,
+                connected=False,
+                state="disconnected",
+                held_by=self._runs.rig_holder,
+                detail={"objects_by_slot": None},
+            )
+        status = handle.rig.status()
+        return RigPublic(
+            hardware=self._settings.hardware,
+            connected=status.state
+            not in (RigState.DISCONNECTED, RigState.FAULT, RigState.ESTOPPED),
+            state=str(status.state),
+            held_by=self._runs.rig_holder or status.lease_owner,
+            detail={
+                "slot": status.slot,
+                "table_angle_deg": status.table_angle_deg,
+                "finger_deg": None if status.finger_deg is None else list(status.finger_deg),
+                "fault": status.fault,
+                "touches": status.touches,
+                "devices": status.devices,
+                "objects_by_slot": handle.object_names,
+            },
+        )
+
+    def _announce(self) -> RigPublic:
+        public = self.status()
+        self._events.publish("rig.state", public.model_dump(mode="json"))
+        return public
+
+    @contextmanager
+    def lease(self, owner: str) -> Iterator[RigLease]:
+        """Hold the rig for ``owner`` (409 if a run holds it); connect it if needed."""
+        self._runs.reserve_rig(owner)
+        try:
+            rig = self.handle().rig
+            with rig.acquire(owner) as lease:
+                if rig.state is RigState.DISCONNECTED:
+                    lease.connect()
+                yield lease
+        finally:
+            self._runs.release_rig(owner)
+
+    def connect(self) -> RigPublic:
+        """Connect the devices, or recover after an emergency stop or a fault."""
+        self._runs.reserve_rig(OPERATOR)
+        try:
+            rig = self.handle().rig
+            with rig.acquire(OPERATOR) as lease:
+                if rig.estopped or rig.state is RigState.FAULT:
+                    lease.recover()
+                elif rig.state is RigState.DISCONNECTED:
+                    lease.connect()
+        finally:
+            self._runs.release_rig(OPERATOR)
+        return self._announce()
+
+    def home(self) -> RigPublic:
+        """Retract the finger and home the turntable."""
+        try:
+            with self.lease(OPERATOR) as lease:
+                lease.home()
+        finally:
+            self._announce()
+        return self.status()
+
+    def turn_to(self, slot: int) -> RigPublic:
+        """Put ``slot`` under the finger."""
+        try:
+            with self.lease(OPERATOR) as lease:
+                lease.move_to_slot(slot)
+        finally:
+            self._announce()
+        return self.status()
+
+    def estop(self) -> RigPublic:
+        """Emergency stop: works in any state, takes no lock; aborts the run holding the rig."""
+        with self._lock:
+            handle = self._handle
+        if handle is not None:
+            handle.rig.estop("operator emergency stop")
+        holder = self._runs.rig_holder
+        if holder is not None:
+            kind, _, run_id = holder.partition(" ")
+            live = self._runs.handle(kind, int(run_id)) if run_id.isdigit() else None
+            if live is not None:
+                live.request_stop("aborted")
+        return self._announce()
+
+    def halt(self) -> None:
+        """Stop the rig at once (abort of a rig run), if it exists."""
+        with self._lock:
+            handle = self._handle
+        if handle is not None:
+            handle.rig.estop("run aborted")
+
+    # --- touching -----------------------------------------------------------------------------
+
+    def slot_of(self, name: str) -> int | None:
+        """The slot of a simulated table's object called ``name`` (None if unknown)."""
+        names = self.handle().object_names
+        if names is None or name not in names:
+            return None
+        return names.index(name)
+
+
+class RigTouchSource:
+    """Touches one slot of a rig with DMP actions, holding the rig's lease.
+
+    Args:
+        lease: A lease on a connected rig (released by :meth:`close`).
+        actions: Action → trajectory map.
+        slot: Slot to touch.
+        release: Called once at :meth:`close` (gives the rig back).
+    """
+
+    def __init__(
+        self, lease: RigLease, actions: TouchActions, slot: int, release: Any = None
+    ) -> None:
+        self._lease = lease
+        self._actions = actions
+        self._slot = slot
+        self._release = release
+        self._at_slot = False
+
+    def touch(self, action: FloatArray, rng: np.random.Generator) -> Touch:
+        """One touch with action x (the table turns to the slot before the first)."""
+        slot = None if self._at_slot else self._slot
+        record = self._actions.touch(self._lease, action, slot=slot)
+        self._at_slot = True
+        return Touch(
+            action=np.asarray(action, dtype=np.float64),
+            observation=record.observation,
+            trajectory=touch_trajectory(record),
+        )
+
+    def close(self) -> None:
+        """Release the lease (and the rig)."""
+        with suppress(HardwareError):
+            self._lease.release()
+        if self._release is not None:
+            self._release()

@@ -1,0 +1,133 @@
+"""Rig endpoints, collections on the simulated rig, rig trials, one owner at a time."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from app.documents import model_to_document, read_training_csv
+from core.posterior import condition
+from core.types import Hyperparameters
+from tests.app.conftest import TestClient
+
+API = "/api/v1"
+CUPS = ["paper_cup", "bumpy_glass"]
+
+
+def wait_until(client: TestClient, path: str, done: Any, timeout_s: float = 120) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        body = client.get(path).json()
+        if done(body):
+            return body
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting on {path}: {body}")
+
+
+def test_rig_operations_and_estop(client: TestClient) -> None:
+    assert client.get(f"{API}/rig").json()["state"] == "disconnected"
+    connected = client.post(f"{API}/rig/connect").json()
+    assert connected["connected"] is True
+    assert connected["state"] == "idle"
+    assert connected["detail"]["objects_by_slot"][:2] == CUPS
+    assert client.post(f"{API}/rig/turntable", json={"slot": 2}).json()["detail"]["slot"] == 2
+    bad = client.post(f"{API}/rig/turntable", json={"slot": 99})
+    assert bad.status_code == 422
+    stopped = client.post(f"{API}/rig/estop").json()
+    assert stopped["state"] == "estopped"
+    refused = client.post(f"{API}/rig/turntable", json={"slot": 1})
+    assert refused.status_code == 503
+    assert "emergency" in refused.json()["detail"]
+    assert client.post(f"{API}/rig/connect").json()["state"] == "idle"  # recover
+
+
+def rig_model_document(client: TestClient, dataset_id: int) -> dict[str, Any]:
+    """A model of the collected data (fixed latents and hyperparameters: no fit)."""
+    data = read_training_csv(client.get(f"{API}/datasets/{dataset_id}/export").text)
+    dy, dx = data.observation_dim, data.action_dim
+    spread = data.observations.std(axis=0) + 1e-3
+    hyper = Hyperparameters(
+        signal_variance=spread**2,
+        noise_variance=0.05 * spread**2,
+        latent_lengthscales=np.ones((dy, 1)),
+        action_lengthscales=np.full((dy, dx), 2.0),
+    )
+    return model_to_document(condition(data, np.array([[-1.0], [1.0]]), hyper))
+
+
+def test_collection_then_rig_trial_hold_the_rig(client: TestClient) -> None:
+    created = client.post(
+        f"{API}/collections",
+        json={
+            "objects": [{"name": n, "slot": i} for i, n in enumerate(CUPS)],
+            "samples_per_object": 2,
+            "seed": 3,
+        },
+    )
+    assert created.status_code == 201, created.text
+    run = created.json()
+    assert run["total"] == 4
+    # One owner at a time: a second run and operator moves get 409 naming the holder.
+    busy = client.post(f"{API}/rig/home")
+    if busy.status_code == 409:  # (unless the collection already finished)
+        assert busy.json()["held_by"] == f"collection {run['id']}"
+    second = client.post(
+        f"{API}/collections",
+        json={"objects": [{"name": "a", "slot": 5}, {"name": "b", "slot": 6}]},
+    )
+    assert second.status_code in (201, 409)
+    if second.status_code == 409:
+        assert second.json()["held_by"] == f"collection {run['id']}"
+    else:  # the first was done: stop the second before going on
+        client.post(f"{API}/collections/{second.json()['id']}/abort")
+        client.post(f"{API}/rig/connect")
+    finished = wait_until(
+        client, f"{API}/collections/{run['id']}", lambda r: r["status"] == "completed"
+    )
+    assert finished["done"] == 4
+    dataset = client.get(f"{API}/datasets/{finished['dataset_id']}").json()
+    assert dataset["status"] == "ready"
+    assert (dataset["n_samples"], dataset["action_dim"], dataset["observation_dim"]) == (4, 6, 5)
+    assert dataset["objects"] == CUPS
+    slots = {o["name"]: o["slot"] for o in client.get(f"{API}/objects").json()["data"]}
+    assert slots["bumpy_glass"] == 1
+    events = client.get(f"{API}/events?after=0&follow=false").text
+    assert events.count('"type": "collection.progress"') == 4
+
+    model = client.post(
+        f"{API}/models/import", json=rig_model_document(client, finished["dataset_id"])
+    )
+    assert model.status_code == 201, model.text
+    trial = client.post(
+        f"{API}/trials",
+        json={"model_id": model.json()["id"], "mode": "rig", "target": "bumpy_glass",
+              "max_steps": 2, "tolerance": 0.0, "seed": 1},
+    )  # fmt: skip
+    assert trial.status_code == 201, trial.text
+    assert trial.json()["options"]["target_slot"] == 1
+    done = wait_until(
+        client, f"{API}/trials/{trial.json()['id']}", lambda t: t["status"] != "queued"
+        and t["status"] != "running",
+    )  # fmt: skip
+    assert done["status"] == "completed", done
+    assert done["n_steps"] == 2
+    step = done["steps"][0]
+    assert len(step["action"]) == 6
+    assert len(step["observation"]) == 5
+    assert step["trajectory"]["slot"] == 1
+    assert len(step["trajectory"]["commanded_deg"][0]) == 2
+    assert done["result"]["object"] in CUPS
+    assert client.get(f"{API}/rig").json()["held_by"] is None
+
+
+def test_rig_trial_needs_matching_model_and_slot(client: TestClient) -> None:
+    from tests.app.conftest import import_model
+
+    model_id = import_model(client)  # Experiment 1: dx = 1, not the rig's 6
+    response = client.post(
+        f"{API}/trials", json={"model_id": model_id, "mode": "rig", "target_slot": 0}
+    )
+    assert response.status_code == 422
+    assert "dx=6" in response.json()["detail"]
