@@ -6,7 +6,13 @@
 
 from __future__ import annotations
 
-import pytest
+import os
+
+# Small dense problems: BLAS threads only thrash on 2 shared cores (set before numpy loads).
+for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_variable, "1")
+
+import pytest  # noqa: E402
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
