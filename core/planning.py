@@ -297,7 +297,8 @@ class Planner:
                 jac=True,
                 method="L-BFGS-B",
                 bounds=bounds,
-                options={"maxiter": self.refine_iterations},
+                # MI changes below ~1e-6 nats do not matter for the choice of action.
+                options={"maxiter": self.refine_iterations, "ftol": 1e-6, "gtol": 1e-4},
             )
             value = -float(result.fun)
             if np.isfinite(value) and value > best_value:

@@ -9,11 +9,14 @@ Two beliefs are carried side by side:
 
 The Gaussian is a local approximation and can settle near the wrong object; the most informative
 actions under that wrong belief then need not dislodge it (METHOD.md, "A known failure mode").
-The session therefore watches for disagreement: when the Gaussian's nearest object is much less
-probable under the posterior than the posterior's best object, the next action is planned under
-the Gaussian that moment-matches the posterior mixture Σ_l p_l N(s_l, Σ) instead, which puts the
-competing objects inside the belief so that the chosen action discriminates between them. The
-answer defaults to the posterior's best object (see :class:`RecognitionSettings`).
+The session therefore watches for disagreement: the Gaussian's nearest object is much less
+probable under the posterior than the posterior's best object. By default it then re-centres the
+Gaussian on the evidence, replacing it by the Gaussian that moment-matches the posterior mixture
+Σ_l p_l N(s_l, Σ): the competing objects come back inside the belief, so the next action is planned
+to discriminate between them and the next update starts from where the evidence points. (Planning
+alone under the mixture, keeping the Gaussian as updated, is the ``"replan"`` option; it left the
+Gaussian's nearest object wrong in some trials where the posterior was right.) The answer defaults
+to the posterior's best object (see :class:`RecognitionSettings`).
 
 :class:`RecognitionSession` is a step-wise state machine (for scripted trials where the caller owns
 the robot), :func:`iter_recognize` the loop around it as a generator.
@@ -35,7 +38,7 @@ from core.types import GaussianBelief, ManifoldModel
 from core.validation import FloatArray, as_float_array
 
 Decision = Literal["posterior", "nearest"]
-DisagreementRule = Literal["replan", "ignore"]
+DisagreementRule = Literal["recentre", "replan", "ignore"]
 StopReason = Literal["max_steps", "converged", "confident"]
 
 #: The Gaussian and the posterior "disagree" when the posterior probability of the Gaussian's
@@ -67,16 +70,20 @@ class RecognitionSettings:
             the exact likelihood of every touch, while the Gaussian is a moment-matched
             linearisation that can lock onto the wrong object (METHOD.md, "A known failure mode";
             the reference found the posterior right in every case where the Gaussian failed).
-        on_disagreement: ``"replan"`` (default): while the two disagree, plan under the Gaussian
-            that moment-matches the posterior mixture Σ_l p_l N(s_l, Σ). ``"ignore"``: always plan
-            under the Gaussian (the paper).
+        on_disagreement: What to do when, after an update, the posterior probability of the
+            Gaussian's nearest object is below ``DISAGREEMENT_RATIO`` (½) times the largest one.
+            ``"recentre"`` (default): replace the Gaussian by the moment-matched posterior mixture
+            Σ_l p_l N(s_l, Σ') (mean Σ_l p_l s_l, covariance Σ' + the spread of the s_l); the step
+            reports ``recentred=True`` and its belief is the re-centred one. ``"replan"``: keep
+            the Gaussian as updated, but plan the next action under that mixture-matched belief.
+            ``"ignore"``: the paper, always the Gaussian.
     """
 
     max_steps: int = 10
     tolerance: float = 1e-3
     confidence_threshold: float | None = None
     decision: Decision = "posterior"
-    on_disagreement: DisagreementRule = "replan"
+    on_disagreement: DisagreementRule = "recentre"
 
     def __post_init__(self) -> None:
         if isinstance(self.max_steps, bool) or int(self.max_steps) != self.max_steps:
@@ -97,9 +104,9 @@ class RecognitionSettings:
             raise InvalidInputError(
                 f"decision: expected 'posterior' or 'nearest', received {self.decision!r}."
             )
-        if self.on_disagreement not in ("replan", "ignore"):
+        if self.on_disagreement not in ("recentre", "replan", "ignore"):
             raise InvalidInputError(
-                f"on_disagreement: expected 'replan' or 'ignore', received "
+                f"on_disagreement: expected 'recentre', 'replan' or 'ignore', received "
                 f"{self.on_disagreement!r}."
             )
 
@@ -120,7 +127,9 @@ class RecognitionStep:
         answer: The recognised object by ``settings.decision``.
         done: Whether the session stopped after this touch.
         stop_reason: ``"confident"``, ``"converged"`` or ``"max_steps"`` when done, else ``None``.
-        mean_shift: ‖μ' - μ‖ of this update, normalised latent units.
+        mean_shift: ‖μ' - μ‖ of this step (update and any re-centring), normalised latent units.
+        recentred: Whether the Gaussian was re-centred on the object posterior after the update
+            (``on_disagreement="recentre"``).
     """
 
     step: int
@@ -134,6 +143,7 @@ class RecognitionStep:
     done: bool
     stop_reason: StopReason | None
     mean_shift: float
+    recentred: bool = False
 
 
 def default_prior(model: ManifoldModel, variance: float = 5.0) -> GaussianBelief:
@@ -276,6 +286,10 @@ class RecognitionSession:
             self.model, x[None, :], y[None, :]
         )
         probabilities = self.probabilities
+        recentred = self.settings.on_disagreement == "recentre" and self.disagrees()
+        if recentred:
+            after = mixture_belief(self.model, probabilities, after.cov)
+            self._belief = after
         nearest = nearest_object(self.model, after.mean)
         best = int(np.argmax(probabilities))
         answer = best if self.settings.decision == "posterior" else nearest
@@ -296,6 +310,7 @@ class RecognitionSession:
             done=reason is not None,
             stop_reason=reason,
             mean_shift=shift,
+            recentred=recentred,
         )
         self._steps.append(result)
         return result

@@ -70,7 +70,7 @@ def test_refinement_reaches_a_stationary_point_or_the_boundary(model: ManifoldMo
         for sign in (-1.0, 1.0):
             moved = BOX.clip(planned.action + sign * step * np.eye(2)[dim])
             value = planner.mutual_information(belief, moved[None, :])[0]
-            assert value <= planned.mutual_information + 1e-9
+            assert value <= planned.mutual_information + 1e-6
 
 
 def test_candidate_statistics_are_computed_once_and_reused(model: ManifoldModel) -> None:

@@ -17,6 +17,7 @@ from core.object_posterior import object_posterior
 from core.planning import ActivePolicy, FixedPolicy, PassivePolicy, Planner
 from core.posterior import condition, predict
 from core.recognition import (
+    DisagreementRule,
     RecognitionFinishedError,
     RecognitionSession,
     RecognitionSettings,
@@ -168,12 +169,29 @@ def test_stops_when_the_mean_stops_moving(model: ManifoldModel) -> None:
     assert step.mean_shift < 1e3
 
 
-def test_a_gaussian_locked_on_the_wrong_object_is_overruled(model: ManifoldModel) -> None:
-    """The known failure mode: a confident Gaussian near object 0 while touching object 3."""
+def _locked_session(model: ManifoldModel, rule: DisagreementRule) -> RecognitionSession:
+    """A confident Gaussian at object 0 while object 3 is touched (the known failure mode)."""
     wrong = GaussianBelief(mean=model.latents[0], cov=np.array([[1e-4]]))
     planner = Planner(model, ActivePolicy(), n_candidates=64)
-    settings = RecognitionSettings(max_steps=6, tolerance=0.0)
-    session = RecognitionSession(model, planner, wrong, settings)
+    settings = RecognitionSettings(max_steps=6, tolerance=0.0, on_disagreement=rule)
+    return RecognitionSession(model, planner, wrong, settings)
+
+
+def test_a_gaussian_locked_on_the_wrong_object_is_recentred(model: ManifoldModel) -> None:
+    session = _locked_session(model, "recentre")
+    rng = np.random.default_rng(4)
+    while not session.done:
+        action = session.suggest(rng).action
+        step = session.observe(action, WORLD.observe(3, action[None, :], rng)[0])
+        if step.recentred:
+            np.testing.assert_allclose(step.belief.mean, step.probabilities @ model.latents)
+    assert any(s.recentred for s in session.steps)
+    assert step.answer == 3
+    assert step.nearest_object == 3  # the Gaussian itself has moved to the right object
+
+
+def test_a_gaussian_locked_on_the_wrong_object_is_replanned_around(model: ManifoldModel) -> None:
+    session = _locked_session(model, "replan")
     rng = np.random.default_rng(4)
     replanned = False
     while not session.done:
@@ -184,12 +202,12 @@ def test_a_gaussian_locked_on_the_wrong_object_is_overruled(model: ManifoldModel
             replanned = True
         action = session.suggest(rng).action
         step = session.observe(action, WORLD.observe(3, action[None, :], rng)[0])
+        assert not step.recentred
     assert replanned
     assert step.answer == 3
-    ignoring = RecognitionSession(
-        model, planner, wrong, RecognitionSettings(6, 0.0, on_disagreement="ignore")
-    )
+    ignoring = _locked_session(model, "ignore")
     ignoring.observe(np.array([1.0]), WORLD.observe(3, np.array([[1.0]]), rng)[0])
+    assert ignoring.disagrees()
     assert ignoring.planning_belief() is ignoring.belief
 
 
