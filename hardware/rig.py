@@ -692,6 +692,10 @@ class _TouchSession:
             relative = times
             keep = np.zeros(times.shape, dtype=bool)
         stats = rig.tactile.stats
+        kept_sequence = sequence[keep]
+        # Frames missing inside the touch window (stale bytes flushed at the start and the
+        # frames after the end do not count).
+        dropped = int(np.sum((np.diff(kept_sequence) - 1) % 65536)) if kept_sequence.size else 0
         n_joints = len(rig.finger.joints)
         if self.joint_states:
             positions = np.stack([s.positions_deg for s in self.joint_states])
@@ -707,11 +711,11 @@ class _TouchSession:
             commanded_deg=self.points,
             tactile_times_s=np.ascontiguousarray(relative[keep]),
             tactile=np.ascontiguousarray(values[keep]),
-            tactile_sequence=np.ascontiguousarray(sequence[keep]),
+            tactile_sequence=np.ascontiguousarray(kept_sequence),
             joint_times_s=np.asarray(self.joint_times, dtype=np.float64),
             joint_positions_deg=positions,
             joint_currents_ma=currents,
-            dropped_frames=stats.dropped,
+            dropped_frames=dropped,
             corrupt_frames=stats.corrupt,
             discarded_bytes=stats.discarded_bytes,
             late_steps=self.late_steps,
@@ -721,14 +725,14 @@ class _TouchSession:
 
     def check_integrity(self, record: TouchRecord) -> None:
         stats = self.rig.tactile.stats
-        expected = stats.frames + stats.dropped
-        lost = stats.dropped / expected if expected else 1.0
+        expected = record.n_frames + record.dropped_frames
+        lost = record.dropped_frames / expected if expected else 1.0
         if record.n_frames == 0 or lost > self.rig.config.max_lost_fraction:
             error = CorruptStreamError(
-                f"{self.rig.tactile.transport.name}: {stats.dropped} of {expected} tactile frames "
-                f"lost ({lost:.1%}; {stats.crc_errors} CRC errors, {stats.malformed} malformed, "
-                f"{stats.discarded_bytes} bytes skipped), more than the "
-                f"{self.rig.config.max_lost_fraction:.1%} allowed."
+                f"{self.rig.tactile.transport.name}: {record.dropped_frames} of {expected} "
+                f"tactile frames lost during the touch ({lost:.1%}; {stats.crc_errors} CRC "
+                f"errors, {stats.malformed} malformed, {stats.discarded_bytes} bytes skipped), "
+                f"more than the {self.rig.config.max_lost_fraction:.1%} allowed."
             )
             error.partial_record = replace(
                 record, complete=False, failure=f"CorruptStreamError: {error}"

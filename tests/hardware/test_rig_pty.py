@@ -6,6 +6,7 @@ Simulated time runs 10x faster than real time; a 4 s touch takes ~0.4 s.
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Iterator
 
 import numpy as np
@@ -102,6 +103,9 @@ def test_servo_hardware_error_mid_touch(rig: SimulatedRig, short_touch: FloatArr
         assert raised.value.flags == ServoHardwareErrorFlags.OVERHEATING
         assert raised.value.partial_record is not None
         plant = rig.devices.plant
+        deadline = time.monotonic() + 2.0  # the broadcast torque-off crosses the pty
+        while plant.joint_state(0)[3] and time.monotonic() < deadline:
+            time.sleep(0.01)
         assert not plant.joint_state(0)[3]  # torque off on both joints: safe
         assert not plant.joint_state(1)[3]
         lease.recover()
