@@ -1,0 +1,330 @@
+"""The ``activetouch`` command line: fit, recognize, paper reproductions and the sub-apps.
+
+Progress bars go to stderr; with ``--json`` stdout carries only the JSON document.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+from app.cli_rig import rig_app
+from app.demo import demo_command
+from app.documents import model_from_document, model_to_document, read_training_csv
+from app.paper import run_experiment1
+from app.server_cli import serve_command
+from core.errors import CoreError
+from core.evaluation import iter_simulated_trial
+from core.manifold import FitOptions, iter_fit
+from core.planning import ActivePolicy, FixedPolicy, PassivePolicy, Planner
+from core.recognition import RecognitionSettings, default_prior
+from core.types import ManifoldModel
+from core.worlds import Experiment1World, World, random_experiment2_world, sample_dataset
+
+app = typer.Typer(
+    name="activetouch",
+    help="Active tactile object recognition: learn an object manifold, recognise by touch.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+)
+paper_app = typer.Typer(help="Reproduce the paper's experiments.", no_args_is_help=True)
+app.add_typer(paper_app, name="paper")
+
+stderr = Console(stderr=True)
+
+
+class Optimizer(StrEnum):
+    """Optimisers of the manifold fit."""
+
+    lbfgs = "lbfgs"
+    de = "de"
+
+
+class WorldName(StrEnum):
+    """Simulated worlds a trial or a dataset can come from."""
+
+    exp1 = "exp1"
+    exp2 = "exp2"
+
+
+class Policy(StrEnum):
+    """Action policies of a recognition trial."""
+
+    active = "active"
+    passive = "passive"
+    fixed = "fixed"
+
+
+def progress_bar(disable: bool = False) -> Progress:
+    """A rich progress bar on stderr."""
+    return Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        TextColumn("{task.fields[status]}"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=stderr,
+        disable=disable,
+        transient=False,
+    )
+
+
+def fail(message: str) -> typer.Exit:
+    """Print a one-line error to stderr and return the exit to raise."""
+    stderr.print(f"[red]error:[/red] {message}")
+    return typer.Exit(code=2)
+
+
+def fit_with_progress(
+    data: Any, latent_dim: int, options: FitOptions, seed: int, quiet: bool = False
+) -> tuple[ManifoldModel, float]:
+    """Run :func:`core.manifold.iter_fit` with a progress bar; return the model and seconds."""
+    rng = np.random.default_rng(seed)
+    started = time.perf_counter()
+    model: ManifoldModel | None = None
+    with progress_bar(disable=quiet) as bar:
+        task = bar.add_task("fit", total=None, status="")
+        for event in iter_fit(data, latent_dim, rng, options):
+            bar.update(
+                task,
+                total=event.n_starts,
+                completed=event.start,
+                status=f"start {event.start + 1}/{event.n_starts}  "
+                f"log-lik {event.best_log_likelihood:.2f}",
+            )
+            if event.model is not None:
+                model = event.model
+        bar.update(task, completed=bar.tasks[0].total or 1)
+    if model is None:
+        raise fail("the fit ended without a model")
+    return model, time.perf_counter() - started
+
+
+@app.command()
+def fit(
+    data_csv: Annotated[Path, typer.Argument(help="Training CSV: object,x_1..x_dx,y_1..y_dy.")],
+    latent_dim: Annotated[int, typer.Option("--latent-dim", min=1, help="ds")] = ...,  # type: ignore[assignment]
+    optimizer: Annotated[Optimizer, typer.Option(help="lbfgs or de")] = Optimizer.lbfgs,
+    restarts: Annotated[int, typer.Option(min=0, help="Random restarts after the PCA start.")] = 4,
+    seed: Annotated[int, typer.Option(help="Seed of the random restarts.")] = 0,
+    out: Annotated[Path | None, typer.Option(help="Write the model document here.")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the model document.")] = False,
+) -> None:
+    """Learn the object manifold from a training CSV."""
+    try:
+        text = data_csv.read_text()
+    except OSError as exc:
+        raise fail(f"cannot read {data_csv}: {exc.strerror}") from None
+    try:
+        data = read_training_csv(text)
+        options = FitOptions(optimizer=optimizer.value, restarts=restarts)
+        model, seconds = fit_with_progress(data, latent_dim, options, seed, quiet=False)
+    except CoreError as exc:
+        raise fail(str(exc)) from None
+    document = model_to_document(model, fit_seconds=seconds)
+    if out is not None:
+        out.write_text(json.dumps(document, indent=1))
+    if as_json:
+        sys.stdout.write(json.dumps(document) + "\n")
+    else:
+        stderr.print(
+            f"fitted {len(model.object_names)} objects, ds={latent_dim}, "
+            f"log-likelihood {model.log_likelihood:.3f} in {seconds:.2f} s"
+            + (f"; written to {out}" if out else "")
+        )
+        for name, latent in zip(model.object_names, model.latents, strict=True):
+            stderr.print(f"  {name:>12s}  s = {np.array2string(latent, precision=4)}")
+
+
+def load_model(path: Path) -> ManifoldModel:
+    """Read a model document from a file, with errors that say what is wrong."""
+    try:
+        document = json.loads(path.read_text())
+    except OSError as exc:
+        raise fail(f"cannot read {path}: {exc.strerror}") from None
+    except json.JSONDecodeError as exc:
+        raise fail(f"{path} is not JSON: {exc}") from None
+    try:
+        return model_from_document(document)
+    except CoreError as exc:
+        raise fail(str(exc)) from None
+
+
+def make_world(world: WorldName, world_seed: int, noise_std: float | None) -> World:
+    """The simulated world named on the command line."""
+    if world is WorldName.exp1:
+        return Experiment1World(noise_std=0.1 if noise_std is None else noise_std)
+    return random_experiment2_world(
+        np.random.default_rng(world_seed), noise_std=0.05 if noise_std is None else noise_std
+    )
+
+
+@app.command()
+def dataset(
+    world: Annotated[WorldName, typer.Argument(help="exp1 (the paper's) or exp2 (random, ds=2)")],
+    out: Annotated[Path, typer.Option(help="CSV file to write.")],
+    touches: Annotated[int, typer.Option(min=2, help="Touches per object.")] = 100,
+    seed: Annotated[int, typer.Option(help="Seed of the actions and noise.")] = 0,
+    world_seed: Annotated[int, typer.Option(help="Seed that draws the exp2 world.")] = 0,
+    noise_std: Annotated[float | None, typer.Option(help="Observation noise std.")] = None,
+) -> None:
+    """Write a simulated training set (x ~ N(0, I) per touch) as a training CSV."""
+    from app.documents import write_training_csv
+
+    data = sample_dataset(
+        make_world(world, world_seed, noise_std), np.random.default_rng(seed), touches
+    )
+    out.write_text(write_training_csv(data))
+    stderr.print(f"wrote {data.n_touches} touches of {data.n_objects} objects to {out}")
+
+
+@app.command()
+def recognize(
+    model_path: Annotated[Path, typer.Option("--model", help="Model document (JSON).")],
+    target: Annotated[str, typer.Option(help="Name of the object being touched.")],
+    world: Annotated[WorldName, typer.Option(help="World that produces the observations.")] = (
+        WorldName.exp1
+    ),
+    policy: Annotated[Policy, typer.Option(help="active, passive or fixed")] = Policy.active,
+    steps: Annotated[int, typer.Option(min=1, help="T, the largest number of touches.")] = 10,
+    seed: Annotated[int, typer.Option(help="Seed of the noise and passive actions.")] = 0,
+    action: Annotated[
+        list[float] | None, typer.Option(help="The fixed action (repeat per dimension).")
+    ] = None,
+    tolerance: Annotated[float, typer.Option(help="Stop when the mean moves less.")] = 1e-3,
+    confidence: Annotated[
+        float | None, typer.Option(help="Stop when an object's probability reaches this.")
+    ] = None,
+    prior_variance: Annotated[float, typer.Option(help="Σ0 = this · I (normalised units).")] = 5.0,
+    world_seed: Annotated[int, typer.Option(help="Seed that drew the exp2 world.")] = 0,
+    noise_std: Annotated[float | None, typer.Option(help="Observation noise std.")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the trial as JSON.")] = False,
+) -> None:
+    """Run one simulated recognition trial, step by step."""
+    model = load_model(model_path)
+    if target not in model.object_names:
+        raise fail(f"--target {target!r} is not an object of the model {list(model.object_names)}")
+    try:
+        chosen = (
+            ActivePolicy()
+            if policy is Policy.active
+            else PassivePolicy()
+            if policy is Policy.passive
+            else FixedPolicy(np.asarray(action if action else [], dtype=np.float64))
+        )
+        planner = Planner(model, chosen)
+        settings = RecognitionSettings(
+            max_steps=steps, tolerance=tolerance, confidence_threshold=confidence
+        )
+        prior = default_prior(model, prior_variance)
+        trial = iter_simulated_trial(
+            model,
+            make_world(world, world_seed, noise_std),
+            model.object_names.index(target),
+            planner,
+            prior,
+            settings,
+            np.random.default_rng(seed),
+        )
+        records = []
+        names = model.object_names
+        for step in trial:
+            record = {
+                "step": step.step,
+                "action": step.action.tolist(),
+                "observation": step.observation.tolist(),
+                "mutual_information": step.mutual_information,
+                "belief": {"mean": step.belief.mean.tolist(), "cov": step.belief.cov.tolist()},
+                "nearest_object": names[step.nearest_object],
+                "answer": names[step.answer],
+                "probabilities": dict(zip(names, step.probabilities.tolist(), strict=True)),
+                "done": step.done,
+                "stop_reason": step.stop_reason,
+            }
+            records.append(record)
+            if not as_json:
+                stderr.print(
+                    f"step {step.step:2d}  x = {np.array2string(step.action, precision=3)}  "
+                    f"MI {step.mutual_information:.3f}  "
+                    f"μ = {np.array2string(step.belief.mean, precision=3)}  "
+                    f"nearest {names[step.nearest_object]}  answer {names[step.answer]} "
+                    f"(p = {step.probabilities.max():.3f})"
+                    + (f"  [{step.stop_reason}]" if step.done else "")
+                )
+    except CoreError as exc:
+        raise fail(str(exc)) from None
+    final = records[-1]
+    result = {
+        "target": target,
+        "policy": policy.value,
+        "answer": final["answer"],
+        "correct": final["answer"] == target,
+        "steps": records,
+    }
+    if as_json:
+        sys.stdout.write(json.dumps(result) + "\n")
+    else:
+        verdict = "[green]correct[/green]" if result["correct"] else "[red]wrong[/red]"
+        stderr.print(f"recognised {final['answer']} after {len(records)} touches: {verdict}")
+
+
+@paper_app.command("exp1")
+def paper_exp1(
+    seeds: Annotated[int, typer.Option(min=1, help="Data seeds (fits).")] = 10,
+    trials: Annotated[int, typer.Option(min=1, help="Trials per object per seed.")] = 5,
+    steps: Annotated[int, typer.Option(min=1, help="T")] = 10,
+    noise_std: Annotated[float, typer.Option(help="0.1 (std) or 0.316 (variance 0.1)")] = 0.1,
+    restarts: Annotated[int, typer.Option(min=0, help="Random restarts per fit.")] = 4,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the figures as JSON.")] = False,
+) -> None:
+    """Experiment 1 end to end: manifold, random-latent baseline, recognition; vs the paper."""
+    try:
+        with progress_bar() as bar:
+            task = bar.add_task("experiment 1", total=seeds, status="")
+
+            def report(message: str, done: int) -> None:
+                bar.update(task, completed=done, status=message)
+
+            figures = run_experiment1(
+                seeds=seeds,
+                trials_per_object=trials,
+                max_steps=steps,
+                noise_std=noise_std,
+                restarts=restarts,
+                progress=report,
+            )
+    except CoreError as exc:
+        raise fail(str(exc)) from None
+    if as_json:
+        sys.stdout.write(json.dumps(figures.to_dict()) + "\n")
+    else:
+        Console().print(figures.table())
+
+
+# Sub-commands that live with the code they drive.
+app.add_typer(rig_app, name="rig", help="Check and drive the rig (real ports or --sim).")
+app.command("serve")(serve_command)
+app.command("demo")(demo_command)
+
+
+def main() -> None:
+    """Console-script entry point.
+
+    BLAS runs on one thread unless ``ACTIVETOUCH_BLAS_THREADS`` says otherwise: the matrices of
+    a few hundred touches are too small to gain from threads, and threads that spin on a busy
+    machine slow every fit and plan by orders of magnitude.
+    """
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=int(os.environ.get("ACTIVETOUCH_BLAS_THREADS", "1"))):
+        app()

@@ -1,0 +1,128 @@
+"""The ``activetouch`` CLI: fit, recognize, dataset and paper, through typer's runner."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from app.cli import app
+from app.documents import write_training_csv
+from core.worlds import sample_experiment1
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def csv_path(tmp_path_factory):
+    path = tmp_path_factory.mktemp("cli") / "exp1.csv"
+    path.write_text(write_training_csv(sample_experiment1(np.random.default_rng(0), 40)))
+    return path
+
+
+@pytest.fixture(scope="module")
+def model_path(csv_path):
+    out = csv_path.with_name("model.json")
+    result = runner.invoke(
+        app,
+        ["fit", str(csv_path), "--latent-dim", "1", "--restarts", "1", "--out", str(out)],
+    )
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def test_fit_json_prints_only_the_model_document(csv_path):
+    result = runner.invoke(
+        app, ["fit", str(csv_path), "--latent-dim", "1", "--restarts", "0", "--json"]
+    )
+    assert result.exit_code == 0, result.output
+    document = json.loads(result.stdout)
+    assert document["format"] == "activetouch-model/1"
+    assert document["latent_dim"] == 1
+    assert document["action_dim"] == 1
+    assert document["observation_dim"] == 3
+    assert [o["name"] for o in document["objects"]] == ["O1", "O2", "O3", "O4"]
+    assert len(document["hyperparameters"]) == 3
+    assert document["fit_seconds"] > 0
+    assert len(document["training_data"]["actions"]) == 160
+
+
+def test_fit_writes_a_model_that_recognize_uses(model_path):
+    result = runner.invoke(
+        app,
+        [
+            "recognize", "--model", str(model_path), "--world", "exp1", "--target", "O3",
+            "--policy", "active", "--steps", "6", "--seed", "1", "--json",
+        ],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    trial = json.loads(result.stdout)
+    assert trial["target"] == "O3"
+    assert 1 <= len(trial["steps"]) <= 6
+    assert trial["steps"][-1]["done"] is True
+    assert set(trial["steps"][0]["probabilities"]) == {"O1", "O2", "O3", "O4"}
+    assert trial["answer"] == trial["steps"][-1]["answer"]
+
+
+def test_recognize_fixed_policy_uses_the_given_action(model_path):
+    result = runner.invoke(
+        app,
+        [
+            "recognize", "--model", str(model_path), "--target", "O1", "--policy", "fixed",
+            "--action", "0.25", "--steps", "3", "--json",
+        ],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    steps = json.loads(result.stdout)["steps"]
+    assert all(step["action"] == [0.25] for step in steps)
+
+
+@pytest.mark.parametrize(
+    ("args", "fragment"),
+    [
+        (["--target", "O9"], "is not an object of the model"),
+        (["--target", "O1", "--policy", "fixed"], "dx"),
+    ],
+)
+def test_recognize_bad_input_is_a_clear_error(model_path, args, fragment):
+    result = runner.invoke(app, ["recognize", "--model", str(model_path), *args])
+    assert result.exit_code == 2
+    assert fragment in result.output
+
+
+def test_fit_rejects_a_bad_csv_naming_the_column(tmp_path):
+    path = tmp_path / "bad.csv"
+    path.write_text("object,x_1,y_1,colour\na,1,2,3\n")
+    result = runner.invoke(app, ["fit", str(path), "--latent-dim", "1"])
+    assert result.exit_code == 2
+    assert "colour" in result.output
+
+
+def test_fit_reports_a_missing_file(tmp_path):
+    result = runner.invoke(app, ["fit", str(tmp_path / "nope.csv"), "--latent-dim", "1"])
+    assert result.exit_code == 2
+    assert "cannot read" in result.output
+
+
+def test_dataset_writes_a_csv_fit_can_read(tmp_path):
+    out = tmp_path / "exp2.csv"
+    result = runner.invoke(app, ["dataset", "exp2", "--out", str(out), "--touches", "5"])
+    assert result.exit_code == 0, result.output
+    header = out.read_text().splitlines()[0]
+    assert header == "object,x_1,x_2,x_3,x_4,x_5,x_6,y_1,y_2,y_3,y_4,y_5"
+    assert len(out.read_text().splitlines()) == 1 + 4 * 5
+
+
+def test_paper_exp1_small_run_reports_figures():
+    result = runner.invoke(
+        app, ["paper", "exp1", "--seeds", "1", "--trials", "1", "--steps", "3", "--json"]
+    )
+    assert result.exit_code == 0, result.output
+    figures = json.loads(result.stdout)
+    assert figures["paper"]["correlation"] == 0.9995
+    assert 0.0 <= figures["median_correlation"] <= 1.0
+    assert set(figures["policies"]) == {"active", "passive", "random-latent active"}
+    assert len(figures["policies"]["active"]["accuracy_by_touch"]) == 3
+    assert figures["policies"]["active"]["trials"] == 4
