@@ -426,19 +426,23 @@ class Rig:
         with self._operation:
             self._estop.clear()
             self._set_state(RigState.DISCONNECTED)
-            for transport in (self.tactile.transport, self.finger.transport):
-                if not transport.is_open:
-                    transport.reconnect(attempts=2, delay_s=0.2)
             try:
-                self.finger.connect()
-            except ServoHardwareError:
-                self.finger.reboot()
-                self.finger.connect()
-            except (DeviceDisconnected, DeviceTimeout):
-                self.finger.transport.reconnect(attempts=2, delay_s=0.2)
-                self.finger.connect()
-            if not self.turntable.transport.is_open:
-                self.turntable.transport.reconnect(attempts=2, delay_s=0.2)
+                for transport in (self.tactile.transport, self.finger.transport):
+                    if not transport.is_open:
+                        transport.reconnect(attempts=2, delay_s=0.2)
+                try:
+                    self.finger.connect()
+                except ServoHardwareError:
+                    self.finger.reboot()
+                    self.finger.connect()
+                except (DeviceDisconnected, DeviceTimeout):
+                    self.finger.transport.reconnect(attempts=2, delay_s=0.2)
+                    self.finger.connect()
+                if not self.turntable.transport.is_open:
+                    self.turntable.transport.reconnect(attempts=2, delay_s=0.2)
+            except HardwareError as exc:
+                self._set_state(RigState.FAULT, f"recovery failed: {type(exc).__name__}: {exc}")
+                raise
             return self._connect()
 
     def _ensure_safe_pose(self) -> None:

@@ -210,8 +210,12 @@ def test_tactile_disconnect_mid_touch(sim_rig: SimulatedRig, short_touch: FloatA
         assert partial is not None
         assert partial.n_frames > 100
         assert partial.joint_positions_deg.shape[0] >= 6
+        assert sim_rig.rig.state is RigState.FAULT
+        np.testing.assert_allclose(finger_pose(sim_rig), [0.0, 0.0], atol=0.3)
+        with pytest.raises(DeviceDisconnected):
+            lease.recover()  # the sensor is still unplugged
     assert sim_rig.rig.state is RigState.FAULT
-    np.testing.assert_allclose(finger_pose(sim_rig), [0.0, 0.0], atol=0.3)
+    assert "DeviceDisconnected" in (sim_rig.rig.status().fault or "")
 
 
 def test_a_few_bad_frames_are_counted_too_many_refused(
