@@ -180,20 +180,21 @@ class ManifoldLikelihood:
         total = 0.0
         for a in range(dy):
             factor = self._factor(gram_free[a], float(noise[a]), a)
+            upper = factor.T  # Fortran-ordered upper factor: what LAPACK reads without copying
             y = self._centred[a]
-            beta = scipy.linalg.cho_solve((factor, True), y, check_finite=False)
+            beta, info = scipy.linalg.lapack.dpotrs(upper, y, lower=0)
             # METHOD.md eq. (M2)
-            total += 0.5 * float(y @ beta) + 0.5 * log_det_from_cholesky(factor)
-            total += 0.5 * n * _LOG_2PI
-            # K⁻¹ from the factor (the lower triangle of the Fortran-ordered transpose).
-            inverse_t, info = scipy.linalg.lapack.dpotri(factor.T, lower=0, overwrite_c=0)
-            if info != 0:  # pragma: no cover - the factor came from a successful Cholesky
-                raise InvalidInputError(f"dpotri failed with info={info} on feature {a}.")
-            w = np.ascontiguousarray(np.triu(inverse_t))
-            diag_inverse = w.ravel()[self._diag].copy()
-            w += w.T
-            w.ravel()[self._diag] = diag_inverse
-            w -= np.outer(beta, beta)  # W = K⁻¹ - ββᵀ;  ∂(-log p)/∂K = ½ W
+            log_det = 2.0 * float(np.sum(np.log(factor.ravel()[self._diag])))
+            total += 0.5 * float(y @ beta) + 0.5 * log_det + 0.5 * n * _LOG_2PI
+            # K⁻¹ from the factor: dpotri fills the upper triangle of the Fortran array, i.e.
+            # the lower triangle of its C-ordered transpose; the rest stays zero (clean factor).
+            inverse_t, info2 = scipy.linalg.lapack.dpotri(upper, lower=0, overwrite_c=0)
+            if info or info2:  # pragma: no cover - the factor came from a successful Cholesky
+                raise InvalidInputError(f"dpotrs/dpotri failed on feature {a}.")
+            lower = inverse_t.T
+            w = np.add(lower, lower.T, order="C")
+            w.ravel()[self._diag] -= lower.ravel()[self._diag]
+            w -= np.multiply.outer(beta, beta)  # W = K⁻¹ - ββᵀ;  ∂(-log p)/∂K = ½ W
             g_sn[a] = 0.5 * noise[a] * float(w.ravel()[self._diag].sum())
             m = w
             m *= gram_free[a]  # M = W ∘ K_f

@@ -100,7 +100,7 @@ class FitOptions:
     ftol: float = 1e-12
     gtol: float = 1e-6
     screen_touches_per_object: int = 25
-    screen_iterations: int = 200
+    screen_iterations: int = 100
     polish_starts: int = 1
     latent_bound: float = 5.0
     initial_latent_lengthscale: float = 10.0
@@ -150,11 +150,13 @@ class FitProgress:
         start: Index of the start being optimised (0 = data-driven; the DE start comes last).
         n_starts: Number of starts.
         iteration: Optimiser iterations of this start so far (generations for DE).
-        log_likelihood: Current log-likelihood of this start — of the screening subsample
-            while ``phase`` is ``"screen"`` or ``"de"``, of all the data otherwise.
+        log_likelihood: Current log-likelihood of this start, on the data the stage works
+            on: the screening subsample in ``"screen"`` and ``"de"`` (and
+            ``"hyperparameters"`` when screening), all the data in ``"joint"``.
         best_log_likelihood: Best full-data log-likelihood so far (-inf before any).
-        phase: ``"hyperparameters"`` (S frozen), ``"screen"``, ``"de"``, ``"joint"``
-            (all data), ``"start done"``, or ``"done"`` (the final event).
+        phase: The stage: ``"hyperparameters"`` (start 0, S frozen), ``"screen"`` (joint, on
+            the subsample), ``"de"``, ``"joint"`` (all the data); the same with ``" done"``
+            appended for the event that ends a stage; ``"done"`` for the final event.
         model: The fitted model, on the final event only.
     """
 
@@ -590,7 +592,7 @@ class _FitRun:
             iteration=start.iterations,
             log_likelihood=-float(result.fun),
             best_log_likelihood=-self.best_full,
-            phase="start done" if problem is self.full else phase,
+            phase=f"{phase} done",
         )
 
     def _differential_evolution(
@@ -641,6 +643,14 @@ class _FitRun:
         start.iterations = int(result.nit)
         start.message = str(result.message)
         self._record(start, problem, float(result.fun))
+        yield FitProgress(
+            start=start.index,
+            n_starts=n_starts,
+            iteration=start.iterations,
+            log_likelihood=-float(result.fun),
+            best_log_likelihood=-self.best_full,
+            phase="de done",
+        )
 
     def _is_degenerate(self, vector: FloatArray) -> bool:
         layout = self.layout

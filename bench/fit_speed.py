@@ -1,0 +1,115 @@
+"""Benchmark: manifold fitting on Experiment 1 (issue 2 acceptance) and one-start cost.
+
+For each data seed of Experiment 1 (4 objects × 100 touches, dx=1, dy=3, ds=1) it fits the
+manifold with the default :class:`core.manifold.FitOptions` and prints |corr(θ, s)|, the fit
+time and the log-likelihood; then the paper's random-latent baseline (random S_w held fixed,
+hyperparameters fitted with :func:`core.manifold.fit_hyperparameters`). With ``--issue3`` it
+also times one L-BFGS start on all the data at L=4, N=400, dx=6, dy=5, ds=2.
+
+BLAS threads are limited to ``--threads`` (default 1): on 2 shared cores, threaded LAPACK
+(``dpotri`` in particular) slows down by 10-100x whenever the other core is busy.
+
+Run: ``.venv/bin/python -m bench.fit_speed [--seeds 10] [--noise-std 0.1] [--issue3]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from core.initialisation import pca_latents, random_latents
+from core.likelihood import ManifoldLikelihood
+from core.manifold import FitOptions, _FitRun, _minimize, fit_hyperparameters
+from core.metrics import abs_correlation, procrustes_r2
+from core.parameters import initial_hyperparameters, parameter_bounds
+from core.worlds import (
+    EXPERIMENT1_THETAS,
+    random_experiment2_world,
+    sample_dataset,
+    sample_experiment1,
+)
+
+
+def experiment1(seeds: int, noise_std: float, options: FitOptions) -> None:
+    theta = np.array(EXPERIMENT1_THETAS)
+    print(f"Experiment 1, noise std {noise_std}, {options.optimizer}, restarts {options.restarts}")
+    print("seed  |corr|   fit_s  log_lik    best  full_evals screen_evals  random-latent |corr|")
+    corrs, times, baseline = [], [], []
+    for seed in range(seeds):
+        data = sample_experiment1(np.random.default_rng(seed), noise_std=noise_std)
+        start = time.perf_counter()
+        run = _FitRun(data, 1, np.random.default_rng(1000 + seed), options)
+        model = None
+        for event in run.events():
+            model = event.model if event.model is not None else model
+        elapsed = time.perf_counter() - start
+        assert model is not None
+        assert model.diagnostics is not None
+        corr = abs_correlation(theta, model.latents)
+        random_s = random_latents(4, 1, np.random.default_rng(2000 + seed))
+        fixed = fit_hyperparameters(data, random_s)
+        corr_random = abs_correlation(theta, fixed.latents)
+        screen = run.screen.likelihood.evaluations if run.screen is not None else 0
+        print(
+            f"{seed:4d}  {corr:.5f}  {elapsed:5.2f}  {model.log_likelihood:8.2f}  "
+            f"{model.diagnostics.best_start:4d}  {run.full.likelihood.evaluations:10d} "
+            f"{screen:12d}  {corr_random:.3f} (log_lik {fixed.log_likelihood:.1f})"
+        )
+        corrs.append(corr)
+        times.append(elapsed)
+        baseline.append(corr_random)
+    print(
+        f"median |corr| {np.median(corrs):.5f} (min {min(corrs):.5f}, max {max(corrs):.5f}); "
+        f"fit seconds median {np.median(times):.2f}, max {max(times):.2f}; "
+        f"random-latent median |corr| {np.median(baseline):.3f}"
+    )
+
+
+def issue3_one_start(seed: int = 0) -> None:
+    """One joint L-BFGS start on all the data at L=4, N=400, dx=6, dy=5, ds=2."""
+    rng = np.random.default_rng(seed)
+    world = random_experiment2_world(rng)
+    data = sample_dataset(world, rng, touches_per_object=100)
+    likelihood = ManifoldLikelihood(data, 2)
+    layout = likelihood.layout
+    lower, upper = parameter_bounds(data, layout, 5.0)
+    vector = layout.pack(pca_latents(data, 2, rng), initial_hyperparameters(data, 2))
+    everything = np.ones(layout.size, dtype=bool)
+    ts = []
+    for _ in range(10):
+        t0 = time.perf_counter()
+        likelihood.value_and_gradient(vector)
+        ts.append(time.perf_counter() - t0)
+    start = time.perf_counter()
+    result = _minimize(likelihood, vector, everything, lower, upper, FitOptions(), 3000)
+    elapsed = time.perf_counter() - start
+    latents, _ = layout.unpack(result.x)
+    print(
+        f"Issue 3 shape (L=4, N=400, dx=6, dy=5, ds=2): value+gradient median "
+        f"{1e3 * np.median(ts):.1f} ms; one L-BFGS start {elapsed:.2f} s, {result.nit} "
+        f"iterations, {likelihood.evaluations - 10} evaluations, log_lik {-result.fun:.2f}, "
+        f"Procrustes R² to the true latents {procrustes_r2(world.truth, latents):.4f}"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--noise-std", type=float, default=0.1)
+    parser.add_argument("--restarts", type=int, default=FitOptions().restarts)
+    parser.add_argument("--optimizer", choices=("lbfgs", "de"), default="lbfgs")
+    parser.add_argument("--threads", type=int, default=1, help="BLAS threads")
+    parser.add_argument("--issue3", action="store_true", help="also time one start at N=400")
+    args = parser.parse_args()
+    options = FitOptions(optimizer=args.optimizer, restarts=args.restarts)
+    with threadpool_limits(limits=args.threads):
+        experiment1(args.seeds, args.noise_std, options)
+        if args.issue3:
+            issue3_one_start()
+
+
+if __name__ == "__main__":
+    main()
