@@ -30,8 +30,11 @@ class PtyEmulator:
         device: The simulated device.
         name: Thread and message name.
         poll_interval_s: Longest real time between two polls of the device for output.
-        buffer_limit_bytes: Output waiting for a host that does not read (a UART's FIFO);
-            beyond it the oldest bytes are dropped (an overrun).
+        buffer_limit_bytes: Output waiting for a host that does not read, beyond what the
+            pseudo-terminal holds (~20 KB). It stands for the kernel and adapter buffers of a
+            real port, and absorbs the burst a simulated device produces when this process was
+            not scheduled for a while (simulated time kept running). Beyond it the oldest bytes
+            are dropped (an overrun).
     """
 
     def __init__(
@@ -39,7 +42,7 @@ class PtyEmulator:
         device: ByteDevice,
         name: str = "emulator",
         poll_interval_s: float = 0.002,
-        buffer_limit_bytes: int = 4096,
+        buffer_limit_bytes: int = 1 << 18,
     ) -> None:
         self.device = device
         self.name = name
