@@ -163,7 +163,7 @@ def check_trajectory(
             joint, the limit, the value and the first offending sample), or the shape is wrong.
     """
     names = ",".join(joint.name for joint in joints)
-    array = np.asarray(trajectory, dtype=np.float64)
+    array = np.array(trajectory, dtype=np.float64)  # a copy: the record freezes it
     if array.ndim != 2 or array.shape[1] != len(joints) or array.shape[0] < 2:
         raise UnsafeTrajectoryError(
             names,
