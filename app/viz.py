@@ -542,6 +542,11 @@ class ManifoldView:
         """The model on show."""
         return self._model
 
+    @property
+    def belief(self) -> GaussianBelief | None:
+        """The belief on show (``None`` between trials)."""
+        return self._belief
+
     # -- scene --------------------------------------------------------------------------------
 
     def _build_scene(self) -> None:

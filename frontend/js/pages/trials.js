@@ -222,10 +222,18 @@ async function loadViser() {
   let url = params.get("viser");
   if (!url && info && info.port) url = `${location.protocol}//${location.hostname}:${info.port}/`;
   if (!url) return;
-  const frame = el("iframe", { src: url, title: "3D view of the manifold, belief and finger (viser)", "data-testid": "viser-frame", loading: "lazy" });
-  fill($("viser-box"), frame);
   $("viser-open").href = url;
   $("viser-open").hidden = false;
+  const embed = () => {
+    const frame = el("iframe", { src: url, title: "3D view of the manifold, belief and finger (viser)", "data-testid": "viser-frame" });
+    fill($("viser-box"), frame);
+  };
+  // ?viz=off: a button instead (machines without a GPU render WebGL in software, slowly).
+  if (params.get("viz") === "off") {
+    fill($("viser-box"), el("button", { type: "button", class: "secondary", "data-testid": "viser-load", onclick: embed }, "Show the 3D view"));
+  } else {
+    embed();
+  }
 }
 
 const reloadSoon = throttle(async () => {

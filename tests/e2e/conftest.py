@@ -1,0 +1,140 @@
+"""Fixtures of the browser tests: the demo (web app + viser view) and headless Chromium.
+
+Chromium is Debian's (``scripts/install_browser.sh``), driven by Playwright's Python package
+through ``executable_path``; Playwright's own browser download is never used. Screenshots go to
+``artifacts/screenshots/`` (test artefacts, not committed); with
+``ACTIVETOUCH_UPDATE_DOCS_SCREENSHOTS=1`` the README's copies in ``docs/screenshots/`` are
+refreshed too.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pytest
+from rich.console import Console
+
+from app.demo import DemoOptions, DemoServer, DemoState
+
+ROOT = Path(__file__).resolve().parents[2]
+CHROMIUM = Path(os.environ.get("ACTIVETOUCH_CHROMIUM", "/usr/bin/chromium"))
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+SCREENSHOTS = ROOT / "artifacts" / "screenshots"
+DOCS_SCREENSHOTS = ROOT / "docs" / "screenshots"
+VIEWPORT = {"width": 1440, "height": 1000}
+
+
+@dataclass
+class Demo:
+    """The running demo of a test module."""
+
+    server: DemoServer
+    state: DemoState
+
+    def get(self, path: str) -> Any:
+        """GET ``/api/v1{path}`` as JSON."""
+        response = self.server.client.get(path)
+        response.raise_for_status()
+        return response.json()
+
+
+@dataclass
+class PageErrors:
+    """JavaScript errors and failed requests seen by a page."""
+
+    exceptions: list[str] = field(default_factory=list)
+    console: list[str] = field(default_factory=list)
+
+
+def save_screenshot(page: Any, name: str, docs: bool = False, **kwargs: Any) -> Path:
+    """Screenshot to ``artifacts/screenshots/{name}.png`` (and the docs copy when asked)."""
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    path = SCREENSHOTS / f"{name}.png"
+    page.screenshot(path=str(path), **kwargs)
+    if docs and os.environ.get("ACTIVETOUCH_UPDATE_DOCS_SCREENSHOTS") == "1":
+        DOCS_SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(path, DOCS_SCREENSHOTS / f"{name}.png")
+    return path
+
+
+@pytest.fixture(scope="session")
+def browser() -> Iterator[Any]:
+    """Headless Debian Chromium under Playwright."""
+    if not CHROMIUM.exists():
+        pytest.fail(
+            f"{CHROMIUM} is missing: run scripts/install_browser.sh (Debian's chromium package)."
+        )
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright:
+        launched = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        yield launched
+        launched.close()
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Demo]:
+    """The demo on free loopback ports with a fresh SQLite file, prepared (dataset + model)."""
+    database = tmp_path_factory.mktemp("demo") / "demo.db"
+    options = DemoOptions(
+        host="127.0.0.1",
+        port=0,
+        viz_port=0,
+        database_url=f"sqlite:///{database}",
+        world="experiment1",
+        touches_per_object=15,
+        latent_dim=2,
+        restarts=1,
+        max_iterations=150,
+        seed=0,
+        open_browser=False,
+    )
+    server = DemoServer(
+        options,
+        console=Console(stderr=True, force_terminal=False),
+        settings_overrides={"_env_file": None},
+    )
+    server.start()
+    try:
+        state = server.prepare()
+        yield Demo(server=server, state=state)
+    finally:
+        server.stop()
+
+
+@pytest.fixture
+def page_errors() -> PageErrors:
+    """Errors collected by :func:`page`."""
+    return PageErrors()
+
+
+@pytest.fixture
+def page(browser: Any, page_errors: PageErrors) -> Iterator[Any]:
+    """A fresh browser page; the test fails if the page throws a JavaScript error."""
+    context = browser.new_context(viewport=VIEWPORT, accept_downloads=True)
+    created = context.new_page()
+    created.set_default_timeout(20_000)
+    created.on("pageerror", lambda error: page_errors.exceptions.append(str(error)))
+    created.on(
+        "console",
+        lambda message: (
+            page_errors.console.append(message.text) if message.type == "error" else None
+        ),
+    )
+    yield created
+    context.close()
+    assert page_errors.exceptions == [], f"JavaScript errors: {page_errors.exceptions}"

@@ -1,0 +1,206 @@
+"""The dashboard in headless Chromium against the real demo (web app, SQLite, viser view).
+
+A newcomer's path: open the dashboard, start a recognition trial with one click, watch it live,
+read the recognised object; the 3D view connects. Screenshots: ``artifacts/screenshots/``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from app.viz import wait_for_clients
+from tests.e2e.conftest import Demo, PageErrors, save_screenshot
+
+pytestmark = pytest.mark.browser
+
+PAGES = ("rig", "objects", "collection", "models", "trials", "history")
+
+
+def expect(target: Any) -> Any:
+    from playwright.sync_api import expect as playwright_expect
+
+    return playwright_expect(target)
+
+
+def open_dashboard(page: Any, demo: Demo, hash_: str = "#trials", viz: bool = False) -> None:
+    """Open the dashboard; without ``viz`` the 3D view waits for a click (software WebGL in a
+    headless browser is slow enough to starve the page's own scripts)."""
+    query = "" if viz else "?viz=off"
+    page.goto(f"{demo.server.base_url}/{query}{hash_}")
+    expect(page.get_by_test_id("chip-server")).to_contain_text("server ok")
+    expect(page.get_by_test_id("chip-events")).to_have_text("live")
+
+
+def newest_trial(demo: Demo) -> dict[str, Any]:
+    trials = demo.get(f"/trials?model_id={demo.state.model_id}&limit=1000")["data"]
+    summary = max(trials, key=lambda t: t["id"])
+    detail: dict[str, Any] = demo.get(f"/trials/{summary['id']}")
+    return detail
+
+
+def wait_finished(demo: Demo, trial_id: int, timeout_s: float = 60) -> dict[str, Any]:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        trial: dict[str, Any] = demo.get(f"/trials/{trial_id}")
+        if trial["status"] not in ("queued", "running", "paused"):
+            return trial
+        assert time.monotonic() < deadline, f"trial {trial_id} still {trial['status']}"
+        time.sleep(0.2)
+
+
+def test_every_page_renders_with_the_estop(page: Any, demo: Demo) -> None:
+    open_dashboard(page, demo)
+    for name in PAGES:
+        page.get_by_test_id(f"nav-{name}").click()
+        expect(page.get_by_test_id(f"page-{name}")).to_be_visible()
+        estop = page.get_by_test_id("estop")
+        expect(estop).to_be_visible()
+        expect(estop).to_be_enabled()
+        assert estop.get_attribute("aria-label", timeout=1000).startswith("Emergency stop")
+        for other in PAGES:
+            if other != name:
+                expect(page.get_by_test_id(f"page-{other}")).to_be_hidden()
+    # Models: the fitted model is listed, its manifold and hyperparameters are shown.
+    page.get_by_test_id("nav-models").click()
+    expect(page.get_by_test_id("model-row")).to_have_count(1)
+    expect(page.get_by_test_id("model-detail")).to_be_visible()
+    model = demo.get(f"/models/{demo.state.model_id}")
+    expect(page.get_by_test_id("hyper-table").locator("tbody tr")).to_have_count(
+        len(model["hyperparameters"])
+    )
+    expect(page.get_by_test_id("model-export")).to_have_attribute(
+        "href", f"api/v1/models/{demo.state.model_id}/export"
+    )
+    save_screenshot(page, "dashboard-models", docs=True)
+    # Collection: the demo's training set is listed with its size.
+    page.get_by_test_id("nav-collection").click()
+    dataset = demo.get(f"/datasets/{demo.state.dataset_id}")
+    row = page.get_by_test_id("dataset-row").first
+    expect(row).to_contain_text(str(dataset["n_samples"]))
+    save_screenshot(page, "dashboard-collection")
+
+
+def test_demo_trial_through_the_ui(page: Any, demo: Demo) -> None:
+    """One click starts a trial; the page follows it live and shows the recognised object."""
+    open_dashboard(page, demo)
+    model = demo.get(f"/models/{demo.state.model_id}")
+    names = [o["name"] for o in model["objects"]]
+    target = names[2]
+    page.get_by_test_id("trial-model").select_option(str(demo.state.model_id))
+    expect(page.get_by_test_id("trial-target").locator("option")).to_have_count(len(names) + 1)
+    page.get_by_test_id("trial-target").select_option(target)
+    page.get_by_test_id("trial-policy").select_option("active")
+    page.get_by_test_id("trial-steps").fill("10")
+    page.locator("#trial-seed").fill("7")
+    page.locator("#trial-interval").fill("0.4")
+
+    started = time.perf_counter()
+    page.get_by_test_id("start-trial").click()
+    # Live: the status shows running while touches come in, one row per touch.
+    expect(page.get_by_test_id("trial-status")).to_have_text("running", timeout=10_000)
+    expect(page.get_by_test_id("step-row").first).to_be_visible(timeout=10_000)
+    save_screenshot(page, "dashboard-trial-live")
+    result = page.get_by_test_id("trial-result")
+    expect(result).to_be_visible(timeout=60_000)
+    elapsed_s = time.perf_counter() - started
+    print(f"start trial → result shown: {elapsed_s:.1f} s")
+
+    trial = newest_trial(demo)
+    assert trial["status"] == "completed"
+    assert trial["target"] == target
+    shown = page.get_by_test_id("trial-result-object").inner_text()
+    assert shown == trial["result"]["object"]
+    assert shown in names
+    # Experiment 1 with the active policy names the target within 10 touches (seed fixed).
+    assert trial["result"]["correct"] is True
+    expect(result).to_contain_text("✓ correct")
+    expect(page.get_by_test_id("step-row")).to_have_count(len(trial["steps"]))
+    expect(page.get_by_test_id("trial-touches")).to_have_text(
+        f"{len(trial['steps'])} / {trial['max_steps']}"
+    )
+    expect(page.get_by_test_id("trial-nearest")).to_have_text(trial["steps"][-1]["nearest_object"])
+    for action in ("pause", "resume", "stop"):
+        expect(page.get_by_test_id(f"trial-{action}")).to_be_disabled()
+    page.get_by_test_id("trial-live").scroll_into_view_if_needed()
+    save_screenshot(page, "dashboard-trial", docs=True, full_page=True)
+
+
+def test_viser_view_connects_and_follows_the_trial(
+    page: Any, browser: Any, demo: Demo, page_errors: PageErrors
+) -> None:
+    view = demo.server.view
+    assert view is not None
+    open_dashboard(page, demo, viz=True)
+    frame = page.get_by_test_id("viser-frame")
+    expect(frame).to_be_visible()
+    assert f":{view.port}/" in (frame.get_attribute("src") or "")
+    assert wait_for_clients(view, 1, timeout_s=30), "the embedded viser client did not connect"
+    # The follower shows the model, and follows a trial started through the API to its end.
+    assert view.model is not None
+    names = [o["name"] for o in demo.get(f"/models/{demo.state.model_id}")["objects"]]
+    assert list(view.model.object_names) == names
+    created = demo.server.client.post(
+        "/trials",
+        json={
+            "model_id": demo.state.model_id,
+            "mode": demo.state.mode,
+            "policy": "active",
+            "max_steps": 5,
+            "target": names[0],
+            "seed": 3,
+            "simulation": {"world": demo.state.world, "step_interval_s": 0.0},
+        },
+    )
+    assert created.status_code == 201, created.text
+    trial = wait_finished(demo, created.json()["id"])
+    final_mean = np.asarray(trial["steps"][-1]["belief"]["mean"])
+    deadline = time.monotonic() + 15
+    while time.monotonic() < deadline:
+        belief = view.belief
+        if belief is not None and np.allclose(belief.mean, final_mean, rtol=1e-12, atol=0):
+            break
+        time.sleep(0.1)
+    assert view.belief is not None
+    np.testing.assert_allclose(view.belief.mean, final_mean, rtol=1e-12)
+    # The view on its own page, for the screenshot.
+    context = browser.new_context(viewport={"width": 1280, "height": 800})
+    try:
+        alone = context.new_page()
+        alone.on("pageerror", lambda error: page_errors.exceptions.append(str(error)))
+        alone.goto(view.url)
+        assert wait_for_clients(view, 2, timeout_s=30)
+        alone.wait_for_timeout(9000)  # the software renderer fades the scene in slowly
+        save_screenshot(alone, "viser-view", docs=True)
+    finally:
+        context.close()
+
+
+def test_history_compares_policies_and_exports(page: Any, demo: Demo, tmp_path: Path) -> None:
+    open_dashboard(page, demo, "#history")
+    page.locator("#hist-model").select_option(str(demo.state.model_id))
+    page.locator("#batch-n").fill("2")
+    page.get_by_test_id("batch-start").click()
+    expect(page.get_by_test_id("batch-status")).to_contain_text("Batch done", timeout=90_000)
+    trials = demo.get(f"/trials?model_id={demo.state.model_id}&limit=1000")["data"]
+    expect(page.get_by_test_id("history-row")).to_have_count(len(trials))
+    assert {t["policy"] for t in trials} >= {"active", "passive"}
+    expect(page.locator("#accuracy-note")).to_contain_text("Fraction of finished trials")
+    with page.expect_download() as download_info:
+        page.get_by_test_id("export-csv").click()
+    path = tmp_path / "trials.csv"
+    download_info.value.save_as(path)
+    rows = list(csv.DictReader(io.StringIO(path.read_text())))
+    assert len(rows) == len(trials)
+    assert {int(r["id"]) for r in rows} == {t["id"] for t in trials}
+    by_id = {t["id"]: t for t in trials}
+    for row in rows:
+        result = by_id[int(row["id"])]["result"]
+        assert row["result"] == (result["object"] if result else "")
+    save_screenshot(page, "dashboard-history", docs=True)
