@@ -226,6 +226,7 @@ def test_duplicate_touches_need_jitter_and_it_is_reported() -> None:
     model = condition(data, latents, hyper)
     assert likelihood.max_jitter == pytest.approx(float(model.posterior.jitter.max()))
     assert value == pytest.approx(-model.log_likelihood, rel=1e-9)
+    assert likelihood.value(vector) == pytest.approx(value, rel=1e-12)
     assert np.all(np.isfinite(grad))
 
 
@@ -248,3 +249,19 @@ def test_wrong_latent_shape_is_named() -> None:
     _, hyper = ParameterLayout.for_data(data, 1).unpack(vector)
     with pytest.raises(InvalidInputError, match="latents"):
         negative_log_likelihood(data, np.zeros((3, 1)), hyper)
+
+
+@pytest.mark.parametrize("case", CASES[:2], ids=lambda c: c.name)
+def test_uncached_action_distances_give_the_same_result(
+    case: Case, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Large problems recompute the action distances by the expanded form at every call."""
+    data, vector = random_points(case)[0]
+    cached = ManifoldLikelihood(data, case.latent_dim)
+    monkeypatch.setattr(ManifoldLikelihood, "CACHE_LIMIT", 0)
+    uncached = ManifoldLikelihood(data, case.latent_dim)
+    value, grad = cached.value_and_gradient(vector)
+    value2, grad2 = uncached.value_and_gradient(vector)
+    assert value2 == pytest.approx(value, rel=1e-12)
+    np.testing.assert_allclose(grad2, grad, rtol=1e-8, atol=1e-10)
+    assert uncached.value(vector) == pytest.approx(value, rel=1e-12)

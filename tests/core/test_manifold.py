@@ -10,6 +10,7 @@ import pytest
 
 from core.errors import InvalidInputError
 from core.initialisation import normalise_spread, pca_latents, random_latents
+from core.likelihood import ManifoldLikelihood
 from core.manifold import (
     FitCancelledError,
     FitOptions,
@@ -303,3 +304,14 @@ def test_bad_rng_and_options_are_named() -> None:
 def test_fixed_latents_of_the_wrong_shape_are_named() -> None:
     with pytest.raises(InvalidInputError, match="latents"):
         fit_hyperparameters(small_data(), np.zeros((2, 1)))
+
+
+def test_an_error_inside_the_optimiser_reaches_the_caller(monkeypatch: pytest.MonkeyPatch) -> None:
+    def broken(self: ManifoldLikelihood, vector: np.ndarray) -> tuple[float, np.ndarray]:
+        raise RuntimeError("objective exploded")
+
+    before = threading.active_count()
+    monkeypatch.setattr(ManifoldLikelihood, "value_and_gradient", broken)
+    with pytest.raises(RuntimeError, match="objective exploded"):
+        fit_manifold(small_data(), 1, np.random.default_rng(0), FitOptions(restarts=0))
+    assert threading.active_count() == before
