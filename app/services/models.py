@@ -33,6 +33,7 @@ from app.schemas import (
 from app.services import datasets
 from app.services.events import EventBus
 from core.errors import CoreError
+from core.manifold import FitOptions, iter_fit
 from core.posterior import condition
 from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
 
@@ -216,8 +217,6 @@ class ModelStore:
             self._finish_failed(model_id, f"internal error: {type(exc).__name__}: {exc}")
 
     def _run_fit(self, model_id: int, data: TrainingData, body: ModelCreate) -> None:
-        from core.manifold import FitOptions, iter_fit
-
         options_kwargs: dict[str, Any] = {"optimizer": body.optimizer, "restarts": body.restarts}
         if body.max_iterations is not None:
             options_kwargs["max_iterations"] = body.max_iterations

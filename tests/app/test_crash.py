@@ -61,6 +61,27 @@ def server(database_url: str, port: int, log: Path) -> Iterator[subprocess.Popen
                 process.wait()
 
 
+def read_live_events(base: str, after: int, count: int) -> list[dict[str, str]]:
+    """The first ``count`` events of a following SSE stream started after ``after``."""
+    events: list[dict[str, str]] = []
+    with httpx.stream(
+        "GET", f"{base}/events", headers={"Last-Event-ID": str(after)}, timeout=10
+    ) as response:
+        assert response.headers["content-type"].startswith("text/event-stream")
+        fields: dict[str, str] = {}
+        for line in response.iter_lines():
+            if not line:
+                if "data" in fields:
+                    events.append(fields)
+                    if len(events) == count:
+                        break
+                fields = {}
+                continue
+            key, _, value = line.partition(": ")
+            fields[key] = value
+    return events
+
+
 @pytest.mark.slow
 def test_sigkill_mid_trial_leaves_failed_interrupted_with_steps(tmp_path: Path) -> None:
     settings = make_settings(tmp_path)
@@ -91,6 +112,9 @@ def test_sigkill_mid_trial_leaves_failed_interrupted_with_steps(tmp_path: Path) 
             time.sleep(0.02)
         assert seen["status"] == "running", seen
         assert seen["n_steps"] >= 5
+        # Live events over SSE, resumed from a sequence id: new steps arrive in order.
+        live = read_live_events(base, after=0, count=3)
+        assert [int(e["id"]) for e in live] == sorted(int(e["id"]) for e in live)
         os.kill(process.pid, signal.SIGKILL)
         process.wait(timeout=10)
 

@@ -1,0 +1,77 @@
+"""Models: background fit with progress events, status, latents, hyperparameters."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from tests.app.conftest import TestClient, experiment1_csv
+
+API = "/api/v1"
+
+
+def upload(client: TestClient, touches_per_object: int = 10) -> int:
+    response = client.post(
+        f"{API}/datasets",
+        content=experiment1_csv(touches_per_object=touches_per_object),
+        headers={"content-type": "text/csv"},
+    )
+    assert response.status_code == 201
+    dataset_id: int = response.json()["id"]
+    return dataset_id
+
+
+def wait_ready(client: TestClient, model_id: int, timeout_s: float = 120) -> dict[str, Any]:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        model: dict[str, Any] = client.get(f"{API}/models/{model_id}").json()
+        if model["status"] != "fitting":
+            return model
+        time.sleep(0.05)
+    raise AssertionError("fit did not finish")
+
+
+def test_fit_in_background_with_progress(client: TestClient) -> None:
+    dataset_id = upload(client)
+    accepted = client.post(
+        f"{API}/models",
+        json={"dataset_id": dataset_id, "latent_dim": 1, "optimizer": "lbfgs", "restarts": 0,
+              "seed": 0},
+    )  # fmt: skip
+    assert accepted.status_code == 202
+    assert accepted.json()["status"] == "fitting"
+    model = wait_ready(client, accepted.json()["id"])
+    assert model["status"] == "ready", model["reason"]
+    assert [o["name"] for o in model["objects"]] == ["O1", "O2", "O3", "O4"]
+    assert all(len(o["latent"]) == 1 for o in model["objects"])
+    assert len(model["hyperparameters"]) == 3
+    assert model["fit_seconds"] > 0
+    assert model["log_likelihood"] == model["progress"]["best_log_likelihood"]
+    events = client.get(f"{API}/events?after=0&follow=false").text
+    assert '"type": "model.progress"' in events
+    assert '"status": "ready"' in events
+    listing = client.get(f"{API}/models", params={"status": "ready"}).json()
+    assert listing["count"] == 1
+
+
+def test_fit_requests_are_checked(client: TestClient) -> None:
+    missing = client.post(f"{API}/models", json={"dataset_id": 42, "latent_dim": 1})
+    assert missing.status_code == 404
+    bad = client.post(f"{API}/models", json={"dataset_id": 1, "latent_dim": 0})
+    assert bad.status_code == 422
+    assert bad.json()["detail"][0]["loc"] == ["body", "latent_dim"]
+    optimizer = client.post(f"{API}/models", json={"dataset_id": 1, "optimizer": "sgd"})
+    assert optimizer.status_code == 422
+    assert client.get(f"{API}/models/7").status_code == 404
+    assert client.get(f"{API}/models/7/export").status_code == 404
+
+
+def test_too_many_touches_for_this_server(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from app.main import create_app
+    from tests.app.conftest import make_settings
+
+    with TestClient(create_app(make_settings(tmp_path, max_training_touches=20))) as client:
+        dataset_id = upload(client, touches_per_object=6)
+        response = client.post(f"{API}/models", json={"dataset_id": dataset_id})
+        assert response.status_code == 422
+        assert "24 touches" in response.json()["detail"]
