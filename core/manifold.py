@@ -428,8 +428,7 @@ class _FitRun:
         hyper = initial_hyperparameters(
             self.data, self.latent_dim, self.options.initial_latent_lengthscale
         )
-        vector = self.layout.pack(np.clip(latents, -self.options.latent_bound, None), hyper)
-        return np.clip(vector, self.full.lower, self.full.upper)
+        return np.clip(self.layout.pack(latents, hyper), self.full.lower, self.full.upper)
 
     # -- the generator -----------------------------------------------------------------------
 
