@@ -334,16 +334,14 @@ class DemoServer:
         if self.options.objects is not None:
             return self.options.objects
         rig = self._call("GET", "/rig", "read the rig")
-        catalogue = (rig.get("detail") or {}).get("objects") or []
+        by_slot = (rig.get("detail") or {}).get("objects_by_slot") or []
         objects = tuple(
-            DemoObject(name=str(item["name"]), slot=int(item["slot"]))
-            for item in catalogue
-            if item.get("name") and item.get("slot") is not None
+            DemoObject(name=str(name), slot=slot) for slot, name in enumerate(by_slot) if name
         )
         if len(objects) < 2:
             raise DemoError(
-                "the simulated rig lists fewer than 2 objects in GET /rig detail.objects; "
-                f"received {catalogue!r}."
+                "the simulated rig lists fewer than 2 objects in GET /rig "
+                f"detail.objects_by_slot; received {by_slot!r}."
             )
         return objects
 

@@ -1028,7 +1028,8 @@ class TrialFollower:
             )
             plan = _step_trajectory(steps[-1])
             if plan is not None:
-                self._view.show_plan(*plan)
+                angles, timestep, names = plan
+                self._view.show_plan(angles, timestep, joint_names=names)
         elif prior_mean is not None and trial.get("prior_cov") is not None:
             self._view.show_belief(_belief_from(prior_mean, trial["prior_cov"]))
 
@@ -1081,15 +1082,22 @@ def _step_belief(step: dict[str, Any]) -> dict[str, Any]:
     return {"mean": step["belief_mean"], "cov": step["belief_cov"]}
 
 
-def _step_trajectory(step: dict[str, Any]) -> tuple[FloatArray, float] | None:
+def _step_trajectory(step: dict[str, Any]) -> tuple[FloatArray, float, tuple[str, ...]] | None:
+    """(angles (T, J), timestep, joint names) of a step's trajectory, if it has one."""
     trajectory = step.get("trajectory")
     if not isinstance(trajectory, dict):
         return None
-    angles = trajectory.get("angles_deg") or trajectory.get("positions_deg")
-    timestep = trajectory.get("timestep_s") or trajectory.get("dt_s")
+    angles = trajectory.get("commanded_deg") or trajectory.get("angles_deg")
+    timestep = trajectory.get("dt_s") or trajectory.get("timestep_s")
     if angles is None or timestep is None:
         return None
-    return np.asarray(angles, dtype=np.float64), float(timestep)
+    array = np.asarray(angles, dtype=np.float64)
+    if array.ndim != 2 or array.shape[0] < 2:
+        return None
+    names = trajectory.get("joint_names") or ["FFJ3", "FFJ4"][: array.shape[1]]
+    if len(names) != array.shape[1]:
+        return None
+    return array, float(timestep), tuple(str(n) for n in names)
 
 
 def wait_for_clients(view: ManifoldView, count: int = 1, timeout_s: float = 10.0) -> bool:

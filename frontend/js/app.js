@@ -122,7 +122,7 @@ function start() {
   onEvent((event) => {
     const kind = eventKind(event);
     store.invalidate(kind);
-    if (kind === "rig") refreshRigChip();
+    if (kind === "rig" || /status/.test(event.type || "")) refreshRigChip();
     for (const page of Object.values(pages)) {
       if (page.onEvent) page.onEvent(event, kind);
     }

@@ -33,6 +33,14 @@ const pointLabels = {
   },
 };
 
+/** Tick labels: 3 significant digits, exponents only for very small or large numbers. */
+export function compactNumber(value) {
+  const n = Number(value);
+  if (n === 0) return "0";
+  if (Math.abs(n) < 1e-3 || Math.abs(n) >= 1e5) return n.toExponential(1);
+  return String(Number(n.toPrecision(3)));
+}
+
 let registered = false;
 function ChartJS() {
   if (!window.Chart) throw new Error("Chart.js did not load (run scripts/install_frontend.sh)");
@@ -200,7 +208,12 @@ export function lineChart(id, series, { xTitle = "", yTitle = "", yMin, yMax, st
       parsing: false,
       scales: {
         x: { type: "linear", title: { display: !!xTitle, text: xTitle } },
-        y: { title: { display: !!yTitle, text: yTitle }, min: yMin, max: yMax },
+        y: {
+          title: { display: !!yTitle, text: yTitle },
+          min: yMin,
+          max: yMax,
+          ticks: { callback: (value) => compactNumber(value) },
+        },
       },
       plugins: { legend: { display: series.length > 1, position: "bottom", labels: { boxWidth: 12 } } },
     },

@@ -48,7 +48,8 @@ export function badge(status, testid) {
 export function timeOf(iso) {
   if (!iso) return "—";
   const date = new Date(iso);
-  return Number.isNaN(date.getTime()) ? iso : date.toLocaleString();
+  if (Number.isNaN(date.getTime())) return iso;
+  return date.toLocaleString([], { dateStyle: "short", timeStyle: "medium" });
 }
 
 /** A passing message at the bottom right; errors stay longer. */

@@ -101,6 +101,9 @@ test("trajectories in either layout", () => {
   const named = normalizeTrajectory({ joints: { flex: [1, 2] }, times_s: [0, 0.1] });
   assert.deepEqual(named.times, [0, 0.1]);
   assert.equal(named.joints[0].name, "flex");
+  const rig = normalizeTrajectory({ joint_names: ["FFJ3", "FFJ4"], dt_s: 0.01, commanded_deg: [[1, 2], [3, 4]] });
+  assert.deepEqual(rig.times, [0, 0.01]);
+  assert.deepEqual(rig.joints[0].angles, [1, 3]);
   assert.equal(normalizeTrajectory(null), null);
   assert.equal(normalizeTrajectory({ foo: 1 }), null);
 });
@@ -117,5 +120,8 @@ test("tactile traces in either layout", async () => {
   const rows = normalizeTrace({ channel_names: ["a", "b"], samples: [[1, 2], [3, 4]], times_s: [0, 5] });
   assert.deepEqual(rows.channels[1].values, [2, 4]);
   assert.deepEqual(rows.times, [0, 5]);
+  const rig = normalizeTrace({ channel_names: ["pdc"], tactile: [[5], [6]], tactile_times_s: [0, 0.01] });
+  assert.deepEqual(rig.times, [0, 0.01]);
+  assert.deepEqual(rig.channels[0].values, [5, 6]);
   assert.equal(normalizeTrace({ samples: [] }), null);
 });

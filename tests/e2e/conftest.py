@@ -36,6 +36,7 @@ CHROMIUM_ARGS = [
 SCREENSHOTS = ROOT / "artifacts" / "screenshots"
 DOCS_SCREENSHOTS = ROOT / "docs" / "screenshots"
 VIEWPORT = {"width": 1440, "height": 1000}
+DOCS_FLAG = "ACTIVETOUCH_UPDATE_DOCS_SCREENSHOTS"
 
 
 @dataclass
@@ -65,7 +66,7 @@ def save_screenshot(page: Any, name: str, docs: bool = False, **kwargs: Any) -> 
     SCREENSHOTS.mkdir(parents=True, exist_ok=True)
     path = SCREENSHOTS / f"{name}.png"
     page.screenshot(path=str(path), **kwargs)
-    if docs and os.environ.get("ACTIVETOUCH_UPDATE_DOCS_SCREENSHOTS") == "1":
+    if docs and os.environ.get(DOCS_FLAG) == "1":
         DOCS_SCREENSHOTS.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(path, DOCS_SCREENSHOTS / f"{name}.png")
     return path
@@ -95,8 +96,8 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Demo]:
         port=0,
         viz_port=0,
         database_url=f"sqlite:///{database}",
-        world="experiment1",
-        touches_per_object=15,
+        world="rig",
+        touches_per_object=10,
         latent_dim=2,
         restarts=1,
         max_iterations=150,

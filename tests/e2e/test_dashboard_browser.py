@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import io
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -16,7 +17,7 @@ import numpy as np
 import pytest
 
 from app.viz import wait_for_clients
-from tests.e2e.conftest import Demo, PageErrors, save_screenshot
+from tests.e2e.conftest import DOCS_FLAG, Demo, PageErrors, save_screenshot
 
 pytestmark = pytest.mark.browser
 
@@ -99,13 +100,23 @@ def test_demo_trial_through_the_ui(page: Any, demo: Demo) -> None:
     page.get_by_test_id("trial-policy").select_option("active")
     page.get_by_test_id("trial-steps").fill("10")
     page.locator("#trial-seed").fill("7")
-    page.locator("#trial-interval").fill("0.4")
+    expect(page.get_by_test_id("trial-mode")).to_have_value(demo.state.mode)
 
     started = time.perf_counter()
+    # Record every touch count the page shows, to see it update while the trial runs.
+    page.evaluate(
+        """() => {
+          window.__touchCounts = [];
+          new MutationObserver(() => {
+            const node = document.querySelector('[data-testid="trial-touches"]');
+            if (node) window.__touchCounts.push(node.textContent);
+          }).observe(document.getElementById("trial-facts"), {
+            childList: true, subtree: true, characterData: true,
+          });
+        }"""
+    )
     page.get_by_test_id("start-trial").click()
-    # Live: the status shows running while touches come in, one row per touch.
-    expect(page.get_by_test_id("trial-status")).to_have_text("running", timeout=10_000)
-    expect(page.get_by_test_id("step-row").first).to_be_visible(timeout=10_000)
+    expect(page.get_by_test_id("step-row").first).to_be_visible(timeout=30_000)
     save_screenshot(page, "dashboard-trial-live")
     result = page.get_by_test_id("trial-result")
     expect(result).to_be_visible(timeout=60_000)
@@ -118,7 +129,7 @@ def test_demo_trial_through_the_ui(page: Any, demo: Demo) -> None:
     shown = page.get_by_test_id("trial-result-object").inner_text()
     assert shown == trial["result"]["object"]
     assert shown in names
-    # Experiment 1 with the active policy names the target within 10 touches (seed fixed).
+    # The active policy names the target within 10 touches on the simulated rig (seed fixed).
     assert trial["result"]["correct"] is True
     expect(result).to_contain_text("✓ correct")
     expect(page.get_by_test_id("step-row")).to_have_count(len(trial["steps"]))
@@ -126,6 +137,8 @@ def test_demo_trial_through_the_ui(page: Any, demo: Demo) -> None:
         f"{len(trial['steps'])} / {trial['max_steps']}"
     )
     expect(page.get_by_test_id("trial-nearest")).to_have_text(trial["steps"][-1]["nearest_object"])
+    seen = set(page.evaluate("() => window.__touchCounts"))
+    assert len(seen) >= 2, f"the touch count was shown only as {seen}: no live update"
     for action in ("pause", "resume", "stop"):
         expect(page.get_by_test_id(f"trial-{action}")).to_be_disabled()
     page.get_by_test_id("trial-live").scroll_into_view_if_needed()
@@ -146,18 +159,17 @@ def test_viser_view_connects_and_follows_the_trial(
     assert view.model is not None
     names = [o["name"] for o in demo.get(f"/models/{demo.state.model_id}")["objects"]]
     assert list(view.model.object_names) == names
-    created = demo.server.client.post(
-        "/trials",
-        json={
-            "model_id": demo.state.model_id,
-            "mode": demo.state.mode,
-            "policy": "active",
-            "max_steps": 5,
-            "target": names[0],
-            "seed": 3,
-            "simulation": {"world": demo.state.world, "step_interval_s": 0.0},
-        },
-    )
+    body: dict[str, Any] = {
+        "model_id": demo.state.model_id,
+        "mode": demo.state.mode,
+        "policy": "active",
+        "max_steps": 5,
+        "target": names[0],
+        "seed": 3,
+    }
+    if demo.state.mode == "simulated":
+        body["simulation"] = {"world": demo.state.world, "step_interval_s": 0.0}
+    created = demo.server.client.post("/trials", json=body)
     assert created.status_code == 201, created.text
     trial = wait_finished(demo, created.json()["id"])
     final_mean = np.asarray(trial["steps"][-1]["belief"]["mean"])
@@ -176,7 +188,9 @@ def test_viser_view_connects_and_follows_the_trial(
         alone.on("pageerror", lambda error: page_errors.exceptions.append(str(error)))
         alone.goto(view.url)
         assert wait_for_clients(view, 2, timeout_s=30)
-        alone.wait_for_timeout(9000)  # the software renderer fades the scene in slowly
+        # The client eases the camera in and fades the scene in; with software WebGL at a few
+        # frames a second that takes long: wait more when refreshing the README's copy.
+        alone.wait_for_timeout(25_000 if os.environ.get(DOCS_FLAG) == "1" else 6_000)
         save_screenshot(alone, "viser-view", docs=True)
     finally:
         context.close()

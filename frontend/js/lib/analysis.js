@@ -136,7 +136,7 @@ export function trialRow(trial) {
 
 /**
  * Joint trajectories of a step or plan in one shape, whatever the producer wrote:
- * `{angles_deg: [[j1, j2], ...] (T, J), timestep_s | times_s, joint_names?}` or
+ * `{commanded_deg | angles_deg: [[j1, j2], ...] (T, J), dt_s | timestep_s | times_s, joint_names?}`, or
  * `{joints: {name: [deg, ...]}, timestep_s | times_s}` or `{positions_deg: ...}`.
  * @returns {{times: number[], joints: {name: string, angles: number[]}[]} | null}
  */
@@ -146,7 +146,8 @@ export function normalizeTrajectory(trajectory) {
   if (trajectory.joints && typeof trajectory.joints === "object" && !Array.isArray(trajectory.joints)) {
     joints = Object.entries(trajectory.joints).map(([name, angles]) => ({ name, angles }));
   } else {
-    const rows = trajectory.angles_deg || trajectory.positions_deg || trajectory.joint_angles_deg;
+    const rows =
+      trajectory.commanded_deg || trajectory.angles_deg || trajectory.positions_deg || trajectory.joint_angles_deg;
     if (!Array.isArray(rows) || !rows.length || !Array.isArray(rows[0])) return null;
     const names = trajectory.joint_names || rows[0].map((_, j) => ["FFJ3", "FFJ4"][j] || `J${j + 1}`);
     joints = rows[0].map((_, j) => ({ name: names[j], angles: rows.map((r) => r[j]) }));
@@ -176,7 +177,7 @@ export function rankedProbabilities(probabilities) {
 /**
  * A touch's raw tactile time series in one shape, whatever the producer wrote:
  * `{channels: {name: [..]}, times_s | timestep_s | sample_rate_hz}` or
- * `{channel_names: [..], samples: [[c1, c2, ..], ..] (T, C), ...}`.
+ * `{channel_names: [..], tactile | samples: [[c1, c2, ..], ..] (T, C), tactile_times_s?, ...}`.
  * @returns {{times: number[], channels: {name: string, values: number[]}[]} | null}
  */
 export function normalizeTrace(raw) {
@@ -185,7 +186,7 @@ export function normalizeTrace(raw) {
   if (raw.channels && typeof raw.channels === "object" && !Array.isArray(raw.channels)) {
     channels = Object.entries(raw.channels).map(([name, values]) => ({ name, values }));
   } else {
-    const rows = raw.samples || raw.frames || raw.values;
+    const rows = raw.tactile || raw.samples || raw.frames || raw.values;
     if (!Array.isArray(rows) || !rows.length || !Array.isArray(rows[0])) return null;
     const names = raw.channel_names || raw.names || rows[0].map((_, c) => `ch${c + 1}`);
     channels = rows[0].map((_, c) => ({ name: names[c], values: rows.map((r) => r[c]) }));
@@ -193,7 +194,7 @@ export function normalizeTrace(raw) {
   channels = channels.filter((c) => Array.isArray(c.values) && c.values.length);
   if (!channels.length) return null;
   const length = channels[0].values.length;
-  let times = raw.times_s;
+  let times = raw.tactile_times_s || raw.times_s;
   if (!Array.isArray(times) || times.length !== length) {
     const dt = raw.timestep_s ?? (raw.sample_rate_hz ? 1 / raw.sample_rate_hz : 1);
     times = Array.from({ length }, (_, i) => i * dt);

@@ -141,19 +141,17 @@ async function runBatch() {
       const target = model.objects[i % model.objects.length].name;
       for (const policy of ["active", "passive"]) {
         $("batch-status").textContent = `Running ${done + 1} of ${total} (${policy}, target ${target})…`;
-        const created = await api("/trials", {
-          method: "POST",
-          body: {
-            model_id: modelId,
-            mode: "simulated",
-            policy,
-            max_steps: 10,
-            prior_cov: isotropicCov(model.latent_dim, 5),
-            target,
-            seed: 1000 + i,
-            simulation: { world, step_interval_s: 0 },
-          },
-        });
+        const body = {
+          model_id: modelId,
+          mode: world === "experiment1" ? "simulated" : "rig",
+          policy,
+          max_steps: 10,
+          prior_cov: isotropicCov(model.latent_dim, 5),
+          target,
+          seed: 1000 + i,
+        };
+        if (body.mode === "simulated") body.simulation = { world, step_interval_s: 0 };
+        const created = await api("/trials", { method: "POST", body });
         await waitUntilFinished(created.id);
         done += 1;
       }

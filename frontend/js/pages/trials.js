@@ -46,7 +46,12 @@ async function modelChosen() {
   setOptions(target, model.objects.map((o) => ({ value: o.name, label: o.name })), { placeholder: "unknown (no target)" });
   if (keep && model.objects.some((o) => o.name === keep)) target.value = keep;
   else if (model.objects.length) target.value = model.objects[Math.floor(Math.random() * model.objects.length)].name;
-  $("trial-world").value = worldFor(model);
+  // Experiment 1 models run against the paper's world; rig models (dx = 6, dy = 5) on the rig
+  // (the simulated one in the demo).
+  const world = worldFor(model);
+  $("trial-world").value = world;
+  $("trial-mode").value = world === "experiment1" ? "simulated" : "rig";
+  modeChanged();
   if (!trial) drawManifold(model, null);
 }
 
