@@ -27,8 +27,8 @@ class UnauthorizedError(AppError):
     status_code = 401
 
 
-def get_context(request: Request) -> AppContext:
-    """The context built by the app's lifespan."""
+async def get_context(request: Request) -> AppContext:
+    """The context built by the app's lifespan (async: no thread-pool hop for a lookup)."""
     context: AppContext = request.app.state.context
     return context
 
@@ -45,7 +45,7 @@ def get_session(context: ContextDep) -> Iterator[Session]:
 SessionDep = Annotated[Session, Depends(get_session)]
 
 
-def require_token(request: Request) -> None:
+async def require_token(request: Request) -> None:
     """When an API token is configured, mutating requests need ``Authorization: Bearer <token>``."""
     token = request.app.state.settings.token
     if token is None or request.method not in MUTATING_METHODS:

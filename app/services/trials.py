@@ -165,6 +165,11 @@ class TrialViews:
                     self._steps.popitem(last=False)
         return cached[: trial.n_steps]
 
+    def read(self, database: Database, trial_id: int) -> bytes:
+        """``GET /trials/{id}`` as JSON bytes, in a session of its own (about a millisecond)."""
+        with database.session() as session:
+            return self.trial_json(session, trial_id)
+
     def trial_json(self, session: Session, trial_id: int) -> bytes:
         """``GET /trials/{id}`` as JSON bytes."""
         trial = require(session, trial_id)
