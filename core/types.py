@@ -7,10 +7,11 @@ dimension (features), ``ds`` latent dimension.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 
-from core.errors import InvalidInputError
+from core.errors import CoreError, InvalidInputError
 from core.validation import FloatArray, IntArray, as_float_array, require_positive
 
 
@@ -183,19 +184,171 @@ class GaussianBelief:
         return int(self.mean.shape[0])
 
 
+#: Largest N for which a structured posterior materialises its dense K⁻¹ on request
+#: (dy · N² floats; above this the structured consumers must be used).
+DENSE_INVERSE_LIMIT = 6000
+
+#: How a posterior represents K_a⁻¹ (see :class:`GPPosterior`).
+PosteriorStructure = Literal["dense", "kronecker", "sparse"]
+
+
 @dataclass(frozen=True)
+class KroneckerFactors:
+    """A shared-design posterior: K_a = σ_f,a² K^s_a ⊗ K^x_a + σ_n,a² I in its eigenbasis.
+
+    Every object was touched with the same M design actions, so in grid order (object-major,
+    touch (l, m) at position l·M + m) the Gram matrix is a Kronecker product plus noise
+    (METHOD.md, "Shared action designs"). With K^s_a = U_s Λ_s U_sᵀ and K^x_a = U_x Λ_x U_xᵀ,
+    K_a = (U_s ⊗ U_x) diag(D_a) (U_s ⊗ U_x)ᵀ where D_a[j, k] = σ_f,a² Λ_s[j] Λ_x[k] + σ_n,a²
+    (+ jitter). Memory O(dy (L² + M² + L·M)).
+
+    Attributes:
+        design: The M design actions. Shape (M, dx).
+        grid_index: Grid position l·M + m of every training touch (data order). Shape (N,).
+        latent_eigenvalues: Λ_s of K^s_a. Shape (dy, L).
+        latent_eigenvectors: U_s of K^s_a (columns). Shape (dy, L, L).
+        action_eigenvalues: Λ_x of K^x_a. Shape (dy, M).
+        action_eigenvectors: U_x of K^x_a (columns). Shape (dy, M, M).
+        spectrum: D_a, the eigenvalues of the noisy K_a. Shape (dy, L, M).
+        beta_grid: β_a = K_a⁻¹ (y_a - mean_a) in grid order, as an L × M matrix. Shape (dy, L, M).
+    """
+
+    design: FloatArray
+    grid_index: IntArray
+    latent_eigenvalues: FloatArray
+    latent_eigenvectors: FloatArray
+    action_eigenvalues: FloatArray
+    action_eigenvectors: FloatArray
+    spectrum: FloatArray
+    beta_grid: FloatArray
+
+    @property
+    def n_design(self) -> int:
+        """M, the number of design actions."""
+        return int(self.design.shape[0])
+
+    def dense_inverse(self) -> FloatArray:
+        """K_a⁻¹ in data order, materialised. Shape (dy, N, N); O(dy · N²) memory."""
+        dy = self.spectrum.shape[0]
+        out = np.empty((dy, self.grid_index.shape[0], self.grid_index.shape[0]))
+        for a in range(dy):
+            basis = np.kron(self.latent_eigenvectors[a], self.action_eigenvectors[a])
+            basis = basis[self.grid_index]  # rows in data order
+            out[a] = (basis / self.spectrum[a].reshape(-1)) @ basis.T
+        return out
+
+
+@dataclass(frozen=True)
+class InducingPoints:
+    """Support points of a sparse (inducing-point) posterior.
+
+    Each inducing point is a training touch's input (s_obj, x): its latent is that of its object
+    (so it moves with S during a fit) and its action is the touch's action.
+
+    Attributes:
+        object_index: Object of every inducing point. Shape (m,).
+        actions: Action of every inducing point. Shape (m, dx).
+        touch_index: The training touch each was taken from. Shape (m,).
+    """
+
+    object_index: IntArray
+    actions: FloatArray
+    touch_index: IntArray
+
+    @property
+    def size(self) -> int:
+        """m, the number of inducing points."""
+        return int(self.object_index.shape[0])
+
+
+@dataclass(frozen=True, init=False)
 class GPPosterior:
     """Quantities of the conditioned GP that prediction and moment matching reuse.
 
+    The GP's predictive at an input z* = (s*, x*) is mean_a + k_a(z*, Z)ᵀ β_a and variance
+    σ_f,a² - k_a(z*, Z)ᵀ A_a k_a(z*, Z) (+ σ_n,a²), over support points Z with weights β and a
+    matrix A. Three structures:
+
+    * ``"dense"``: Z = the training touches, A_a = K_a⁻¹ stored densely.
+    * ``"kronecker"``: Z = the training touches on a shared action design, A_a = K_a⁻¹ held as
+      eigendecompositions (:class:`KroneckerFactors`); :attr:`gram_inverse` materialises it on
+      request for N ≤ :data:`DENSE_INVERSE_LIMIT`.
+    * ``"sparse"``: Z = inducing points (:class:`InducingPoints`), β_a the weights of the
+      variational posterior and A_a = K_uu⁻¹ - (K_uu + σ_n⁻² K_uf K_fu)⁻¹ (see
+      :mod:`core.sparse`).
+
     Attributes:
-        beta: β_a = K_a⁻¹ (y_a - mean_a). Shape (dy, N).
-        gram_inverse: K_a⁻¹ of the noisy Gram matrix. Shape (dy, N, N).
+        beta: β_a over the support points (the touches in data order, or the inducing points).
+            Shape (dy, N) or (dy, m).
         jitter: Jitter added to the diagonal of each K_a (0 when none was needed). Shape (dy,).
+        kronecker: The shared-design factors, or ``None``.
+        inducing: The inducing points of a sparse posterior, or ``None``.
     """
 
     beta: FloatArray
-    gram_inverse: FloatArray
     jitter: FloatArray
+    kronecker: KroneckerFactors | None
+    inducing: InducingPoints | None
+
+    def __init__(
+        self,
+        beta: FloatArray,
+        gram_inverse: FloatArray | None,
+        jitter: FloatArray,
+        kronecker: KroneckerFactors | None = None,
+        inducing: InducingPoints | None = None,
+    ) -> None:
+        if gram_inverse is None and kronecker is None:
+            raise InvalidInputError(
+                "GPPosterior: needs gram_inverse (dense or sparse) or kronecker factors."
+            )
+        if kronecker is not None and inducing is not None:
+            raise InvalidInputError("GPPosterior: kronecker and inducing are exclusive.")
+        object.__setattr__(self, "beta", beta)
+        object.__setattr__(self, "jitter", jitter)
+        object.__setattr__(self, "kronecker", kronecker)
+        object.__setattr__(self, "inducing", inducing)
+        object.__setattr__(self, "_gram_inverse", gram_inverse)
+
+    @property
+    def structure(self) -> PosteriorStructure:
+        """``"dense"``, ``"kronecker"`` or ``"sparse"``."""
+        if self.kronecker is not None:
+            return "kronecker"
+        return "sparse" if self.inducing is not None else "dense"
+
+    @property
+    def gram_inverse(self) -> FloatArray:
+        """A_a over the support points: K_a⁻¹ of the noisy Gram matrix (dense, Kronecker) or the
+        sparse posterior's matrix. Shape (dy, N, N) or (dy, m, m).
+
+        A Kronecker posterior materialises it on first use (and keeps it).
+
+        Raises:
+            CoreError: A Kronecker posterior with N > :data:`DENSE_INVERSE_LIMIT` (use the
+                structured paths of :mod:`core.kronecker` instead).
+        """
+        stored: FloatArray | None = getattr(self, "_gram_inverse")  # noqa: B009
+        if stored is not None:
+            return stored
+        factors = self.kronecker
+        assert factors is not None  # guaranteed by __init__
+        n = int(factors.grid_index.shape[0])
+        if n > DENSE_INVERSE_LIMIT:
+            raise CoreError(
+                f"gram_inverse: this Kronecker posterior has N = {n} touches; its dense K⁻¹ "
+                f"(dy · N² floats) is not materialised above N = {DENSE_INVERSE_LIMIT}. Use the "
+                f"structured functions of core.kronecker."
+            )
+        dense = factors.dense_inverse()
+        dense.flags.writeable = False
+        object.__setattr__(self, "_gram_inverse", dense)
+        return dense
+
+    @property
+    def has_dense_inverse(self) -> bool:
+        """Whether :attr:`gram_inverse` is stored (or already materialised)."""
+        return getattr(self, "_gram_inverse") is not None  # noqa: B009
 
 
 @dataclass(frozen=True)
@@ -233,7 +386,7 @@ class ManifoldModel:
         latents: s_l of every object, normalised (centred, RMS distance to the centre 1).
             Shape (L, ds).
         hyperparameters: Per-feature GP hyperparameters.
-        posterior: β and K⁻¹ of every feature.
+        posterior: β and K⁻¹ (or its structured form) of every feature.
         log_likelihood: Σ_a log p(y_a | S, X, γ_a) (METHOD.md eq. (M2)).
         diagnostics: Fit diagnostics, ``None`` for a model that was not fitted here.
     """

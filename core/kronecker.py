@@ -1,0 +1,502 @@
+"""The exact Kronecker path for shared action designs (METHOD.md, "Shared action designs").
+
+When every object was touched with the same M actions (N = L·M; natural on a turntable: run
+each action on every object), order the touches object-major, touch (l, m) at grid position
+l·M + m. The noisy Gram matrix of feature a is then
+
+    K_a = σ_f,a² K^s_a ⊗ K^x_a + σ_n,a² I                                      METHOD.md eq. (M1)
+
+with K^s_a the L × L latent kernel and K^x_a the M × M action kernel. With the
+eigendecompositions K^s_a = U_s Λ_s U_sᵀ and K^x_a = U_x Λ_x U_xᵀ,
+
+    K_a = (U_s ⊗ U_x) diag(D_a) (U_s ⊗ U_x)ᵀ,   D_a[j, k] = σ_f,a² Λ_s[j] Λ_x[k] + σ_n,a²,
+
+so with Y_a the centred observations as an L × M matrix and Ỹ = U_sᵀ Y_a U_x:
+
+* log det K_a = Σ log D_a;  y_aᵀ K_a⁻¹ y_a = Σ Ỹ² / D_a;  β_a = U_s (Ỹ / D_a) U_xᵀ (L × M);
+* the gradient of -log p needs only the block sums of W ∘ K_f of the dense path
+  (:mod:`core.likelihood`), which factor too. With B = β_a as an L × M matrix,
+  w_s = (1/D) Λ_x and w_x = Λ_sᵀ (1/D):
+
+      Σ_{m,m'} (W ∘ K_f)[(l,m), (l',m')] = σ_f² K^s[l,l'] · (U_s diag(w_s) U_sᵀ - B K^x Bᵀ)[l,l']
+      Σ_{l,l'} (W ∘ K_f)[(l,m), (l',m')] = σ_f² K^x[m,m'] · (U_x diag(w_x) U_xᵀ - Bᵀ K^s B)[m,m']
+
+  which give the latent and latent-length-scale gradients (the first, an L × L matrix) and the
+  action-length-scale gradients (the second, M × M); σ_n² needs tr W = Σ 1/D - ‖B‖².
+
+Everything is O(dy (L³ + M³ + L·M·(L + M))) time and O(dy (L² + M² + L·M)) memory, against
+O(dy (L·M)³) and O(dy (L·M)²) for the dense path: exact, not an approximation (tests match the
+dense path to 1e-8).
+
+The moment-matching statistics of METHOD.md's structured (M3) factor the same way: a new action
+x has e_a(x) = 1_L ⊗ e^x_a(x) over the grid (e^x_a(x)[m] = k^x_a(x, x_m)), so
+
+    u_a(x) = B e^x_a(x)                                       (L,)
+    T_a(x) = U_s diag(t_a(x)) U_sᵀ,   t_a(x)[j] = Σ_k (U_xᵀ e^x_a(x))_k² / D_a[j, k]
+
+and tr(G_aa T_a) = Σ_j t_a[j] (U_sᵀ G_aa U_s)_jj: the action statistics are the L-vectors u and
+t (the "trace spectrum") plus the per-model basis U_s, O(dy (M² + L·M)) per candidate.
+
+**Missing touches.** The structure needs the complete grid. When some object lacks some of the
+design actions (or has extra touches), :func:`find_shared_design` returns ``None`` and callers
+fall back to the dense path (:mod:`core.likelihood`, :func:`core.posterior.condition`), or to the
+sparse path (:mod:`core.sparse`) when the data are too large for it; the result is then exact
+(dense) or approximate (sparse), never a Kronecker result on an incomplete grid.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from core.errors import InvalidInputError, NotPositiveDefiniteError
+from core.linalg import JITTER_LADDER
+from core.parameters import ParameterLayout
+from core.types import (
+    FitDiagnostics,
+    GPPosterior,
+    Hyperparameters,
+    KroneckerFactors,
+    ManifoldModel,
+    TrainingData,
+)
+from core.validation import FloatArray, IntArray, as_float_array
+
+_LOG_2PI = float(np.log(2.0 * np.pi))
+#: Smallest eigenvalue of K_a (relative to its mean diagonal) accepted without jitter.
+_SPECTRUM_FLOOR = 1e-14
+
+
+@dataclass(frozen=True)
+class SharedDesign:
+    """A complete shared action design: every object touched once with each of M actions.
+
+    Attributes:
+        actions: The design actions, in grid order. Shape (M, dx).
+        grid_index: Grid position l·M + m of every touch (data order). Shape (N,).
+    """
+
+    actions: FloatArray
+    grid_index: IntArray
+
+    @property
+    def size(self) -> int:
+        """M."""
+        return int(self.actions.shape[0])
+
+
+def _sorted_rows(actions: FloatArray) -> IntArray:
+    """Row order that sorts actions lexicographically (first column first)."""
+    return np.lexsort(actions.T[::-1]).astype(np.int64)
+
+
+def _design_mismatch(data: TrainingData) -> tuple[SharedDesign | None, str]:
+    """The shared design of ``data``, or ``None`` and the reason there is none."""
+    counts = data.touches_per_object()
+    names = data.object_names
+    if np.any(counts != counts[0]):
+        odd = int(np.flatnonzero(counts != counts[0])[0])
+        return None, (
+            f"object {names[odd]!r} has {counts[odd]} touches but {names[0]!r} has "
+            f"{counts[0]}: a shared design needs the same M actions on every object."
+        )
+    m = int(counts[0])
+    order = np.argsort(data.object_index, kind="stable")
+    grouped = data.actions[order].reshape(data.n_objects, m, data.action_dim)
+    reference_rows = _sorted_rows(grouped[0])
+    design = grouped[0][reference_rows]
+    grid_index = np.empty(data.n_touches, dtype=np.int64)
+    for obj in range(data.n_objects):
+        rows = reference_rows if obj == 0 else _sorted_rows(grouped[obj])
+        if obj and not np.array_equal(grouped[obj][rows], design):
+            return None, (
+                f"object {names[obj]!r} was not touched with the same actions as "
+                f"{names[0]!r} (a shared design needs identical action rows on every object)."
+            )
+        # touch order[obj·m + rows[k]] is design action k of object obj
+        grid_index[order[obj * m + rows]] = obj * m + np.arange(m)
+    design = np.array(design, dtype=np.float64)
+    design.flags.writeable = False
+    grid_index.flags.writeable = False
+    return SharedDesign(actions=design, grid_index=grid_index), ""
+
+
+def find_shared_design(data: TrainingData) -> SharedDesign | None:
+    """Detect a complete shared design: every object has the same multiset of action rows.
+
+    Rows are compared exactly (a design written once and applied to every object reproduces
+    its floats exactly, also through the CSV round trip).
+
+    Args:
+        data: Training touches.
+
+    Returns:
+        The design, or ``None`` when the objects' action sets differ (missing or extra touches).
+    """
+    design, _ = _design_mismatch(data)
+    return design
+
+
+def require_shared_design(data: TrainingData) -> SharedDesign:
+    """Like :func:`find_shared_design`, but raise when there is none.
+
+    Raises:
+        InvalidInputError: Names the first object whose touches break the design.
+    """
+    design, reason = _design_mismatch(data)
+    if design is None:
+        raise InvalidInputError(f"structure='kronecker': {reason}")
+    return design
+
+
+@dataclass(frozen=True)
+class _Spectral:
+    """Per-feature eigendecompositions at one parameter vector (internal)."""
+
+    latent_gram: FloatArray  # K^s (dy, L, L), unit diagonal
+    action_gram: FloatArray  # K^x (dy, M, M)
+    latent_values: FloatArray  # (dy, L)
+    latent_vectors: FloatArray  # (dy, L, L)
+    action_values: FloatArray  # (dy, M)
+    action_vectors: FloatArray  # (dy, M, M)
+    spectrum: FloatArray  # D (dy, L, M), incl. noise and jitter
+    rotated: FloatArray  # Ỹ = U_sᵀ Y U_x (dy, L, M)
+    beta_grid: FloatArray  # B (dy, L, M)
+    jitter: FloatArray  # (dy,)
+
+
+class KroneckerLikelihood:
+    """-log p(Y | S, X, γ) and its gradient on a shared design, drop-in for
+    :class:`core.likelihood.ManifoldLikelihood` (same packed vector, same values to rounding).
+
+    Args:
+        data: Training touches on a complete shared design.
+        latent_dim: ds ≥ 1.
+        design: The design (found with :func:`require_shared_design` when ``None``).
+
+    Raises:
+        InvalidInputError: ``data`` is not on a complete shared design, or bad ``latent_dim``.
+    """
+
+    def __init__(
+        self, data: TrainingData, latent_dim: int, design: SharedDesign | None = None
+    ) -> None:
+        if isinstance(latent_dim, bool) or int(latent_dim) != latent_dim or latent_dim < 1:
+            raise InvalidInputError(f"latent_dim: must be an integer ≥ 1, received {latent_dim}.")
+        self.data = data
+        self.layout = ParameterLayout.for_data(data, int(latent_dim))
+        self.design = design if design is not None else require_shared_design(data)
+        actions = self.design.actions - self.design.actions.mean(axis=0)
+        m, dx = actions.shape
+        diff = actions.T[:, :, None] - actions.T[:, None, :]  # (dx, M, M)
+        self._sq_design = np.ascontiguousarray((diff**2).reshape(dx, m * m))
+        centred = data.observations - data.observation_mean  # (N, dy)
+        grid = np.empty((data.observation_dim, data.n_touches))
+        grid[:, self.design.grid_index] = centred.T
+        self._grid_y = grid.reshape(data.observation_dim, data.n_objects, m)
+        self.max_jitter = 0.0
+        self.evaluations = 0
+
+    def spectral(self, vector: FloatArray) -> _Spectral:
+        """Eigendecompositions, spectrum and β at a packed vector (for conditioning)."""
+        latents, log_sf, log_sn, log_ls, log_lx = self.layout.split(vector)
+        dy = self.layout.observation_dim
+        m = self.design.size
+        signal = np.exp(log_sf)
+        noise = np.exp(log_sn)
+        sq_pair = (latents[:, None, :] - latents[None, :, :]) ** 2  # (L, L, ds)
+        latent_gram = np.exp(-0.5 * np.einsum("lmd,ad->alm", sq_pair, np.exp(-2.0 * log_ls)))
+        action_gram = np.exp(-0.5 * (np.exp(-2.0 * log_lx) @ self._sq_design)).reshape(dy, m, m)
+        latent_values, latent_vectors = np.linalg.eigh(latent_gram)
+        action_values, action_vectors = np.linalg.eigh(action_gram)
+        # METHOD.md eq. (M1): eigenvalues of σ_f² K^s ⊗ K^x + σ_n² I
+        spectrum = (
+            signal[:, None, None] * latent_values[:, :, None] * action_values[:, None, :]
+            + noise[:, None, None]
+        )
+        jitter = np.zeros(dy)
+        for a in range(dy):
+            jitter[a] = self._jitter(spectrum[a], float(signal[a] + noise[a]), a)
+            spectrum[a] += jitter[a]
+        self.max_jitter = max(self.max_jitter, float(jitter.max()))
+        rotated = np.swapaxes(latent_vectors, 1, 2) @ self._grid_y @ action_vectors
+        beta_grid = latent_vectors @ (rotated / spectrum) @ np.swapaxes(action_vectors, 1, 2)
+        return _Spectral(
+            latent_gram=latent_gram,
+            action_gram=action_gram,
+            latent_values=latent_values,
+            latent_vectors=latent_vectors,
+            action_values=action_values,
+            action_vectors=action_vectors,
+            spectrum=spectrum,
+            rotated=rotated,
+            beta_grid=beta_grid,
+            jitter=jitter,
+        )
+
+    @staticmethod
+    def _jitter(spectrum: FloatArray, mean_diagonal: float, feature: int) -> float:
+        """The jitter the dense path's ladder would add (0 when K_a is positive definite)."""
+        smallest = float(spectrum.min())
+        for relative in JITTER_LADDER:
+            jitter = relative * mean_diagonal
+            if smallest + jitter > _SPECTRUM_FLOOR * mean_diagonal:
+                return jitter
+        raise NotPositiveDefiniteError(
+            f"The Gram matrix of feature {feature} stayed singular after adding jitter up to "
+            f"{JITTER_LADDER[-1]:g} x its mean diagonal: raise the lower bound on the noise "
+            f"variance."
+        )
+
+    def _value(self, spectral: _Spectral) -> float:
+        n = self.data.n_touches
+        dy = self.layout.observation_dim
+        quad = float(np.sum(spectral.rotated**2 / spectral.spectrum))
+        log_det = float(np.sum(np.log(spectral.spectrum)))
+        # METHOD.md eq. (M2)
+        return 0.5 * quad + 0.5 * log_det + 0.5 * dy * n * _LOG_2PI
+
+    def value(self, vector: FloatArray) -> float:
+        """-log p at a packed vector."""
+        self.evaluations += 1
+        return self._value(self.spectral(vector))
+
+    def value_and_gradient(self, vector: FloatArray) -> tuple[float, FloatArray]:
+        """-log p and its gradient with respect to the packed vector (same layout)."""
+        self.evaluations += 1
+        layout = self.layout
+        latents, log_sf, log_sn, log_ls, log_lx = layout.split(vector)
+        signal = np.exp(log_sf)
+        noise = np.exp(log_sn)
+        inv_ls2 = np.exp(-2.0 * log_ls)  # (dy, ds)
+        inv_lx2 = np.exp(-2.0 * log_lx)  # (dy, dx)
+        sp = self.spectral(vector)
+        total = self._value(sp)
+        inv_d = 1.0 / sp.spectrum  # (dy, L, M)
+        beta = sp.beta_grid
+        beta_t = np.swapaxes(beta, 1, 2)
+        g_sn = 0.5 * noise * (np.sum(inv_d, axis=(1, 2)) - np.sum(beta**2, axis=(1, 2)))
+        # Σ_{m,m'} W[(l,m),(l',m')] K^x[m,m'] = U_s diag(w_s) U_sᵀ - B K^x Bᵀ
+        w_s = inv_d @ sp.action_values[:, :, None]  # (dy, L, 1)
+        omega_s = (sp.latent_vectors * np.swapaxes(w_s, 1, 2)) @ np.swapaxes(
+            sp.latent_vectors, 1, 2
+        )
+        omega_s -= beta @ sp.action_gram @ beta_t
+        blocks = signal[:, None, None] * sp.latent_gram * omega_s  # Pᵀ (W ∘ K_f) P, (dy, L, L)
+        g_sf = 0.5 * np.sum(blocks, axis=(1, 2))
+        sq_pair = (latents[:, None, :] - latents[None, :, :]) ** 2
+        g_ls = 0.5 * np.einsum("alm,lmd->ad", blocks, sq_pair) * inv_ls2
+        row_sums = blocks.sum(axis=2)  # (dy, L)
+        g_latents = -(
+            np.einsum("al,ld,ad->ld", row_sums, latents, inv_ls2)
+            - np.einsum("alm,md,ad->ld", blocks, latents, inv_ls2)
+        )
+        # Σ_{l,l'} W[(l,m),(l',m')] K^s[l,l'] = U_x diag(w_x) U_xᵀ - Bᵀ K^s B
+        w_x = sp.latent_values[:, None, :] @ inv_d  # (dy, 1, M)
+        omega_x = (sp.action_vectors * w_x) @ np.swapaxes(sp.action_vectors, 1, 2)
+        omega_x -= beta_t @ sp.latent_gram @ beta
+        action_blocks = signal[:, None, None] * sp.action_gram * omega_x  # (dy, M, M)
+        dy, m = action_blocks.shape[:2]
+        g_lx = 0.5 * (action_blocks.reshape(dy, m * m) @ self._sq_design.T) * inv_lx2
+        grad = np.empty(layout.size)
+        grad[layout.latents] = g_latents.ravel()
+        grad[layout.log_signal_variance] = g_sf
+        grad[layout.log_noise_variance] = g_sn
+        grad[layout.log_latent_lengthscales] = g_ls.ravel()
+        grad[layout.log_action_lengthscales] = g_lx.ravel()
+        return total, grad
+
+
+def condition_kronecker(
+    data: TrainingData,
+    latents: FloatArray,
+    hyperparameters: Hyperparameters,
+    diagnostics: FitDiagnostics | None = None,
+    design: SharedDesign | None = None,
+) -> ManifoldModel:
+    """Build a :class:`ManifoldModel` on a shared design through the eigendecompositions.
+
+    The posterior carries :class:`core.types.KroneckerFactors` (no dense K⁻¹; it is
+    materialised on request for small N) and β in data order, so every consumer of
+    :func:`core.posterior.condition`'s models keeps working.
+
+    Args:
+        data: Training touches on a complete shared design.
+        latents: Object latents. Shape (L, ds).
+        hyperparameters: Per-feature hyperparameters.
+        diagnostics: Optional fit diagnostics to attach.
+        design: The design (detected when ``None``).
+
+    Raises:
+        InvalidInputError: Bad shapes, or the data are not on a complete shared design.
+        NotPositiveDefiniteError: A Gram matrix is singular even with jitter.
+    """
+    h = hyperparameters
+    latents = as_float_array(latents, "latents", (data.n_objects, h.latent_dim))
+    if h.action_dim != data.action_dim or h.observation_dim != data.observation_dim:
+        raise InvalidInputError(
+            f"hyperparameters are for dx={h.action_dim}, dy={h.observation_dim} but the data "
+            f"has dx={data.action_dim}, dy={data.observation_dim}."
+        )
+    likelihood = KroneckerLikelihood(data, h.latent_dim, design)
+    sp = likelihood.spectral(likelihood.layout.pack(latents, h))
+    log_likelihood = -likelihood._value(sp)
+    grid = likelihood.design.grid_index
+    beta = sp.beta_grid.reshape(h.observation_dim, -1)[:, grid]
+    factors = KroneckerFactors(
+        design=likelihood.design.actions,
+        grid_index=grid,
+        latent_eigenvalues=sp.latent_values,
+        latent_eigenvectors=sp.latent_vectors,
+        action_eigenvalues=sp.action_values,
+        action_eigenvectors=sp.action_vectors,
+        spectrum=sp.spectrum,
+        beta_grid=sp.beta_grid,
+    )
+    latents = latents.copy()
+    for array in (
+        latents,
+        beta,
+        sp.jitter,
+        sp.latent_values,
+        sp.latent_vectors,
+        sp.action_values,
+        sp.action_vectors,
+        sp.spectrum,
+        sp.beta_grid,
+    ):
+        array.flags.writeable = False
+    return ManifoldModel(
+        data=data,
+        latents=latents,
+        hyperparameters=h,
+        posterior=GPPosterior(beta=beta, gram_inverse=None, jitter=sp.jitter, kronecker=factors),
+        log_likelihood=float(log_likelihood),
+        diagnostics=diagnostics,
+    )
+
+
+def _factors(model: ManifoldModel) -> KroneckerFactors:
+    factors = model.posterior.kronecker
+    if factors is None:
+        raise InvalidInputError(
+            "model: its posterior is not a Kronecker posterior (condition it on a shared design "
+            "with structure='kronecker')."
+        )
+    return factors
+
+
+def design_kernels(model: ManifoldModel, actions: FloatArray) -> FloatArray:
+    """e^x_a(x)[m] = exp(-½ (x - x_m)ᵀ (Λ^x_a)⁻¹ (x - x_m)) against the M design actions.
+
+    Args:
+        model: A Kronecker-conditioned model.
+        actions: Validated actions. Shape (C, dx).
+
+    Returns:
+        Shape (dy, C, M).
+    """
+    design = _factors(model).design
+    inverse_sq = 1.0 / model.hyperparameters.action_lengthscales**2  # (dy, dx)
+    diff_sq = (actions[:, None, :] - design[None, :, :]) ** 2  # (C, M, dx)
+    exponent = diff_sq @ inverse_sq.T  # (C, M, dy)
+    return np.asarray(np.exp(-0.5 * np.moveaxis(exponent, 2, 0)), dtype=np.float64)
+
+
+def predict_kronecker(
+    model: ManifoldModel, latents: FloatArray, actions: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """GP predictive mean and variance (with noise) at (s, x) through the eigendecompositions.
+
+    With k^s = σ_f² k^s(s, S) (L,) and k^x = k^x(x, X_design) (M,): mean = k^sᵀ B k^x and
+    variance = σ_f² - Σ_jk (U_sᵀ k^s)_j² (U_xᵀ k^x)_k² / D[j, k] + σ_n². O(Q (L² + M² + L·M)).
+
+    Args:
+        model: A Kronecker-conditioned model.
+        latents: Query latents. Shape (Q, ds).
+        actions: Query actions. Shape (Q, dx).
+
+    Returns:
+        Mean (Q, dy) and variance of y including the noise variance (Q, dy).
+    """
+    factors = _factors(model)
+    h = model.hyperparameters
+    latents = as_float_array(latents, "latents", (None, h.latent_dim))
+    actions = as_float_array(actions, "actions", (latents.shape[0], h.action_dim))
+    n_query = latents.shape[0]
+    mean = np.empty((n_query, h.observation_dim))
+    variance = np.empty_like(mean)
+    action_kernels = design_kernels(model, actions)  # (dy, Q, M)
+    for a in range(h.observation_dim):
+        sq = np.sum(
+            ((latents[:, None, :] - model.latents[None, :, :]) / h.latent_lengthscales[a]) ** 2,
+            axis=2,
+        )
+        k_latent = h.signal_variance[a] * np.exp(-0.5 * sq)  # (Q, L)
+        k_action = action_kernels[a]  # (Q, M)
+        mean[:, a] = model.data.observation_mean[a] + np.sum(
+            (k_latent @ factors.beta_grid[a]) * k_action, axis=1
+        )
+        left = (k_latent @ factors.latent_eigenvectors[a]) ** 2  # (Q, L)
+        right = (k_action @ factors.action_eigenvectors[a]) ** 2  # (Q, M)
+        reduction = np.sum((left @ (1.0 / factors.spectrum[a])) * right, axis=1)
+        variance[:, a] = np.maximum(h.signal_variance[a] - reduction, 0.0) + h.noise_variance[a]
+    return mean, variance
+
+
+def action_statistics_spectral(
+    model: ManifoldModel, actions: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Action statistics of C candidates in the Kronecker form (see the module docstring).
+
+    Args:
+        model: A Kronecker-conditioned model.
+        actions: Validated candidate actions. Shape (C, dx).
+
+    Returns:
+        u_a(x) (C, dy, L) and the trace spectrum t_a(x) (C, dy, L), with
+        T_a(x) = U_s diag(t_a(x)) U_sᵀ for U_s = ``kronecker.latent_eigenvectors[a]``.
+    """
+    factors = _factors(model)
+    kernels = design_kernels(model, actions)  # (dy, C, M)
+    kernels_t = np.swapaxes(kernels, 1, 2)  # (dy, M, C)
+    responses = factors.beta_grid @ kernels_t  # u = B e^x, (dy, L, C)
+    rotated = np.swapaxes(factors.action_eigenvectors, 1, 2) @ kernels_t  # U_xᵀ e^x, (dy, M, C)
+    spectrum = (1.0 / factors.spectrum) @ rotated**2  # t, (dy, L, C)
+    return (
+        np.ascontiguousarray(np.moveaxis(responses, 2, 0)),
+        np.ascontiguousarray(np.moveaxis(spectrum, 2, 0)),
+    )
+
+
+def action_statistics_derivatives(
+    model: ManifoldModel, action: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """u, t of one action and their derivatives with respect to x (Kronecker form).
+
+    ∂e^x_m/∂x_d = -e^x_m (x_d - x_md) / ℓ_ad²; du/dx_d = B ∂e^x/∂x_d;
+    dt_j/dx_d = Σ_k 2 ẽ_k (U_xᵀ ∂e^x/∂x_d)_k / D[j, k] with ẽ = U_xᵀ e^x.
+
+    Args:
+        model: A Kronecker-conditioned model.
+        action: Validated action. Shape (dx,).
+
+    Returns:
+        u (dy, L), du/dx (dy, dx, L), t (dy, L), dt/dx (dy, dx, L).
+    """
+    factors = _factors(model)
+    e = design_kernels(model, action[None, :])[:, 0, :]  # (dy, M)
+    inverse_sq = 1.0 / model.hyperparameters.action_lengthscales**2  # (dy, dx)
+    diff = action[:, None] - factors.design.T  # (dx, M)
+    de = -diff[None] * inverse_sq[:, :, None] * e[:, None, :]  # (dy, dx, M)
+    beta_t = np.swapaxes(factors.beta_grid, 1, 2)  # (dy, M, L)
+    responses = (e[:, None, :] @ beta_t)[:, 0, :]  # (dy, L)
+    d_responses = de @ beta_t  # (dy, dx, L)
+    vectors = factors.action_eigenvectors  # (dy, M, M)
+    rotated = (e[:, None, :] @ vectors)[:, 0, :]  # ẽ = U_xᵀ e, (dy, M)
+    d_rotated = de @ vectors  # (dy, dx, M)
+    inv_d_t = np.swapaxes(1.0 / factors.spectrum, 1, 2)  # (dy, M, L)
+    spectrum = ((rotated**2)[:, None, :] @ inv_d_t)[:, 0, :]  # (dy, L)
+    d_spectrum = (2.0 * rotated[:, None, :] * d_rotated) @ inv_d_t  # (dy, dx, L)
+    return responses, d_responses, spectrum, d_spectrum
