@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from fastapi import APIRouter
-from starlette.concurrency import run_in_threadpool
 
 from app.deps import ContextDep
 from app.schemas import RigPublic, TurntableRequest
@@ -38,4 +37,5 @@ def turn_table(body: TurntableRequest, context: ContextDep) -> RigPublic:
 @router.post("/estop")
 async def emergency_stop(context: ContextDep) -> RigPublic:
     """Emergency stop: works in any state, bypasses queues and locks."""
-    return await run_in_threadpool(context.rig.estop)
+    # Called on the event loop itself, so a busy thread pool cannot delay it.
+    return context.rig.estop()

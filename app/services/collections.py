@@ -168,9 +168,15 @@ class CollectionService:
         except RunCancelled as cancelled:
             if cancelled.kind == "shutdown":
                 self._finish(run_id, "failed", "server shut down")
+            else:  # normally already set by the request; an e-stop only tells the handle
+                self._finish(run_id, cancelled.kind, f"{cancelled.kind} by the operator")
+        except HardwareError as exc:
+            requested = handle.stop_requested
+            if requested in ("stopped", "aborted"):  # the stop interrupted the touch
+                self._finish(run_id, requested, f"{requested} by the operator ({exc})")
             else:
-                self._finish(run_id, None, None)
-        except (HardwareError, CoreError, AppError, ValueError) as exc:
+                self._finish(run_id, "failed", f"{type(exc).__name__}: {exc}")
+        except (CoreError, AppError, ValueError) as exc:
             self._finish(run_id, "failed", f"{type(exc).__name__}: {exc}")
         except Exception as exc:
             logger.exception("collection %d crashed", run_id)

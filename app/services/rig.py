@@ -221,16 +221,18 @@ class RigService:
 
     def estop(self) -> RigPublic:
         """Emergency stop: works in any state, takes no lock; aborts the run holding the rig."""
-        with self._lock:
-            handle = self._handle
-        if handle is not None:
-            handle.rig.estop("operator emergency stop")
+        # The run is told first, so that the fault the e-stop causes in its touch reads as an
+        # abort by the operator, not a device failure.
         holder = self._runs.rig_holder
         if holder is not None:
             kind, _, run_id = holder.partition(" ")
             live = self._runs.handle(kind, int(run_id)) if run_id.isdigit() else None
             if live is not None:
                 live.request_stop("aborted")
+        with self._lock:
+            handle = self._handle
+        if handle is not None:
+            handle.rig.estop("operator emergency stop")
         return self._announce()
 
     def halt(self) -> None:

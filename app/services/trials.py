@@ -54,6 +54,9 @@ from hardware.errors import HardwareError
 
 logger = logging.getLogger(__name__)
 
+#: Scripted trials whose recognition session is kept in memory.
+MAX_LIVE_SCRIPTED = 256
+
 
 # --- views ------------------------------------------------------------------------------------
 
@@ -251,7 +254,8 @@ class TrialService:
         self._rig = rig
         self._planners: OrderedDict[tuple[Any, ...], tuple[ManifoldModel, Planner]] = OrderedDict()
         self._planner_lock = threading.Lock()
-        self._scripted: dict[int, _Live] = {}
+        # Live sessions of scripted trials (a session evicted here is rebuilt by replay).
+        self._scripted: OrderedDict[int, _Live] = OrderedDict()
 
     # --- creation -----------------------------------------------------------------------------
 
@@ -433,6 +437,8 @@ class TrialService:
             recognition.observe(step.action, step.observation)
         live = _Live(model=model, session=recognition, rng=np.random.default_rng(trial.seed))
         self._scripted[trial.id] = live
+        while len(self._scripted) > MAX_LIVE_SCRIPTED:
+            self._scripted.popitem(last=False)
         return live
 
     def _require_scripted_running(self, trial: Trial) -> None:
@@ -633,8 +639,14 @@ class TrialService:
         except RunCancelled as cancelled:
             if cancelled.kind == "shutdown":
                 self._fail(trial_id, "server shut down")
+            else:  # normally already set by the request; an e-stop only tells the handle
+                self._fail(trial_id, f"{cancelled.kind} by the operator", cancelled.kind)
         except HardwareError as exc:
-            self._fail(trial_id, f"{type(exc).__name__}: {exc}")
+            requested = handle.stop_requested
+            if requested in ("stopped", "aborted"):  # the stop interrupted the touch
+                self._fail(trial_id, f"{requested} by the operator ({exc})", requested)
+            else:
+                self._fail(trial_id, f"{type(exc).__name__}: {exc}")
         except (CoreError, AppError, ValueError, ArithmeticError) as exc:
             self._fail(trial_id, f"{type(exc).__name__}: {exc}")
         except Exception as exc:
@@ -658,11 +670,16 @@ class TrialService:
             session.commit()
         self._announce_step(trial, row, list(model.object_names))
 
-    def _fail(self, trial_id: int, reason: str) -> None:
+    def _fail(self, trial_id: int, reason: str, status: str = "failed") -> None:
+        """End a trial that is still active (a stop request may have ended it already)."""
         with self._runs.run_lock("trial", trial_id), self._database.session() as session:
             trial = crud.get_trial(session, trial_id)
             if trial is None or trial.status not in states.ACTIVE:
                 return
-            crud.set_trial_status(session, trial, "failed", reason=reason)
+            crud.set_trial_status(session, trial, status, reason=reason)
+            if status == "stopped":
+                steps = crud.trial_steps(session, trial_id)
+                if steps:
+                    self._set_result(trial, steps[-1].answer)
             session.commit()
         self._announce_status(trial)

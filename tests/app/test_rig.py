@@ -131,3 +131,24 @@ def test_rig_trial_needs_matching_model_and_slot(client: TestClient) -> None:
     )
     assert response.status_code == 422
     assert "dx=6" in response.json()["detail"]
+
+
+def test_estop_aborts_the_collection_keeping_its_samples(client: TestClient) -> None:
+    created = client.post(
+        f"{API}/collections",
+        json={"objects": [{"name": n, "slot": i} for i, n in enumerate(CUPS)],
+              "samples_per_object": 50, "seed": 1},
+    ).json()  # fmt: skip
+    wait_until(client, f"{API}/collections/{created['id']}", lambda r: r["done"] >= 1)
+    assert client.post(f"{API}/rig/estop").json()["state"] == "estopped"
+    run = wait_until(
+        client, f"{API}/collections/{created['id']}", lambda r: r["status"] != "running"
+    )
+    assert run["status"] == "aborted"
+    assert "operator" in run["reason"]
+    dataset = client.get(f"{API}/datasets/{run['dataset_id']}").json()
+    assert dataset["n_samples"] == run["done"] >= 1
+    assert client.get(f"{API}/rig").json()["held_by"] is None
+    again = client.post(f"{API}/rig/turntable", json={"slot": 0})
+    assert again.status_code == 503  # stays stopped until recovered
+    assert client.post(f"{API}/rig/connect").json()["state"] == "idle"
