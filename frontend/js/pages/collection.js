@@ -5,7 +5,7 @@ import { api, apiList, apiOptional, ApiError } from "../api.js";
 import { lineChart } from "../charts.js";
 import { etaSeconds, formatDuration, normalizeTrace } from "../lib/analysis.js";
 import * as store from "../store.js";
-import { $, badge, el, fill, guarded, throttle, toast } from "../ui.js";
+import { $, badge, el, fill, guarded, throttle, toast, vec } from "../ui.js";
 
 const ACTIVE = ["queued", "running", "paused"];
 let run = null; // the collection on show
@@ -31,7 +31,7 @@ async function prefillObjects() {
     objects = null;
   }
   const rows = objects ? objects.data || objects : [];
-  const withSlots = rows.filter((o) => o.slot !== null && o.slot !== undefined);
+  const withSlots = rows.filter((o) => o.slot !== null && o.slot !== undefined).sort((a, b) => a.slot - b.slot);
   if (withSlots.length >= 2) withSlots.forEach((o) => box.append(objectRow(o.name, o.slot)));
   else {
     box.append(objectRow("cup A", 0));
@@ -201,10 +201,14 @@ export function onEvent(event, kind) {
   const data = event.data || {};
   const id = data.collection_id ?? data.run_id ?? (kind === "collection" ? data.id : null);
   const trace = data.trace || data.raw;
+  if (Array.isArray(data.observation)) {
+    $("trace-note").textContent = `Touch ${data.done ?? "?"} of ${data.total ?? "?"}: ${data.object ?? "?"}, features y = ${vec(data.observation)}${trace ? "" : " (the server sends no raw trace)"}`;
+  }
   if (id !== null && id !== undefined && (!run || run.id === id || ["queued", "running"].includes(data.status))) {
     if (!run || run.id !== id) run = { id };
     if (trace) renderTrace(trace);
     if (!$("page-collection").hidden) refreshRunSoon();
   }
-  if (kind === "dataset" && !$("page-collection").hidden) refreshDatasets();
+  const finished = kind === "collection" && data.status && !ACTIVE.includes(data.status);
+  if ((kind === "dataset" || finished) && !$("page-collection").hidden) refreshDatasets();
 }
