@@ -152,3 +152,25 @@ def test_estop_aborts_the_collection_keeping_its_samples(client: TestClient) -> 
     again = client.post(f"{API}/rig/turntable", json={"slot": 0})
     assert again.status_code == 503  # stays stopped until recovered
     assert client.post(f"{API}/rig/connect").json()["state"] == "idle"
+
+
+def test_device_fault_fails_the_run_with_reason_and_keeps_samples(client: TestClient) -> None:
+    from hardware.errors import ServoHardwareErrorFlags
+
+    created = client.post(
+        f"{API}/collections",
+        json={"objects": [{"name": n, "slot": i} for i, n in enumerate(CUPS)],
+              "samples_per_object": 50, "seed": 2},
+    ).json()  # fmt: skip
+    wait_until(client, f"{API}/collections/{created['id']}", lambda r: r["done"] >= 2)
+    simulation = client.app.state.context.rig.handle().simulation  # type: ignore[attr-defined]
+    simulation.devices.plant.inject_hardware_error(0, ServoHardwareErrorFlags.OVERLOAD)
+    run = wait_until(
+        client, f"{API}/collections/{created['id']}", lambda r: r["status"] != "running"
+    )
+    assert run["status"] == "failed"
+    assert "ServoHardwareError" in run["reason"]
+    assert "OVERLOAD" in run["reason"]
+    dataset = client.get(f"{API}/datasets/{run['dataset_id']}").json()
+    assert dataset["n_samples"] == run["done"] >= 2
+    assert client.get(f"{API}/rig").json()["state"] == "fault"
