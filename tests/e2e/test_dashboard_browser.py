@@ -242,3 +242,18 @@ def test_collection_through_the_ui(page: Any, demo: Demo) -> None:
     assert newest["n_samples"] == 2 * n_objects
     expect(page.get_by_test_id("dataset-row")).to_have_count(len(datasets))
     save_screenshot(page, "dashboard-collection")
+
+
+def test_estop_halts_the_rig_and_connect_recovers(page: Any, demo: Demo) -> None:
+    """The e-stop button works from any page; Rig → Connect brings the rig back."""
+    open_dashboard(page, demo, "#models")
+    page.get_by_test_id("estop").click()
+    expect(page.get_by_test_id("toasts")).to_contain_text("Emergency stop sent")
+    assert demo.get("/rig")["state"] == "estopped"
+    expect(page.get_by_test_id("chip-rig")).to_contain_text("estopped")
+    page.get_by_test_id("nav-rig").click()
+    expect(page.get_by_test_id("rig-summary")).to_contain_text("estopped")
+    page.get_by_test_id("rig-connect").click()
+    expect(page.get_by_test_id("rig-summary")).to_contain_text("idle")
+    assert demo.get("/rig")["state"] == "idle"
+    save_screenshot(page, "dashboard-rig")
