@@ -95,16 +95,18 @@ def fit_with_progress(
     with progress_bar(disable=quiet) as bar:
         task = bar.add_task("fit", total=None, status="")
         for event in iter_fit(data, latent_dim, rng, options):
+            # Starts are screened, then the best is polished: the start index is not monotone,
+            # so the bar pulses and the status says which stage runs.
+            best = event.best_log_likelihood
             bar.update(
                 task,
-                total=event.n_starts,
-                completed=event.start,
-                status=f"start {event.start + 1}/{event.n_starts}  "
-                f"log-lik {event.best_log_likelihood:.2f}",
+                status=f"{event.phase}: start {event.start + 1}/{event.n_starts}, "
+                f"iteration {event.iteration}"
+                + (f", best log-lik {best:.2f}" if np.isfinite(best) else ""),
             )
             if event.model is not None:
                 model = event.model
-        bar.update(task, completed=bar.tasks[0].total or 1)
+        bar.update(task, total=1, completed=1, status="done")
     if model is None:
         raise fail("the fit ended without a model")
     return model, time.perf_counter() - started
