@@ -184,7 +184,8 @@ class RecognitionSession:
 
     The suggestion is advice: :meth:`observe` accepts whatever action was actually performed
     (clipped by the robot, or replayed from recorded data), with or without a prior
-    :meth:`suggest`.
+    :meth:`suggest`. :meth:`observe` is deterministic, so a session can be rebuilt exactly by
+    replaying its (action, observation) pairs into a new one.
 
     Args:
         model: A conditioned model.
