@@ -202,11 +202,13 @@ class KroneckerLikelihood:
         """Eigendecompositions, spectrum and β at a packed vector (for conditioning)."""
         latents, log_sf, log_sn, log_ls, log_lx = self.layout.split(vector)
         dy = self.layout.observation_dim
-        m = self.design.size
+        n_objects, m = self.data.n_objects, self.design.size
         signal = np.exp(log_sf)
         noise = np.exp(log_sn)
         sq_pair = (latents[:, None, :] - latents[None, :, :]) ** 2  # (L, L, ds)
-        latent_gram = np.exp(-0.5 * np.einsum("lmd,ad->alm", sq_pair, np.exp(-2.0 * log_ls)))
+        latent_gram = np.exp(
+            -0.5 * (np.exp(-2.0 * log_ls) @ sq_pair.reshape(-1, latents.shape[1]).T)
+        ).reshape(dy, n_objects, n_objects)
         action_gram = np.exp(-0.5 * (np.exp(-2.0 * log_lx) @ self._sq_design)).reshape(dy, m, m)
         latent_values, latent_vectors = np.linalg.eigh(latent_gram)
         action_values, action_vectors = np.linalg.eigh(action_gram)
@@ -278,26 +280,31 @@ class KroneckerLikelihood:
         beta_t = np.swapaxes(beta, 1, 2)
         g_sn = 0.5 * noise * (np.sum(inv_d, axis=(1, 2)) - np.sum(beta**2, axis=(1, 2)))
         # Σ_{m,m'} W[(l,m),(l',m')] K^x[m,m'] = U_s diag(w_s) U_sᵀ - B K^x Bᵀ
-        w_s = inv_d @ sp.action_values[:, :, None]  # (dy, L, 1)
-        omega_s = (sp.latent_vectors * np.swapaxes(w_s, 1, 2)) @ np.swapaxes(
-            sp.latent_vectors, 1, 2
-        )
-        omega_s -= beta @ sp.action_gram @ beta_t
-        blocks = signal[:, None, None] * sp.latent_gram * omega_s  # Pᵀ (W ∘ K_f) P, (dy, L, L)
+        w_s = (inv_d @ sp.action_values[:, :, None])[:, :, 0]  # (dy, L)
+        w_x = (sp.latent_values[:, None, :] @ inv_d)[:, 0, :]  # (dy, M)
+        n_objects, ds = latents.shape
+        dy, m = w_x.shape
+        blocks = np.empty((dy, n_objects, n_objects))  # Pᵀ (W ∘ K_f) P
+        action_blocks = np.empty((dy, m, m))  # the same summed over objects
+        for a in range(dy):
+            vectors = sp.latent_vectors[a]
+            omega = (vectors * w_s[a]) @ vectors.T
+            omega -= beta[a] @ sp.action_gram[a] @ beta_t[a]
+            np.multiply(sp.latent_gram[a], omega, out=blocks[a])
+            vectors = sp.action_vectors[a]
+            omega = (vectors * w_x[a]) @ vectors.T
+            omega -= beta_t[a] @ sp.latent_gram[a] @ beta[a]
+            np.multiply(sp.action_gram[a], omega, out=action_blocks[a])
+        blocks *= signal[:, None, None]
+        action_blocks *= signal[:, None, None]
         g_sf = 0.5 * np.sum(blocks, axis=(1, 2))
-        sq_pair = (latents[:, None, :] - latents[None, :, :]) ** 2
-        g_ls = 0.5 * np.einsum("alm,lmd->ad", blocks, sq_pair) * inv_ls2
+        sq_pair = ((latents[:, None, :] - latents[None, :, :]) ** 2).reshape(-1, ds)
+        g_ls = 0.5 * (blocks.reshape(dy, -1) @ sq_pair) * inv_ls2
         row_sums = blocks.sum(axis=2)  # (dy, L)
+        # ∂/∂s_l = -Σ_a Σ_l' B_a[l,l'] (s_l - s_l') / ℓ_a²
         g_latents = -(
-            np.einsum("al,ld,ad->ld", row_sums, latents, inv_ls2)
-            - np.einsum("alm,md,ad->ld", blocks, latents, inv_ls2)
+            latents * (row_sums.T @ inv_ls2) - np.einsum("ald,ad->ld", blocks @ latents, inv_ls2)
         )
-        # Σ_{l,l'} W[(l,m),(l',m')] K^s[l,l'] = U_x diag(w_x) U_xᵀ - Bᵀ K^s B
-        w_x = sp.latent_values[:, None, :] @ inv_d  # (dy, 1, M)
-        omega_x = (sp.action_vectors * w_x) @ np.swapaxes(sp.action_vectors, 1, 2)
-        omega_x -= beta_t @ sp.latent_gram @ beta
-        action_blocks = signal[:, None, None] * sp.action_gram * omega_x  # (dy, M, M)
-        dy, m = action_blocks.shape[:2]
         g_lx = 0.5 * (action_blocks.reshape(dy, m * m) @ self._sq_design.T) * inv_lx2
         grad = np.empty(layout.size)
         grad[layout.latents] = g_latents.ravel()
