@@ -6,7 +6,7 @@ import secrets
 from collections.abc import Iterator
 from typing import Annotated
 
-from fastapi import Depends, Path, Request
+from fastapi import Depends, Path, Query, Request
 from sqlalchemy.orm import Session
 
 from app.errors import AppError
@@ -19,6 +19,10 @@ MAX_ID = 2**63 - 1
 
 #: A resource id in a path: a positive 64-bit integer (else 422, not a database error).
 IdPath = Annotated[int, Path(ge=1, le=MAX_ID)]
+
+#: Paging of list endpoints.
+Limit = Annotated[int, Query(ge=1, le=1000)]
+Offset = Annotated[int, Query(ge=0, le=MAX_ID)]
 
 
 class UnauthorizedError(AppError):

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from fastapi import APIRouter
 
-from fastapi import APIRouter, Query
-
-from app.deps import ContextDep, IdPath, SessionDep
+from app.deps import ContextDep, IdPath, Limit, Offset, SessionDep
 from app.schemas import CollectionCreate, Page, RunPublic, RunStatus
 from app.services import collections
 
@@ -25,8 +23,8 @@ def create_collection(
 def list_collections(
     session: SessionDep,
     status: RunStatus | None = None,
-    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    limit: Limit = 100,
+    offset: Offset = 0,
 ) -> Page[RunPublic]:
     """Collection runs, newest first."""
     return collections.list_page(session, status, limit, offset)

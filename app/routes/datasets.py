@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Any, Literal
 
-from fastapi import APIRouter, Query, Request, Response
+from fastapi import APIRouter, Request, Response
 from pydantic import ValidationError
 from starlette.concurrency import run_in_threadpool
 
-from app.deps import ContextDep, IdPath, SessionDep
+from app.deps import ContextDep, IdPath, Limit, Offset, SessionDep
 from app.errors import BadInputError
 from app.schemas import DatasetCreate, DatasetPublic, Page
 from app.services import datasets
@@ -103,8 +103,8 @@ async def _read_multipart(request: Request, name: str) -> tuple[str, str]:
 @router.get("")
 def list_datasets(
     session: SessionDep,
-    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    limit: Limit = 100,
+    offset: Offset = 0,
 ) -> Page[DatasetPublic]:
     """Datasets, newest first."""
     return datasets.list_page(session, limit, offset)

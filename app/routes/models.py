@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Body, Query
+from fastapi import APIRouter, Body
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
-from app.deps import ContextDep, IdPath, SessionDep
+from app.deps import ContextDep, IdPath, Limit, Offset, SessionDep
 from app.schemas import ModelAccepted, ModelCreate, ModelPublic, Page
 from app.services import models
 
@@ -25,8 +25,8 @@ def create_model(body: ModelCreate, session: SessionDep, context: ContextDep) ->
 def list_models(
     session: SessionDep,
     status: Literal["fitting", "ready", "failed"] | None = None,
-    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    limit: Limit = 100,
+    offset: Offset = 0,
 ) -> Page[ModelPublic]:
     """Models, newest first."""
     return models.list_page(session, status, limit, offset)

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from fastapi import APIRouter
 
-from fastapi import APIRouter, Query
-
-from app.deps import SessionDep
+from app.deps import Limit, Offset, SessionDep
 from app.schemas import ObjectPublic, Page
 from app.services import objects
 
@@ -16,8 +14,8 @@ router = APIRouter(prefix="/objects", tags=["objects"])
 @router.get("")
 def list_objects(
     session: SessionDep,
-    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    limit: Limit = 100,
+    offset: Offset = 0,
 ) -> Page[ObjectPublic]:
     """Objects named in datasets and collections, with their turntable slots."""
     return objects.list_page(session, limit, offset)

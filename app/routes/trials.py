@@ -6,7 +6,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query, Response
 
-from app.deps import MAX_ID, ContextDep, IdPath, SessionDep
+from app.deps import MAX_ID, ContextDep, IdPath, Limit, Offset, SessionDep
 from app.schemas import (
     NextAction,
     ObservationIn,
@@ -33,8 +33,8 @@ def list_trials(
     session: SessionDep,
     model_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
     status: RunStatus | None = None,
-    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    limit: Limit = 100,
+    offset: Offset = 0,
 ) -> Page[TrialSummary]:
     """Trials, newest first, filtered by model and status."""
     return trials.list_page(session, model_id, status, limit, offset)

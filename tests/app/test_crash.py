@@ -118,9 +118,11 @@ def test_sigkill_mid_trial_leaves_failed_interrupted_with_steps(tmp_path: Path) 
         os.kill(process.pid, signal.SIGKILL)
         process.wait(timeout=10)
 
-    with server(settings.database_url, port, log):
-        after = httpx.get(f"{base}/trials/{trial_id}", timeout=10).json()
-        events = httpx.get(f"{base}/events?after=0&follow=false", timeout=10).text
+    # Restart on the same database file (in this process, to keep the test fast: the app's
+    # start-up, where recovery happens, is the same as the server's).
+    with TestClient(create_app(settings)) as restarted:
+        after = restarted.get(f"/api/v1/trials/{trial_id}").json()
+        events = restarted.get("/api/v1/events?after=0&follow=false").text
 
     assert after["status"] == "failed"
     assert after["reason"] == "interrupted"
