@@ -1,21 +1,86 @@
-"""Condition the per-feature GPs on the training touches (METHOD.md eq. (M1)–(M2))."""
+"""Condition the per-feature GPs on the training touches (METHOD.md eq. (M1)–(M2)).
+
+Three posterior structures (:class:`core.types.GPPosterior`): ``"dense"`` (Cholesky of each
+N × N Gram matrix), ``"kronecker"`` (exact, for a complete shared action design:
+:mod:`core.kronecker`) and ``"sparse"`` (the approximate inducing-point posterior of
+:mod:`core.sparse`, for large data without a shared design). :func:`condition` picks one with
+``structure="auto"`` (see :func:`resolve_structure`); :func:`predict` works on all three.
+"""
 
 from __future__ import annotations
+
+from typing import Literal
 
 import numpy as np
 import scipy.linalg
 
 from core.errors import InvalidInputError
 from core.kernels import squared_exponential
+from core.kronecker import SharedDesign, condition_kronecker, find_shared_design, predict_kronecker
+from core.kronecker import require_shared_design as _require_shared_design
 from core.linalg import cholesky_with_jitter, log_det_from_cholesky
+from core.sparse import DEFAULT_INDUCING_POINTS, condition_sparse
 from core.types import (
     FitDiagnostics,
     GPPosterior,
     Hyperparameters,
     ManifoldModel,
+    PosteriorStructure,
     TrainingData,
 )
-from core.validation import FloatArray, as_float_array
+from core.validation import FloatArray, IntArray, as_float_array
+
+#: What :func:`condition` may be asked for.
+Structure = Literal["auto", "dense", "kronecker", "sparse"]
+STRUCTURES: tuple[str, ...] = ("auto", "dense", "kronecker", "sparse")
+
+#: ``structure="auto"`` uses the sparse path above this many touches when the design is not
+#: shared (a dense posterior stores dy · N² floats: 360 MB for dy = 5 at this N).
+AUTO_SPARSE_ABOVE = 3000
+
+
+def resolve_structure(
+    data: TrainingData, structure: Structure = "auto"
+) -> tuple[PosteriorStructure, SharedDesign | None]:
+    """Which posterior structure to use for ``data``.
+
+    ``"auto"``: ``"kronecker"`` when every object was touched with the same actions (a complete
+    shared design, :func:`core.kronecker.find_shared_design`); otherwise ``"dense"`` up to
+    :data:`AUTO_SPARSE_ABOVE` touches and ``"sparse"`` above. Missing touches (an object lacking
+    some design actions) therefore fall back to dense (exact) or sparse (approximate).
+
+    Args:
+        data: Training touches.
+        structure: ``"auto"``, ``"dense"``, ``"kronecker"`` or ``"sparse"``.
+
+    Returns:
+        The structure and, for ``"kronecker"``, the design.
+
+    Raises:
+        InvalidInputError: Unknown ``structure``, or ``"kronecker"`` on data without a complete
+            shared design (the message names the first object that breaks it).
+    """
+    if structure not in STRUCTURES:
+        raise InvalidInputError(
+            f"structure: expected one of {', '.join(STRUCTURES)}, received {structure!r}."
+        )
+    if structure == "kronecker":
+        return "kronecker", _require_shared_design(data)
+    if structure == "auto":
+        design = find_shared_design(data)
+        if design is not None:
+            return "kronecker", design
+        return ("sparse" if data.n_touches > AUTO_SPARSE_ABOVE else "dense"), None
+    return ("dense" if structure == "dense" else "sparse"), None
+
+
+def support_points(model: ManifoldModel) -> tuple[IntArray, FloatArray]:
+    """Object index (n,) and actions (n, dx) of the points the posterior's β and K⁻¹ refer to:
+    the training touches, or the inducing points of a sparse posterior."""
+    inducing = model.posterior.inducing
+    if inducing is not None:
+        return inducing.object_index, inducing.actions
+    return model.data.object_index, model.data.actions
 
 
 def gram_matrix(
@@ -46,19 +111,36 @@ def condition(
     latents: FloatArray,
     hyperparameters: Hyperparameters,
     diagnostics: FitDiagnostics | None = None,
+    structure: Structure = "auto",
+    n_inducing: int = DEFAULT_INDUCING_POINTS,
 ) -> ManifoldModel:
-    """Build a :class:`ManifoldModel`: Cholesky of each K_a, β_a, K_a⁻¹ and the log-likelihood.
+    """Build a :class:`ManifoldModel`: β_a, K_a⁻¹ (or its structured form) and the
+    log-likelihood.
+
+    The dense path factors each K_a (Cholesky) and stores K_a⁻¹. A complete shared design goes
+    through the eigendecompositions instead (exact, :func:`core.kronecker.condition_kronecker`);
+    ``"sparse"`` builds the inducing-point posterior (:func:`core.sparse.condition_sparse`,
+    approximate; ``log_likelihood`` is then the variational bound).
 
     Args:
         data: Training touches.
         latents: Object latents s_l. Shape (L, ds).
         hyperparameters: Per-feature hyperparameters (dy features, ds latent, dx action dims).
         diagnostics: Optional fit diagnostics to attach.
+        structure: ``"auto"`` (default, see :func:`resolve_structure`), ``"dense"``,
+            ``"kronecker"`` or ``"sparse"``.
+        n_inducing: Inducing points of the sparse path.
 
     Raises:
-        InvalidInputError: Shapes disagree between data, latents and hyperparameters.
+        InvalidInputError: Shapes disagree between data, latents and hyperparameters, or the
+            structure cannot be used for the data.
         NotPositiveDefiniteError: A Gram matrix is singular even with jitter.
     """
+    chosen, design = resolve_structure(data, structure)
+    if chosen == "kronecker":
+        return condition_kronecker(data, latents, hyperparameters, diagnostics, design)
+    if chosen == "sparse":
+        return condition_sparse(data, latents, hyperparameters, diagnostics, n_inducing=n_inducing)
     h = hyperparameters
     latents = as_float_array(latents, "latents", (data.n_objects, h.latent_dim))
     if h.action_dim != data.action_dim or h.observation_dim != data.observation_dim:
@@ -103,6 +185,8 @@ def predict(
 ) -> tuple[FloatArray, FloatArray]:
     """GP predictive mean and variance of the observation at deterministic inputs (s, x).
 
+    Works on every posterior structure (dense, Kronecker, sparse).
+
     Args:
         model: A conditioned model.
         latents: Query latents. Shape (Q, ds).
@@ -111,16 +195,19 @@ def predict(
     Returns:
         Mean (Q, dy) and variance of y including the noise variance (Q, dy).
     """
+    if model.posterior.kronecker is not None:
+        return predict_kronecker(model, latents, actions)
     h = model.hyperparameters
     latents = as_float_array(latents, "latents", (None, h.latent_dim))
     actions = as_float_array(actions, "actions", (latents.shape[0], h.action_dim))
     data = model.data
+    support_objects, support_actions = support_points(model)
     mean = np.empty((latents.shape[0], h.observation_dim))
     variance = np.empty_like(mean)
     for a in range(h.observation_dim):
         k_latent = squared_exponential(latents, model.latents, h.latent_lengthscales[a])
-        k_action = squared_exponential(actions, data.actions, h.action_lengthscales[a])
-        cross = h.signal_variance[a] * k_latent[:, data.object_index] * k_action
+        k_action = squared_exponential(actions, support_actions, h.action_lengthscales[a])
+        cross = h.signal_variance[a] * k_latent[:, support_objects] * k_action
         mean[:, a] = data.observation_mean[a] + cross @ model.posterior.beta[a]
         reduction = np.einsum("qi,ij,qj->q", cross, model.posterior.gram_inverse[a], cross)
         variance[:, a] = np.maximum(h.signal_variance[a] - reduction, 0.0) + h.noise_variance[a]
