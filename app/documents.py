@@ -272,15 +272,22 @@ def model_from_document(document: Any) -> ManifoldModel:
     diagnostics = None
     if isinstance(document.get("diagnostics"), Mapping):
         d = document["diagnostics"]
-        diagnostics = FitDiagnostics(
-            starts_log_likelihood=tuple(float(v) for v in d.get("starts_log_likelihood", [])),
-            best_start=int(d.get("best_start", 0)),
-            iterations=int(d.get("iterations", 0)),
-            converged=bool(d.get("converged", False)),
-            message=str(d.get("message", "")),
-            jitter_used=float(d.get("jitter_used", 0.0)),
-            hyperparameters_at_bounds=tuple(d.get("hyperparameters_at_bounds", [])),
-        )
+        try:
+            diagnostics = FitDiagnostics(
+                starts_log_likelihood=tuple(float(v) for v in d.get("starts_log_likelihood", [])),
+                best_start=int(d.get("best_start", 0)),
+                iterations=int(d.get("iterations", 0)),
+                converged=bool(d.get("converged", False)),
+                message=str(d.get("message", "")),
+                jitter_used=float(d.get("jitter_used", 0.0)),
+                hyperparameters_at_bounds=tuple(
+                    str(v) for v in d.get("hyperparameters_at_bounds", [])
+                ),
+            )
+        except (TypeError, ValueError) as exc:
+            raise DocumentError(
+                f"model document: malformed field 'diagnostics' ({exc}).", column="diagnostics"
+            ) from exc
     try:
         return condition(data, latents, hyperparameters, diagnostics)
     except InvalidInputError as exc:

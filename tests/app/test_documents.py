@@ -96,3 +96,12 @@ def test_model_document_errors_name_the_field(data):
     bad_latent["objects"][0]["latent"] = [float("nan")]
     with pytest.raises(DocumentError, match="non-finite"):
         model_from_document(bad_latent)
+
+
+def test_model_document_malformed_diagnostics_is_a_document_error(data):
+    hyper = Hyperparameters(np.ones(3), 0.1 * np.ones(3), np.ones((3, 1)), np.ones((3, 1)))
+    document = model_to_document(condition(data, np.arange(4.0)[:, None], hyper))
+    document["diagnostics"] = {"best_start": "first", "starts_log_likelihood": 3}
+    with pytest.raises(DocumentError, match="diagnostics") as info:
+        model_from_document(document)
+    assert info.value.column == "diagnostics"
