@@ -96,10 +96,13 @@ def _design_mismatch(data: TrainingData) -> tuple[SharedDesign | None, str]:
     counts = data.touches_per_object()
     names = data.object_names
     if np.any(counts != counts[0]):
-        odd = int(np.flatnonzero(counts != counts[0])[0])
+        values, frequency = np.unique(counts, return_counts=True)
+        usual = int(values[np.argmax(frequency)])
+        odd = [f"{names[i]!r} ({counts[i]})" for i in np.flatnonzero(counts != usual)[:5]]
         return None, (
-            f"object {names[odd]!r} has {counts[odd]} touches but {names[0]!r} has "
-            f"{counts[0]}: a shared design needs the same M actions on every object."
+            f"most objects have {usual} touches but {', '.join(odd)} differ: a shared design "
+            f"needs the same M actions on every object (missing touches fall back to the "
+            f"dense or sparse path)."
         )
     m = int(counts[0])
     order = np.argsort(data.object_index, kind="stable")

@@ -1,0 +1,262 @@
+"""The exact Kronecker path for shared designs matches the dense path (METHOD.md, Kronecker)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from core.designs import collect, shared_design
+from core.errors import CoreError, InvalidInputError
+from core.kronecker import (
+    KroneckerLikelihood,
+    action_statistics_derivatives,
+    action_statistics_spectral,
+    condition_kronecker,
+    find_shared_design,
+    predict_kronecker,
+    require_shared_design,
+)
+from core.likelihood import ManifoldLikelihood
+from core.moments import (
+    ActionStatistics,
+    action_statistics,
+    mutual_information,
+    predictive_moments,
+)
+from core.posterior import condition, predict, resolve_structure
+from core.types import GaussianBelief, Hyperparameters, ManifoldModel, TrainingData
+from core.worlds import random_experiment2_world
+
+TOLERANCE = 1e-8
+
+
+@dataclass(frozen=True)
+class Case:
+    """A small shared-design problem."""
+
+    name: str
+    n_objects: int
+    n_actions: int
+    action_dim: int
+    observation_dim: int
+    latent_dim: int
+
+
+CASES = [
+    Case("exp2-shape", 4, 10, 6, 5, 2),
+    Case("ds1-dx1", 3, 8, 1, 2, 1),
+    Case("many-objects", 12, 5, 2, 3, 2),
+    Case("ds3", 3, 6, 2, 2, 3),
+]
+
+
+def make_problem(
+    case: Case, seed: int, shuffle: bool = True
+) -> tuple[TrainingData, np.ndarray, Hyperparameters]:
+    """Shared-design data (rows shuffled), random latents and random hyperparameters."""
+    rng = np.random.default_rng(seed)
+    world = random_experiment2_world(
+        rng,
+        n_objects=case.n_objects,
+        latent_dim=case.latent_dim,
+        action_dim=case.action_dim,
+        observation_dim=case.observation_dim,
+    )
+    design = shared_design(
+        case.n_objects, case.n_actions, np.zeros(case.action_dim), np.eye(case.action_dim), rng
+    )
+    data = collect(world, design, rng)
+    if shuffle:
+        perm = rng.permutation(data.n_touches)
+        data = TrainingData(
+            data.object_names,
+            data.object_index[perm],
+            data.actions[perm],
+            data.observations[perm],
+        )
+    dy, ds, dx = case.observation_dim, case.latent_dim, case.action_dim
+    latents = rng.standard_normal((case.n_objects, ds))
+    hyper = Hyperparameters(
+        signal_variance=rng.uniform(0.3, 2.0, dy),
+        noise_variance=rng.uniform(0.005, 0.1, dy),
+        latent_lengthscales=rng.uniform(0.5, 2.0, (dy, ds)),
+        action_lengthscales=rng.uniform(0.7, 2.5, (dy, dx)),
+    )
+    return data, latents, hyper
+
+
+def relative(value: np.ndarray, reference: np.ndarray) -> float:
+    return float(np.max(np.abs(value - reference)) / max(np.max(np.abs(reference)), 1e-300))
+
+
+@pytest.mark.parametrize("case", CASES, ids=lambda c: c.name)
+def test_value_and_gradient_match_the_dense_likelihood(case: Case) -> None:
+    data, latents, hyper = make_problem(case, seed=1)
+    dense = ManifoldLikelihood(data, case.latent_dim)
+    kron = KroneckerLikelihood(data, case.latent_dim)
+    vector = dense.layout.pack(latents, hyper)
+    value_d, grad_d = dense.value_and_gradient(vector)
+    value_k, grad_k = kron.value_and_gradient(vector)
+    assert abs(value_k - value_d) <= TOLERANCE * abs(value_d)
+    assert relative(grad_k, grad_d) <= TOLERANCE
+    assert kron.value(vector) == pytest.approx(value_k, rel=1e-12)
+    assert kron.evaluations == 2
+
+
+def test_gradient_matches_finite_differences() -> None:
+    data, latents, hyper = make_problem(CASES[2], seed=2)
+    kron = KroneckerLikelihood(data, 2)
+    vector = kron.layout.pack(latents, hyper)
+    _, grad = kron.value_and_gradient(vector)
+    step = 1e-6
+    numeric = np.empty_like(grad)
+    for i in range(vector.size):
+        up, down = vector.copy(), vector.copy()
+        up[i] += step
+        down[i] -= step
+        numeric[i] = (kron.value(up) - kron.value(down)) / (2 * step)
+    assert relative(grad, numeric) < 1e-6
+
+
+@pytest.mark.parametrize("case", CASES[:2], ids=lambda c: c.name)
+def test_conditioned_model_matches_dense_beta_inverse_and_predictions(case: Case) -> None:
+    data, latents, hyper = make_problem(case, seed=3)
+    dense = condition(data, latents, hyper, structure="dense")
+    kron = condition_kronecker(data, latents, hyper)
+    assert kron.posterior.structure == "kronecker"
+    assert dense.posterior.structure == "dense"
+    assert abs(kron.log_likelihood - dense.log_likelihood) <= TOLERANCE * abs(dense.log_likelihood)
+    assert relative(kron.posterior.beta, dense.posterior.beta) <= TOLERANCE
+    assert not kron.posterior.has_dense_inverse
+    assert relative(kron.posterior.gram_inverse, dense.posterior.gram_inverse) <= TOLERANCE
+    assert kron.posterior.has_dense_inverse
+    rng = np.random.default_rng(4)
+    queries = rng.standard_normal((7, case.latent_dim))
+    actions = rng.standard_normal((7, case.action_dim))
+    mean_k, var_k = predict_kronecker(kron, queries, actions)
+    mean_d, var_d = predict(dense, queries, actions)
+    assert relative(mean_k, mean_d) <= TOLERANCE
+    assert relative(var_k, var_d) <= TOLERANCE
+    # predict() dispatches to the structured path on a Kronecker model.
+    assert relative(predict(kron, queries, actions)[0], mean_d) <= TOLERANCE
+
+
+def test_action_statistics_and_mutual_information_match_the_dense_path() -> None:
+    case = CASES[0]
+    data, latents, hyper = make_problem(case, seed=5)
+    dense = condition(data, latents, hyper, structure="dense")
+    kron = condition_kronecker(data, latents, hyper)
+    candidates = np.random.default_rng(6).standard_normal((9, case.action_dim))
+    reference = action_statistics(dense, candidates)
+    responses, spectrum = action_statistics_spectral(kron, candidates)
+    basis = kron.posterior.kronecker.latent_eigenvectors  # type: ignore[union-attr]
+    blocks = np.einsum("alj,caj,amj->calm", basis, spectrum, basis)
+    assert relative(responses, reference.responses) <= TOLERANCE
+    assert relative(blocks, reference.trace_blocks) <= TOLERANCE
+    belief = GaussianBelief(mean=latents.mean(axis=0) + 0.2, cov=np.diag([0.8, 0.4]))
+    stats = ActionStatistics(actions=candidates, responses=responses, trace_blocks=blocks)
+    mi_kron = mutual_information(predictive_moments(kron, belief, stats), belief)
+    mi_dense = mutual_information(predictive_moments(dense, belief, reference), belief)
+    assert relative(mi_kron, mi_dense) <= TOLERANCE
+    assert np.all(mi_dense > 0)
+
+
+def test_action_statistic_derivatives_match_finite_differences() -> None:
+    data, latents, hyper = make_problem(CASES[0], seed=7)
+    kron = condition_kronecker(data, latents, hyper)
+    x = np.random.default_rng(8).standard_normal(6)
+    responses, d_responses, spectrum, d_spectrum = action_statistics_derivatives(kron, x)
+    batch_u, batch_t = action_statistics_spectral(kron, x[None, :])
+    assert relative(responses, batch_u[0]) <= 1e-12
+    assert relative(spectrum, batch_t[0]) <= 1e-12
+    step = 1e-6
+    for d in range(6):
+        up, down = x.copy(), x.copy()
+        up[d] += step
+        down[d] -= step
+        u_up, _, t_up, _ = action_statistics_derivatives(kron, up)
+        u_down, _, t_down, _ = action_statistics_derivatives(kron, down)
+        assert relative(d_responses[:, d], (u_up - u_down) / (2 * step)) < 1e-6
+        assert relative(d_spectrum[:, d], (t_up - t_down) / (2 * step)) < 1e-6
+
+
+def test_shared_design_is_detected_in_any_row_order() -> None:
+    data, _, _ = make_problem(CASES[0], seed=9)
+    design = find_shared_design(data)
+    assert design is not None
+    assert design.size == CASES[0].n_actions
+    grid = design.grid_index
+    assert sorted(grid.tolist()) == list(range(data.n_touches))
+    # The touch at grid position l·M + m is object l touched with design action m.
+    m = design.size
+    np.testing.assert_array_equal(data.object_index, grid // m)
+    np.testing.assert_array_equal(data.actions, design.actions[grid % m])
+    assert resolve_structure(data)[0] == "kronecker"
+
+
+def test_a_missing_touch_falls_back_to_the_dense_path_exactly() -> None:
+    data, latents, hyper = make_problem(CASES[0], seed=10, shuffle=False)
+    keep = np.ones(data.n_touches, dtype=bool)
+    keep[3] = False  # object 0 lacks one design action
+    partial = TrainingData(
+        data.object_names,
+        data.object_index[keep],
+        data.actions[keep],
+        data.observations[keep],
+    )
+    assert find_shared_design(partial) is None
+    assert resolve_structure(partial)[0] == "dense"
+    model = condition(partial, latents, hyper)
+    assert model.posterior.structure == "dense"
+    expected = r"most objects have 10 touches but 'O1' \(9\) differ"
+    with pytest.raises(InvalidInputError, match=expected):
+        require_shared_design(partial)
+    with pytest.raises(InvalidInputError, match="structure='kronecker'"):
+        condition(partial, latents, hyper, structure="kronecker")
+
+
+def test_different_actions_per_object_are_not_a_shared_design() -> None:
+    data, _, _ = make_problem(CASES[1], seed=11, shuffle=False)
+    actions = data.actions.copy()
+    actions[data.object_index == 2] += 1e-9
+    moved = TrainingData(data.object_names, data.object_index, actions, data.observations)
+    assert find_shared_design(moved) is None
+    with pytest.raises(InvalidInputError, match="'O3' was not touched with the same actions"):
+        KroneckerLikelihood(moved, 1)
+
+
+def test_a_repeated_design_action_still_matches_dense() -> None:
+    data, latents, hyper = make_problem(CASES[1], seed=12, shuffle=False)
+    actions = data.actions.copy()
+    m = CASES[1].n_actions
+    for obj in range(CASES[1].n_objects):
+        actions[obj * m + 1] = actions[obj * m]  # design action 1 repeats action 0
+    repeated = TrainingData(data.object_names, data.object_index, actions, data.observations)
+    dense = ManifoldLikelihood(repeated, 1)
+    kron = KroneckerLikelihood(repeated, 1)
+    vector = dense.layout.pack(latents, hyper)
+    value_d, grad_d = dense.value_and_gradient(vector)
+    value_k, grad_k = kron.value_and_gradient(vector)
+    assert abs(value_k - value_d) <= TOLERANCE * abs(value_d)
+    assert relative(grad_k, grad_d) <= TOLERANCE
+
+
+def test_large_posterior_does_not_materialise_its_inverse() -> None:
+    case = Case("wide", 61, 100, 2, 1, 2)
+    data, latents, hyper = make_problem(case, seed=13, shuffle=False)
+    model: ManifoldModel = condition(data, latents, hyper)
+    assert model.posterior.structure == "kronecker"
+    assert model.data.n_touches == 6100
+    with pytest.raises(CoreError, match="not materialised above N = 6000"):
+        _ = model.posterior.gram_inverse
+    mean, variance = predict(model, latents[:3], data.actions[:3])
+    assert mean.shape == (3, 1)
+    assert np.all(variance > hyper.noise_variance)
+
+
+def test_bad_latent_dim_is_rejected() -> None:
+    data, _, _ = make_problem(CASES[1], seed=14)
+    with pytest.raises(InvalidInputError, match="latent_dim"):
+        KroneckerLikelihood(data, 0)
