@@ -9,17 +9,25 @@ N × N Gram matrix), ``"kronecker"`` (exact, for a complete shared action design
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Literal, Protocol
 
 import numpy as np
 import scipy.linalg
 
 from core.errors import InvalidInputError
 from core.kernels import squared_exponential
-from core.kronecker import SharedDesign, condition_kronecker, find_shared_design, predict_kronecker
+from core.kronecker import (
+    KroneckerLikelihood,
+    SharedDesign,
+    condition_kronecker,
+    find_shared_design,
+    predict_kronecker,
+)
 from core.kronecker import require_shared_design as _require_shared_design
+from core.likelihood import ManifoldLikelihood
 from core.linalg import cholesky_with_jitter, log_det_from_cholesky
-from core.sparse import DEFAULT_INDUCING_POINTS, condition_sparse
+from core.parameters import ParameterLayout
+from core.sparse import DEFAULT_INDUCING_POINTS, SparseLikelihood, condition_sparse
 from core.types import (
     FitDiagnostics,
     GPPosterior,
@@ -72,6 +80,47 @@ def resolve_structure(
             return "kronecker", design
         return ("sparse" if data.n_touches > AUTO_SPARSE_ABOVE else "dense"), None
     return ("dense" if structure == "dense" else "sparse"), None
+
+
+class Likelihood(Protocol):
+    """What a fit needs from a likelihood: :class:`core.likelihood.ManifoldLikelihood` (dense),
+    :class:`core.kronecker.KroneckerLikelihood` (exact, shared design) or
+    :class:`core.sparse.SparseLikelihood` (the negative variational bound)."""
+
+    data: TrainingData
+    layout: ParameterLayout
+    max_jitter: float
+    evaluations: int
+
+    def value(self, vector: FloatArray) -> float:
+        """-log p (or -F) at a packed vector."""
+        ...
+
+    def value_and_gradient(self, vector: FloatArray) -> tuple[float, FloatArray]:
+        """The value and its gradient with respect to the packed vector."""
+        ...
+
+
+def make_likelihood(
+    data: TrainingData,
+    latent_dim: int,
+    structure: Structure = "auto",
+    n_inducing: int = DEFAULT_INDUCING_POINTS,
+) -> Likelihood:
+    """The likelihood for ``data`` under a structure (see :func:`resolve_structure`).
+
+    Args:
+        data: Training touches.
+        latent_dim: ds ≥ 1.
+        structure: ``"auto"``, ``"dense"``, ``"kronecker"`` or ``"sparse"``.
+        n_inducing: Inducing points of the sparse path.
+    """
+    chosen, design = resolve_structure(data, structure)
+    if chosen == "kronecker":
+        return KroneckerLikelihood(data, latent_dim, design)
+    if chosen == "sparse":
+        return SparseLikelihood(data, latent_dim, n_inducing=n_inducing)
+    return ManifoldLikelihood(data, latent_dim)
 
 
 def support_points(model: ManifoldModel) -> tuple[IntArray, FloatArray]:
