@@ -19,7 +19,9 @@ Use :class:`DemoServer` to embed the same composition (the browser tests do).
 
 from __future__ import annotations
 
+import logging
 import secrets
+import signal
 import threading
 import time
 import webbrowser
@@ -231,6 +233,9 @@ class DemoServer:
             self._follower.stop()
             self._follower = None
         if self._server is not None:
+            # Open event streams (browser tabs) are cancelled after the grace period; uvicorn
+            # logs each as an error with a traceback. That is the expected way they end here.
+            logging.getLogger("uvicorn.error").setLevel(logging.CRITICAL)
             self._server.should_exit = True
         if self._thread is not None:
             self._thread.join(timeout=10.0)
@@ -471,6 +476,10 @@ def add_viz_route(app: FastAPI, view: ManifoldView) -> None:
     app.router.routes.insert(0, route)
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def run_demo(options: DemoOptions, console: Console | None = None) -> DemoState:
     """Start the demo, prepare it, print where to go, and serve until Ctrl-C.
 
@@ -485,6 +494,9 @@ def run_demo(options: DemoOptions, console: Console | None = None) -> DemoState:
             parents=True, exist_ok=True
         )
     demo = DemoServer(options, console=out)
+    if threading.current_thread() is threading.main_thread():
+        # `docker stop` sends SIGTERM: stop as on Ctrl-C (runs end cleanly, the DB is closed).
+        signal.signal(signal.SIGTERM, _interrupt)
     demo.start()
     try:
         out.print(

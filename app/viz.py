@@ -993,7 +993,7 @@ class TrialFollower:
             with contextlib.suppress(Exception):
                 response.close()
         self._client.close()
-        self._thread.join(timeout=3.0)
+        self._thread.join(timeout=1.0)
 
     def show_model(self, model_id: Any) -> None:
         """Load model ``model_id`` from the app and show it."""
