@@ -9,12 +9,18 @@ depends on x only through the action statistics u_a(x) and T_a(x) of METHOD.md's
     ∂U1/∂T_a[l, l']  = -W_aa G_aa[l, l']
 
 with m̃ the centred mean, and the chain rule through ∂e_ai/∂x = -e_ai (Λ^x_a)⁻¹ (x - x_i).
+
+On a Kronecker posterior T_a = U_a diag(t_a) U_aᵀ, so ∂U1/∂t_a[j] = -W_aa (U_aᵀ G_aa U_a)_jj and
+the derivatives of u and t come from :func:`core.kronecker.action_statistics_derivatives`
+(O(dy · dx · (M² + L·M)) per call instead of O(dy · N²)). On a sparse posterior the sums run
+over its inducing points.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from core.kronecker import action_statistics_derivatives
 from core.moments import (
     ActionStatistics,
     BeliefTerms,
@@ -23,19 +29,31 @@ from core.moments import (
     moments_from_terms,
     object_indicator,
 )
+from core.posterior import support_points
 from core.types import GaussianBelief, ManifoldModel
 from core.validation import FloatArray, as_float_array
 
 
 class GradientCache:
-    """Per-model arrays reused by every gradient evaluation (build once per model)."""
+    """Per-model arrays reused by every gradient evaluation (build once per model).
+
+    A Kronecker posterior needs none of them (its statistics come from its factors), so they are
+    left empty there.
+    """
 
     def __init__(self, model: ManifoldModel) -> None:
+        if model.posterior.kronecker is not None:
+            self.indicator = np.zeros((0, model.data.n_objects))
+            self.weighted_beta = np.zeros((0, 0, 0))
+            self.located_actions = np.zeros((0, 0))
+            self.inverse_sq_lengthscales = 1.0 / model.hyperparameters.action_lengthscales**2
+            self.actions_t = np.zeros((model.data.action_dim, 0))
+            return
         self.indicator = object_indicator(model)  # (N, L)
         # β_ai [obj_i = l], (dy, N, L)
         self.weighted_beta = model.posterior.beta[:, :, None] * self.indicator[None]
-        # x_id [obj_i = l], laid out (dx·L, N)
-        actions = model.data.actions
+        # x_id [obj_i = l], laid out (dx·L, N), over the support points
+        _, actions = support_points(model)
         n = actions.shape[0]
         self.located_actions = np.ascontiguousarray(
             (actions[:, :, None] * self.indicator[:, None, :]).reshape(n, -1).T
@@ -47,7 +65,18 @@ class GradientCache:
 def _statistics_with_derivatives(
     model: ManifoldModel, action: FloatArray, cache: GradientCache
 ) -> tuple[ActionStatistics, FloatArray, FloatArray]:
-    """u, T of one action and their derivatives du/dx (dy, dx, L), dT/dx (dy, dx, L, L)."""
+    """u, T of one action and their derivatives du/dx (dy, dx, L), dT/dx (dy, dx, L, L); on a
+    Kronecker posterior the trace spectrum t (dy, L) and dt/dx (dy, dx, L) instead."""
+    factors = model.posterior.kronecker
+    if factors is not None:
+        responses, d_responses, spectrum, d_spectrum = action_statistics_derivatives(model, action)
+        stats = ActionStatistics(
+            actions=action[None, :],
+            responses=responses[None],
+            trace_blocks=spectrum[None],
+            trace_basis=factors.latent_eigenvectors,
+        )
+        return stats, d_responses, d_spectrum
     e = action_kernels(model, action[None, :])[:, 0, :]  # (dy, N)
     diff_t = (action[:, None] - cache.actions_t)[None]  # (1, dx, N): x_d - x_id
     # ∂e_ai/∂x_d = -e_ai (x_d - x_id) / ℓ_ad², (dy, dx, N)
@@ -123,8 +152,19 @@ def mutual_information_and_gradient(
     grad_u = 2.0 * np.einsum("ab,abl->al", w, pair_u)
     grad_u -= 2.0 * (w @ centred_mean)[:, None] * c
     grad_u += c * np.einsum("da,ald->al", gamma, terms.offsets)
-    diagonal_pair = np.einsum("aalm->alm", terms.pair_weights)
-    grad_t = -np.diagonal(w)[:, None, None] * diagonal_pair  # (dy, L, L)
     gradient = np.einsum("al,adl->d", grad_u, d_responses)
-    gradient += np.einsum("alm,adlm->d", grad_t, d_trace)
+    if stats.trace_basis is not None:
+        spectral = terms.spectral_weights
+        if spectral is None:
+            spectral = np.sum(
+                stats.trace_basis
+                * (np.einsum("aalm->alm", terms.pair_weights) @ stats.trace_basis),
+                axis=1,
+            )
+        grad_spectrum = -np.diagonal(w)[:, None] * spectral  # ∂U1/∂t_a, (dy, L)
+        gradient += np.einsum("aj,adj->d", grad_spectrum, d_trace)
+    else:
+        diagonal_pair = np.einsum("aalm->alm", terms.pair_weights)
+        grad_t = -np.diagonal(w)[:, None, None] * diagonal_pair  # (dy, L, L)
+        gradient += np.einsum("alm,adlm->d", grad_t, d_trace)
     return float(value), np.asarray(gradient, dtype=np.float64)

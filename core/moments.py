@@ -15,6 +15,13 @@ the N training latents take only L distinct values, so everything splits into
 
 and the moments are small contractions of the two, batched over C candidate actions. This is an
 exact rewrite of the appendix formula (checked against it in ``tests/core/test_moments.py``).
+
+Every posterior structure of :class:`core.types.GPPosterior` is supported: the dense one over the
+training touches, the sparse one over its inducing points (whose latents also take only L
+values: the sums over "touches" run over the support points), and the Kronecker one of a shared
+design, whose T_a(x) = U_s diag(t_a(x)) U_sᵀ is carried as the L-vector t_a(x) (the "trace
+spectrum", :func:`core.kronecker.action_statistics_spectral`) so that nothing of size L² per
+candidate is stored and tr(G_aa T_a) = Σ_j t_a[j] (U_sᵀ G_aa U_s)_jj.
 """
 
 from __future__ import annotations
@@ -24,6 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.errors import InvalidInputError
+from core.kronecker import action_statistics_spectral
+from core.posterior import support_points
 from core.types import GaussianBelief, ManifoldModel
 from core.validation import FloatArray, as_float_array
 
@@ -31,6 +40,9 @@ from core.validation import FloatArray, as_float_array
 _EIGENVALUE_FLOOR = 1e-12
 # Candidates processed together in action_statistics (bounds memory at O(chunk · N · (dy + dx))).
 _CHUNK = 256
+# Up to this many objects the moments are contracted element-wise (batch-invariant to the bit);
+# above, with GEMMs (the element-wise form costs O(C · dy² · L²) in numpy's einsum loops).
+_ELEMENTWISE_MAX_OBJECTS = 32
 
 
 @dataclass(frozen=True)
@@ -44,12 +56,16 @@ class ActionStatistics:
         actions: The candidate actions x. Shape (C, dx).
         responses: u_a(x)[l] = Σ_{i∈l} β_ai e_ai(x). Shape (C, dy, L).
         trace_blocks: T_a(x)[l, l'] = Σ_{i∈l, j∈l'} (K_a⁻¹)_ij e_ai(x) e_aj(x), with the noisy
-            K_a. Shape (C, dy, L, L).
+            K_a. Shape (C, dy, L, L); or, when ``trace_basis`` is set, the trace spectrum t_a(x)
+            with T_a(x) = U_a diag(t_a(x)) U_aᵀ. Shape (C, dy, L).
+        trace_basis: U_a (columns), for a Kronecker posterior; ``None`` otherwise.
+            Shape (dy, L, L).
     """
 
     actions: FloatArray
     responses: FloatArray
     trace_blocks: FloatArray
+    trace_basis: FloatArray | None = None
 
     @property
     def n_actions(self) -> int:
@@ -62,6 +78,16 @@ class ActionStatistics:
             actions=self.actions[indices],
             responses=self.responses[indices],
             trace_blocks=self.trace_blocks[indices],
+            trace_basis=self.trace_basis,
+        )
+
+    def dense_trace_blocks(self) -> FloatArray:
+        """T_a(x) as L × L matrices, expanded from the spectrum if needed. Shape (C, dy, L, L)."""
+        if self.trace_basis is None:
+            return self.trace_blocks
+        basis = self.trace_basis
+        return np.asarray(
+            np.einsum("alj,caj,amj->calm", basis, self.trace_blocks, basis), dtype=np.float64
         )
 
 
@@ -74,11 +100,14 @@ class BeliefTerms:
             Shape (dy, L).
         pair_weights: G_ab[l, l'], the belief part of Q_ab. Shape (dy, dy, L, L).
         offsets: D_a[l] = Σ (Σ + Λ^s_a)⁻¹ (s_l - μ). Shape (dy, L, ds).
+        spectral_weights: diag(U_aᵀ G_aa U_a) for a Kronecker posterior (tr(G_aa T_a) is their
+            dot product with the trace spectrum), ``None`` otherwise. Shape (dy, L).
     """
 
     weights: FloatArray
     pair_weights: FloatArray
     offsets: FloatArray
+    spectral_weights: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -104,15 +133,20 @@ class PredictiveMoments:
 
 
 def object_indicator(model: ManifoldModel) -> FloatArray:
-    """One-hot matrix of the object of every touch. Shape (N, L)."""
-    data = model.data
-    indicator = np.zeros((data.n_touches, data.n_objects))
-    indicator[np.arange(data.n_touches), data.object_index] = 1.0
+    """One-hot matrix of the object of every support point (the touches, or the inducing points
+    of a sparse posterior). Shape (N, L)."""
+    objects, _ = support_points(model)
+    indicator = np.zeros((objects.shape[0], model.data.n_objects))
+    indicator[np.arange(objects.shape[0]), objects] = 1.0
     return indicator
 
 
 def action_kernels(model: ManifoldModel, actions: FloatArray) -> FloatArray:
-    """e_ai(x) = exp(-½ (x - x_i)ᵀ (Λ^x_a)⁻¹ (x - x_i)) for every feature, action and touch.
+    """e_ai(x) = exp(-½ (x - x_i)ᵀ (Λ^x_a)⁻¹ (x - x_i)) for every feature, action and support
+    point (training touch, or inducing point of a sparse posterior).
+
+    The squared distances are expanded, |x/ℓ|² + |x_i/ℓ|² - 2 (x/ℓ)·(x_i/ℓ), around the mean
+    support action (one GEMM per feature instead of a (C, N, dx) difference array).
 
     Args:
         model: A conditioned model.
@@ -121,10 +155,18 @@ def action_kernels(model: ManifoldModel, actions: FloatArray) -> FloatArray:
     Returns:
         Shape (dy, C, N).
     """
-    inverse_sq = 1.0 / model.hyperparameters.action_lengthscales**2  # (dy, dx)
-    diff_sq = (actions[:, None, :] - model.data.actions[None, :, :]) ** 2  # (C, N, dx)
-    exponent = diff_sq @ inverse_sq.T  # (C, N, dy)
-    return np.asarray(np.exp(-0.5 * np.moveaxis(exponent, 2, 0)), dtype=np.float64)
+    _, support = support_points(model)
+    inverse = 1.0 / model.hyperparameters.action_lengthscales  # (dy, dx)
+    centre = support.mean(axis=0)
+    scaled_x = (actions - centre)[None, :, :] * inverse[:, None, :]  # (dy, C, dx)
+    scaled_s = (support - centre)[None, :, :] * inverse[:, None, :]  # (dy, N, dx)
+    exponent = scaled_x @ np.swapaxes(scaled_s, 1, 2)  # (dy, C, N)
+    exponent *= 2.0
+    exponent -= np.sum(scaled_x**2, axis=2)[:, :, None]
+    exponent -= np.sum(scaled_s**2, axis=2)[:, None, :]
+    np.minimum(exponent, 0.0, out=exponent)
+    exponent *= 0.5
+    return np.asarray(np.exp(exponent, out=exponent), dtype=np.float64)
 
 
 def _check_actions(model: ManifoldModel, actions: FloatArray, name: str) -> FloatArray:
@@ -134,7 +176,10 @@ def _check_actions(model: ManifoldModel, actions: FloatArray, name: str) -> Floa
 def action_statistics(model: ManifoldModel, actions: FloatArray) -> ActionStatistics:
     """Action statistics u_a(x) and T_a(x) of C candidate actions (METHOD.md, structure of (M3)).
 
-    Cost O(C · dy · N · (dx + N)); memory O(C · dy · L²) plus a bounded working set.
+    Cost O(C · dy · N · (dx + N)) over the N support points (dense and sparse posteriors);
+    O(C · dy · (M² + L·M)) on a Kronecker posterior of M design actions, whose statistics hold
+    the trace spectrum (see :class:`ActionStatistics`). Memory O(C · dy · L²) (O(C · dy · L) for
+    Kronecker) plus a bounded working set.
 
     Args:
         model: A conditioned model.
@@ -144,24 +189,44 @@ def action_statistics(model: ManifoldModel, actions: FloatArray) -> ActionStatis
         InvalidInputError: ``actions`` has the wrong shape or non-finite entries.
     """
     actions = _check_actions(model, actions, "actions").copy()
+    factors = model.posterior.kronecker
+    if factors is not None:
+        responses, spectrum = action_statistics_spectral(model, actions)
+        for array in (actions, responses, spectrum):
+            array.flags.writeable = False
+        return ActionStatistics(
+            actions=actions,
+            responses=responses,
+            trace_blocks=spectrum,
+            trace_basis=factors.latent_eigenvectors,
+        )
     indicator = object_indicator(model)  # (N, L)
     beta = model.posterior.beta  # (dy, N)
     gram_inverse = model.posterior.gram_inverse  # (dy, N, N)
     n_features, n_objects, n_actions = beta.shape[0], indicator.shape[1], actions.shape[0]
-    members = [np.flatnonzero(indicator[:, obj]) for obj in range(n_objects)]
+    objects, _ = support_points(model)
+    grouped = bool(np.all(np.diff(objects) >= 0))
+    members: list[slice | np.ndarray] = []
+    for obj in range(n_objects):
+        idx = np.flatnonzero(objects == obj)
+        # Support points grouped by object: contiguous blocks are views, not copies.
+        members.append(slice(int(idx[0]), int(idx[-1]) + 1) if grouped and idx.size else idx)
     weighted_beta = beta[:, :, None] * indicator[None]  # (dy, N, L): β_ai [obj_i = l]
     responses = np.empty((n_actions, n_features, n_objects))
-    trace_blocks = np.empty((n_actions, n_features, n_objects, n_objects))
+    trace_blocks = np.zeros((n_actions, n_features, n_objects, n_objects))
     for start in range(0, n_actions, _CHUNK):
         chunk = slice(start, min(start + _CHUNK, n_actions))
         kernels = action_kernels(model, actions[chunk])  # (dy, c, N)
         # u_a(x)[l] = Σ_{i∈l} β_ai e_ai(x)
         responses[chunk] = np.swapaxes(kernels @ weighted_beta, 0, 1)
         for a in range(n_features):
-            for right, idx in enumerate(members):
+            for right, block in enumerate(members):
+                if isinstance(block, np.ndarray) and block.size == 0:
+                    continue  # an object without inducing points: its blocks are 0
                 # Y[c, i] = Σ_{j∈l'} (K_a⁻¹)_ij e_aj(x_c)
-                partial = kernels[a][:, idx] @ gram_inverse[a][idx, :]
-                trace_blocks[chunk, a, :, right] = (kernels[a] * partial) @ indicator
+                partial = kernels[a][:, block] @ gram_inverse[a][block, :]
+                partial *= kernels[a]
+                trace_blocks[chunk, a, :, right] = partial @ indicator
     for array in (actions, responses, trace_blocks):
         array.flags.writeable = False
     return ActionStatistics(actions=actions, responses=responses, trace_blocks=trace_blocks)
@@ -224,7 +289,19 @@ def belief_terms(model: ManifoldModel, belief: GaussianBelief) -> BeliefTerms:
         * np.exp(-0.5 * logdet_pair)[:, :, None, None]
         * np.exp(-0.5 * sep_quad - 0.5 * mean_quad)
     )
-    return BeliefTerms(weights=weights, pair_weights=pair_weights, offsets=offsets)
+    factors = model.posterior.kronecker
+    spectral = None
+    if factors is not None:
+        spectral = _spectral_weights(pair_weights, factors.latent_eigenvectors)
+    return BeliefTerms(
+        weights=weights, pair_weights=pair_weights, offsets=offsets, spectral_weights=spectral
+    )
+
+
+def _spectral_weights(pair_weights: FloatArray, basis: FloatArray) -> FloatArray:
+    """diag(U_aᵀ G_aa U_a) for every feature. Shape (dy, L)."""
+    diagonal_pair = np.einsum("aalm->alm", pair_weights)  # G_aa
+    return np.asarray(np.sum(basis * (diagonal_pair @ basis), axis=1), dtype=np.float64)
 
 
 def moments_from_terms(
@@ -237,12 +314,27 @@ def moments_from_terms(
     h = model.hyperparameters
     u = stats.responses  # (C, dy, L)
     weights, pair = terms.weights, terms.pair_weights
+    n_actions, dy, n_objects = u.shape
     centred_mean = np.einsum("al,cal->ca", weights, u)  # m_a - mean_a = c_aᵀ u_a
-    pair_u = np.einsum("ablm,cbm->cabl", pair, u)
-    cov = np.einsum("cal,cabl->cab", u, pair_u)  # u_aᵀ G_ab u_b
+    if n_objects <= _ELEMENTWISE_MAX_OBJECTS:
+        # Element-wise contractions: a candidate's moments do not depend on the batch it is in.
+        pair_u = np.einsum("ablm,cbm->cabl", pair, u)
+        cov = np.einsum("cal,cabl->cab", u, pair_u)  # u_aᵀ G_ab u_b
+    else:
+        # (G_ab u_b)[l] for every candidate as one GEMM per b: (dy_a·L, L) @ (L, C); results
+        # agree with the element-wise form to rounding.
+        stacked = np.swapaxes(pair, 0, 1).reshape(dy, dy * n_objects, n_objects)
+        pair_u = (stacked @ np.moveaxis(u, 0, 2)).reshape(dy, dy, n_objects, n_actions)
+        cov = np.einsum("cal,balc->cab", u, pair_u)  # u_aᵀ G_ab u_b
     cov -= centred_mean[:, :, None] * centred_mean[:, None, :]
-    diagonal_pair = np.einsum("aalm->alm", pair)  # G_aa
-    trace = np.einsum("alm,calm->ca", diagonal_pair, stats.trace_blocks)  # tr(K_a⁻¹ Q_aa)
+    if stats.trace_basis is not None:
+        spectral = terms.spectral_weights
+        if spectral is None:
+            spectral = _spectral_weights(pair, stats.trace_basis)
+        trace = np.einsum("aj,caj->ca", spectral, stats.trace_blocks)  # tr(K_a⁻¹ Q_aa)
+    else:
+        diagonal_pair = np.einsum("aalm->alm", pair)  # G_aa
+        trace = np.einsum("alm,calm->ca", diagonal_pair, stats.trace_blocks)  # tr(K_a⁻¹ Q_aa)
     features = np.arange(h.observation_dim)
     # METHOD.md eq. (M3): δ_ab (σ_f,a² - tr(K_a⁻¹ Q_aa)) + δ_ab σ_n,a²  (noise belongs in S)
     cov[:, features, features] += h.signal_variance - trace + h.noise_variance

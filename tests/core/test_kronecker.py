@@ -9,6 +9,7 @@ import pytest
 
 from core.designs import collect, shared_design
 from core.errors import CoreError, InvalidInputError
+from core.information_gradient import mutual_information_and_gradient
 from core.kronecker import (
     KroneckerLikelihood,
     action_statistics_derivatives,
@@ -25,7 +26,9 @@ from core.moments import (
     mutual_information,
     predictive_moments,
 )
+from core.planning import ActivePolicy, Planner
 from core.posterior import condition, predict, resolve_structure
+from core.recognition import RecognitionSession
 from core.types import GaussianBelief, Hyperparameters, ManifoldModel, TrainingData
 from core.worlds import random_experiment2_world
 
@@ -260,3 +263,59 @@ def test_bad_latent_dim_is_rejected() -> None:
     data, _, _ = make_problem(CASES[1], seed=14)
     with pytest.raises(InvalidInputError, match="latent_dim"):
         KroneckerLikelihood(data, 0)
+
+
+def test_moments_gradient_and_planning_run_on_the_structured_statistics() -> None:
+    case = CASES[0]
+    data, latents, hyper = make_problem(case, seed=15)
+    dense = condition(data, latents, hyper, structure="dense")
+    kron = condition(data, latents, hyper)
+    assert kron.posterior.structure == "kronecker"
+    candidates = np.random.default_rng(16).standard_normal((6, case.action_dim))
+    stats = action_statistics(kron, candidates)
+    assert stats.trace_basis is not None
+    assert stats.trace_blocks.shape == (6, case.observation_dim, case.n_objects)
+    reference = action_statistics(dense, candidates)
+    assert relative(stats.dense_trace_blocks(), reference.trace_blocks) <= TOLERANCE
+    belief = GaussianBelief(mean=latents.mean(axis=0), cov=np.diag([1.5, 0.7]))
+    mi_kron = mutual_information(predictive_moments(kron, belief, stats), belief)
+    mi_dense = mutual_information(predictive_moments(dense, belief, reference), belief)
+    assert relative(mi_kron, mi_dense) <= TOLERANCE
+    assert (
+        relative(
+            mutual_information(
+                predictive_moments(kron, belief, stats.subset(np.array([2, 4]))), belief
+            ),
+            mi_dense[[2, 4]],
+        )
+        <= TOLERANCE
+    )
+    value_k, grad_k = mutual_information_and_gradient(kron, belief, candidates[0])
+    value_d, grad_d = mutual_information_and_gradient(dense, belief, candidates[0])
+    assert value_k == pytest.approx(value_d, rel=TOLERANCE)
+    assert relative(grad_k, grad_d) <= 1e-7
+    planned_k = Planner(kron, ActivePolicy(), n_candidates=64).plan(
+        belief, np.random.default_rng(0)
+    )
+    planned_d = Planner(dense, ActivePolicy(), n_candidates=64).plan(
+        belief, np.random.default_rng(0)
+    )
+    assert planned_k.mutual_information == pytest.approx(planned_d.mutual_information, rel=1e-6)
+    np.testing.assert_allclose(planned_k.action, planned_d.action, atol=1e-5)
+
+
+def test_recognition_runs_on_a_large_kronecker_model_without_a_dense_inverse() -> None:
+    case = Case("large", 70, 100, 6, 5, 2)
+    data, latents, hyper = make_problem(case, seed=17, shuffle=False)
+    model = condition(data, latents, hyper)
+    assert model.posterior.structure == "kronecker"
+    planner = Planner(model, ActivePolicy(), n_candidates=32)
+    session = RecognitionSession(model, planner)
+    rng = np.random.default_rng(18)
+    planned = session.suggest(rng)
+    observation = model.data.observations[0] + 0.01 * rng.standard_normal(5)
+    step = session.observe(planned.action, observation)
+    assert step.probabilities.shape == (70,)
+    assert np.isfinite(step.mutual_information)
+    assert step.mutual_information > 0
+    assert not model.posterior.has_dense_inverse

@@ -9,10 +9,12 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
+from core.information_gradient import mutual_information_and_gradient
 from core.likelihood import ManifoldLikelihood
+from core.moments import action_statistics, mutual_information, predictive_moments
 from core.posterior import AUTO_SPARSE_ABOVE, condition, predict, resolve_structure
 from core.sparse import SparseLikelihood, condition_sparse, select_inducing_points
-from core.types import Hyperparameters, TrainingData
+from core.types import GaussianBelief, Hyperparameters, TrainingData
 from core.worlds import random_experiment2_world, sample_dataset
 
 
@@ -141,3 +143,29 @@ def test_bad_settings_are_rejected() -> None:
         SparseLikelihood(data, 2, jitter=0.0)
     with pytest.raises(InvalidInputError, match="latent_dim"):
         SparseLikelihood(data, 0)
+
+
+def test_moments_and_gradient_run_on_the_inducing_points() -> None:
+    data, latents, hyper = make_problem(11)
+    dense = condition(data, latents, hyper, structure="dense")
+    full = condition_sparse(data, latents, hyper, n_inducing=data.n_touches, jitter=1e-10)
+    belief = GaussianBelief(mean=latents.mean(axis=0), cov=np.diag([1.0, 0.6]))
+    candidates = np.random.default_rng(12).standard_normal((5, 2))
+    mi_dense = mutual_information(
+        predictive_moments(dense, belief, action_statistics(dense, candidates)), belief
+    )
+    mi_full = mutual_information(
+        predictive_moments(full, belief, action_statistics(full, candidates)), belief
+    )
+    np.testing.assert_allclose(mi_full, mi_dense, rtol=1e-5)
+    value_d, grad_d = mutual_information_and_gradient(dense, belief, candidates[1])
+    value_f, grad_f = mutual_information_and_gradient(full, belief, candidates[1])
+    assert value_f == pytest.approx(value_d, rel=1e-5)
+    np.testing.assert_allclose(grad_f, grad_d, rtol=1e-4, atol=1e-6)
+    # With few inducing points (some objects have none) everything still runs.
+    small = condition(data, latents, hyper, structure="sparse", n_inducing=2)
+    stats = action_statistics(small, candidates)
+    assert stats.trace_blocks.shape == (5, 3, 3, 3)
+    mi_small = mutual_information(predictive_moments(small, belief, stats), belief)
+    assert np.all(np.isfinite(mi_small))
+    assert np.all(mi_small >= 0)
