@@ -24,6 +24,7 @@ from core.kronecker import action_statistics_derivatives
 from core.moments import (
     ActionStatistics,
     BeliefTerms,
+    SupportBlocks,
     action_kernels,
     belief_terms,
     moments_from_terms,
@@ -43,12 +44,15 @@ class GradientCache:
 
     def __init__(self, model: ManifoldModel) -> None:
         if model.posterior.kronecker is not None:
+            self.blocks = SupportBlocks(np.zeros(0, dtype=np.int64), model.data.n_objects)
             self.indicator = np.zeros((0, model.data.n_objects))
             self.weighted_beta = np.zeros((0, 0, 0))
             self.located_actions = np.zeros((0, 0))
             self.inverse_sq_lengthscales = 1.0 / model.hyperparameters.action_lengthscales**2
             self.actions_t = np.zeros((model.data.action_dim, 0))
             return
+        objects, _ = support_points(model)
+        self.blocks = SupportBlocks(objects, model.data.n_objects)
         self.indicator = object_indicator(model)  # (N, L)
         # β_ai [obj_i = l], (dy, N, L)
         self.weighted_beta = model.posterior.beta[:, :, None] * self.indicator[None]
@@ -81,6 +85,8 @@ def _statistics_with_derivatives(
     diff_t = (action[:, None] - cache.actions_t)[None]  # (1, dx, N): x_d - x_id
     # ∂e_ai/∂x_d = -e_ai (x_d - x_id) / ℓ_ad², (dy, dx, N)
     de_t = -diff_t * cache.inverse_sq_lengthscales[:, :, None] * e[:, None, :]
+    if cache.blocks.reduce:
+        return _block_statistics_with_derivatives(model, action, cache, e, de_t)
     responses = (e[:, None, :] @ cache.weighted_beta)[:, 0, :]  # (dy, L)
     d_responses = de_t @ cache.weighted_beta  # (dy, dx, L)
     indicator = cache.indicator
@@ -94,6 +100,39 @@ def _statistics_with_derivatives(
     n_objects = indicator.shape[1]
     located = cache.located_actions @ (e[:, :, None] * partial)  # (dy, dx·L, L)
     located = located.reshape(dy, dx, n_objects, n_objects)
+    half = action[None, :, None, None] * trace_blocks[:, None, :, :] - located
+    half *= -cache.inverse_sq_lengthscales[:, :, None, None]
+    d_trace = half + np.swapaxes(half, 2, 3)
+    stats = ActionStatistics(
+        actions=action[None, :], responses=responses[None], trace_blocks=trace_blocks[None]
+    )
+    return stats, d_responses, d_trace
+
+
+def _block_statistics_with_derivatives(
+    model: ManifoldModel, action: FloatArray, cache: GradientCache, e: FloatArray, de_t: FloatArray
+) -> tuple[ActionStatistics, FloatArray, FloatArray]:
+    """The same as the dense path for many objects with grouped support points: per-object
+    sums instead of products with the one-hot indicator (O(dy · (N² + dx · N · L)) instead of
+    O(dy · L · (N² + dx · N · L)))."""
+    blocks = cache.blocks
+    beta = model.posterior.beta
+    gram_inverse = model.posterior.gram_inverse
+    dy, n = e.shape
+    n_objects = blocks.n_objects
+    responses = blocks.sums(e * beta)  # (dy, L)
+    d_responses = blocks.sums(de_t * beta[:, None, :])  # (dy, dx, L)
+    # Yᵀ[l', i] = Σ_{j∈l'} K⁻¹_ij e_j
+    partial_t = np.zeros((dy, n_objects, n))
+    for right, block in enumerate(blocks.members):
+        if block is not None:
+            partial_t[:, right, :] = (gram_inverse[:, :, block] @ e[:, block, None])[:, :, 0]
+    weighted_t = partial_t * e[:, None, :]  # e_i Y[i, l'], (dy, L', N)
+    trace_blocks = np.swapaxes(blocks.sums(weighted_t), 1, 2)  # (dy, L, L')
+    # Σ_{i∈l} x_id e_ai Y[i, l'], (dy, dx, L, L')
+    located = np.swapaxes(
+        blocks.sums(cache.actions_t[None, :, None, :] * weighted_t[:, None, :, :]), 2, 3
+    )
     half = action[None, :, None, None] * trace_blocks[:, None, :, :] - located
     half *= -cache.inverse_sq_lengthscales[:, :, None, None]
     d_trace = half + np.swapaxes(half, 2, 3)

@@ -40,6 +40,9 @@ from core.validation import FloatArray, as_float_array
 _EIGENVALUE_FLOOR = 1e-12
 # Candidates processed together in action_statistics (bounds memory at O(chunk · N · (dy + dx))).
 _CHUNK = 256
+# Up to this many objects, per-object sums over support points are products with the one-hot
+# indicator (faster than reduceat for few objects).
+_GEMM_SUM_MAX_OBJECTS = 8
 # Up to this many objects the moments are contracted element-wise (batch-invariant to the bit);
 # above, with GEMMs (the element-wise form costs O(C · dy² · L²) in numpy's einsum loops).
 _ELEMENTWISE_MAX_OBJECTS = 32
@@ -200,36 +203,74 @@ def action_statistics(model: ManifoldModel, actions: FloatArray) -> ActionStatis
             trace_blocks=spectrum,
             trace_basis=factors.latent_eigenvectors,
         )
-    indicator = object_indicator(model)  # (N, L)
     beta = model.posterior.beta  # (dy, N)
     gram_inverse = model.posterior.gram_inverse  # (dy, N, N)
-    n_features, n_objects, n_actions = beta.shape[0], indicator.shape[1], actions.shape[0]
+    n_features, n_objects, n_actions = beta.shape[0], model.data.n_objects, actions.shape[0]
     objects, _ = support_points(model)
-    grouped = bool(np.all(np.diff(objects) >= 0))
-    members: list[slice | np.ndarray] = []
-    for obj in range(n_objects):
-        idx = np.flatnonzero(objects == obj)
-        # Support points grouped by object: contiguous blocks are views, not copies.
-        members.append(slice(int(idx[0]), int(idx[-1]) + 1) if grouped and idx.size else idx)
-    weighted_beta = beta[:, :, None] * indicator[None]  # (dy, N, L): β_ai [obj_i = l]
+    blocks = SupportBlocks(objects, n_objects)
     responses = np.empty((n_actions, n_features, n_objects))
     trace_blocks = np.zeros((n_actions, n_features, n_objects, n_objects))
     for start in range(0, n_actions, _CHUNK):
         chunk = slice(start, min(start + _CHUNK, n_actions))
         kernels = action_kernels(model, actions[chunk])  # (dy, c, N)
         # u_a(x)[l] = Σ_{i∈l} β_ai e_ai(x)
-        responses[chunk] = np.swapaxes(kernels @ weighted_beta, 0, 1)
+        if blocks.reduce:
+            responses[chunk] = np.swapaxes(blocks.sums(kernels * beta[:, None, :]), 0, 1)
+        else:
+            weighted_beta = beta[:, :, None] * blocks.indicator[None]  # β_ai [obj_i = l]
+            responses[chunk] = np.swapaxes(kernels @ weighted_beta, 0, 1)
         for a in range(n_features):
-            for right, block in enumerate(members):
-                if isinstance(block, np.ndarray) and block.size == 0:
+            for right, block in enumerate(blocks.members):
+                if block is None:
                     continue  # an object without inducing points: its blocks are 0
                 # Y[c, i] = Σ_{j∈l'} (K_a⁻¹)_ij e_aj(x_c)
                 partial = kernels[a][:, block] @ gram_inverse[a][block, :]
                 partial *= kernels[a]
-                trace_blocks[chunk, a, :, right] = partial @ indicator
+                trace_blocks[chunk, a, :, right] = blocks.sums(partial)
     for array in (actions, responses, trace_blocks):
         array.flags.writeable = False
     return ActionStatistics(actions=actions, responses=responses, trace_blocks=trace_blocks)
+
+
+class SupportBlocks:
+    """The support points of each object, and sums over them along the last axis.
+
+    Args:
+        objects: Object of every support point. Shape (N,).
+        n_objects: L.
+
+    Support points grouped by object (the usual case: training data and inducing points come
+    object by object) are contiguous slices (views, not copies); otherwise index arrays. Sums
+    use ``reduceat`` over grouped points when there are more than :data:`_GEMM_SUM_MAX_OBJECTS`
+    objects (O(N)), else a product with the one-hot indicator (O(N · L), faster for small L).
+    """
+
+    def __init__(self, objects: np.ndarray, n_objects: int) -> None:
+        self.n_objects = n_objects
+        counts = np.bincount(objects, minlength=n_objects)
+        self.present = np.flatnonzero(counts > 0)
+        grouped = bool(np.all(np.diff(objects) >= 0))
+        self.reduce = grouped and n_objects > _GEMM_SUM_MAX_OBJECTS
+        self.indicator = np.zeros((objects.shape[0], n_objects))
+        self.indicator[np.arange(objects.shape[0]), objects] = 1.0
+        ends = np.cumsum(counts)
+        self.starts = (ends - counts)[self.present].astype(np.intp)
+        self.members: list[slice | np.ndarray | None] = []
+        for obj in range(n_objects):
+            if not counts[obj]:
+                self.members.append(None)
+            elif grouped:
+                self.members.append(slice(int(ends[obj] - counts[obj]), int(ends[obj])))
+            else:
+                self.members.append(np.flatnonzero(objects == obj))
+
+    def sums(self, values: FloatArray) -> FloatArray:
+        """Σ over each object's support points along the last axis. Shape (..., L)."""
+        if not self.reduce:
+            return np.asarray(values @ self.indicator, dtype=np.float64)
+        out = np.zeros((*values.shape[:-1], self.n_objects))
+        out[..., self.present] = np.add.reduceat(values, self.starts, axis=-1)
+        return out
 
 
 def _check_belief(model: ManifoldModel, belief: GaussianBelief) -> None:

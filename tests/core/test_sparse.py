@@ -169,3 +169,37 @@ def test_moments_and_gradient_run_on_the_inducing_points() -> None:
     mi_small = mutual_information(predictive_moments(small, belief, stats), belief)
     assert np.all(np.isfinite(mi_small))
     assert np.all(mi_small >= 0)
+
+
+@pytest.mark.parametrize("structure", ["dense", "sparse"])
+def test_many_objects_use_per_object_sums_with_the_same_moments_and_gradient(
+    structure: str,
+) -> None:
+    data, _, _ = make_problem(13, n_objects=12, touches=6)
+    rng = np.random.default_rng(14)
+    latents = rng.standard_normal((12, 2))
+    hyper = Hyperparameters(
+        signal_variance=np.ones(3),
+        noise_variance=np.full(3, 0.02),
+        latent_lengthscales=np.full((3, 2), 1.2),
+        action_lengthscales=np.full((3, 2), 1.5),
+    )
+    model = condition(data, latents, hyper, structure=structure, n_inducing=40)  # type: ignore[arg-type]
+    belief = GaussianBelief(mean=latents[3] + 0.1, cov=np.diag([0.5, 0.3]))
+    x = rng.standard_normal(2)
+    stats = action_statistics(model, x[None, :])
+    value, gradient = mutual_information_and_gradient(model, belief, x)
+    assert value == pytest.approx(
+        float(mutual_information(predictive_moments(model, belief, stats), belief)[0]), rel=1e-10
+    )
+    step = 1e-6
+    numeric = np.empty(2)
+    for d in range(2):
+        up, down = x.copy(), x.copy()
+        up[d] += step
+        down[d] -= step
+        numeric[d] = (
+            mutual_information_and_gradient(model, belief, up)[0]
+            - mutual_information_and_gradient(model, belief, down)[0]
+        ) / (2 * step)
+    np.testing.assert_allclose(gradient, numeric, rtol=1e-5, atol=1e-8)
