@@ -118,21 +118,23 @@ def _block_statistics_with_derivatives(
     blocks = cache.blocks
     beta = model.posterior.beta
     gram_inverse = model.posterior.gram_inverse
-    dy, n = e.shape
-    n_objects = blocks.n_objects
     responses = blocks.sums(e * beta)  # (dy, L)
     d_responses = blocks.sums(de_t * beta[:, None, :])  # (dy, dx, L)
-    # Yᵀ[l', i] = Σ_{j∈l'} K⁻¹_ij e_j
-    partial_t = np.zeros((dy, n_objects, n))
-    for right, block in enumerate(blocks.members):
-        if block is not None:
-            partial_t[:, right, :] = (gram_inverse[:, :, block] @ e[:, block, None])[:, :, 0]
-    weighted_t = partial_t * e[:, None, :]  # e_i Y[i, l'], (dy, L', N)
-    trace_blocks = np.swapaxes(blocks.sums(weighted_t), 1, 2)  # (dy, L, L')
-    # Σ_{i∈l} x_id e_ai Y[i, l'], (dy, dx, L, L')
-    located = np.swapaxes(
-        blocks.sums(cache.actions_t[None, :, None, :] * weighted_t[:, None, :, :]), 2, 3
-    )
+    # Yᵀ[l', i] = Σ_{j∈l'} K⁻¹_ji e_j  (K⁻¹ is symmetric)
+    partial_t = blocks.sums(e[:, :, None] * gram_inverse, axis=1)  # (dy, L', N)
+    weighted = np.moveaxis(partial_t * e[:, None, :], 2, 0)  # e_i Y[i, l'], (N, dy, L')
+    trace_blocks = np.moveaxis(blocks.sums(weighted, axis=0), 0, 1)  # (dy, L, L')
+    # Σ_{i∈l} x_id e_ai Y[i, l'], one small GEMM per object block
+    n_objects = blocks.n_objects
+    flat = weighted.reshape(weighted.shape[0], -1)  # (N, dy·L')
+    actions = cache.actions_t.T  # (N, dx)
+    located_l = np.zeros((n_objects, flat.shape[1], actions.shape[1]))  # (L, dy·L', dx)
+    for obj in blocks.present:
+        block = blocks.members[obj]
+        assert block is not None
+        located_l[obj] = flat[block].T @ actions[block]
+    dy = weighted.shape[1]
+    located = np.moveaxis(located_l.reshape(n_objects, dy, n_objects, -1), (0, 3), (2, 1))
     half = action[None, :, None, None] * trace_blocks[:, None, :, :] - located
     half *= -cache.inverse_sq_lengthscales[:, :, None, None]
     d_trace = half + np.swapaxes(half, 2, 3)

@@ -264,12 +264,27 @@ class SupportBlocks:
             else:
                 self.members.append(np.flatnonzero(objects == obj))
 
-    def sums(self, values: FloatArray) -> FloatArray:
-        """Σ over each object's support points along the last axis. Shape (..., L)."""
+    def sums(self, values: FloatArray, axis: int = -1) -> FloatArray:
+        """Σ over each object's support points along ``axis`` (of length N), which becomes an
+        axis of length L. (Reducing a leading axis is fastest: the sums are then vectorised.)"""
         if not self.reduce:
-            return np.asarray(values @ self.indicator, dtype=np.float64)
-        out = np.zeros((*values.shape[:-1], self.n_objects))
-        out[..., self.present] = np.add.reduceat(values, self.starts, axis=-1)
+            moved = np.moveaxis(values, axis, -1) @ self.indicator
+            return np.asarray(np.moveaxis(moved, -1, axis), dtype=np.float64)
+        axis = axis % values.ndim
+        shape = list(values.shape)
+        shape[axis] = self.n_objects
+        out = np.zeros(shape)
+        index: list[slice | np.ndarray | int] = [slice(None)] * values.ndim
+        if axis == values.ndim - 1:
+            index[axis] = self.present
+            out[tuple(index)] = np.add.reduceat(values, self.starts, axis=axis)
+            return out
+        # reduceat is slow along a leading axis; summing each block's slice is vectorised.
+        source: list[slice | np.ndarray | int] = [slice(None)] * values.ndim
+        for obj in self.present:
+            index[axis] = int(obj)
+            source[axis] = self.members[obj]  # type: ignore[assignment]
+            out[tuple(index)] = values[tuple(source)].sum(axis=axis)
         return out
 
 

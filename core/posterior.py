@@ -258,6 +258,6 @@ def predict(
         k_action = squared_exponential(actions, support_actions, h.action_lengthscales[a])
         cross = h.signal_variance[a] * k_latent[:, support_objects] * k_action
         mean[:, a] = data.observation_mean[a] + cross @ model.posterior.beta[a]
-        reduction = np.einsum("qi,ij,qj->q", cross, model.posterior.gram_inverse[a], cross)
+        reduction = np.sum((cross @ model.posterior.gram_inverse[a]) * cross, axis=1)
         variance[:, a] = np.maximum(h.signal_variance[a] - reduction, 0.0) + h.noise_variance[a]
     return mean, variance
