@@ -49,9 +49,17 @@ import scipy.optimize
 
 from core.errors import ConvergenceError, CoreError, InvalidInputError, NotPositiveDefiniteError
 from core.initialisation import normalise_spread, pca_latents, random_latents
-from core.likelihood import ManifoldLikelihood
+from core.kronecker import find_shared_design
 from core.parameters import ParameterLayout, initial_hyperparameters, parameter_bounds
-from core.posterior import condition
+from core.posterior import (
+    STRUCTURES,
+    Likelihood,
+    Structure,
+    condition,
+    make_likelihood,
+    resolve_structure,
+)
+from core.sparse import DEFAULT_INDUCING_POINTS
 from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
 from core.validation import FloatArray, as_float_array
 
@@ -91,6 +99,14 @@ class FitOptions:
             ``popsize``, ≥ 1).
         de_generations: Generations of differential evolution (≥ 1).
         progress_every: Yield a :class:`FitProgress` every this many optimiser iterations (≥ 1).
+        structure: How the likelihood is evaluated (:func:`core.posterior.resolve_structure`):
+            ``"auto"`` (default) uses the exact Kronecker path when every object was touched
+            with the same actions, the dense path otherwise, and the sparse variational path
+            above :data:`core.posterior.AUTO_SPARSE_ABOVE` touches; ``"dense"``,
+            ``"kronecker"`` or ``"sparse"`` force one. The model is conditioned the same way.
+            A Kronecker fit screens on a subsample of the design actions, the same for every
+            object, so the screening data stay a shared design.
+        n_inducing: Inducing points of the sparse path (≥ 1).
     """
 
     optimizer: Optimizer = "lbfgs"
@@ -107,6 +123,8 @@ class FitOptions:
     de_population: int = 8
     de_generations: int = 40
     progress_every: int = 10
+    structure: Structure = "auto"
+    n_inducing: int = DEFAULT_INDUCING_POINTS
 
     def __post_init__(self) -> None:
         if self.optimizer not in OPTIMIZERS:
@@ -123,6 +141,7 @@ class FitOptions:
             "de_population": 1,
             "de_generations": 1,
             "progress_every": 1,
+            "n_inducing": 1,
         }
         for name, minimum in minimums.items():
             value = getattr(self, name)
@@ -130,6 +149,10 @@ class FitOptions:
                 raise InvalidInputError(f"{name}: expected an integer, received {value!r}.")
             if value < minimum:
                 raise InvalidInputError(f"{name}: must be ≥ {minimum}, received {value}.")
+        if self.structure not in STRUCTURES:
+            raise InvalidInputError(
+                f"structure: expected one of {', '.join(STRUCTURES)}, received {self.structure!r}."
+            )
         if self.screen_touches_per_object == 1:
             raise InvalidInputError(
                 "screen_touches_per_object: must be 0 (no screening) or ≥ 2, received 1."
@@ -307,7 +330,8 @@ def fit_hyperparameters(
     if latents.shape[1] < 1:
         raise InvalidInputError(f"latents: need at least one column, received {latents.shape}.")
     normalised, _, _ = normalise_spread(latents)
-    likelihood = ManifoldLikelihood(data, latents.shape[1])
+    structure, _ = resolve_structure(data, options.structure)
+    likelihood = make_likelihood(data, latents.shape[1], structure, options.n_inducing)
     layout = likelihood.layout
     lower, upper = parameter_bounds(data, layout, max(options.latent_bound, 1.0))
     hyper = initial_hyperparameters(data, layout.latent_dim, options.initial_latent_lengthscale)
@@ -329,7 +353,7 @@ def fit_hyperparameters(
         hyperparameters_at_bounds=at_bounds,
     )
     s, h = normalise_latents(s, h)
-    return condition(data, s, h, diagnostics)
+    return condition(data, s, h, diagnostics, structure=structure, n_inducing=options.n_inducing)
 
 
 # --------------------------------------------------------------------------------------------
@@ -355,7 +379,7 @@ class _Start:
 class _Problem:
     """A likelihood with its bounds (all the data, or the screening subsample)."""
 
-    likelihood: ManifoldLikelihood
+    likelihood: Likelihood
     lower: FloatArray
     upper: FloatArray
 
@@ -391,7 +415,8 @@ class _FitRun:
         self.latent_dim = int(latent_dim)
         self.rng = rng
         self.options = options
-        full = ManifoldLikelihood(data, self.latent_dim)
+        self.structure, _ = resolve_structure(data, options.structure)
+        full = make_likelihood(data, self.latent_dim, self.structure, options.n_inducing)
         self.layout: ParameterLayout = full.layout
         lower, upper = parameter_bounds(data, self.layout, options.latent_bound)
         self.full = _Problem(full, lower, upper)
@@ -400,7 +425,11 @@ class _FitRun:
         k = options.screen_touches_per_object
         if k and np.any(counts > k):
             subset = self._subsample(k)
-            screen_likelihood = ManifoldLikelihood(subset, self.latent_dim)
+            # The screening subsample of a shared design is a shared design (see _subsample).
+            screen_structure = "kronecker" if self.structure == "kronecker" else options.structure
+            screen_likelihood = make_likelihood(
+                subset, self.latent_dim, screen_structure, options.n_inducing
+            )
             # Bounds stay those of all the data, so screened vectors are valid full vectors.
             self.screen = _Problem(screen_likelihood, lower, upper)
         self.starts: list[_Start] = []
@@ -411,6 +440,17 @@ class _FitRun:
     def _subsample(self, per_object: int) -> TrainingData:
         data = self.data
         keep: list[np.ndarray[Any, np.dtype[np.intp]]] = []
+        design = find_shared_design(data) if self.structure == "kronecker" else None
+        if design is not None:
+            # The same design actions for every object, so the subsample is a shared design.
+            chosen = self.rng.choice(design.size, size=per_object, replace=False)
+            rows = np.flatnonzero(np.isin(design.grid_index % design.size, chosen))
+            return TrainingData(
+                object_names=data.object_names,
+                object_index=data.object_index[rows],
+                actions=data.actions[rows],
+                observations=data.observations[rows],
+            )
         for obj in range(data.n_objects):
             idx = np.flatnonzero(data.object_index == obj)
             if idx.size > per_object:
@@ -692,7 +732,14 @@ class _FitRun:
         )
         latents, hyper = self.layout.unpack(winner.vector)
         latents, hyper = normalise_latents(latents, hyper)
-        return condition(self.data, latents, hyper, diagnostics)
+        return condition(
+            self.data,
+            latents,
+            hyper,
+            diagnostics,
+            structure=self.structure,
+            n_inducing=self.options.n_inducing,
+        )
 
     def best_model_so_far(self) -> ManifoldModel | None:
         """The best parameters reached so far, conditioned on all the data (or ``None``)."""
@@ -706,7 +753,9 @@ class _FitRun:
             return None
         best = min(done, key=lambda s: s.full_value)
         latents, hyper = normalise_latents(*self.layout.unpack(best.vector))
-        return condition(self.data, latents, hyper)
+        return condition(
+            self.data, latents, hyper, structure=self.structure, n_inducing=self.options.n_inducing
+        )
 
 
 def _at_bounds(
@@ -727,7 +776,7 @@ def _at_bounds(
 
 
 def _minimize(
-    likelihood: ManifoldLikelihood,
+    likelihood: Likelihood,
     base: FloatArray,
     free: np.ndarray[Any, np.dtype[np.bool_]],
     lower: FloatArray,

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
@@ -20,6 +20,7 @@ from core.kronecker import (
     require_shared_design,
 )
 from core.likelihood import ManifoldLikelihood
+from core.manifold import FitOptions, _FitRun, fit_manifold
 from core.moments import (
     ActionStatistics,
     action_statistics,
@@ -319,3 +320,26 @@ def test_recognition_runs_on_a_large_kronecker_model_without_a_dense_inverse() -
     assert np.isfinite(step.mutual_information)
     assert step.mutual_information > 0
     assert not model.posterior.has_dense_inverse
+
+
+def test_a_fit_on_a_shared_design_runs_through_kronecker_and_matches_the_dense_fit() -> None:
+    case = Case("fit", 3, 8, 2, 2, 1)
+    data, _, _ = make_problem(case, seed=19)
+    options = FitOptions(restarts=0, screen_touches_per_object=0, max_iterations=200)
+    kron = fit_manifold(data, 1, np.random.default_rng(20), options)
+    dense = fit_manifold(data, 1, np.random.default_rng(20), replace(options, structure="dense"))
+    assert kron.posterior.structure == "kronecker"
+    assert dense.posterior.structure == "dense"
+    assert kron.log_likelihood == pytest.approx(dense.log_likelihood, rel=1e-6)
+    np.testing.assert_allclose(np.abs(kron.latents), np.abs(dense.latents), atol=1e-3)
+
+
+def test_screening_a_shared_design_keeps_it_shared() -> None:
+    data, _, _ = make_problem(CASES[2], seed=21)
+    run = _FitRun(data, 2, np.random.default_rng(22), FitOptions(screen_touches_per_object=3))
+    assert isinstance(run.full.likelihood, KroneckerLikelihood)
+    assert run.screen is not None
+    assert isinstance(run.screen.likelihood, KroneckerLikelihood)
+    assert run.screen.likelihood.data.n_touches == CASES[2].n_objects * 3
+    with pytest.raises(InvalidInputError, match="structure: expected one of"):
+        FitOptions(structure="banded")  # type: ignore[arg-type]

@@ -11,6 +11,7 @@ import pytest
 from core.errors import InvalidInputError
 from core.information_gradient import mutual_information_and_gradient
 from core.likelihood import ManifoldLikelihood
+from core.manifold import FitOptions, fit_manifold
 from core.moments import action_statistics, mutual_information, predictive_moments
 from core.posterior import AUTO_SPARSE_ABOVE, condition, predict, resolve_structure
 from core.sparse import SparseLikelihood, condition_sparse, select_inducing_points
@@ -203,3 +204,16 @@ def test_many_objects_use_per_object_sums_with_the_same_moments_and_gradient(
             - mutual_information_and_gradient(model, belief, down)[0]
         ) / (2 * step)
     np.testing.assert_allclose(gradient, numeric, rtol=1e-5, atol=1e-8)
+
+
+def test_a_sparse_fit_conditions_a_sparse_model_on_the_same_inducing_points() -> None:
+    data, _, _ = make_problem(15, n_objects=3, touches=20)
+    options = FitOptions(restarts=0, structure="sparse", n_inducing=15, max_iterations=100)
+    model = fit_manifold(data, 2, np.random.default_rng(16), options)
+    assert model.posterior.structure == "sparse"
+    assert model.posterior.inducing is not None
+    np.testing.assert_array_equal(
+        model.posterior.inducing.touch_index, select_inducing_points(data, 15).touch_index
+    )
+    exact = condition(data, model.latents, model.hyperparameters, structure="dense")
+    assert model.log_likelihood < exact.log_likelihood
