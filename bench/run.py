@@ -1,0 +1,693 @@
+"""``activetouch bench``: every performance figure of issue 3 in one run, side by side.
+
+Sections (Experiment-2-like world: ds = 2, dx = 6, dy = 5; see :mod:`bench.scenarios`):
+
+a. **Log-likelihood + gradient** at L = 4, N = 400: ours (dense path on the paper's random
+   design; Kronecker path on a shared design of M = 100 actions) vs GPy (five ``GPRegression``
+   models, RBF ARD over the same 8 input dimensions, latents given) vs a direct dense numpy
+   evaluation (:mod:`bench.direct_likelihood`). At 1 and 2 BLAS threads.
+b. **A fit** at that shape: ours is one L-BFGS start of :func:`core.manifold.fit_manifold`
+   (``restarts=0``: the PCA start, hyperparameters with S frozen, then S and hyperparameters
+   jointly). GPy's is ``optimize()`` of the five models on inputs [S; x] with S = *our fitted
+   latents* held fixed, from the same initial hyperparameters as ours: GPy solves only the
+   hyperparameter part of our problem.
+c. **Mutual information per candidate**: ours (fresh action statistics + moments + MI for 256
+   candidates, divided by 256; and with the statistics reused) vs the direct appendix formula
+   (:mod:`bench.reference_moments`), and vs a floor: the FLOP count of the structured evaluation
+   (:func:`structured_mi_flops`) divided by the GEMM rate measured in the same run.
+d. **One planning step and one belief update** at L = 4 / N = 400 and L = 100 / N = 10,000.
+e. **Scaling** of one likelihood evaluation, one fit (one start), one planning step and the peak
+   memory (``ru_maxrss`` of a fresh process per point) against N = L·M for L ∈ {4, 20, 100, 400},
+   dense vs structured (Kronecker) on shared designs; a PNG plot.
+f. **Sparse accuracy** (full runs): the sparse inducing-point path against the exact dense path
+   on a random design (fit, latents, predictive, MI).
+
+Timings are medians of repeats, wall clock, BLAS threads pinned (``threadpoolctl``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench import gpy_models, scenarios
+from bench.direct_likelihood import direct_value_and_gradient
+from bench.harness import blas_threads, gemm_rate, machine, measure, ratio, run_child
+from bench.reference_moments import direct_moments_batch
+from core.initialisation import pca_latents
+from core.manifold import FitOptions, fit_manifold
+from core.metrics import procrustes_r2
+from core.moments import action_statistics, belief_terms, moments_from_terms, mutual_information
+from core.parameters import initial_hyperparameters
+from core.planning import ActionBox, ActivePolicy, Planner, sobol_candidates
+from core.posterior import make_likelihood, predict
+from core.recognition import RecognitionSession
+from core.types import ManifoldModel, TrainingData
+from core.worlds import RandomFeatureWorld
+
+Progress = Callable[[str], None]
+
+#: L values and touches per object of the scaling section.
+SCALING_OBJECTS = (4, 20, 100, 400)
+SCALING_PER_OBJECT = (25, 50, 100)
+#: Dense measurements stop at these sizes (the dense path is O(N³) time, O(N²) memory).
+DENSE_EVALUATE_MAX_N = 2000
+DENSE_FIT_MAX_N = 400
+
+
+@dataclass
+class Options:
+    """What to run.
+
+    Attributes:
+        quick: A reduced run (< 2 minutes): fewer repeats, no random-design fit comparison, no
+            sparse accuracy section, scaling up to L = 100 with the fits only up to N = 2,500.
+        threads: BLAS thread counts for the timing sections.
+        plot: Where to write the scaling plot (``None``: no plot).
+        seed: Seed of the worlds and data.
+    """
+
+    quick: bool = False
+    threads: tuple[int, ...] = (1, 2)
+    plot: Path | None = Path("artifacts/bench/scaling.png")
+    seed: int = 0
+    progress: Progress = field(default=lambda message: None)
+
+
+# -- FLOP model of the structured evaluation ---------------------------------------------------
+
+
+def structured_mi_flops(
+    n_support: int, n_objects: int, dx: int, dy: int, ds: int, kronecker_design: int = 0
+) -> float:
+    """Floating-point operations of one candidate's mutual information by the structured form.
+
+    Per candidate and feature (exp counted as one operation; multiply-add as two):
+
+    * kernels e_a(x): 2·n·dx (differences, squares) + 2·n·dx (the Λ⁻¹ contraction) + n (exp);
+    * u_a = Σ_{i∈l} β_ai e_ai: 2·n·L;
+    * T_a: Y = E K⁻¹ restricted to the blocks, 2·n²; then T[l, l'] = Σ_{i∈l} e_i Y[i, l'], 2·n·L;
+    * the moments: 2·dy·L² per feature pair (u_aᵀ G_ab u_b), 2·L² (the trace), 3·L·ds (C);
+    * the MI: dy³/3 + 2·ds·dy² + ds³ (Cholesky, solves, eigenvalues) per candidate.
+
+    With ``kronecker_design = M`` the statistics are those of :mod:`core.kronecker` instead:
+    kernels against the M design actions (4·M·dx + M), u = B e^x (2·L·M), ẽ = U_xᵀ e^x (2·M²),
+    t = D⁻¹ ẽ² (2·L·M + M), and the trace is a dot product of length L.
+
+    Returns:
+        The count per candidate (belief terms, O(dy² L² ds), are amortised over the candidates
+        and left out).
+    """
+    n, l = float(n_support), float(n_objects)  # noqa: E741
+    if kronecker_design:
+        m = float(kronecker_design)
+        statistics = dy * (4 * m * dx + m + 2 * l * m + 2 * m * m + 2 * l * m + m)
+        trace = dy * 2 * l
+    else:
+        statistics = dy * (4 * n * dx + n + 2 * n * l + 2 * n * n + 2 * n * l)
+        trace = dy * 2 * l * l
+    moments = dy * dy * 2 * l * l + dy * dy * 2 * l + trace + dy * 3 * l * ds
+    information = dy**3 / 3 + 2 * ds * dy**2 + ds**3
+    return float(statistics + moments + information)
+
+
+# -- sections ----------------------------------------------------------------------------------
+
+
+def _problem(
+    design: scenarios.DesignName, seed: int, n_objects: int = 4, per_object: int = 100
+) -> tuple[RandomFeatureWorld, TrainingData]:
+    world = scenarios.world(seed, n_objects)
+    data = scenarios.dataset(world, design, per_object, seed + 1)
+    return world, data
+
+
+def section_likelihood(options: Options, gpy: Any) -> dict[str, Any]:
+    """(a) one value + gradient at L = 4, N = 400."""
+    out: dict[str, Any] = {}
+    designs: tuple[scenarios.DesignName, ...] = ("random", "shared")
+    for design in designs:
+        out[design] = _likelihood_row(design, options, gpy)
+        options.progress(f"(a) likelihood, {design} design done")
+    return out
+
+
+def _likelihood_row(design: scenarios.DesignName, options: Options, gpy: Any) -> dict[str, Any]:
+    repeats = 5 if options.quick else 15
+    _, data = _problem(design, options.seed)
+    rng = np.random.default_rng(options.seed + 5)
+    latents = pca_latents(data, 2, rng)
+    hyper = initial_hyperparameters(data, 2)
+    likelihood = make_likelihood(data, 2)
+    vector = likelihood.layout.pack(latents, hyper)
+    ours_value, ours_grad = likelihood.value_and_gradient(vector)
+    row: dict[str, Any] = {"structure": type(likelihood).__name__}
+    direct_value, direct_grad = direct_value_and_gradient(data, latents, hyper)
+    row["agreement_direct"] = {
+        "value_rel": abs(ours_value - direct_value) / abs(direct_value),
+        "gradient_rel": float(
+            np.max(np.abs(ours_grad - direct_grad)) / np.max(np.abs(direct_grad))
+        ),
+    }
+    models = gpy_models.build_models(gpy, data, latents, hyper) if gpy is not None else None
+    if models is not None:
+        gpy_value, _ = gpy_models.value_and_gradient(models)
+        row["agreement_gpy"] = {"value_rel": abs(ours_value - gpy_value) / abs(gpy_value)}
+    for threads in options.threads:
+        with blas_threads(threads):
+            ours = measure(lambda: likelihood.value_and_gradient(vector), repeats, 2)
+            direct = measure(
+                lambda: direct_value_and_gradient(data, latents, hyper), max(2, repeats // 5), 1
+            )
+            gpy_s = None
+            if models is not None:
+                gpy_s = measure(lambda: gpy_models.value_and_gradient(models), repeats, 2).median_s
+        row[f"threads_{threads}"] = {
+            "ours_ms": 1e3 * ours.median_s,
+            "gpy_ms": None if gpy_s is None else 1e3 * gpy_s,
+            "direct_ms": 1e3 * direct.median_s,
+            "speedup_vs_gpy": ratio(gpy_s, ours.median_s),
+            "speedup_vs_direct": ratio(direct.median_s, ours.median_s),
+        }
+    return row
+
+
+def section_fit(options: Options, gpy: Any) -> dict[str, Any]:
+    """(b) one fit at L = 4, N = 400 against GPy's fit of the same data."""
+    out: dict[str, Any] = {}
+    designs: tuple[scenarios.DesignName, ...] = (
+        ("shared",) if options.quick else ("shared", "random")
+    )
+    for design in designs:
+        world, data = _problem(design, options.seed)
+        with blas_threads(1):
+            started = time.perf_counter()
+            rng = np.random.default_rng(options.seed + 6)
+            model = fit_manifold(data, 2, rng, FitOptions(restarts=0))
+            ours_s = time.perf_counter() - started
+            row: dict[str, Any] = {
+                "ours_s": ours_s,
+                "ours_log_likelihood": model.log_likelihood,
+                "ours_iterations": model.diagnostics.iterations if model.diagnostics else None,
+                "ours_structure": model.posterior.structure,
+                "ours_r2_truth": procrustes_r2(world.truth, model.latents),
+            }
+            if gpy is not None:
+                hyper = initial_hyperparameters(data, 2)
+                models = gpy_models.build_models(gpy, data, model.latents, hyper)
+                result = gpy_models.fit(models)
+                row.update(
+                    {
+                        "gpy_s": result.seconds,
+                        "gpy_log_likelihood": result.log_likelihood,
+                        "gpy_evaluations": result.evaluations,
+                        "speedup_vs_gpy": ratio(result.seconds, ours_s),
+                    }
+                )
+        out[design] = row
+        options.progress(f"(b) fit, {design} design done")
+    return out
+
+
+def _fresh_mi(model: ManifoldModel, actions: np.ndarray, belief: Any) -> np.ndarray:
+    stats = action_statistics(model, actions)
+    return mutual_information(moments_from_terms(model, belief_terms(model, belief), stats), belief)
+
+
+def section_mutual_information(options: Options) -> dict[str, Any]:
+    """(c) mutual information per candidate: ours vs the direct formula vs the FLOP floor."""
+    out: dict[str, Any] = {}
+    designs: tuple[scenarios.DesignName, ...] = ("random", "shared")
+    for design in designs:
+        out[design] = _mutual_information_row(design, options)
+        options.progress(f"(c) mutual information, {design} design done")
+    return out
+
+
+def _mutual_information_row(design: scenarios.DesignName, options: Options) -> dict[str, Any]:
+    n_candidates = 256
+    n_direct = 4 if options.quick else 12
+    world, data = _problem(design, options.seed)
+    model = scenarios.reference_model(world, data)
+    belief = scenarios.beliefs(model, 1, options.seed + 7)[0]
+    candidates = sobol_candidates(ActionBox.from_model(model), n_candidates, 0)
+    ours_mi = _fresh_mi(model, candidates, belief)
+    started = time.perf_counter()
+    _, _, _, direct_mi = direct_moments_batch(model, belief, candidates[:n_direct])
+    direct_s = (time.perf_counter() - started) / n_direct
+    factors = model.posterior.kronecker
+    flops = structured_mi_flops(
+        data.n_touches,
+        data.n_objects,
+        data.action_dim,
+        data.observation_dim,
+        model.latent_dim,
+        kronecker_design=factors.n_design if factors is not None else 0,
+    )
+    row: dict[str, Any] = {
+        "structure": model.posterior.structure,
+        "direct_ms_per_candidate": 1e3 * direct_s,
+        "max_rel_error_vs_direct": float(
+            np.max(np.abs(ours_mi[:n_direct] - direct_mi)) / np.max(np.abs(direct_mi))
+        ),
+        "flops_per_candidate": flops,
+    }
+    stats = action_statistics(model, candidates)
+
+    def reused() -> None:
+        terms = belief_terms(model, belief)
+        mutual_information(moments_from_terms(model, terms, stats), belief)
+
+    for threads in options.threads:
+        with blas_threads(threads):
+            rate = gemm_rate()
+            fresh_s = measure(lambda: _fresh_mi(model, candidates, belief), 10, 1).median_s
+            reused_s = measure(reused, 20, 2).median_s
+        per_candidate = fresh_s / n_candidates
+        floor = flops / rate
+        row[f"threads_{threads}"] = {
+            "gemm_gflops": rate / 1e9,
+            "ours_us_per_candidate": 1e6 * per_candidate,
+            "ours_reused_us_per_candidate": 1e6 * reused_s / n_candidates,
+            "floor_us_per_candidate": 1e6 * floor,
+            "ours_over_floor": per_candidate / floor,
+            "speedup_vs_direct": direct_s / per_candidate,
+            "reused_speedup_vs_direct": direct_s / (reused_s / n_candidates),
+        }
+    return row
+
+
+def section_planning(options: Options) -> dict[str, Any]:
+    """(d) one planning step and one belief update."""
+    out: dict[str, Any] = {}
+    cases: list[tuple[str, int, scenarios.DesignName]] = [
+        ("L4_random", 4, "random"),
+        ("L4_shared", 4, "shared"),
+        ("L100_M100_shared", 100, "shared"),
+        ("L100_N10000_random", 100, "random"),
+    ]
+    for name, n_objects, design in cases:
+        out[name] = _planning_row(n_objects, design, options)
+        options.progress(f"(d) planning, {name} done")
+    return out
+
+
+def _planning_row(n_objects: int, design: scenarios.DesignName, options: Options) -> dict[str, Any]:
+    world, data = _problem(design, options.seed, n_objects, 100)
+    started = time.perf_counter()
+    model = scenarios.reference_model(world, data)
+    condition_s = time.perf_counter() - started
+    started = time.perf_counter()
+    planner = Planner(model, ActivePolicy())
+    setup_s = time.perf_counter() - started
+    beliefs = scenarios.beliefs(model, 10, options.seed + 8)
+    rng = np.random.default_rng(options.seed + 9)
+    action = planner.plan(beliefs[0], rng).action
+    observation = world.observe(0, action[None, :], rng)[0]
+    cursor = iter(range(10**9))
+    repeats = 5 if options.quick else 20
+
+    def plan() -> None:
+        planner.plan(beliefs[next(cursor) % len(beliefs)], rng)
+
+    def update() -> None:
+        RecognitionSession(model, planner).observe(action, observation)
+
+    row: dict[str, Any] = {
+        "structure": model.posterior.structure,
+        "touches": data.n_touches,
+        "condition_s": condition_s,
+        "candidate_statistics_s": setup_s,
+    }
+    for threads in options.threads:
+        with blas_threads(threads):
+            plan_timing = measure(plan, repeats, 1)
+            update_timing = measure(update, repeats, 1)
+        row[f"threads_{threads}"] = {
+            "plan_ms": 1e3 * plan_timing.median_s,
+            "plan_p90_ms": 1e3 * plan_timing.p90_s,
+            "update_ms": 1e3 * update_timing.median_s,
+        }
+    return row
+
+
+def section_scaling(options: Options) -> list[dict[str, Any]]:
+    """(e) scaling against N for L ∈ {4, 20, 100, 400}, dense vs Kronecker (child processes)."""
+    points: list[dict[str, Any]] = []
+    objects = SCALING_OBJECTS[:3] if options.quick else SCALING_OBJECTS
+    per_object = SCALING_PER_OBJECT[:2] if options.quick else SCALING_PER_OBJECT
+    for n_objects in objects:
+        for m in per_object:
+            n = n_objects * m
+            configurations = [("kronecker", True, True)]
+            if n <= DENSE_EVALUATE_MAX_N:
+                configurations.append(("dense", n <= DENSE_FIT_MAX_N, True))
+            for structure, fit, plan in configurations:
+                if options.quick and n > 2500:
+                    fit = False
+                arguments = {
+                    "objects": n_objects,
+                    "per_object": m,
+                    "structure": structure,
+                    "fit": fit,
+                    "plan": plan,
+                    "evaluate": True,
+                    "seed": options.seed,
+                }
+                try:
+                    result = run_child("bench.worker", arguments, timeout_s=900)
+                except RuntimeError as exc:
+                    result = {**arguments, "touches": n, "error": str(exc)}
+                points.append(result)
+                options.progress(
+                    f"(e) scaling L={n_objects} M={m} {structure}: "
+                    + ", ".join(
+                        f"{key} {result[key]:.3g}"
+                        for key in ("evaluate_s", "fit_s", "plan_ms", "peak_mb")
+                        if isinstance(result.get(key), float)
+                    )
+                )
+    return points
+
+
+def section_sparse(options: Options) -> dict[str, Any]:
+    """(f) the sparse path against the exact dense path on the paper's random design."""
+    world, data = _problem("random", options.seed, 4, 100)
+    out: dict[str, Any] = {"touches": data.n_touches}
+    rng_seed = options.seed + 10
+    with blas_threads(1):
+        started = time.perf_counter()
+        exact = fit_manifold(data, 2, np.random.default_rng(rng_seed), FitOptions(restarts=0))
+        out["exact"] = {
+            "fit_s": time.perf_counter() - started,
+            "log_likelihood": exact.log_likelihood,
+            "r2_truth": procrustes_r2(world.truth, exact.latents),
+        }
+        probe_rng = np.random.default_rng(options.seed + 11)
+        queries = exact.latents[probe_rng.integers(data.n_objects, size=200)]
+        actions = probe_rng.standard_normal((200, data.action_dim))
+        mean_exact, var_exact = predict(exact, queries, actions)
+        belief = scenarios.beliefs(exact, 1, options.seed + 12)[0]
+        candidates = sobol_candidates(ActionBox.from_model(exact), 64, 0)
+        mi_exact = _fresh_mi(exact, candidates, belief)
+        exact_likelihood = make_likelihood(data, 2, "dense")
+        for m in (64, 128, 256):
+            started = time.perf_counter()
+            model = fit_manifold(
+                data,
+                2,
+                np.random.default_rng(rng_seed),
+                FitOptions(restarts=0, structure="sparse", n_inducing=m),
+            )
+            fit_s = time.perf_counter() - started
+            dense_view = make_likelihood(data, 2, "dense")
+            vector = dense_view.layout.pack(model.latents, model.hyperparameters)
+            mean_sparse, var_sparse = predict(model, queries, actions)
+            # MI of the sparse model's own posterior at the exact model's belief and candidates.
+            mi_sparse = _fresh_mi(model, candidates, belief)
+            out[f"m{m}"] = {
+                "fit_s": fit_s,
+                "bound": model.log_likelihood,
+                "exact_log_likelihood_at_sparse_fit": -exact_likelihood.value(vector),
+                "r2_truth": procrustes_r2(world.truth, model.latents),
+                "r2_vs_exact_latents": procrustes_r2(exact.latents, model.latents),
+                "predictive_mean_rmse_vs_exact": float(
+                    np.sqrt(np.mean((mean_sparse - mean_exact) ** 2))
+                ),
+                "predictive_sd_ratio_vs_exact": float(np.median(np.sqrt(var_sparse / var_exact))),
+                "mi_rel_error_vs_exact": float(
+                    np.median(np.abs(mi_sparse - mi_exact) / np.abs(mi_exact))
+                ),
+            }
+            options.progress(f"(f) sparse m={m} done")
+    return out
+
+
+# -- the run -----------------------------------------------------------------------------------
+
+
+def headline(figures: dict[str, Any]) -> dict[str, Any]:
+    """The JSON keys of issue 3 (``None`` when not measured in this run)."""
+
+    def get(*path: str) -> Any:
+        node: Any = figures
+        for key in path:
+            if not isinstance(node, dict) or key not in node:
+                return None
+            node = node[key]
+        return node
+
+    scaling = {
+        (p.get("objects"), p.get("per_object"), p.get("structure")): p
+        for p in figures.get("scaling", [])
+    }
+    l100 = scaling.get((100, 100, "kronecker"), {})
+    l400 = scaling.get((400, 100, "kronecker"), {})
+    return {
+        "mi_speedup_vs_direct": get(
+            "mutual_information", "random", "threads_1", "speedup_vs_direct"
+        ),
+        "mi_over_floor": get("mutual_information", "random", "threads_1", "ours_over_floor"),
+        "mi_us_per_candidate": get(
+            "mutual_information", "random", "threads_1", "ours_us_per_candidate"
+        ),
+        "fit_speedup_vs_gpy": get("fit", "shared", "speedup_vs_gpy"),
+        "fit_speedup_vs_gpy_random": get("fit", "random", "speedup_vs_gpy"),
+        "loglik_speedup_vs_gpy": get("likelihood", "random", "threads_1", "speedup_vs_gpy"),
+        "loglik_speedup_vs_gpy_shared": get("likelihood", "shared", "threads_1", "speedup_vs_gpy"),
+        "plan_ms_L4": get("planning", "L4_random", "threads_1", "plan_ms"),
+        "plan_ms_L4_shared": get("planning", "L4_shared", "threads_1", "plan_ms"),
+        "plan_ms_L100_M100": get("planning", "L100_M100_shared", "threads_1", "plan_ms"),
+        "plan_ms_L100_N10000_random_sparse": get(
+            "planning", "L100_N10000_random", "threads_1", "plan_ms"
+        ),
+        "update_ms_L4": get("planning", "L4_random", "threads_1", "update_ms"),
+        "update_ms_L100_M100": get("planning", "L100_M100_shared", "threads_1", "update_ms"),
+        "fit_s_L100_M100": l100.get("fit_s"),
+        "fit_s_L400_M100": l400.get("fit_s"),
+        "peak_mb_L400_M100": l400.get("peak_mb"),
+    }
+
+
+def run(options: Options) -> dict[str, Any]:
+    """Run every section; return all figures (``figures["headline"]`` has the JSON keys)."""
+    started = time.perf_counter()
+    gpy, gpy_note = gpy_models.load_gpy()
+    figures: dict[str, Any] = {
+        "machine_before": machine(),
+        "quick": options.quick,
+        "threads": list(options.threads),
+        "gpy": gpy_note,
+    }
+    options.progress(f"GPy: {gpy_note}")
+    figures["likelihood"] = section_likelihood(options, gpy)
+    figures["fit"] = section_fit(options, gpy)
+    figures["mutual_information"] = section_mutual_information(options)
+    figures["planning"] = section_planning(options)
+    figures["scaling"] = section_scaling(options)
+    if not options.quick:
+        figures["sparse"] = section_sparse(options)
+    if options.plot is not None:
+        figures["plot"] = str(plot_scaling(figures["scaling"], options.plot))
+    figures["machine_after"] = machine()
+    figures["seconds"] = time.perf_counter() - started
+    figures["headline"] = headline(figures)
+    return figures
+
+
+def plot_scaling(points: list[dict[str, Any]], path: Path) -> Path:
+    """Write the scaling curves (fit/evaluation time, planning time, peak memory vs N)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = [
+        ("evaluate_s", "likelihood + gradient (s)"),
+        ("fit_s", "fit, one start (s)"),
+        ("plan_ms", "planning step (ms)"),
+        ("peak_mb", "peak RSS (MB)"),
+    ]
+    figure, axes = plt.subplots(1, len(panels), figsize=(18, 4.2))
+    colours = dict(zip(SCALING_OBJECTS, ("C0", "C1", "C2", "C3"), strict=True))
+    for axis, (key, label) in zip(axes, panels, strict=True):
+        for n_objects in SCALING_OBJECTS:
+            for structure, style in (("kronecker", "-o"), ("dense", "--s")):
+                series = sorted(
+                    (p["touches"], p[key])
+                    for p in points
+                    if p.get("objects") == n_objects
+                    and p.get("structure") == structure
+                    and isinstance(p.get(key), int | float)
+                )
+                if series:
+                    n, value = zip(*series, strict=True)
+                    axis.plot(
+                        n,
+                        value,
+                        style,
+                        color=colours[n_objects],
+                        label=f"L={n_objects} {structure}",
+                        markersize=4,
+                    )
+        axis.set_xscale("log")
+        axis.set_yscale("log")
+        axis.set_xlabel("N = L·M touches")
+        axis.set_title(label)
+        axis.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=7)
+    figure.suptitle("ActiveTouch scaling: Kronecker (solid) vs dense (dashed), shared designs")
+    figure.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+    return path
+
+
+# -- the report --------------------------------------------------------------------------------
+
+
+def _fmt(value: Any, spec: str = ".3g") -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, float):
+        return format(value, spec)
+    return str(value)
+
+
+def report(figures: dict[str, Any]) -> str:
+    """The human-readable tables of a run."""
+    lines: list[str] = []
+    add = lines.append
+    before, after = figures["machine_before"], figures.get("machine_after", {})
+    add(
+        f"machine: {before['cpus']} CPUs, {', '.join(before['blas'])}; load average "
+        f"{before['load_average_1_5_15']} before, {after.get('load_average_1_5_15')} after; "
+        f"{figures['gpy']}; run took {figures.get('seconds', 0):.0f} s"
+        + (" (quick)" if figures["quick"] else "")
+    )
+    threads = figures["threads"]
+    add("")
+    add("(a) log-likelihood + gradient, L=4 N=400 dx=6 dy=5 ds=2 (median ms)")
+    add(
+        f"  {'design':8s} {'path':22s} {'thr':>3s} {'ours':>8s} {'GPy':>8s} {'direct':>8s} "
+        f"{'GPy/ours':>9s} {'direct/ours':>11s}"
+    )
+    for design, row in figures["likelihood"].items():
+        for t in threads:
+            r = row[f"threads_{t}"]
+            add(
+                f"  {design:8s} {row['structure']:22s} {t:3d} {_fmt(r['ours_ms'], '8.2f')} "
+                f"{_fmt(r['gpy_ms'], '8.2f'):>8s} {_fmt(r['direct_ms'], '8.1f')} "
+                f"{_fmt(r['speedup_vs_gpy'], '9.1f'):>9s} {_fmt(r['speedup_vs_direct'], '11.0f')}"
+            )
+        agreement = row["agreement_direct"]
+        add(
+            f"  {'':8s} agreement with direct: value {agreement['value_rel']:.1e}, gradient "
+            f"{agreement['gradient_rel']:.1e}"
+            + (
+                f"; with GPy: value {row['agreement_gpy']['value_rel']:.1e}"
+                if "agreement_gpy" in row
+                else ""
+            )
+        )
+    add("")
+    add("(b) one fit, L=4 N=400 (ours: one L-BFGS start of S and hyperparameters; GPy: the")
+    add("    hyperparameters of 5 GPRegression models with our fitted S held fixed), 1 thread")
+    add(
+        f"  {'design':8s} {'path':10s} {'ours s':>8s} {'iters':>6s} {'GPy s':>8s} "
+        f"{'GPy evals':>9s} {'GPy/ours':>9s} {'ours loglik':>12s} {'GPy loglik':>11s}"
+    )
+    for design, row in figures["fit"].items():
+        add(
+            f"  {design:8s} {row['ours_structure']:10s} {row['ours_s']:8.2f} "
+            f"{_fmt(row['ours_iterations']):>6s} {_fmt(row.get('gpy_s'), '8.2f'):>8s} "
+            f"{_fmt(row.get('gpy_evaluations')):>9s} "
+            f"{_fmt(row.get('speedup_vs_gpy'), '9.2f'):>9s} {row['ours_log_likelihood']:12.1f} "
+            f"{_fmt(row.get('gpy_log_likelihood'), '11.1f'):>11s}"
+        )
+    add("")
+    add("(c) mutual information per candidate (256 candidates, fresh action statistics)")
+    add(
+        f"  {'design':8s} {'thr':>3s} {'ours us':>8s} {'reused us':>9s} {'floor us':>8s} "
+        f"{'ours/floor':>10s} {'direct ms':>9s} {'direct/ours':>11s} {'GEMM GF/s':>9s}"
+    )
+    for design, row in figures["mutual_information"].items():
+        for t in threads:
+            r = row[f"threads_{t}"]
+            add(
+                f"  {design:8s} {t:3d} {r['ours_us_per_candidate']:8.2f} "
+                f"{r['ours_reused_us_per_candidate']:9.3f} {r['floor_us_per_candidate']:8.2f} "
+                f"{r['ours_over_floor']:10.2f} {row['direct_ms_per_candidate']:9.2f} "
+                f"{r['speedup_vs_direct']:11.0f} {r['gemm_gflops']:9.1f}"
+            )
+        add(
+            f"  {'':8s} max rel. error vs direct {row['max_rel_error_vs_direct']:.1e}; "
+            f"{row['flops_per_candidate']:.3g} flop per candidate ({row['structure']})"
+        )
+    add("")
+    add("(d) planning step and belief update (median ms; default Planner: 256 Sobol candidates,")
+    add("    1 L-BFGS-B refinement)")
+    add(
+        f"  {'case':20s} {'path':10s} {'thr':>3s} {'plan ms':>8s} {'p90':>7s} {'update ms':>9s} "
+        f"{'cand. stats s':>13s}"
+    )
+    for name, row in figures["planning"].items():
+        for t in threads:
+            r = row[f"threads_{t}"]
+            add(
+                f"  {name:20s} {row['structure']:10s} {t:3d} {r['plan_ms']:8.2f} "
+                f"{r['plan_p90_ms']:7.2f} {r['update_ms']:9.2f} "
+                f"{row['candidate_statistics_s']:13.3f}"
+            )
+    add("")
+    add("(e) scaling (fresh process per point, 1 thread; fit = one L-BFGS start)")
+    add(
+        f"  {'L':>4s} {'M':>4s} {'N':>6s} {'path':10s} {'eval s':>8s} {'fit s':>8s} "
+        f"{'iters':>6s} {'plan ms':>8s} {'update ms':>9s} {'peak MB':>8s}"
+    )
+    for p in figures["scaling"]:
+        if "error" in p:
+            add(
+                f"  {p['objects']:4d} {p['per_object']:4d} {p['touches']:6d} "
+                f"{p['structure']:10s} error: {p['error'][:60]}"
+            )
+            continue
+        add(
+            f"  {p['objects']:4d} {p['per_object']:4d} {p['touches']:6d} {p['structure']:10s} "
+            f"{_fmt(p.get('evaluate_s'), '8.4f'):>8s} {_fmt(p.get('fit_s'), '8.2f'):>8s} "
+            f"{_fmt(p.get('fit_iterations')):>6s} {_fmt(p.get('plan_ms'), '8.2f'):>8s} "
+            f"{_fmt(p.get('update_ms'), '9.2f'):>9s} {_fmt(p.get('peak_mb'), '8.0f'):>8s}"
+        )
+    if "sparse" in figures:
+        s = figures["sparse"]
+        add("")
+        add(f"(f) sparse path vs exact dense, random design N={s['touches']} (one start each)")
+        e = s["exact"]
+        add(
+            f"  exact: fit {e['fit_s']:.1f} s, log-lik {e['log_likelihood']:.1f}, "
+            f"R² to truth {e['r2_truth']:.4f}"
+        )
+        for key, r in s.items():
+            if not key.startswith("m"):
+                continue
+            add(
+                f"  {key:5s}: fit {r['fit_s']:.1f} s, bound {r['bound']:.1f}, exact log-lik at "
+                f"its optimum {r['exact_log_likelihood_at_sparse_fit']:.1f}, R² to truth "
+                f"{r['r2_truth']:.4f}, to exact latents {r['r2_vs_exact_latents']:.4f}, "
+                f"predictive mean RMSE {r['predictive_mean_rmse_vs_exact']:.3g}, sd ratio "
+                f"{r['predictive_sd_ratio_vs_exact']:.3g}, MI rel. error "
+                f"{r['mi_rel_error_vs_exact']:.3g}"
+            )
+    add("")
+    add("headline:")
+    for key, value in figures["headline"].items():
+        add(f"  {key:36s} {_fmt(value, '.4g')}")
+    if figures.get("plot"):
+        add(f"plot: {figures['plot']}")
+    return "\n".join(lines)
