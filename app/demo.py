@@ -19,7 +19,6 @@ Use :class:`DemoServer` to embed the same composition (the browser tests do).
 
 from __future__ import annotations
 
-import logging
 import secrets
 import signal
 import threading
@@ -41,6 +40,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from app.config import Settings, is_loopback
 from app.documents import write_training_csv
 from app.main import API_PREFIX, create_app
+from app.server_cli import GracefulServer
 from app.viz import ManifoldView, TrialFollower
 from core.worlds import sample_experiment1
 
@@ -202,7 +202,7 @@ class DemoServer:
             log_level="warning",
             timeout_graceful_shutdown=2,
         )
-        self._server = uvicorn.Server(config)
+        self._server = GracefulServer(config)
         self._thread = threading.Thread(target=self._server.run, name="demo-uvicorn", daemon=True)
         self._thread.start()
         deadline = time.monotonic() + 120.0
@@ -233,9 +233,8 @@ class DemoServer:
             self._follower.stop()
             self._follower = None
         if self._server is not None:
-            # Open event streams (browser tabs) are cancelled after the grace period; uvicorn
-            # logs each as an error with a traceback. That is the expected way they end here.
-            logging.getLogger("uvicorn.error").setLevel(logging.CRITICAL)
+            # GracefulServer ends the open event streams (browser tabs) before it waits for
+            # connections, so they close cleanly (no cancelled responses, no tracebacks).
             self._server.should_exit = True
         if self._thread is not None:
             self._thread.join(timeout=10.0)

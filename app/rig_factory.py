@@ -27,7 +27,7 @@ from hardware.errors import ConfigurationError
 from hardware.finger import DYNAMIXEL_BAUDRATE, Finger, FingerConfig
 from hardware.records import TouchRecord
 from hardware.rig import Rig, RigConfig, RigLease, TouchProgress
-from hardware.sim.materials import PAPER_CUPS
+from hardware.sim.materials import DEFAULT_TABLE
 from hardware.sim.rig import SimulatedRig, in_process_rig, pty_rig
 from hardware.tactile import TACTILE_BAUDRATE, TactileConfig, TactileSensor
 from hardware.teaching import PAPER_TOUCH_DURATION_S, teaching_trajectory
@@ -79,6 +79,19 @@ class RigHandle:
         """Objects on a simulated table by slot (None for a real rig: the operator knows)."""
         return None if self.simulation is None else self.simulation.object_names
 
+    def object_properties(self) -> dict[str, dict[str, float | str | int]] | None:
+        """What is known of each object of a simulated table, by name (None for a real rig).
+
+        Each record holds the ``slot`` and the object's material and temperature (see
+        :meth:`hardware.sim.materials.TactileObject.properties`).
+        """
+        if self.simulation is None:
+            return None
+        return {
+            item.name: {"slot": slot, **item.properties()}
+            for slot, item in self.simulation.objects_by_slot.items()
+        }
+
     def close(self) -> None:
         """Close the ports (and stop the emulators of a simulation)."""
         if self.simulation is not None:
@@ -113,7 +126,7 @@ def open_rig(
     *,
     ports: RigPorts | None = None,
     simulate: SimulationMode | None = None,
-    objects: Sequence[str] = PAPER_CUPS,
+    objects: Sequence[str] = DEFAULT_TABLE,
     seed: int = 0,
     speed: float | None = None,
     rig_config: RigConfig | None = None,
@@ -123,7 +136,8 @@ def open_rig(
     Args:
         ports: Serial ports of a real rig (ignored when ``simulate`` is given).
         simulate: Simulate the devices in process or behind pseudo-terminals.
-        objects: Preset objects of a simulated table, slot 0 first.
+        objects: Preset objects of a simulated table, slot 0 first (default: the paper's four
+            cups, then a ceramic mug, a wooden block and a foam sponge).
         seed: Seed of the simulated world.
         speed: Simulated seconds per real second. In process, None means virtual time (as fast
             as the computer goes); behind pseudo-terminals the default is 20.

@@ -2,17 +2,51 @@
 
 :func:`serve` is the function; :func:`serve_command` is the typer command the CLI registers
 (``app.command("serve")(serve_command)``). ``python -m app.server_cli`` runs it on its own.
+:class:`GracefulServer` is the uvicorn server both ``serve`` and the demo run: its shutdown ends
+the open event streams first, so it neither hangs on them nor cancels them with tracebacks.
 """
 
 from __future__ import annotations
 
+import socket
+import sys
 from typing import Annotated, Any, Literal
 
 import typer
 import uvicorn
+from starlette.applications import Starlette
 
 from app.config import ConfigurationError, Settings
 from app.main import create_app
+
+#: Seconds uvicorn waits for open responses at shutdown before cancelling them.
+GRACEFUL_SHUTDOWN_S = 5
+
+
+def end_event_streams(app: object) -> None:
+    """Close the event bus of an app built by :func:`~app.main.create_app` (if it has started).
+
+    Its SSE streams then return after what they have sent, and their responses complete.
+    """
+    state = app.state if isinstance(app, Starlette) else None
+    context = getattr(state, "context", None)
+    if context is not None:
+        context.events.close()
+
+
+class GracefulServer(uvicorn.Server):
+    """A uvicorn server that ends the app's event streams as soon as its shutdown begins.
+
+    uvicorn waits for open responses before the app's lifespan shutdown; an event stream never
+    ends by itself, so a plain server waits for ever (or ``timeout_graceful_shutdown``) and then
+    cancels each stream, logging "Exception in ASGI application" with a traceback per stream.
+    Closing the event bus first lets every stream finish its response cleanly.
+    """
+
+    async def shutdown(self, sockets: list[socket.socket] | None = None) -> None:
+        """End the event streams, then shut down as uvicorn does."""
+        end_event_streams(self.config.app)
+        await super().shutdown(sockets)
 
 
 def serve(
@@ -50,7 +84,17 @@ def serve(
     }
     settings = Settings(**overrides)
     app = create_app(settings)  # refuses unsafe settings before anything binds
-    uvicorn.run(app, host=settings.host, port=settings.port, log_level=log_level)
+    config = uvicorn.Config(
+        app,
+        host=settings.host,
+        port=settings.port,
+        log_level=log_level,
+        timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S,
+    )
+    server = GracefulServer(config)
+    server.run()
+    if not server.started:  # as uvicorn.run: the port was taken, or the app failed to start
+        sys.exit(3)
 
 
 def serve_command(

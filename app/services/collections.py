@@ -2,7 +2,8 @@
 
 Each touch is stored as a sample (with its raw tactile series) the moment it is recorded; the
 dataset is ``collecting`` during the run, then ``ready`` (or ``failed`` if too little was
-gathered to learn from).
+gathered to learn from). Each ``collection.progress`` event carries the touch's features and a
+thinned copy of its raw tactile series (``trace``: at most 200 frames) for the live plot.
 """
 
 from __future__ import annotations
@@ -20,9 +21,9 @@ from app.errors import AppError, BadInputError, ConflictError, NotFoundError
 from app.models import Run
 from app.rig_factory import iter_collect
 from app.schemas import CollectionCreate, Page, RunPublic
-from app.services import states
+from app.services import objects, states
 from app.services.events import EventBus
-from app.services.rig import RigService, raw_series
+from app.services.rig import RigService, raw_series, trace_preview
 from app.services.runs import RunCancelled, RunHandle, RunManager
 from core.errors import CoreError
 from core.validation import FloatArray
@@ -108,6 +109,9 @@ class CollectionService:
         )
         for item in body.objects:
             crud.set_object_slot(session, item.name, item.slot)
+        objects.record_known_properties(
+            session, {o.name: o.slot for o in body.objects}, self._rig.object_properties()
+        )
         run = crud.create_run(
             session,
             kind=KIND,
@@ -202,6 +206,7 @@ class CollectionService:
                 "status": status,
                 "object": name,
                 "observation": record.observation.tolist(),
+                "trace": trace_preview(record),
             },
         )
 

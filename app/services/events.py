@@ -4,6 +4,11 @@ Publishers (request handlers and worker threads) call :meth:`EventBus.publish` a
 transaction has committed. Every event is stored (the table keeps the newest ``keep``), so a
 client reconnecting with ``Last-Event-ID`` gets what it missed, even across a server restart.
 Subscribers are async generators in the server's event loop, woken thread-safely.
+
+:meth:`EventBus.close` ends every open stream (and any opened later) after what it has sent, so
+a server that is shutting down sees its SSE responses complete instead of having to cancel them
+(uvicorn logs each cancelled response as an error with a traceback). The server calls it when
+its shutdown begins (:class:`app.server_cli.GracefulServer`), before it waits for connections.
 """
 
 from __future__ import annotations
@@ -51,6 +56,7 @@ class EventBus:
         self._recent: deque[Event] = deque(maxlen=recent)
         self._waiters: set[tuple[asyncio.AbstractEventLoop, asyncio.Event]] = set()
         self._published = 0
+        self._closed = False
         with database.session() as session:
             self._last_id = crud.last_event_id(session)
 
@@ -58,6 +64,29 @@ class EventBus:
     def last_id(self) -> int:
         """Sequence id of the newest event."""
         return self._last_id
+
+    @property
+    def closed(self) -> bool:
+        """Whether :meth:`close` was called (streams end; events are still stored)."""
+        return self._closed
+
+    def close(self) -> None:
+        """End the open streams (and any later one) once they are idle. Thread-safe, idempotent.
+
+        Publishing still works (background runs finishing during shutdown are recorded); clients
+        catch up with ``Last-Event-ID`` when they reconnect to the next server.
+        """
+        with self._lock:
+            self._closed = True
+            waiters = list(self._waiters)
+        self._wake(waiters)
+
+    @staticmethod
+    def _wake(waiters: list[tuple[asyncio.AbstractEventLoop, asyncio.Event]]) -> None:
+        for loop, flag in waiters:
+            # RuntimeError: the loop was closed (a client gone at shutdown).
+            with contextlib.suppress(RuntimeError):
+                loop.call_soon_threadsafe(flag.set)
 
     def publish(self, type_: str, data: dict[str, Any]) -> Event:
         """Store an event and wake the subscribers. Call outside any open write transaction."""
@@ -72,10 +101,7 @@ class EventBus:
             self._recent.append(event)
             self._last_id = event_id
             waiters = list(self._waiters)
-        for loop, flag in waiters:
-            # RuntimeError: the loop was closed (a client gone at shutdown).
-            with contextlib.suppress(RuntimeError):
-                loop.call_soon_threadsafe(flag.set)
+        self._wake(waiters)
         return event
 
     def after(self, after_id: int, limit: int = 1000) -> list[Event]:
@@ -94,7 +120,10 @@ class EventBus:
     async def stream(
         self, after_id: int, follow: bool, heartbeat_s: float = 15.0
     ) -> AsyncIterator[Event]:
-        """Yield events after ``after_id``; then, if ``follow``, new ones as they come."""
+        """Yield events after ``after_id``; then, if ``follow``, new ones as they come.
+
+        A following stream ends (returns) once the bus is closed and the backlog is sent.
+        """
         loop = asyncio.get_running_loop()
         flag = asyncio.Event()
         waiter = (loop, flag)
@@ -108,9 +137,9 @@ class EventBus:
                 for event in batch:
                     cursor = event.id
                     yield event
-                if batch:
+                if batch and not self._closed:
                     continue
-                if not follow:
+                if not follow or self._closed:
                     return
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(flag.wait(), timeout=heartbeat_s)

@@ -1,7 +1,7 @@
 """The rig of this server (mock or serial) and what may drive it.
 
 - The rig is built on first use from the settings (``hardware=mock``: an in-process simulated
-  rig with the paper's four cups; ``serial``: the configured ports).
+  rig with the paper's four cups and three more objects; ``serial``: the configured ports).
 - Operator actions (connect, home, turntable) take the rig for their duration; a run (a rig
   trial or a collection) holds it from start to end. A second taker gets a 409 naming the holder
   (:class:`app.services.runs.RunManager`).
@@ -56,6 +56,33 @@ def raw_series(record: TouchRecord) -> dict[str, Any]:
         "joint_times_s": record.joint_times_s.tolist(),
         "joint_positions_deg": record.joint_positions_deg.tolist(),
         **touch_trajectory(record),
+    }
+
+
+def trace_preview(record: TouchRecord, max_points: int = 200) -> dict[str, Any]:
+    """The raw tactile series of a touch, thinned for a live plot.
+
+    Frames are picked at evenly spaced indices (first and last kept), so the values are raw
+    samples, not averages; a touch with fewer frames than ``max_points`` is sent whole.
+
+    Args:
+        record: The touch.
+        max_points: Most frames to keep (at least 2).
+
+    Returns:
+        ``channel_names`` (C,), ``tactile_times_s`` (P,), ``tactile`` (P, C) with
+        P = min(n_frames, max_points), and ``n_frames`` (frames recorded).
+    """
+    if max_points < 2:
+        raise ValueError(f"max_points: expected at least 2, received {max_points}.")
+    n = int(record.tactile_times_s.shape[0])
+    index = np.arange(n) if n <= max_points else np.linspace(0, n - 1, max_points).round()
+    index = index.astype(np.intp)
+    return {
+        "channel_names": list(record.channel_names),
+        "tactile_times_s": record.tactile_times_s[index].tolist(),
+        "tactile": record.tactile[index].tolist(),
+        "n_frames": n,
     }
 
 
@@ -166,6 +193,7 @@ class RigService:
                 "touches": status.touches,
                 "devices": status.devices,
                 "objects_by_slot": handle.object_names,
+                "object_properties": handle.object_properties(),
             },
         )
 
@@ -243,6 +271,10 @@ class RigService:
             handle.rig.estop("run aborted")
 
     # --- touching -----------------------------------------------------------------------------
+
+    def object_properties(self) -> dict[str, dict[str, Any]] | None:
+        """A simulated table's objects by name: slot, material and temperature (None: real rig)."""
+        return self.handle().object_properties()
 
     def slot_of(self, name: str) -> int | None:
         """The slot of a simulated table's object called ``name`` (None if unknown)."""

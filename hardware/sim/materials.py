@@ -75,6 +75,26 @@ class TactileObject:
     temperature_c: float = 22.0
     contact_angle_deg: float = 20.0
 
+    def properties(self) -> dict[str, float | str]:
+        """What is known of the object, as a flat record with units in the keys.
+
+        Keys: ``material``, ``stiffness_n_per_mm``, ``friction``, ``stick_slip``,
+        ``roughness_um``, ``texture_period_mm``, ``thermal_effusivity_w_s05_per_m2_k``,
+        ``temperature_c``, ``contact_angle_deg``.
+        """
+        m = self.material
+        return {
+            "material": m.name,
+            "stiffness_n_per_mm": m.stiffness_n_per_mm,
+            "friction": m.friction,
+            "stick_slip": m.stick_slip,
+            "roughness_um": m.roughness_um,
+            "texture_period_mm": m.texture_period_mm,
+            "thermal_effusivity_w_s05_per_m2_k": m.effusivity,
+            "temperature_c": self.temperature_c,
+            "contact_angle_deg": self.contact_angle_deg,
+        }
+
 
 PAPER = Material("paper (coated board)", 0.35, 0.55, 0.15, 6.0, 0.4, 450.0)
 GLASS_BUMPY = Material("glass, moulded bumps", 60.0, 0.70, 0.25, 80.0, 3.0, 1450.0)
@@ -106,6 +126,11 @@ OBJECTS: dict[str, TactileObject] = {
 
 PAPER_CUPS: tuple[str, ...] = ("paper_cup", "bumpy_glass", "clear_plastic_cup", "stainless_cup")
 """The paper's four objects, in its order O1..O4."""
+
+DEFAULT_TABLE: tuple[str, ...] = (*PAPER_CUPS, "ceramic_mug", "wooden_block", "foam_sponge")
+"""What stands on a simulated turntable by default (slot 0 first): the paper's four cups in
+slots 0-3, then three objects that differ from them in kind (a rigid glazed mug, a rough wooden
+block, a soft open-cell foam sponge)."""
 
 
 def get_object(

@@ -26,7 +26,7 @@ from hardware.finger import DYNAMIXEL_BAUDRATE, Finger, FingerConfig
 from hardware.rig import Rig, RigConfig
 from hardware.sim.dynamixel_device import DynamixelBus
 from hardware.sim.grbl_device import GrblDevice
-from hardware.sim.materials import PAPER_CUPS, TactileObject, get_object
+from hardware.sim.materials import DEFAULT_TABLE, TactileObject, get_object
 from hardware.sim.pty import PtyEmulator
 from hardware.sim.tactile_device import TactileSource
 from hardware.sim.world import FingerModel, NoiseModel, Plant
@@ -67,7 +67,7 @@ class SimulatedDevices:
 
 
 def simulated_devices(
-    objects: Sequence[str | TactileObject] = PAPER_CUPS,
+    objects: Sequence[str | TactileObject] = DEFAULT_TABLE,
     *,
     clock: Clock,
     seed: int = 0,
@@ -131,6 +131,11 @@ class SimulatedRig:
         """Objects on the table, by slot."""
         return [self.devices.objects_by_slot[s].name for s in sorted(self.devices.objects_by_slot)]
 
+    @property
+    def objects_by_slot(self) -> dict[int, TactileObject]:
+        """Objects on the table with what is known of them (material, temperature), by slot."""
+        return dict(sorted(self.devices.objects_by_slot.items()))
+
     def slot_of(self, name: str) -> int:
         """The slot of an object."""
         return self.devices.slot_of(name)
@@ -177,7 +182,7 @@ def _assemble(
 
 
 def in_process_rig(
-    objects: Sequence[str | TactileObject] = PAPER_CUPS,
+    objects: Sequence[str | TactileObject] = DEFAULT_TABLE,
     *,
     seed: int = 0,
     clock: Clock | None = None,
@@ -191,7 +196,7 @@ def in_process_rig(
     """A rig on in-process simulated devices (fast; deterministic with the default clock).
 
     Args:
-        objects: Objects in slots 0, 1, ...
+        objects: Objects in slots 0, 1, ... (default: the paper's four cups and three more).
         seed: World seed.
         clock: Simulation clock (default: a new :class:`~hardware.clock.VirtualClock`).
         frame_rate_hz: Tactile frame rate.
@@ -226,7 +231,7 @@ def start_emulators(devices: SimulatedDevices) -> dict[str, PtyEmulator]:
 
 
 def pty_rig(
-    objects: Sequence[str | TactileObject] = PAPER_CUPS,
+    objects: Sequence[str | TactileObject] = DEFAULT_TABLE,
     *,
     seed: int = 0,
     speed: float = 20.0,
@@ -240,7 +245,7 @@ def pty_rig(
     """A rig whose drivers talk to emulators on pseudo-terminals through pyserial.
 
     Args:
-        objects: Objects in slots 0, 1, ...
+        objects: Objects in slots 0, 1, ... (default: the paper's four cups and three more).
         seed: World seed.
         speed: Simulated seconds per real second.
         frame_rate_hz: Tactile frame rate.

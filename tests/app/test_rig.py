@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import time
 from typing import Any
 
@@ -10,6 +11,7 @@ import numpy as np
 from app.documents import model_to_document, read_training_csv
 from core.posterior import condition
 from core.types import Hyperparameters
+from hardware.frames import CHANNELS
 from tests.app.conftest import TestClient
 
 API = "/api/v1"
@@ -31,7 +33,13 @@ def test_rig_operations_and_estop(client: TestClient) -> None:
     connected = client.post(f"{API}/rig/connect").json()
     assert connected["connected"] is True
     assert connected["state"] == "idle"
-    assert connected["detail"]["objects_by_slot"][:2] == CUPS
+    assert connected["detail"]["objects_by_slot"] == [
+        "paper_cup", "bumpy_glass", "clear_plastic_cup", "stainless_cup",
+        "ceramic_mug", "wooden_block", "foam_sponge",
+    ]  # fmt: skip
+    known = connected["detail"]["object_properties"]
+    assert known["foam_sponge"]["slot"] == 6
+    assert known["stainless_cup"]["thermal_effusivity_w_s05_per_m2_k"] == 7600.0
     assert client.post(f"{API}/rig/turntable", json={"slot": 2}).json()["detail"]["slot"] == 2
     bad = client.post(f"{API}/rig/turntable", json={"slot": 99})
     assert bad.status_code == 422
@@ -91,10 +99,35 @@ def test_collection_then_rig_trial_hold_the_rig(client: TestClient) -> None:
     assert dataset["status"] == "ready"
     assert (dataset["n_samples"], dataset["action_dim"], dataset["observation_dim"]) == (4, 6, 5)
     assert dataset["objects"] == CUPS
-    slots = {o["name"]: o["slot"] for o in client.get(f"{API}/objects").json()["data"]}
-    assert slots["bumpy_glass"] == 1
-    events = client.get(f"{API}/events?after=0&follow=false").text
-    assert events.count('"type": "collection.progress"') == 4
+    registry = {o["name"]: o for o in client.get(f"{API}/objects").json()["data"]}
+    assert registry["bumpy_glass"]["slot"] == 1
+    glass = registry["bumpy_glass"]["properties"]  # what the simulated table knows of it
+    assert glass["material"] == "glass, moulded bumps"
+    assert glass["stiffness_n_per_mm"] == 60.0
+    assert glass["friction"] == 0.70
+    assert glass["roughness_um"] == 80.0
+    assert glass["thermal_effusivity_w_s05_per_m2_k"] == 1450.0
+    assert glass["temperature_c"] == 22.0
+    assert "slot" not in glass
+    events = [
+        json.loads(line.removeprefix("data: "))
+        for line in client.get(f"{API}/events?after=0&follow=false").text.splitlines()
+        if line.startswith("data: ")
+    ]
+    progress = [e["data"] for e in events if e["type"] == "collection.progress"]
+    assert len(progress) == 4
+    for event in progress:  # the live trace of the touch just recorded, thinned
+        trace = event["trace"]
+        assert trace["channel_names"] == list(CHANNELS)
+        times, tactile = np.array(trace["tactile_times_s"]), np.array(trace["tactile"])
+        assert trace["n_frames"] > 1000  # a 14.4 s touch at 100 frames/s
+        assert tactile.shape == (200, 5)
+        assert times.shape == (200,)
+        assert np.all(np.diff(times) > 0)
+        assert times[0] >= 0.0
+        assert times[-1] > 14.0
+        # Raw frames, not averages: the trace's per-channel mean is close to the features y.
+        np.testing.assert_allclose(tactile.mean(axis=0), event["observation"], rtol=0.2, atol=0.1)
 
     model = client.post(
         f"{API}/models/import", json=rig_model_document(client, finished["dataset_id"])

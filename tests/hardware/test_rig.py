@@ -27,6 +27,7 @@ from hardware.errors import (
 )
 from hardware.records import FloatArray
 from hardware.rig import RigConfig, RigState, TouchProgress
+from hardware.sim.materials import DEFAULT_TABLE, PAPER_CUPS
 from hardware.sim.rig import SimulatedRig, in_process_rig
 from tests.hardware.conftest import SHORT_TOUCH_S
 
@@ -87,9 +88,10 @@ def test_touch_records_the_stream_and_the_joints(
 
 
 def test_the_four_cups_feel_different(sim_rig: SimulatedRig, short_touch: FloatArray) -> None:
+    assert sim_rig.object_names[:4] == list(PAPER_CUPS)  # slots 0-3, the paper's O1..O4
     observations = {}
     with sim_rig.rig.acquire("test") as lease:
-        for name in sim_rig.object_names:
+        for name in PAPER_CUPS:
             lease.move_to_slot(sim_rig.slot_of(name))
             observations[name] = lease.touch(short_touch).observation
     heat = {name: y[3] for name, y in observations.items()}
@@ -97,6 +99,30 @@ def test_the_four_cups_feel_different(sim_rig: SimulatedRig, short_touch: FloatA
     vibration = {name: y[0] for name, y in observations.items()}
     assert max(vibration, key=vibration.__getitem__) == "bumpy_glass"
     assert observations["paper_cup"][2] < observations["stainless_cup"][2]  # pressure
+
+
+def test_the_default_table_holds_the_cups_and_three_more_objects(
+    sim_rig: SimulatedRig, short_touch: FloatArray
+) -> None:
+    assert sim_rig.object_names == list(DEFAULT_TABLE)
+    assert len(DEFAULT_TABLE) == len(set(DEFAULT_TABLE)) == 7
+    table = sim_rig.objects_by_slot
+    assert list(table) == list(range(7))
+    assert table[6].name == "foam_sponge"
+    props = table[4].properties()
+    assert props["material"] == "glazed ceramic"
+    assert props["thermal_effusivity_w_s05_per_m2_k"] == 1600.0
+    assert props["temperature_c"] == 22.0
+    observations = {}
+    with sim_rig.rig.acquire("test") as lease:
+        for name in ("stainless_cup", *DEFAULT_TABLE[4:]):
+            lease.move_to_slot(sim_rig.slot_of(name))
+            observations[name] = lease.touch(short_touch).observation
+    # The soft sponge presses back least; the rigid mug draws more heat than wood or foam.
+    pressure = {name: y[2] for name, y in observations.items()}
+    assert min(pressure, key=pressure.__getitem__) == "foam_sponge"
+    heat = observations["ceramic_mug"][3]
+    assert heat > observations["wooden_block"][3] > observations["foam_sponge"][3]
 
 
 def test_a_seed_gives_the_same_observations() -> None:
