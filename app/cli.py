@@ -18,6 +18,7 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from app.cli_bench import bench_command
 from app.cli_rig import rig_app
 from app.demo import demo_command
 from app.documents import model_from_document, model_to_document, read_training_csv
@@ -317,6 +318,7 @@ def paper_exp1(
 app.add_typer(rig_app, name="rig", help="Check and drive the rig (real ports or --sim).")
 app.command("serve")(serve_command)
 app.command("demo")(demo_command)
+app.command("bench")(bench_command)
 
 
 def main() -> None:
