@@ -111,7 +111,19 @@ def machine() -> dict[str, Any]:
 
 
 def peak_rss_mb() -> float:
-    """High-water resident set size of this process so far, MB (Linux reports KiB)."""
+    """High-water resident set size of this process so far, MB.
+
+    Linux: ``VmHWM`` of ``/proc/self/status`` (reset by ``exec``, so a child started by
+    :func:`run_child` reports its own peak; ``ru_maxrss`` would carry the parent's over).
+    Elsewhere: ``ru_maxrss``.
+    """
+    try:
+        with open("/proc/self/status", encoding="ascii") as status:
+            for line in status:
+                if line.startswith("VmHWM:"):
+                    return float(line.split()[1]) / 1024.0
+    except OSError:
+        pass
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 

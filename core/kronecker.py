@@ -408,10 +408,18 @@ def design_kernels(model: ManifoldModel, actions: FloatArray) -> FloatArray:
         Shape (dy, C, M).
     """
     design = _factors(model).design
-    inverse_sq = 1.0 / model.hyperparameters.action_lengthscales**2  # (dy, dx)
-    diff_sq = (actions[:, None, :] - design[None, :, :]) ** 2  # (C, M, dx)
-    exponent = diff_sq @ inverse_sq.T  # (C, M, dy)
-    return np.asarray(np.exp(-0.5 * np.moveaxis(exponent, 2, 0)), dtype=np.float64)
+    inverse = 1.0 / model.hyperparameters.action_lengthscales  # (dy, dx)
+    centre = design.mean(axis=0)
+    # |x/ℓ|² + |x_m/ℓ|² - 2 (x/ℓ)·(x_m/ℓ), around the design mean: one GEMM per feature.
+    scaled_x = (actions - centre)[None, :, :] * inverse[:, None, :]  # (dy, C, dx)
+    scaled_d = (design - centre)[None, :, :] * inverse[:, None, :]  # (dy, M, dx)
+    exponent = scaled_x @ np.swapaxes(scaled_d, 1, 2)  # (dy, C, M)
+    exponent *= 2.0
+    exponent -= np.sum(scaled_x**2, axis=2)[:, :, None]
+    exponent -= np.sum(scaled_d**2, axis=2)[:, None, :]
+    np.minimum(exponent, 0.0, out=exponent)
+    exponent *= 0.5
+    return np.asarray(np.exp(exponent, out=exponent), dtype=np.float64)
 
 
 def predict_kronecker(
