@@ -163,6 +163,7 @@ class DemoServer:
         self._started_at = 0.0
         self._server: uvicorn.Server | None = None
         self._thread: threading.Thread | None = None
+        self._served = threading.Event()  # set when the server thread's run() has returned
         self.view: ManifoldView | None = None
         self._follower: TrialFollower | None = None
         self._client: httpx.Client | None = None
@@ -203,7 +204,8 @@ class DemoServer:
             timeout_graceful_shutdown=2,
         )
         self._server = GracefulServer(config)
-        self._thread = threading.Thread(target=self._server.run, name="demo-uvicorn", daemon=True)
+        self._served.clear()
+        self._thread = threading.Thread(target=self._serve, name="demo-uvicorn", daemon=True)
         self._thread.start()
         deadline = time.monotonic() + 120.0
         while not self._server.started:
@@ -237,7 +239,9 @@ class DemoServer:
             # connections, so they close cleanly (no cancelled responses, no tracebacks).
             self._server.should_exit = True
         if self._thread is not None:
-            self._thread.join(timeout=10.0)
+            # Waits on an Event, not Thread.join: see wait().
+            if self._served.wait(timeout=10.0):
+                self._thread.join(timeout=1.0)
             self._thread = None
         if self._client is not None:
             self._client.close()
@@ -249,10 +253,21 @@ class DemoServer:
     def wait(self) -> None:
         """Block until Ctrl-C (or until the web app stops)."""
         try:
-            while self._thread is not None and self._thread.is_alive():
-                self._thread.join(timeout=0.5)
+            # Not Thread.join: a KeyboardInterrupt (Ctrl-C, or SIGTERM made one) that lands inside
+            # join() can leave a running thread marked as stopped (CPython 3.11), and stop()
+            # would then return at once and let the process exit mid-shutdown, cutting open
+            # responses and skipping the app's lifespan shutdown. An Event wait is safe.
+            while self._thread is not None and not self._served.wait(timeout=0.5):
+                pass
         except KeyboardInterrupt:
             self.console.print("\nStopping…")
+
+    def _serve(self) -> None:
+        assert self._server is not None
+        try:
+            self._server.run()
+        finally:
+            self._served.set()
 
     def _elapsed(self) -> float:
         return time.perf_counter() - self._started_at
