@@ -230,11 +230,24 @@ def test_collection_through_the_ui(page: Any, demo: Demo) -> None:
     page.locator("#col-samples").fill("2")
     before = len(demo.get("/datasets")["data"])
     page.get_by_test_id("collection-start").click()
-    expect(page.get_by_test_id("collection-status")).to_have_text("completed", timeout=60_000)
+    # The progress identifies the new run (the demo's own collection, shown before the click,
+    # is "completed" too, with another count).
     expect(page.get_by_test_id("collection-progress")).to_have_text(
-        f"{2 * n_objects} / {2 * n_objects}"
+        f"{2 * n_objects} / {2 * n_objects}", timeout=60_000
     )
+    expect(page.get_by_test_id("collection-status")).to_have_text("completed", timeout=10_000)
     expect(page.get_by_test_id("trace-note")).to_contain_text("features y =")
+    expect(page.get_by_test_id("trace-note")).not_to_contain_text("no raw trace")
+    # The live trace of the last touch: every tactile channel, thinned to at most 200 frames.
+    drawn = page.evaluate(
+        """() => {
+          const chart = window.Chart.getChart("chart-trace");
+          return chart ? chart.data.datasets.map((d) => [d.label, d.data.length]) : null;
+        }"""
+    )
+    assert drawn is not None, "the tactile trace chart was not drawn"
+    assert len(drawn) == 5, drawn
+    assert all(0 < n <= 200 for _, n in drawn), drawn
     datasets = demo.get("/datasets")["data"]
     assert len(datasets) == before + 1
     newest = max(datasets, key=lambda d: d["id"])

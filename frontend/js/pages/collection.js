@@ -2,7 +2,7 @@
 // the current touch, pause/resume/stop), or upload a CSV; the list of datasets.
 
 import { api, apiList, apiOptional, ApiError } from "../api.js";
-import { lineChart } from "../charts.js";
+import { compactNumber, lineChart } from "../charts.js";
 import { etaSeconds, formatDuration, normalizeTrace } from "../lib/analysis.js";
 import * as store from "../store.js";
 import { $, badge, el, fill, guarded, throttle, toast, vec } from "../ui.js";
@@ -84,13 +84,25 @@ function renderRun() {
   }
 }
 
+// The channels differ by orders of magnitude (vibration vs heat flux vs temperature): each is
+// drawn scaled to its own range over the touch, which the legend states.
 function renderTrace(raw) {
   const trace = normalizeTrace(raw);
   if (!trace) return;
   lineChart(
     "chart-trace",
-    trace.channels.map((c) => ({ label: c.name, x: trace.times, y: c.values })),
-    { xTitle: "time (s)", yTitle: "channel value" },
+    trace.channels.map((c) => {
+      const finite = c.values.filter(Number.isFinite);
+      const lo = Math.min(...finite);
+      const hi = Math.max(...finite);
+      const span = hi - lo || 1;
+      return {
+        label: `${c.name} [${compactNumber(lo)}, ${compactNumber(hi)}]`,
+        x: trace.times,
+        y: c.values.map((v) => (v - lo) / span),
+      };
+    }),
+    { xTitle: "time (s)", yTitle: "scaled to its range", yMin: 0, yMax: 1 },
   );
 }
 
