@@ -19,7 +19,7 @@ from core.types import ManifoldModel
 from core.validation import FloatArray
 from core.worlds import Experiment1World, World, random_experiment2_world
 from hardware.rig import RigState
-from hardware.sim.materials import PAPER_CUPS
+from hardware.sim.materials import DEFAULT_TABLE
 
 __all__ = ["Touch", "TouchSource", "WorldFactory", "WorldTouchSource", "make_world"]
 
@@ -110,7 +110,7 @@ class WorldFactory:
             options = simulation or SimulationOptions()
             if options.world == "rig":
                 self._check_rig_dims(model, "simulation.world")
-                _target_index(tuple(PAPER_CUPS), target)
+                _target_index(tuple(DEFAULT_TABLE), target)
                 return
             world = make_world(options)
             _check_dims(world, model, "simulation.world")
@@ -144,7 +144,7 @@ class WorldFactory:
             try:
                 lease = handle.rig.acquire(owner)
                 lease.connect()
-                slot = _target_index(tuple(PAPER_CUPS), target)
+                slot = _target_index(tuple(DEFAULT_TABLE), target)
             except BaseException:
                 handle.close()
                 raise

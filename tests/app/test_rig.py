@@ -153,6 +153,18 @@ def test_collection_then_rig_trial_hold_the_rig(client: TestClient) -> None:
     assert len(step["trajectory"]["commanded_deg"][0]) == 2
     assert done["result"]["object"] in CUPS
     assert client.get(f"{API}/rig").json()["held_by"] is None
+    # A simulated trial on the simulated table may touch any object on it, not only the cups.
+    sponge = client.post(
+        f"{API}/trials",
+        json={"model_id": model.json()["id"], "mode": "simulated", "target": "foam_sponge",
+              "max_steps": 1, "seed": 2, "simulation": {"world": "rig"}},
+    )  # fmt: skip
+    assert sponge.status_code == 201, sponge.text
+    ended = wait_until(
+        client, f"{API}/trials/{sponge.json()['id']}", lambda t: t["status"] not in
+        ("queued", "running"),
+    )  # fmt: skip
+    assert ended["status"] == "completed", ended
 
 
 def test_rig_trial_needs_matching_model_and_slot(client: TestClient) -> None:
