@@ -330,20 +330,27 @@ def belief_terms(model: ManifoldModel, belief: GaussianBelief) -> BeliefTerms:
     inv_sum = 1.0 / lam_a + 1.0 / lam_b  # Λ_a⁻¹ + Λ_b⁻¹
     det_matrix = inv_sum[..., :, None] * sigma[None, None] + np.eye(ds)
     _, logdet_pair = np.linalg.slogdet(det_matrix)  # log |(Λ_a⁻¹ + Λ_b⁻¹) Σ + I|
-    sep = latents[:, None, :] - latents[None, :, :]  # (L, L, ds): s_l - s_l'
-    sep_quad = np.einsum("lmd,abd->ablm", sep**2, 1.0 / lam_sum)
-    # s̄_ll' = Λ_b (Λ_a + Λ_b)⁻¹ s_l + Λ_a (Λ_a + Λ_b)⁻¹ s_l'
-    w_left = (lam_b / lam_sum)[:, :, None, None, :]
-    w_right = (lam_a / lam_sum)[:, :, None, None, :]
-    s_bar = w_left * latents[None, None, :, None, :] + w_right * latents[None, None, None, :, :]
-    centred = s_bar - mu  # (dy, dy, L, L, ds)
     r_matrix = (1.0 / inv_sum)[..., :, None] * np.eye(ds) + sigma[None, None]  # R_ab
-    r_inverse = np.linalg.inv(r_matrix)  # (dy, dy, ds, ds)
-    mean_quad = np.einsum("ablmi,abij,ablmj->ablm", centred, r_inverse, centred)
+    r_inverse = np.asarray(np.linalg.inv(r_matrix), dtype=np.float64)  # (dy, dy, ds, ds)
+    # s̄_ll' = Λ_b (Λ_a + Λ_b)⁻¹ s_l + Λ_a (Λ_a + Λ_b)⁻¹ s_l'
+    w_left = lam_b / lam_sum  # (dy, dy, ds)
+    w_right = lam_a / lam_sum
+    if latents.shape[0] <= _ELEMENTWISE_MAX_OBJECTS:
+        sep = latents[:, None, :] - latents[None, :, :]  # (L, L, ds): s_l - s_l'
+        sep_quad = np.einsum("lmd,abd->ablm", sep**2, 1.0 / lam_sum)
+        s_bar = (
+            w_left[:, :, None, None, :] * latents[None, None, :, None, :]
+            + w_right[:, :, None, None, :] * latents[None, None, None, :, :]
+        )
+        centred = s_bar - mu  # (dy, dy, L, L, ds)
+        mean_quad = np.einsum("ablmi,abij,ablmj->ablm", centred, r_inverse, centred)
+        exponent = -0.5 * sep_quad - 0.5 * mean_quad
+    else:
+        exponent = _pair_exponent(latents, mu, 1.0 / lam_sum, w_left, w_right, r_inverse)
     pair_weights = (
         (signal[:, None] * signal[None, :])[:, :, None, None]
         * np.exp(-0.5 * logdet_pair)[:, :, None, None]
-        * np.exp(-0.5 * sep_quad - 0.5 * mean_quad)
+        * np.exp(exponent)
     )
     factors = model.posterior.kronecker
     spectral = None
@@ -352,6 +359,38 @@ def belief_terms(model: ManifoldModel, belief: GaussianBelief) -> BeliefTerms:
     return BeliefTerms(
         weights=weights, pair_weights=pair_weights, offsets=offsets, spectral_weights=spectral
     )
+
+
+def _pair_exponent(
+    latents: FloatArray,
+    mu: FloatArray,
+    inv_lam_sum: FloatArray,
+    w_left: FloatArray,
+    w_right: FloatArray,
+    r_inverse: FloatArray,
+) -> FloatArray:
+    """-½ (sep_quad + mean_quad) of G_ab[l, l'] without (dy, dy, L, L, ds) temporaries.
+
+    Both quadratic forms are expanded into per-l terms, per-l' terms and one batched GEMM of
+    inner dimension 2·ds: with g = (Λ_a + Λ_b)⁻¹, p_l = w_left ∘ s_l - μ, q_l' = w_right ∘ s_l',
+    sep_quad = s_lᵀ g s_l + s_l'ᵀ g s_l' - 2 s_lᵀ g s_l' and
+    mean_quad = p_lᵀ R⁻¹ p_l + q_l'ᵀ R⁻¹ q_l' + 2 p_lᵀ R⁻¹ q_l'. O(dy² L² ds). Shape (dy, dy, L, L).
+    """
+    s = latents[None, None, :, :]  # (1, 1, L, ds)
+    p = w_left[:, :, None, :] * s - mu  # (dy, dy, L, ds)
+    q = w_right[:, :, None, :] * s
+    p_r = p @ r_inverse  # (dy, dy, L, ds)
+    q_r = q @ r_inverse
+    s_g = s * inv_lam_sum[:, :, None, :]
+    row = np.sum(s_g * s, axis=3) + np.sum(p_r * p, axis=3)  # terms of l
+    col = np.sum(s_g * s, axis=3) + np.sum(q_r * q, axis=3)  # terms of l'
+    left = np.concatenate([-2.0 * s_g, 2.0 * p_r], axis=3)  # (dy, dy, L, 2 ds)
+    right = np.concatenate([np.broadcast_to(s, q.shape), q], axis=3)
+    exponent = left @ np.swapaxes(right, 2, 3)  # cross terms, (dy, dy, L, L)
+    exponent += row[..., :, None]
+    exponent += col[..., None, :]
+    exponent *= -0.5
+    return np.asarray(exponent, dtype=np.float64)
 
 
 def _spectral_weights(pair_weights: FloatArray, basis: FloatArray) -> FloatArray:
@@ -370,18 +409,17 @@ def moments_from_terms(
     h = model.hyperparameters
     u = stats.responses  # (C, dy, L)
     weights, pair = terms.weights, terms.pair_weights
-    n_actions, dy, n_objects = u.shape
+    n_objects = u.shape[2]
     centred_mean = np.einsum("al,cal->ca", weights, u)  # m_a - mean_a = c_aᵀ u_a
     if n_objects <= _ELEMENTWISE_MAX_OBJECTS:
         # Element-wise contractions: a candidate's moments do not depend on the batch it is in.
         pair_u = np.einsum("ablm,cbm->cabl", pair, u)
         cov = np.einsum("cal,cabl->cab", u, pair_u)  # u_aᵀ G_ab u_b
     else:
-        # (G_ab u_b)[l] for every candidate as one GEMM per b: (dy_a·L, L) @ (L, C); results
-        # agree with the element-wise form to rounding.
-        stacked = np.swapaxes(pair, 0, 1).reshape(dy, dy * n_objects, n_objects)
-        pair_u = (stacked @ np.moveaxis(u, 0, 2)).reshape(dy, dy, n_objects, n_actions)
-        cov = np.einsum("cal,balc->cab", u, pair_u)  # u_aᵀ G_ab u_b
+        # (G_ab u_b)[l] for every candidate as GEMMs G_ab (L, L) @ u_b (L, C); results agree
+        # with the element-wise form to rounding.
+        pair_u = pair @ np.moveaxis(u, 0, 2)[None]  # (dy_a, dy_b, L, C)
+        cov = np.einsum("cal,ablc->cab", u, pair_u)  # u_aᵀ G_ab u_b
     cov -= centred_mean[:, :, None] * centred_mean[:, None, :]
     if stats.trace_basis is not None:
         spectral = terms.spectral_weights

@@ -7,6 +7,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
+from bench.reference_moments import direct_moments_batch
 from core.designs import collect, shared_design
 from core.errors import CoreError, InvalidInputError
 from core.information_gradient import mutual_information_and_gradient
@@ -343,3 +344,18 @@ def test_screening_a_shared_design_keeps_it_shared() -> None:
     assert run.screen.likelihood.data.n_touches == CASES[2].n_objects * 3
     with pytest.raises(InvalidInputError, match="structure: expected one of"):
         FitOptions(structure="banded")  # type: ignore[arg-type]
+
+
+def test_many_objects_moments_match_the_direct_appendix_formula() -> None:
+    case = Case("forty", 40, 3, 2, 2, 2)  # above the element-wise threshold of core.moments
+    data, latents, hyper = make_problem(case, seed=23)
+    model = condition(data, latents, hyper)
+    assert model.posterior.structure == "kronecker"
+    belief = GaussianBelief(mean=latents[5] + 0.2, cov=np.array([[0.6, 0.1], [0.1, 0.4]]))
+    actions = np.random.default_rng(24).standard_normal((3, case.action_dim))
+    moments = predictive_moments(model, belief, action_statistics(model, actions))
+    mean, cov, cross, information = direct_moments_batch(model, belief, actions)
+    assert relative(moments.mean, mean) < 1e-9
+    assert relative(moments.cov, cov) < 1e-9
+    assert relative(moments.cross_cov, cross) < 1e-9
+    assert relative(mutual_information(moments, belief), information) < 1e-9
