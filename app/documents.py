@@ -1,8 +1,16 @@
 """File formats: the training CSV and the model document ("activetouch-model/1").
 
 CSV (DESIGN.md): header ``object,x_1,...,x_dx,y_1,...,y_dy``, one touch per row.
+:class:`TrainingCsvWriter` appends rows as touches arrive (a collection keeps what it recorded).
+
 Model document: a self-contained JSON object from which the model can be reloaded and used to
-predict, plan and recognise (the training data is included; β and K⁻¹ are recomputed).
+predict, plan and recognise (the training data is included; β and K⁻¹ are recomputed). Its
+``posterior`` field records how the GP was conditioned: ``{"structure": "dense"}``,
+``{"structure": "kronecker"}`` or ``{"structure": "sparse", "n_inducing": m,
+"inducing_touches": [...]}`` (the training touches used as inducing points, in order), so the
+reloaded model predicts exactly as the original. Documents written before that field existed
+still load: their posterior is chosen as :func:`core.posterior.condition` does by default
+(``structure="auto"``).
 """
 
 from __future__ import annotations
@@ -11,14 +19,23 @@ import csv
 import io
 import math
 import re
-from collections.abc import Mapping
-from typing import Any
+from collections.abc import Mapping, Sequence
+from typing import Any, TextIO
 
 import numpy as np
+import numpy.typing as npt
 
 from core.errors import InvalidInputError
-from core.posterior import condition
-from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
+from core.posterior import Structure, condition
+from core.sparse import condition_sparse
+from core.types import (
+    FitDiagnostics,
+    GPPosterior,
+    Hyperparameters,
+    InducingPoints,
+    ManifoldModel,
+    TrainingData,
+)
 
 MODEL_FORMAT = "activetouch-model/1"
 _ACTION_COLUMN = re.compile(r"^x_(\d+)$")
@@ -143,20 +160,79 @@ def read_training_csv(text: str) -> TrainingData:
         raise DocumentError(f"CSV: {exc}") from exc
 
 
+def training_csv_header(action_dim: int, observation_dim: int) -> list[str]:
+    """The CSV header ``object,x_1..x_dx,y_1..y_dy``."""
+    return (
+        ["object"]
+        + [f"x_{i + 1}" for i in range(action_dim)]
+        + [f"y_{i + 1}" for i in range(observation_dim)]
+    )
+
+
+class TrainingCsvWriter:
+    """Write a training CSV touch by touch: the header at once, then one row per :meth:`write`.
+
+    Floats are written with ``repr``, so they round-trip exactly. Rows are not validated as a
+    whole (a partial collection may have an object with one touch); :func:`read_training_csv`
+    checks the file when it is used.
+
+    Args:
+        stream: Text stream to write to (opened with ``newline=""`` for a file).
+        action_dim: dx.
+        observation_dim: dy.
+    """
+
+    def __init__(self, stream: TextIO, action_dim: int, observation_dim: int) -> None:
+        if action_dim < 1 or observation_dim < 1:
+            raise DocumentError(
+                f"CSV: needs dx ≥ 1 and dy ≥ 1, received dx={action_dim}, dy={observation_dim}."
+            )
+        self.action_dim = int(action_dim)
+        self.observation_dim = int(observation_dim)
+        self.rows = 0
+        self._writer = csv.writer(stream, lineterminator="\n")
+        self._writer.writerow(training_csv_header(self.action_dim, self.observation_dim))
+
+    def write(self, name: str, action: npt.ArrayLike, observation: npt.ArrayLike) -> None:
+        """Append one touch: object ``name``, action (dx,), observation (dy,).
+
+        Raises:
+            DocumentError: An empty name, wrong lengths or values that are not finite.
+        """
+        x = np.asarray(action, dtype=np.float64).reshape(-1)
+        y = np.asarray(observation, dtype=np.float64).reshape(-1)
+        if not name.strip():
+            raise DocumentError("CSV: the object name is empty.", column="object")
+        for what, values, expected in (
+            ("action", x, self.action_dim),
+            ("observation", y, self.observation_dim),
+        ):
+            if values.shape[0] != expected:
+                raise DocumentError(
+                    f"CSV: {what} of {name!r} has {values.shape[0]} values, expected {expected}."
+                )
+            if not np.all(np.isfinite(values)):
+                raise DocumentError(f"CSV: {what} of {name!r} is not finite: {values.tolist()}.")
+        self._writer.writerow([name, *map(repr, map(float, x)), *map(repr, map(float, y))])
+        self.rows += 1
+
+
 def write_training_csv(data: TrainingData) -> str:
     """Render training data as CSV text (floats written with ``repr``, so they round-trip)."""
     out = io.StringIO()
-    writer = csv.writer(out, lineterminator="\n")
-    writer.writerow(
-        ["object"]
-        + [f"x_{i + 1}" for i in range(data.action_dim)]
-        + [f"y_{i + 1}" for i in range(data.observation_dim)]
-    )
+    writer = TrainingCsvWriter(out, data.action_dim, data.observation_dim)
     for obj, x, y in zip(data.object_index, data.actions, data.observations, strict=True):
-        writer.writerow(
-            [data.object_names[obj], *map(repr, map(float, x)), *map(repr, map(float, y))]
-        )
+        writer.write(data.object_names[obj], x, y)
     return out.getvalue()
+
+
+def _posterior_document(posterior: GPPosterior) -> dict[str, Any]:
+    """How the GP was conditioned: the structure and, for sparse, its inducing touches."""
+    document: dict[str, Any] = {"structure": posterior.structure}
+    if posterior.inducing is not None:
+        document["n_inducing"] = posterior.inducing.size
+        document["inducing_touches"] = [int(i) for i in posterior.inducing.touch_index]
+    return document
 
 
 def model_to_document(model: ManifoldModel, fit_seconds: float | None = None) -> dict[str, Any]:
@@ -183,6 +259,7 @@ def model_to_document(model: ManifoldModel, fit_seconds: float | None = None) ->
         ],
         "log_likelihood": float(model.log_likelihood),
         "fit_seconds": None if fit_seconds is None else float(fit_seconds),
+        "posterior": _posterior_document(model.posterior),
         "training_data": {
             "objects": [data.object_names[i] for i in data.object_index],
             "actions": data.actions.tolist(),
@@ -288,7 +365,97 @@ def model_from_document(document: Any) -> ManifoldModel:
             raise DocumentError(
                 f"model document: malformed field 'diagnostics' ({exc}).", column="diagnostics"
             ) from exc
+    posterior = _read_posterior(document.get("posterior"), data)
     try:
-        return condition(data, latents, hyperparameters, diagnostics)
+        if posterior is None:  # a document from before the field: as condition() chooses
+            return condition(data, latents, hyperparameters, diagnostics)
+        structure, n_inducing, inducing = posterior
+        if inducing is not None:
+            return condition_sparse(data, latents, hyperparameters, diagnostics, inducing=inducing)
+        return condition(
+            data, latents, hyperparameters, diagnostics, structure=structure, n_inducing=n_inducing
+        )
+    except DocumentError:
+        raise
     except InvalidInputError as exc:
         raise DocumentError(f"model document: {exc}") from exc
+
+
+_STRUCTURES = ("dense", "kronecker", "sparse")
+
+
+def _read_posterior(
+    field: Any, data: TrainingData
+) -> tuple[Structure, int, InducingPoints | None] | None:
+    """Parse the ``posterior`` field: (structure, n_inducing, inducing points or None).
+
+    ``None`` when the field is absent (documents written before it existed).
+    """
+    if field is None:
+        return None
+    if not isinstance(field, Mapping):
+        raise DocumentError(
+            f"model document: 'posterior' must be an object, found {type(field).__name__}.",
+            column="posterior",
+        )
+    structure = field.get("structure")
+    if structure not in _STRUCTURES:
+        raise DocumentError(
+            f"model document: posterior.structure must be one of {', '.join(_STRUCTURES)}, "
+            f"found {structure!r}.",
+            column="posterior.structure",
+        )
+    if structure == "dense" or structure == "kronecker":
+        return structure, 1, None
+    n_inducing: Any = field.get("n_inducing")
+    touches = field.get("inducing_touches")
+    if touches is None:
+        if not _is_count(n_inducing):
+            raise DocumentError(
+                "model document: a sparse posterior needs 'inducing_touches' or an integer "
+                f"'n_inducing' ≥ 1, found n_inducing={n_inducing!r}.",
+                column="posterior.n_inducing",
+            )
+        return "sparse", int(n_inducing), None
+    index = _touch_indices(touches, data.n_touches)
+    if n_inducing is not None and n_inducing != index.shape[0]:
+        raise DocumentError(
+            f"model document: posterior.n_inducing is {n_inducing!r} but "
+            f"'inducing_touches' lists {index.shape[0]} touches.",
+            column="posterior.n_inducing",
+        )
+    index.flags.writeable = False
+    inducing = InducingPoints(
+        object_index=data.object_index[index], actions=data.actions[index], touch_index=index
+    )
+    return "sparse", int(index.shape[0]), inducing
+
+
+def _is_count(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 1
+
+
+def _touch_indices(values: Any, n_touches: int) -> npt.NDArray[np.int64]:
+    """Validate ``posterior.inducing_touches``: distinct touch indices in [0, N)."""
+    where = "posterior.inducing_touches"
+    if (
+        not isinstance(values, Sequence)
+        or isinstance(values, str)
+        or not values
+        or not all(isinstance(v, int) and not isinstance(v, bool) for v in values)
+    ):
+        raise DocumentError(
+            f"model document: {where} must be a non-empty list of touch indices (integers).",
+            column=where,
+        )
+    index = np.asarray(values, dtype=np.int64)
+    outside = index[(index < 0) | (index >= n_touches)]
+    if outside.size:
+        raise DocumentError(
+            f"model document: {where} has {outside[:3].tolist()} outside 0..{n_touches - 1} "
+            "(the training touches).",
+            column=where,
+        )
+    if np.unique(index).shape[0] != index.shape[0]:
+        raise DocumentError(f"model document: {where} repeats a touch.", column=where)
+    return index
