@@ -1,5 +1,9 @@
 """Collections: a dataset gathered on the rig as a run with progress.
 
+:func:`iter_collection` is the collection loop (a generator over the touches of a
+:class:`core.designs.CollectionDesign`); the server's runs here and ``activetouch collect``
+both drive the rig through it, and check their object lists with :func:`check_objects`.
+
 Each touch is stored as a sample (with its raw tactile series) the moment it is recorded; the
 dataset is ``collecting`` during the run, then ``ready`` (or ``failed`` if too little was
 gathered to learn from). Each ``collection.progress`` event carries the touch's features and a
@@ -8,8 +12,10 @@ thinned copy of its raw tactile series (``trace``: at most 200 frames) for the l
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections import Counter
+from collections.abc import Iterator, Mapping
 from typing import Literal
 
 import numpy as np
@@ -19,19 +25,95 @@ from app import crud
 from app.db import Database
 from app.errors import AppError, BadInputError, ConflictError, NotFoundError
 from app.models import Run
-from app.rig_factory import iter_collect
+from app.rig_factory import CollectedTouch, TouchActions, iter_collect
 from app.schemas import CollectionCreate, Page, RunPublic
 from app.services import objects, states
 from app.services.events import EventBus
 from app.services.rig import RigService, raw_series, trace_preview
 from app.services.runs import RunCancelled, RunHandle, RunManager
+from core.designs import CollectionDesign
 from core.errors import CoreError
 from core.validation import FloatArray
 from hardware.errors import HardwareError
 from hardware.records import TouchRecord
+from hardware.rig import RigLease
 
 logger = logging.getLogger(__name__)
 KIND: Literal["collection"] = "collection"
+
+
+def check_objects(objects: Mapping[str, int] | list[tuple[str, int]]) -> None:
+    """Every object of a collection needs its own name and its own slot.
+
+    Args:
+        objects: ``name → slot`` (or ``(name, slot)`` pairs, where a name may repeat).
+
+    Raises:
+        BadInputError: A name or a slot is repeated (the message lists them).
+    """
+    pairs = list(objects.items()) if isinstance(objects, Mapping) else list(objects)
+    for field, values in (("name", [n for n, _ in pairs]), ("slot", [s for _, s in pairs])):
+        repeated = [v for v, n in Counter(values).items() if n > 1]
+        if repeated:
+            raise BadInputError(
+                f"objects: each object needs its own {field}; repeated: {repeated}.",
+                field=f"objects[].{field}",
+            )
+
+
+def iter_collection(
+    lease: RigLease,
+    actions: TouchActions,
+    slots: Mapping[str, int],
+    design: CollectionDesign,
+) -> Iterator[CollectedTouch]:
+    """Touch the objects on the rig as ``design`` says, one event per touch as it is recorded.
+
+    A shared design (every object, the same M actions) runs action by action, each action on
+    every object in turn (:func:`app.rig_factory.iter_collect`): an interrupted collection keeps
+    whole rounds of the design. Any other design runs object by object, so the table turns once
+    per object; an interrupted collection keeps the objects finished so far.
+
+    Args:
+        lease: A lease on a connected rig.
+        actions: Action → trajectory map.
+        slots: Object name → slot; object l of the design is the l-th entry.
+        design: Which action touches which object (``object_index`` indexes ``slots``).
+
+    Yields:
+        One :class:`~app.rig_factory.CollectedTouch` per touch (``index``/``total`` count the
+        whole design).
+
+    Raises:
+        BadInputError: The design touches an object that is not in ``slots``, or a shared
+            design gives the objects different numbers of actions.
+    """
+    names = list(slots)
+    index = np.asarray(design.object_index)
+    if index.size and (int(index.min()) < 0 or int(index.max()) >= len(names)):
+        raise BadInputError(
+            f"design: touches object {int(index.max())}, but only {len(names)} objects "
+            f"are given ({names}).",
+            field="objects",
+        )
+    rows = [np.flatnonzero(index == obj) for obj in range(len(names))]
+    if design.shared:
+        counts = {len(r) for r in rows}
+        if len(counts) != 1:
+            raise BadInputError(
+                f"design: a shared design gives every object the same actions; the objects "
+                f"have {sorted(counts)} actions.",
+                field="action_design",
+            )
+        yield from iter_collect(lease, actions, dict(slots), design.actions[rows[0]])
+        return
+    total, done = design.n_touches, 0
+    for name, object_rows in zip(names, rows, strict=True):
+        if not object_rows.size:
+            continue
+        for touch in iter_collect(lease, actions, {name: slots[name]}, design.actions[object_rows]):
+            yield dataclasses.replace(touch, index=done, total=total)
+            done += 1
 
 
 def to_public(run: Run) -> RunPublic:
@@ -83,16 +165,7 @@ class CollectionService:
 
     def create(self, session: Session, body: CollectionCreate) -> RunPublic:
         """Check a collection request, store the run and its (empty) dataset, start it."""
-        for field, values in (
-            ("name", [o.name for o in body.objects]),
-            ("slot", [o.slot for o in body.objects]),
-        ):
-            repeated = [v for v, n in Counter(values).items() if n > 1]
-            if repeated:
-                raise BadInputError(
-                    f"objects: each object needs its own {field}; repeated: {repeated}.",
-                    field=f"objects[].{field}",
-                )
+        check_objects([(o.name, o.slot) for o in body.objects])
         if self._runs.rig_holder is not None:
             raise ConflictError(
                 f"The rig is in use by {self._runs.rig_holder}.", held_by=self._runs.rig_holder
@@ -149,12 +222,7 @@ class CollectionService:
             with self._database.session() as session:
                 run = require(session, run_id)
                 body = CollectionCreate.model_validate(run.params)
-            rng = np.random.default_rng(body.seed)
-            dx = self._rig.action_dim
-            if body.action_design == "random":
-                design = body.action_scale * rng.standard_normal((body.samples_per_object, dx))
-            else:
-                design = np.zeros((body.samples_per_object, dx))
+            design = self._design(body)
             slots = {o.name: o.slot for o in body.objects}
             with self._rig.lease(handle.label) as lease:
                 with self._runs.run_lock(KIND, run_id), self._database.session() as session:
@@ -164,7 +232,7 @@ class CollectionService:
                     crud.set_run_status(session, run, "running")
                     session.commit()
                 self._announce(run)
-                for touch in iter_collect(lease, self._rig.actions(), slots, design):
+                for touch in iter_collection(lease, self._rig.actions(), slots, design):
                     self._store(run_id, touch.object_name, touch.action, touch.record)
                     if touch.index + 1 < touch.total:
                         handle.checkpoint()
@@ -185,6 +253,21 @@ class CollectionService:
         except Exception as exc:
             logger.exception("collection %d crashed", run_id)
             self._finish(run_id, "failed", f"internal error: {type(exc).__name__}: {exc}")
+
+    def _design(self, body: CollectionCreate) -> CollectionDesign:
+        """The request's design: its M actions (random or the teaching action x = 0), each on
+        every object in turn."""
+        rng = np.random.default_rng(body.seed)
+        dx, n_objects = self._rig.action_dim, len(body.objects)
+        if body.action_design == "random":
+            actions = body.action_scale * rng.standard_normal((body.samples_per_object, dx))
+        else:
+            actions = np.zeros((body.samples_per_object, dx))
+        return CollectionDesign(
+            object_index=np.repeat(np.arange(n_objects, dtype=np.int64), actions.shape[0]),
+            actions=np.tile(actions, (n_objects, 1)),
+            shared=True,
+        )
 
     def _store(self, run_id: int, name: str, action: FloatArray, record: TouchRecord) -> None:
         with self._runs.run_lock(KIND, run_id), self._database.session() as session:
