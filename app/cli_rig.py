@@ -12,34 +12,39 @@ closes them again::
 
 Ports can also come from ``ACTIVETOUCH_TURNTABLE_PORT``, ``ACTIVETOUCH_FINGER_PORT`` and
 ``ACTIVETOUCH_TACTILE_PORT``. Exit codes: 0 success, 1 a device error, 2 bad usage.
+
+:class:`RigOptions` (the port/simulation options) and :func:`connected_rig` (open, lease,
+connect, close) serve every command here and ``activetouch collect``. The drivers, numpy and the
+DMPs are imported when a command runs, not when the CLI starts.
 """
 
 from __future__ import annotations
 
 import json
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Annotated, Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-import numpy as np
 import typer
 from rich.console import Console
 
-from app.rig_factory import RigHandle, RigPorts, SimulationMode, TouchActions, open_rig
-from core.errors import CoreError
-from hardware.errors import HardwareError
-from hardware.finger import DYNAMIXEL_BAUDRATE, Finger
-from hardware.records import TouchRecord
-from hardware.rig import RigConfig, RigStatus
-from hardware.transport import SerialTransport
-from hardware.turntable import GRBL_BAUDRATE, Turntable
+if TYPE_CHECKING:  # the drivers, numpy and the DMPs are imported when a command runs
+    import numpy as np
+
+    from app.rig_factory import RigHandle, TouchActions
+    from hardware.records import TouchRecord
+    from hardware.rig import RigLease, RigStatus
 
 rig_app = typer.Typer(
     help="Check the rig: status, homing, turning a slot under the finger, a touch, e-stop.",
     no_args_is_help=True,
 )
 console = Console(stderr=True)
+
+#: How a simulated rig is wired (the values of :class:`app.rig_factory.SimulationMode`).
+SimulationName = Literal["in-process", "pty"]
 
 TurntablePort = Annotated[
     str | None,
@@ -60,10 +65,15 @@ TactilePort = Annotated[
     ),
 ]
 Simulate = Annotated[
-    bool, typer.Option("--sim", help="Use a simulated rig (the paper's four cups in slots 0-3).")
+    bool,
+    typer.Option(
+        "--sim",
+        help="Use a simulated rig (the paper's four cups in slots 0-3, then a ceramic mug, "
+        "a wooden block and a foam sponge).",
+    ),
 ]
 SimTransport = Annotated[
-    SimulationMode,
+    SimulationName,
     typer.Option(
         "--sim-transport",
         help="in-process: simulated devices called directly; pty: emulators on "
@@ -74,48 +84,101 @@ Seed = Annotated[int, typer.Option("--seed", help="Seed of the simulated world."
 AsJson = Annotated[bool, typer.Option("--json", help="Print a JSON document on stdout.")]
 
 
-def _fail(message: str, code: int) -> typer.Exit:
+def fail(message: str, code: int) -> typer.Exit:
+    """Print a one-line error to stderr and return the exit to raise."""
     console.print(f"[red]error:[/red] {message}")
     return typer.Exit(code=code)
 
 
-@contextmanager
-def _rig(
-    turntable_port: str | None,
-    finger_port: str | None,
-    tactile_port: str | None,
-    sim: bool,
-    sim_transport: SimulationMode,
-    seed: int,
-) -> Iterator[RigHandle]:
-    """Open the rig, yield it, close it; device errors become exit code 1."""
-    if sim:
-        handle = open_rig(simulate=sim_transport, seed=seed, rig_config=RigConfig())
-    else:
+@dataclass(frozen=True)
+class RigOptions:
+    """Where the rig is: three serial ports, or a simulation (the ``rig`` options).
+
+    Attributes:
+        turntable_port: GRBL controller port.
+        finger_port: Dynamixel bus port.
+        tactile_port: Tactile sensor port.
+        sim: Simulate the rig instead.
+        sim_transport: ``in-process`` or ``pty``.
+        seed: Seed of the simulated world.
+    """
+
+    turntable_port: str | None = None
+    finger_port: str | None = None
+    tactile_port: str | None = None
+    sim: bool = False
+    sim_transport: SimulationName = "in-process"
+    seed: int = 0
+
+    def check(self) -> None:
+        """Exit 2 when a real rig lacks a port."""
+        if self.sim:
+            return
         missing = [
             name
             for name, port in (
-                ("--turntable-port", turntable_port),
-                ("--finger-port", finger_port),
-                ("--tactile-port", tactile_port),
+                ("--turntable-port", self.turntable_port),
+                ("--finger-port", self.finger_port),
+                ("--tactile-port", self.tactile_port),
             )
             if not port
         ]
         if missing:
-            raise _fail(f"missing {', '.join(missing)} (or use --sim).", 2)
-        assert turntable_port is not None
-        assert finger_port is not None
-        assert tactile_port is not None
-        handle = open_rig(ports=RigPorts(turntable_port, finger_port, tactile_port))
+            raise fail(f"missing {', '.join(missing)} (or use --sim).", 2)
+
+    def open(self) -> RigHandle:
+        """Build the rig (not connected yet)."""
+        from app.rig_factory import RigPorts, SimulationMode, open_rig
+        from hardware.rig import RigConfig
+
+        self.check()
+        if self.sim:
+            return open_rig(
+                simulate=SimulationMode(self.sim_transport), seed=self.seed, rig_config=RigConfig()
+            )
+        assert self.turntable_port is not None
+        assert self.finger_port is not None
+        assert self.tactile_port is not None
+        return open_rig(ports=RigPorts(self.turntable_port, self.finger_port, self.tactile_port))
+
+
+@contextmanager
+def connected_rig(options: RigOptions, owner: str) -> Iterator[tuple[RigHandle, RigLease]]:
+    """Open the rig, lease it to ``owner``, connect it; release and close it afterwards.
+
+    A device error (while connecting or in the ``with`` body) prints its type and message and
+    exits with code 1.
+    """
+    from hardware.errors import HardwareError
+
     try:
-        yield handle
+        handle = options.open()
     except HardwareError as exc:
-        raise _fail(f"{type(exc).__name__}: {exc}", 1) from None
+        raise fail(f"{type(exc).__name__}: {exc}", 1) from None
+    try:
+        with handle.rig.acquire(owner) as lease:
+            lease.connect()
+            yield handle, lease
+    except HardwareError as exc:
+        raise fail(f"{type(exc).__name__}: {exc}", 1) from None
     finally:
         handle.close()
 
 
-def _status_document(status: RigStatus, handle: RigHandle) -> dict[str, Any]:
+def _on_rig(
+    options: RigOptions,
+    command: str,
+    operation: Callable[[RigLease, RigHandle], dict[str, Any]],
+    as_json: bool,
+) -> None:
+    """Run one operation on the connected rig and print the document it returns."""
+    with connected_rig(options, f"activetouch rig {command}") as (handle, lease):
+        _print(operation(lease, handle), as_json)
+
+
+def _status_document(lease: RigLease, handle: RigHandle) -> dict[str, Any]:
+    """What the devices say, after the command's operation."""
+    status: RigStatus = lease.status()
     rig = handle.rig
     document: dict[str, Any] = {
         "state": status.state.value,
@@ -158,17 +221,13 @@ def status(
     finger_port: FingerPort = None,
     tactile_port: TactilePort = None,
     sim: Simulate = False,
-    sim_transport: SimTransport = SimulationMode.in_process,
+    sim_transport: SimTransport = "in-process",
     seed: Seed = 0,
     as_json: AsJson = False,
 ) -> None:
     """Connect the three devices and report what they say (GRBL version, servo models,...)."""
-    with (
-        _rig(turntable_port, finger_port, tactile_port, sim, sim_transport, seed) as handle,
-        handle.rig.acquire("activetouch rig status") as lease,
-    ):
-        lease.connect()
-        _print(_status_document(lease.status(), handle), as_json)
+    options = RigOptions(turntable_port, finger_port, tactile_port, sim, sim_transport, seed)
+    _on_rig(options, "status", _status_document, as_json)
 
 
 @rig_app.command()
@@ -177,18 +236,18 @@ def home(
     finger_port: FingerPort = None,
     tactile_port: TactilePort = None,
     sim: Simulate = False,
-    sim_transport: SimTransport = SimulationMode.in_process,
+    sim_transport: SimTransport = "in-process",
     seed: Seed = 0,
     as_json: AsJson = False,
 ) -> None:
     """Retract the finger and run the turntable's homing cycle ($H)."""
-    with (
-        _rig(turntable_port, finger_port, tactile_port, sim, sim_transport, seed) as handle,
-        handle.rig.acquire("activetouch rig home") as lease,
-    ):
-        lease.connect()
+
+    def operation(lease: RigLease, handle: RigHandle) -> dict[str, Any]:
         lease.home()
-        _print(_status_document(lease.status(), handle), as_json)
+        return _status_document(lease, handle)
+
+    options = RigOptions(turntable_port, finger_port, tactile_port, sim, sim_transport, seed)
+    _on_rig(options, "home", operation, as_json)
 
 
 @rig_app.command()
@@ -198,33 +257,37 @@ def slot(
     finger_port: FingerPort = None,
     tactile_port: TactilePort = None,
     sim: Simulate = False,
-    sim_transport: SimTransport = SimulationMode.in_process,
+    sim_transport: SimTransport = "in-process",
     seed: Seed = 0,
     as_json: AsJson = False,
 ) -> None:
     """Turn slot K under the finger (the finger is retracted first)."""
-    with (
-        _rig(turntable_port, finger_port, tactile_port, sim, sim_transport, seed) as handle,
-        handle.rig.acquire("activetouch rig slot") as lease,
-    ):
-        lease.connect()
+
+    def operation(lease: RigLease, handle: RigHandle) -> dict[str, Any]:
         lease.move_to_slot(k)
-        _print(_status_document(lease.status(), handle), as_json)
+        return _status_document(lease, handle)
+
+    options = RigOptions(turntable_port, finger_port, tactile_port, sim, sim_transport, seed)
+    _on_rig(options, "slot", operation, as_json)
 
 
 def _parse_action(text: str, dimension: int) -> np.ndarray:
+    import numpy as np
+
     try:
         values = [float(part) for part in text.split(",")] if text.strip() else []
     except ValueError:
-        raise _fail(
+        raise fail(
             f"--action: expected {dimension} comma-separated numbers, got {text!r}.", 2
         ) from None
     if len(values) != dimension:
-        raise _fail(f"--action: expected {dimension} numbers, got {len(values)}.", 2)
+        raise fail(f"--action: expected {dimension} numbers, got {len(values)}.", 2)
     return np.asarray(values, dtype=np.float64)
 
 
 def _touch_document(record: TouchRecord, action: np.ndarray) -> dict[str, Any]:
+    import numpy as np
+
     return {
         "slot": record.slot,
         "action": action.tolist(),
@@ -246,6 +309,18 @@ def _touch_document(record: TouchRecord, action: np.ndarray) -> dict[str, Any]:
     }
 
 
+def touch_actions(duration_s: float) -> TouchActions:
+    """The rig's action → trajectory map for touches of ``duration_s`` (bad values exit 2)."""
+    from app.rig_factory import TouchActions
+    from core.errors import CoreError
+    from hardware.rig import RigConfig
+
+    try:
+        return TouchActions.from_teaching(dt_s=RigConfig().control_period_s, duration_s=duration_s)
+    except CoreError as exc:
+        raise fail(str(exc), 2) from None
+
+
 @rig_app.command()
 def touch(
     slot_k: Annotated[
@@ -261,25 +336,19 @@ def touch(
     finger_port: FingerPort = None,
     tactile_port: TactilePort = None,
     sim: Simulate = False,
-    sim_transport: SimTransport = SimulationMode.in_process,
+    sim_transport: SimTransport = "in-process",
     seed: Seed = 0,
     as_json: AsJson = False,
 ) -> None:
     """Execute one touch (action → DMP → trajectory) and print its observation y."""
-    try:
-        actions = TouchActions.from_teaching(
-            dt_s=RigConfig().control_period_s, duration_s=duration_s
-        )
-    except CoreError as exc:
-        raise _fail(str(exc), 2) from None
+    actions = touch_actions(duration_s)
     x = _parse_action(action, actions.action_dim)
-    with (
-        _rig(turntable_port, finger_port, tactile_port, sim, sim_transport, seed) as handle,
-        handle.rig.acquire("activetouch rig touch") as lease,
-    ):
-        lease.connect()
-        record = actions.touch(lease, x, slot=slot_k)
-        _print(_touch_document(record, x), as_json)
+
+    def operation(lease: RigLease, handle: RigHandle) -> dict[str, Any]:
+        return _touch_document(actions.touch(lease, x, slot=slot_k), x)
+
+    options = RigOptions(turntable_port, finger_port, tactile_port, sim, sim_transport, seed)
+    _on_rig(options, "touch", operation, as_json)
 
 
 @rig_app.command()
@@ -288,7 +357,7 @@ def estop(
     finger_port: FingerPort = None,
     tactile_port: TactilePort = None,
     sim: Simulate = False,
-    sim_transport: SimTransport = SimulationMode.in_process,
+    sim_transport: SimTransport = "in-process",
     seed: Seed = 0,
 ) -> None:
     """Emergency stop: GRBL soft reset and servo torque off, without waiting for anything.
@@ -297,14 +366,20 @@ def estop(
     A port held by another program (a running server) cannot be opened: stop the rig through
     that program (``POST /api/v1/rig/estop``).
     """
+    from app.rig_factory import SimulationMode, open_rig
+    from hardware.errors import HardwareError
+    from hardware.finger import DYNAMIXEL_BAUDRATE, Finger
+    from hardware.transport import SerialTransport
+    from hardware.turntable import GRBL_BAUDRATE, Turntable
+
     handle: RigHandle | None = None
     if sim:
-        handle = open_rig(simulate=sim_transport, seed=seed)
+        handle = open_rig(simulate=SimulationMode(sim_transport), seed=seed)
         turntable: Turntable | None = handle.rig.turntable
         finger: Finger | None = handle.rig.finger
     else:
         if not turntable_port and not finger_port:
-            raise _fail("give --turntable-port and/or --finger-port (or use --sim).", 2)
+            raise fail("give --turntable-port and/or --finger-port (or use --sim).", 2)
         turntable = (
             Turntable(SerialTransport(turntable_port, GRBL_BAUDRATE)) if turntable_port else None
         )
@@ -332,5 +407,5 @@ def estop(
         if handle is not None:
             handle.close()
     if not stopped:
-        raise _fail("no device could be reached.", 1)
+        raise fail("no device could be reached.", 1)
     console.print(f"emergency stop sent to: {', '.join(stopped)}")
