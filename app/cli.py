@@ -1,6 +1,12 @@
-"""The ``activetouch`` command line: fit, recognize, paper reproductions and the sub-apps.
+"""The ``activetouch`` command line: fit, recognize, collect, export, the rig, the server.
 
 Progress bars go to stderr; with ``--json`` stdout carries only the JSON document.
+
+Starting the CLI imports only typer and rich: every command imports what it needs (numpy and
+the core, the drivers, the web stack) when it runs, so ``activetouch --help`` or ``activetouch
+fit`` do not pay for FastAPI, SQLAlchemy or viser. ``serve``, ``demo`` and ``bench`` live in
+modules that import their stack at the top; they are registered here as thin commands that
+import the module and hand it their arguments (:func:`_forward`).
 """
 
 from __future__ import annotations
@@ -9,28 +15,23 @@ import json
 import os
 import sys
 import time
+from collections.abc import Callable
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-import numpy as np
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from app.cli_bench import bench_command
+from app.cli_collect import collect_command
+from app.cli_export import export_app
 from app.cli_rig import rig_app
-from app.demo import demo_command
-from app.documents import model_from_document, model_to_document, read_training_csv
-from app.paper import run_experiment1
-from app.server_cli import serve_command
-from core.errors import CoreError
-from core.evaluation import iter_simulated_trial
-from core.manifold import FitOptions, iter_fit
-from core.planning import ActivePolicy, FixedPolicy, PassivePolicy, Planner
-from core.recognition import RecognitionSettings, default_prior
-from core.types import ManifoldModel
-from core.worlds import Experiment1World, World, random_experiment2_world, sample_dataset
+
+if TYPE_CHECKING:
+    from core.manifold import FitOptions
+    from core.types import ManifoldModel, TrainingData
+    from core.worlds import World
 
 app = typer.Typer(
     name="activetouch",
@@ -87,9 +88,13 @@ def fail(message: str) -> typer.Exit:
 
 
 def fit_with_progress(
-    data: Any, latent_dim: int, options: FitOptions, seed: int, quiet: bool = False
+    data: TrainingData, latent_dim: int, options: FitOptions, seed: int, quiet: bool = False
 ) -> tuple[ManifoldModel, float]:
     """Run :func:`core.manifold.iter_fit` with a progress bar; return the model and seconds."""
+    import numpy as np
+
+    from core.manifold import iter_fit
+
     rng = np.random.default_rng(seed)
     started = time.perf_counter()
     model: ManifoldModel | None = None
@@ -120,17 +125,35 @@ def fit(
     optimizer: Annotated[Optimizer, typer.Option(help="lbfgs or de")] = Optimizer.lbfgs,
     restarts: Annotated[int, typer.Option(min=0, help="Random restarts after the PCA start.")] = 4,
     seed: Annotated[int, typer.Option(help="Seed of the random restarts.")] = 0,
+    structure: Annotated[
+        Literal["auto", "dense", "kronecker", "sparse"],
+        typer.Option(
+            help="GP structure: auto = kronecker for a shared action design, dense up to 3000 "
+            "touches, sparse above."
+        ),
+    ] = "auto",
+    inducing: Annotated[
+        int, typer.Option(min=1, help="Inducing points of the sparse structure.")
+    ] = 512,
     out: Annotated[Path | None, typer.Option(help="Write the model document here.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the model document.")] = False,
 ) -> None:
     """Learn the object manifold from a training CSV."""
+    import numpy as np
+
+    from app.documents import model_to_document, read_training_csv
+    from core.errors import CoreError
+    from core.manifold import FitOptions
+
     try:
         text = data_csv.read_text()
     except OSError as exc:
         raise fail(f"cannot read {data_csv}: {exc.strerror}") from None
     try:
         data = read_training_csv(text)
-        options = FitOptions(optimizer=optimizer.value, restarts=restarts)
+        options = FitOptions(
+            optimizer=optimizer.value, restarts=restarts, structure=structure, n_inducing=inducing
+        )
         model, seconds = fit_with_progress(data, latent_dim, options, seed, quiet=False)
     except CoreError as exc:
         raise fail(str(exc)) from None
@@ -151,6 +174,9 @@ def fit(
 
 def load_model(path: Path) -> ManifoldModel:
     """Read a model document from a file, with errors that say what is wrong."""
+    from app.documents import model_from_document
+    from core.errors import CoreError
+
     try:
         document = json.loads(path.read_text())
     except OSError as exc:
@@ -165,6 +191,10 @@ def load_model(path: Path) -> ManifoldModel:
 
 def make_world(world: WorldName, world_seed: int, noise_std: float | None) -> World:
     """The simulated world named on the command line."""
+    import numpy as np
+
+    from core.worlds import Experiment1World, random_experiment2_world
+
     if world is WorldName.exp1:
         return Experiment1World(noise_std=0.1 if noise_std is None else noise_std)
     return random_experiment2_world(
@@ -182,7 +212,10 @@ def dataset(
     noise_std: Annotated[float | None, typer.Option(help="Observation noise std.")] = None,
 ) -> None:
     """Write a simulated training set (x ~ N(0, I) per touch) as a training CSV."""
+    import numpy as np
+
     from app.documents import write_training_csv
+    from core.worlds import sample_dataset
 
     data = sample_dataset(
         make_world(world, world_seed, noise_std), np.random.default_rng(seed), touches
@@ -214,6 +247,13 @@ def recognize(
     as_json: Annotated[bool, typer.Option("--json", help="Print the trial as JSON.")] = False,
 ) -> None:
     """Run one simulated recognition trial, step by step."""
+    import numpy as np
+
+    from core.errors import CoreError
+    from core.evaluation import iter_simulated_trial
+    from core.planning import ActivePolicy, FixedPolicy, PassivePolicy, Planner
+    from core.recognition import RecognitionSettings, default_prior
+
     model = load_model(model_path)
     if target not in model.object_names:
         raise fail(f"--target {target!r} is not an object of the model {list(model.object_names)}")
@@ -291,6 +331,9 @@ def paper_exp1(
     as_json: Annotated[bool, typer.Option("--json", help="Print the figures as JSON.")] = False,
 ) -> None:
     """Experiment 1 end to end: manifold, random-latent baseline, recognition; vs the paper."""
+    from app.paper import run_experiment1
+    from core.errors import CoreError
+
     try:
         with progress_bar() as bar:
             task = bar.add_task("experiment 1", total=seeds, status="")
@@ -314,11 +357,64 @@ def paper_exp1(
         Console().print(figures.table())
 
 
-# Sub-commands that live with the code they drive.
+# Sub-commands that live with the code they drive (modules that import only typer and rich).
 app.add_typer(rig_app, name="rig", help="Check and drive the rig (real ports or --sim).")
-app.command("serve")(serve_command)
-app.command("demo")(demo_command)
-app.command("bench")(bench_command)
+app.command("collect")(collect_command)
+app.add_typer(export_app, name="export")
+
+#: Context of a command that hands every argument (``--help`` included) to another command.
+_FORWARDED: dict[str, Any] = {"allow_extra_args": True, "ignore_unknown_options": True}
+
+
+def _forward(ctx: typer.Context, command: Callable[..., Any]) -> None:
+    """Run the typer command function ``command`` on the arguments ``ctx`` received.
+
+    ``command`` is parsed, checked and helped (``--help``) exactly as if it were registered
+    here; it exits with its own code.
+    """
+    single = typer.Typer(add_completion=False, pretty_exceptions_enable=False)
+    single.command()(command)
+    single(args=list(ctx.args), prog_name=ctx.command_path)
+
+
+@app.command(
+    "serve",
+    help="Run the REST API, the live event stream and the dashboard.",
+    context_settings=_FORWARDED,
+    add_help_option=False,
+)
+def serve(ctx: typer.Context) -> None:
+    """Forward to :func:`app.server_cli.serve_command` (its help is the one shown)."""
+    from app.server_cli import serve_command
+
+    _forward(ctx, serve_command)
+
+
+@app.command(
+    "demo",
+    help="Start everything on the simulated rig: dashboard, 3D view, a trained model.",
+    context_settings=_FORWARDED,
+    add_help_option=False,
+)
+def demo(ctx: typer.Context) -> None:
+    """Forward to :func:`app.demo.demo_command`."""
+    from app.demo import demo_command
+
+    _forward(ctx, demo_command)
+
+
+@app.command(
+    "bench",
+    help="Benchmark the likelihood, the fit, the mutual information, planning and scaling "
+    "against GPy and the direct formulas (medians of repeats, BLAS threads pinned).",
+    context_settings=_FORWARDED,
+    add_help_option=False,
+)
+def bench(ctx: typer.Context) -> None:
+    """Forward to :func:`app.cli_bench.bench_command`."""
+    from app.cli_bench import bench_command
+
+    _forward(ctx, bench_command)
 
 
 def main() -> None:
