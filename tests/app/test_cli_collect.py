@@ -24,6 +24,13 @@ from hardware.errors import ServoHardwareErrorFlags
 from hardware.sim.rig import SimulatedRig, in_process_rig
 
 runner = CliRunner()
+
+
+def said(result: Any) -> str:
+    """What the command printed, with rich's line wrapping undone."""
+    return " ".join(result.output.split())
+
+
 #: Short touches keep the tests fast (the teaching trajectory needs ≥ 5 s to respect limits).
 FAST = ["--duration", "5"]
 OBJECTS = ["--object", "paper_cup", "--object", "stainless_cup", "--object", "sponge=6"]
@@ -96,7 +103,7 @@ def test_same_seed_same_file_and_no_silent_overwrite(tmp_path: Path) -> None:
     first = out.read_text()
     refused = collect(*args)
     assert refused.exit_code == 2
-    assert "exists; use --force" in refused.output
+    assert "exists; use --force" in said(refused)
     assert out.read_text() == first
     again = collect(*args, "--force")
     assert again.exit_code == 0, again.output
@@ -122,7 +129,7 @@ def test_real_rig_usage_errors(tmp_path: Path, args: list[str], fragment: str) -
         ["collect", *ports, "--tactile-port", "/dev/null-c", *args, "--out", str(tmp_path / "x")],
     )
     assert result.exit_code == 2
-    assert fragment in result.output
+    assert fragment in said(result)
     assert not (tmp_path / "x").exists()
 
 
@@ -143,14 +150,14 @@ def test_simulated_rig_usage_errors(tmp_path: Path, args: list[str], fragment: s
     out = tmp_path / "x.csv"
     result = runner.invoke(app, ["collect", "--sim", *args, "--out", str(out)])
     assert result.exit_code == 2
-    assert fragment in " ".join(result.output.split())
+    assert fragment in said(result)
     assert not out.exists()
 
 
 def test_missing_ports_is_a_usage_error(tmp_path: Path) -> None:
     result = runner.invoke(app, ["collect", "--out", str(tmp_path / "x.csv")])
     assert result.exit_code == 2
-    assert "missing --turntable-port, --finger-port, --tactile-port" in result.output
+    assert "missing --turntable-port, --finger-port, --tactile-port" in said(result)
 
 
 class TriggerClock(VirtualClock):
@@ -201,7 +208,7 @@ def test_a_fault_mid_collection_keeps_what_was_recorded(
     assert "OVERLOAD" in summary["error"]
     assert summary["rig_state"] == "fault"
     assert 1 <= summary["recorded"] < summary["planned"] == 12
-    assert "collection stopped" in result.stderr
+    assert "collection stopped" in said(result)
     rows = out.read_text().splitlines()
     assert rows[0] == "object,x_1,x_2,x_3,x_4,x_5,x_6,y_1,y_2,y_3,y_4,y_5"
     assert len(rows) == 1 + summary["recorded"]
