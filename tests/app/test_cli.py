@@ -126,3 +126,25 @@ def test_paper_exp1_small_run_reports_figures():
     assert set(figures["policies"]) == {"active", "passive", "random-latent active"}
     assert len(figures["policies"]["active"]["accuracy_by_touch"]) == 3
     assert figures["policies"]["active"]["trials"] == 4
+
+
+def test_fit_with_a_sparse_structure_records_it_in_the_document(csv_path):
+    from app.documents import model_from_document
+
+    result = runner.invoke(
+        app,
+        [
+            "fit", str(csv_path), "--latent-dim", "1", "--restarts", "0", "--structure", "sparse",
+            "--inducing", "12", "--json",
+        ],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    document = json.loads(result.stdout)
+    assert document["posterior"]["structure"] == "sparse"
+    assert document["posterior"]["n_inducing"] == 12
+    model = model_from_document(document)
+    assert model.posterior.structure == "sparse"
+    assert model.posterior.inducing is not None
+    assert (
+        model.posterior.inducing.touch_index.tolist() == document["posterior"]["inducing_touches"]
+    )
