@@ -51,7 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.errors import InvalidInputError, NotPositiveDefiniteError
-from core.linalg import JITTER_LADDER
+from core.linalg import JITTER_LADDER, weighted_gram_difference
 from core.parameters import ParameterLayout
 from core.types import (
     FitDiagnostics,
@@ -165,8 +165,8 @@ class _Spectral:
     action_vectors: FloatArray  # (dy, M, M)
     spectrum: FloatArray  # D (dy, L, M), incl. noise and jitter
     rotated: FloatArray  # Ỹ = U_sᵀ Y U_x (dy, L, M)
-    beta_grid: FloatArray  # B (dy, L, M)
     jitter: FloatArray  # (dy,)
+    latent_sq: FloatArray  # per-dimension (s_ld - s_l'd)², (ds, L·L)
 
 
 class KroneckerLikelihood:
@@ -201,32 +201,43 @@ class KroneckerLikelihood:
         self.max_jitter = 0.0
         self.evaluations = 0
 
-    def spectral(self, vector: FloatArray) -> _Spectral:
-        """Eigendecompositions, spectrum and β at a packed vector (for conditioning)."""
+    def spectral(self, vector: FloatArray) -> tuple[_Spectral, FloatArray]:
+        """Eigendecompositions and spectrum at a packed vector, and β on the grid
+        (dy, L, M), for conditioning."""
+        sp = self._decompose(vector)
+        # β = U_s (Ỹ / D) U_xᵀ
+        beta_grid = (
+            sp.latent_vectors @ (sp.rotated / sp.spectrum) @ np.swapaxes(sp.action_vectors, 1, 2)
+        )
+        return sp, beta_grid
+
+    def _decompose(self, vector: FloatArray) -> _Spectral:
+        """Everything but β: the value and the gradient do not need β in the grid basis."""
         latents, log_sf, log_sn, log_ls, log_lx = self.layout.split(vector)
         dy = self.layout.observation_dim
         n_objects, m = self.data.n_objects, self.design.size
         signal = np.exp(log_sf)
         noise = np.exp(log_sn)
-        sq_pair = (latents[:, None, :] - latents[None, :, :]) ** 2  # (L, L, ds)
-        latent_gram = np.exp(
-            -0.5 * (np.exp(-2.0 * log_ls) @ sq_pair.reshape(-1, latents.shape[1]).T)
-        ).reshape(dy, n_objects, n_objects)
-        action_gram = np.exp(-0.5 * (np.exp(-2.0 * log_lx) @ self._sq_design)).reshape(dy, m, m)
+        differences = np.empty((latents.shape[1], n_objects, n_objects))
+        for d, column in enumerate(latents.T):
+            np.subtract.outer(column, column, out=differences[d])
+        latent_sq = np.square(differences, out=differences).reshape(latents.shape[1], -1)
+        latent_gram = (-0.5 * np.exp(-2.0 * log_ls)) @ latent_sq
+        action_gram = (-0.5 * np.exp(-2.0 * log_lx)) @ self._sq_design
+        latent_gram = np.exp(latent_gram, out=latent_gram).reshape(dy, n_objects, n_objects)
+        action_gram = np.exp(action_gram, out=action_gram).reshape(dy, m, m)
         latent_values, latent_vectors = np.linalg.eigh(latent_gram)
         action_values, action_vectors = np.linalg.eigh(action_gram)
         # METHOD.md eq. (M1): eigenvalues of σ_f² K^s ⊗ K^x + σ_n² I
-        spectrum = (
-            signal[:, None, None] * latent_values[:, :, None] * action_values[:, None, :]
-            + noise[:, None, None]
-        )
+        spectrum = (signal[:, None] * latent_values)[:, :, None] * action_values[:, None, :]
+        spectrum += noise[:, None, None]
         jitter = np.zeros(dy)
         for a in range(dy):
             jitter[a] = self._jitter(spectrum[a], float(signal[a] + noise[a]), a)
-            spectrum[a] += jitter[a]
+            if jitter[a]:
+                spectrum[a] += jitter[a]
         self.max_jitter = max(self.max_jitter, float(jitter.max()))
-        rotated = np.swapaxes(latent_vectors, 1, 2) @ self._grid_y @ action_vectors
-        beta_grid = latent_vectors @ (rotated / spectrum) @ np.swapaxes(action_vectors, 1, 2)
+        rotated = (np.swapaxes(latent_vectors, 1, 2) @ self._grid_y) @ action_vectors
         return _Spectral(
             latent_gram=latent_gram,
             action_gram=action_gram,
@@ -236,8 +247,8 @@ class KroneckerLikelihood:
             action_vectors=action_vectors,
             spectrum=spectrum,
             rotated=rotated,
-            beta_grid=beta_grid,
             jitter=jitter,
+            latent_sq=latent_sq,
         )
 
     @staticmethod
@@ -254,10 +265,13 @@ class KroneckerLikelihood:
             f"variance."
         )
 
-    def _value(self, spectral: _Spectral) -> float:
+    def _value(self, spectral: _Spectral, scaled: FloatArray | None = None) -> float:
+        """-log p from the spectrum; ``scaled`` = Ỹ / D when already at hand."""
         n = self.data.n_touches
         dy = self.layout.observation_dim
-        quad = float(np.sum(spectral.rotated**2 / spectral.spectrum))
+        if scaled is None:
+            scaled = spectral.rotated / spectral.spectrum
+        quad = float(np.vdot(spectral.rotated, scaled))
         log_det = float(np.sum(np.log(spectral.spectrum)))
         # METHOD.md eq. (M2)
         return 0.5 * quad + 0.5 * log_det + 0.5 * dy * n * _LOG_2PI
@@ -265,10 +279,17 @@ class KroneckerLikelihood:
     def value(self, vector: FloatArray) -> float:
         """-log p at a packed vector."""
         self.evaluations += 1
-        return self._value(self.spectral(vector))
+        return self._value(self._decompose(vector))
 
     def value_and_gradient(self, vector: FloatArray) -> tuple[float, FloatArray]:
-        """-log p and its gradient with respect to the packed vector (same layout)."""
+        """-log p and its gradient with respect to the packed vector (same layout).
+
+        The block sums of W ∘ K_f (module docstring) as Ω_s = U_s diag(w_s) U_sᵀ - P_s Λ_x P_sᵀ
+        with P_s = U_s C̃ = β U_x, and Ω_x = U_x diag(w_x) U_xᵀ - P_x Λ_s P_xᵀ with
+        P_x = U_x C̃ᵀ = βᵀ U_s (C̃ = Ỹ / D): β itself is never formed, and each Ω is one
+        triangle from symmetric rank-k updates. Cost per feature
+        2 L M (L + M) (Ỹ) + 2 L M (L + M) (P_s, P_x) + L² (L + M) + M² (M + L) (the updates).
+        """
         self.evaluations += 1
         layout = self.layout
         latents, log_sf, log_sn, log_ls, log_lx = layout.split(vector)
@@ -276,39 +297,44 @@ class KroneckerLikelihood:
         noise = np.exp(log_sn)
         inv_ls2 = np.exp(-2.0 * log_ls)  # (dy, ds)
         inv_lx2 = np.exp(-2.0 * log_lx)  # (dy, dx)
-        sp = self.spectral(vector)
-        total = self._value(sp)
+        sp = self._decompose(vector)
         inv_d = 1.0 / sp.spectrum  # (dy, L, M)
-        beta = sp.beta_grid
-        beta_t = np.swapaxes(beta, 1, 2)
-        g_sn = 0.5 * noise * (np.sum(inv_d, axis=(1, 2)) - np.sum(beta**2, axis=(1, 2)))
-        # Σ_{m,m'} W[(l,m),(l',m')] K^x[m,m'] = U_s diag(w_s) U_sᵀ - B K^x Bᵀ
+        scaled = sp.rotated * inv_d  # C̃ = U_sᵀ β U_x, (dy, L, M)
+        total = self._value(sp, scaled)
+        # tr W = Σ 1/D - ‖β‖², and ‖β‖ = ‖C̃‖ (orthogonal bases)
+        g_sn = 0.5 * noise * (np.sum(inv_d, axis=(1, 2)) - np.sum(scaled**2, axis=(1, 2)))
         w_s = (inv_d @ sp.action_values[:, :, None])[:, :, 0]  # (dy, L)
         w_x = (sp.latent_values[:, None, :] @ inv_d)[:, 0, :]  # (dy, M)
-        n_objects, ds = latents.shape
+        n_objects = latents.shape[0]
         dy, m = w_x.shape
-        blocks = np.empty((dy, n_objects, n_objects))  # Pᵀ (W ∘ K_f) P
-        action_blocks = np.empty((dy, m, m))  # the same summed over objects
+        # Upper triangles X of σ_f² K ∘ Ω: the symmetric block sums are X + Xᵀ - diag(X).
+        latent_half = np.empty((dy, n_objects, n_objects))
+        action_half = np.empty((dy, m, m))
         for a in range(dy):
-            vectors = sp.latent_vectors[a]
-            omega = (vectors * w_s[a]) @ vectors.T
-            omega -= beta[a] @ sp.action_gram[a] @ beta_t[a]
-            np.multiply(sp.latent_gram[a], omega, out=blocks[a])
-            vectors = sp.action_vectors[a]
-            omega = (vectors * w_x[a]) @ vectors.T
-            omega -= beta_t[a] @ sp.latent_gram[a] @ beta[a]
-            np.multiply(sp.action_gram[a], omega, out=action_blocks[a])
-        blocks *= signal[:, None, None]
-        action_blocks *= signal[:, None, None]
-        g_sf = 0.5 * np.sum(blocks, axis=(1, 2))
-        sq_pair = ((latents[:, None, :] - latents[None, :, :]) ** 2).reshape(-1, ds)
-        g_ls = 0.5 * (blocks.reshape(dy, -1) @ sq_pair) * inv_ls2
-        row_sums = blocks.sum(axis=2)  # (dy, L)
+            u_s, u_x = sp.latent_vectors[a], sp.action_vectors[a]
+            p_s = u_s @ scaled[a]  # (L, M)
+            p_x = u_x @ scaled[a].T  # (M, L)
+            omega = weighted_gram_difference(u_s, w_s[a], p_s, sp.action_values[a])
+            np.multiply(sp.latent_gram[a], omega, out=latent_half[a])
+            omega = weighted_gram_difference(u_x, w_x[a], p_x, sp.latent_values[a])
+            np.multiply(sp.action_gram[a], omega, out=action_half[a])
+        latent_half *= signal[:, None, None]
+        action_half *= signal[:, None, None]
+        latent_diag = np.einsum("all->al", latent_half)  # (dy, L)
+        # ½ Σ B = ½ (2 Σ X - tr X)
+        g_sf = np.sum(latent_half, axis=(1, 2)) - 0.5 * np.sum(latent_diag, axis=1)
+        # ½ Σ B ∘ (s_d - s_d')² = Σ X ∘ (s_d - s_d')² (zero diagonal)
+        g_ls = (latent_half.reshape(dy, -1) @ sp.latent_sq.T) * inv_ls2
+        # B [1, S] = X V + Xᵀ V - diag(X) V
+        basis = np.hstack([np.ones((n_objects, 1)), latents])  # (L, 1 + ds)
+        products = latent_half @ basis + np.swapaxes(basis.T @ latent_half, 1, 2)
+        products -= latent_diag[:, :, None] * basis
+        row_sums = products[:, :, 0]  # (dy, L)
         # ∂/∂s_l = -Σ_a Σ_l' B_a[l,l'] (s_l - s_l') / ℓ_a²
         g_latents = -(
-            latents * (row_sums.T @ inv_ls2) - np.einsum("ald,ad->ld", blocks @ latents, inv_ls2)
+            latents * (row_sums.T @ inv_ls2) - np.einsum("ald,ad->ld", products[:, :, 1:], inv_ls2)
         )
-        g_lx = 0.5 * (action_blocks.reshape(dy, m * m) @ self._sq_design.T) * inv_lx2
+        g_lx = (action_half.reshape(dy, m * m) @ self._sq_design.T) * inv_lx2
         grad = np.empty(layout.size)
         grad[layout.latents] = g_latents.ravel()
         grad[layout.log_signal_variance] = g_sf
@@ -350,10 +376,10 @@ def condition_kronecker(
             f"has dx={data.action_dim}, dy={data.observation_dim}."
         )
     likelihood = KroneckerLikelihood(data, h.latent_dim, design)
-    sp = likelihood.spectral(likelihood.layout.pack(latents, h))
+    sp, beta_grid = likelihood.spectral(likelihood.layout.pack(latents, h))
     log_likelihood = -likelihood._value(sp)
     grid = likelihood.design.grid_index
-    beta = sp.beta_grid.reshape(h.observation_dim, -1)[:, grid]
+    beta = beta_grid.reshape(h.observation_dim, -1)[:, grid]
     factors = KroneckerFactors(
         design=likelihood.design.actions,
         grid_index=grid,
@@ -362,7 +388,7 @@ def condition_kronecker(
         action_eigenvalues=sp.action_values,
         action_eigenvectors=sp.action_vectors,
         spectrum=sp.spectrum,
-        beta_grid=sp.beta_grid,
+        beta_grid=beta_grid,
     )
     latents = latents.copy()
     for array in (
@@ -374,7 +400,7 @@ def condition_kronecker(
         sp.action_values,
         sp.action_vectors,
         sp.spectrum,
-        sp.beta_grid,
+        beta_grid,
     ):
         array.flags.writeable = False
     return ManifoldModel(
