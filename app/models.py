@@ -134,7 +134,10 @@ class ModelRecord(Base):
     """A fitted (or fitting) object manifold.
 
     The GP posterior is not stored: it is recomputed from the dataset, latents and
-    hyperparameters (deterministic), so the stored arrays are the whole model.
+    hyperparameters (deterministic), so the stored arrays are the whole model. ``posterior``
+    records how it was conditioned (the model document's ``posterior`` field: structure and, for
+    a sparse model, its inducing touches); ``None`` on rows from before revision 0002, which are
+    rebuilt with :func:`core.posterior.condition`'s default structure.
     """
 
     __tablename__ = "models"
@@ -158,6 +161,7 @@ class ModelRecord(Base):
     progress: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utc_now)
     finished_at: Mapped[datetime | None] = mapped_column(UTCDateTime, default=None)
+    posterior: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)
 
     dataset: Mapped[Dataset] = relationship()
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
+from app.models import ModelRecord
 from tests.app.conftest import TestClient, experiment1_csv
 
 API = "/api/v1"
@@ -52,6 +53,14 @@ def test_fit_in_background_with_progress(client: TestClient) -> None:
     assert '"status": "ready"' in events
     listing = client.get(f"{API}/models", params={"status": "ready"}).json()
     assert listing["count"] == 1
+    # The fit's posterior is recorded on the row (rebuilt from it once out of the cache).
+    context = client.app.state.context  # type: ignore[attr-defined]
+    with context.database.session() as session:
+        row = session.get(ModelRecord, model["id"])
+        assert row is not None
+        assert row.posterior == {"structure": "dense"}  # random actions, N = 40
+    exported = client.get(f"{API}/models/{model['id']}/export").json()
+    assert exported["posterior"] == {"structure": "dense"}
 
 
 def test_fit_requests_are_checked(client: TestClient) -> None:

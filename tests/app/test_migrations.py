@@ -1,0 +1,104 @@
+"""Alembic migrations: head matches the tables of :mod:`app.models`; 0002 (``models.posterior``)
+upgrades a database with models of revision 0001, which keep loading as before, and downgrades.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from alembic import command
+from alembic.autogenerate import compare_metadata
+from alembic.config import Config
+from alembic.runtime.migration import MigrationContext
+from sqlalchemy import inspect, text
+
+from app.db import Database, upgrade_to_head
+from app.documents import model_to_document
+from app.models import Base, ModelRecord
+from app.services.events import EventBus
+from app.services.models import ModelStore
+from core.posterior import condition, predict
+from core.types import Hyperparameters
+from core.worlds import sample_experiment1
+from tests.app.conftest import make_settings
+
+HYPER = Hyperparameters(
+    signal_variance=np.array([0.5, 0.4, 0.3]),
+    noise_variance=np.array([0.01, 0.02, 0.03]),
+    latent_lengthscales=np.array([[1.0], [2.0], [3.0]]),
+    action_lengthscales=np.array([[0.7], [0.8], [0.9]]),
+)
+LATENTS = np.array([[-1.2], [-0.1], [0.3], [1.0]])
+
+
+def migrate(database: Database, migrations_dir: Path, revision: str, down: bool = False) -> None:
+    config = Config()
+    config.set_main_option("script_location", str(migrations_dir))
+    with database.engine.begin() as connection:
+        config.attributes["connection"] = connection
+        (command.downgrade if down else command.upgrade)(config, revision)
+
+
+def revision_of(database: Database) -> str | None:
+    with database.engine.connect() as connection:
+        return MigrationContext.configure(connection).get_current_revision()
+
+
+def model_columns(database: Database) -> set[str]:
+    return {c["name"] for c in inspect(database.engine).get_columns("models")}
+
+
+def test_head_matches_the_tables_of_the_app(tmp_path: Path) -> None:
+    settings = make_settings(tmp_path)
+    database = Database(settings.database_url)
+    try:
+        upgrade_to_head(database.engine, settings.migrations_dir)
+        assert revision_of(database) == "0002"
+        with database.engine.connect() as connection:
+            assert compare_metadata(MigrationContext.configure(connection), Base.metadata) == []
+    finally:
+        database.dispose()
+
+
+def test_models_of_revision_0001_upgrade_and_load_as_before(tmp_path: Path) -> None:
+    settings = make_settings(tmp_path)
+    database = Database(settings.database_url)
+    data = sample_experiment1(np.random.default_rng(3), touches_per_object=15)
+    sparse = condition(data, LATENTS, HYPER, structure="sparse", n_inducing=9)
+    auto = condition(data, LATENTS, HYPER)  # what a 0001 server rebuilt: dense at N = 60
+    try:
+        upgrade_to_head(database.engine, settings.migrations_dir)
+        store = ModelStore(database, EventBus(database))
+        try:
+            with database.session() as session:
+                document = json.loads(json.dumps(model_to_document(sparse)))
+                model_id = store.import_document(session, document).id
+        finally:
+            store.close()
+        # Back to 0001 (the column goes, the row stays), then up again: the row has no record.
+        migrate(database, settings.migrations_dir, "0001", down=True)
+        assert revision_of(database) == "0001"
+        assert "posterior" not in model_columns(database)
+        with database.engine.connect() as connection:
+            assert connection.execute(text("SELECT count(*) FROM models")).scalar() == 1
+        migrate(database, settings.migrations_dir, "head")
+        assert revision_of(database) == "0002"
+        assert "posterior" in model_columns(database)
+        store = ModelStore(database, EventBus(database))
+        try:
+            with database.session() as session:
+                row = session.get(ModelRecord, model_id)
+                assert row is not None
+                assert row.status == "ready"
+                assert row.posterior is None
+                old = store.load(session, model_id)
+        finally:
+            store.close()
+    finally:
+        database.dispose()
+    assert old.posterior.structure == auto.posterior.structure == "dense"
+    s, x = np.linspace(-1.5, 1.5, 5)[:, None], np.linspace(-2.0, 2.0, 5)[:, None]
+    for left, right in zip(predict(old, s, x), predict(auto, s, x), strict=True):
+        np.testing.assert_allclose(left, right, rtol=0.0, atol=1e-12)
