@@ -24,11 +24,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
+import scipy.linalg.blas
 import scipy.linalg.lapack
 
 from core.errors import InvalidInputError
-from core.linalg import cholesky_with_jitter, log_det_from_cholesky
+from core.linalg import cholesky_with_jitter, inverse_from_cholesky
 from core.parameters import ParameterLayout
 from core.types import Hyperparameters, TrainingData
 from core.validation import FloatArray, as_float_array
@@ -99,49 +99,51 @@ class ManifoldLikelihood:
     def noise_free_gram(self, vector: FloatArray) -> FloatArray:
         """K_f,a = σ_f,a² K^s_a[obj, obj] ∘ K^x_a for every feature, METHOD.md eq. (M1).
 
-        Rows and columns are in the internal (object-sorted) order. Shape (dy, N, N).
+        Rows and columns are in the internal (object-sorted) order. Built as one exponential
+        per entry: exp(log σ_f² - ½ Σ_d (s_d - s_d')²/ℓ^s_d² - ½ Σ_d (x_d - x_d')²/ℓ^x_d²), the
+        action part by one GEMM over the cached squared differences, the latent part (constant
+        on object blocks) added block row by block row. Shape (dy, N, N).
         """
         latents, log_sf, _, log_ls, log_lx = self.layout.split(vector)
         dy = self.layout.observation_dim
         n = self.data.n_touches
         inv_lx2 = np.exp(-2.0 * log_lx)  # (dy, dx)
         if self._sq_actions is not None:
-            if inv_lx2.shape[1] == 1:
-                sq = inv_lx2[:, :1] * self._sq_actions[0][None, :]
-            else:
-                sq = inv_lx2 @ self._sq_actions
-            sq = sq.reshape(dy, n, n)
+            exponent = ((-0.5 * inv_lx2) @ self._sq_actions).reshape(dy, n, n)
         else:
             x_scaled = self._actions[None, :, :] * np.sqrt(inv_lx2)[:, None, :]
-            norms = np.sum(x_scaled**2, axis=2)
-            sq = np.empty((dy, n, n))
+            half_norms = -0.5 * np.sum(x_scaled**2, axis=2)  # (dy, N)
+            exponent = np.empty((dy, n, n))
             for a in range(dy):
-                sq[a] = norms[a][:, None] + norms[a][None, :] - 2.0 * x_scaled[a] @ x_scaled[a].T
-            np.maximum(sq, 0.0, out=sq)
-        sq *= -0.5
-        np.exp(sq, out=sq)  # K^x_a
+                # -½ |x - x'|² = x·x' - ½|x|² - ½|x'|², never above 0
+                np.matmul(x_scaled[a], x_scaled[a].T, out=exponent[a])
+                exponent[a] += half_norms[a][:, None]
+                exponent[a] += half_norms[a][None, :]
+            np.minimum(exponent, 0.0, out=exponent)
         diff = latents[:, None, :] - latents[None, :, :]  # (L, L, ds)
-        sq_latent = np.einsum("lmd,ad->alm", diff**2, np.exp(-2.0 * log_ls))
-        latent_gram = np.exp(-0.5 * sq_latent) * np.exp(log_sf)[:, None, None]  # σ_f² K^s
-        for a in range(dy):
-            expanded = np.repeat(
-                np.repeat(latent_gram[a], self._counts, axis=0), self._counts, axis=1
-            )
-            sq[a] *= expanded
-        return np.asarray(sq, dtype=np.float64)
+        latent_part = np.einsum("lmd,ad->alm", diff**2, -0.5 * np.exp(-2.0 * log_ls))
+        latent_part += log_sf[:, None, None]  # log(σ_f² K^s), (dy, L, L)
+        rows = np.repeat(latent_part, self._counts, axis=2)  # (dy, L, N)
+        for obj, (first, count) in enumerate(zip(self._starts, self._counts, strict=True)):
+            if count:
+                exponent[:, first : first + count, :] += rows[:, obj, None, :]
+        return np.asarray(np.exp(exponent, out=exponent), dtype=np.float64)
 
     def _factor(self, gram_free: FloatArray, noise: float, feature: int) -> FloatArray:
-        """Lower Cholesky factor of K_a = K_f,a + σ_n² I (jitter only if needed)."""
+        """Upper Cholesky factor U of K_a = K_f,a + σ_n² I = UᵀU, Fortran-ordered with a zero
+        strictly lower triangle (what LAPACK reads without copying); jitter only if needed."""
         gram = gram_free.copy()
         gram.ravel()[self._diag] += noise
-        # Fast path: plain LAPACK on the symmetric matrix (its transpose is itself, so the
-        # C-ordered array is read as Fortran without a copy). Jitter ladder only on failure.
-        factor_t, info = scipy.linalg.lapack.dpotrf(gram.T, lower=0, clean=1, overwrite_a=0)
+        # Fast path: plain LAPACK in place on the symmetric matrix (its transpose is itself, so
+        # the C-ordered copy is read as Fortran). Jitter ladder only on failure.
+        upper, info = scipy.linalg.lapack.dpotrf(gram.T, lower=0, clean=1, overwrite_a=1)
         if info == 0:
-            return np.asarray(factor_t.T)
+            return np.asarray(upper, dtype=np.float64)
+        gram = gram_free.copy()
+        gram.ravel()[self._diag] += noise
         factor, jitter = cholesky_with_jitter(gram, what=f"Gram matrix of feature {feature}")
         self.max_jitter = max(self.max_jitter, jitter)
-        return factor
+        return np.asarray(factor.T, dtype=np.float64)
 
     def value(self, vector: FloatArray) -> float:
         """-log p at a packed vector (no gradient: one Cholesky factor per feature)."""
@@ -151,17 +153,25 @@ class ManifoldLikelihood:
         n = self.data.n_touches
         total = 0.0
         for a in range(self.layout.observation_dim):
-            factor = self._factor(gram_free[a], float(np.exp(log_sn[a])), a)
-            alpha = scipy.linalg.solve_triangular(
-                factor, self._centred[a], lower=True, check_finite=False
-            )
+            upper = self._factor(gram_free[a], float(np.exp(log_sn[a])), a)
+            # α = U⁻ᵀ y, so yᵀ K⁻¹ y = |α|²
+            alpha, info = scipy.linalg.lapack.dtrtrs(upper, self._centred[a], lower=0, trans=1)
+            if info:  # pragma: no cover - the factor came from a successful Cholesky
+                raise InvalidInputError(f"dtrtrs failed on feature {a}.")
+            log_det = 2.0 * float(np.sum(np.log(upper.ravel(order="F")[self._diag])))
             # METHOD.md eq. (M2)
-            total += 0.5 * float(alpha @ alpha) + 0.5 * log_det_from_cholesky(factor)
-            total += 0.5 * n * _LOG_2PI
+            total += 0.5 * float(alpha @ alpha) + 0.5 * log_det + 0.5 * n * _LOG_2PI
         return total
 
     def value_and_gradient(self, vector: FloatArray) -> tuple[float, FloatArray]:
-        """-log p and its gradient with respect to the packed vector (same layout)."""
+        """-log p and its gradient with respect to the packed vector (same layout).
+
+        Only one triangle of W = K⁻¹ - ββᵀ is formed (K⁻¹ from the factor by
+        :func:`core.linalg.inverse_from_cholesky`, then a rank-1 ``dsyr`` update): with X its
+        lower triangle times K_f, M = X + Xᵀ - diag(X), so Σ M = 2 Σ X - tr X,
+        ½ Σ M ∘ Δ = Σ X ∘ Δ for the zero-diagonal squared action differences Δ, and the block
+        sums are Pᵀ X P + (Pᵀ X P)ᵀ minus the diagonal's.
+        """
         self.evaluations += 1
         layout = self.layout
         latents, _, log_sn, log_ls, log_lx = layout.split(vector)
@@ -171,44 +181,49 @@ class ManifoldLikelihood:
         gram_free = self.noise_free_gram(vector)
         n = self.data.n_touches
         dy = layout.observation_dim
-        g_latents = np.zeros((layout.n_objects, layout.latent_dim))
-        g_sf = np.empty(dy)
         g_sn = np.empty(dy)
-        g_ls = np.empty((dy, layout.latent_dim))
-        g_lx = np.empty((dy, layout.action_dim))
-        sq_pair = (latents[:, None, :] - latents[None, :, :]) ** 2  # (L, L, ds)
         total = 0.0
         for a in range(dy):
-            factor = self._factor(gram_free[a], float(noise[a]), a)
-            upper = factor.T  # Fortran-ordered upper factor: what LAPACK reads without copying
+            upper = self._factor(gram_free[a], float(noise[a]), a)
             y = self._centred[a]
             beta, info = scipy.linalg.lapack.dpotrs(upper, y, lower=0)
+            if info:  # pragma: no cover - the factor came from a successful Cholesky
+                raise InvalidInputError(f"dpotrs failed on feature {a}.")
             # METHOD.md eq. (M2)
-            log_det = 2.0 * float(np.sum(np.log(factor.ravel()[self._diag])))
+            log_det = 2.0 * float(np.sum(np.log(upper.ravel(order="F")[self._diag])))
             total += 0.5 * float(y @ beta) + 0.5 * log_det + 0.5 * n * _LOG_2PI
-            # K⁻¹ from the factor: dpotri fills the upper triangle of the Fortran array, i.e.
-            # the lower triangle of its C-ordered transpose; the rest stays zero (clean factor).
-            inverse_t, info2 = scipy.linalg.lapack.dpotri(upper, lower=0, overwrite_c=0)
-            if info or info2:  # pragma: no cover - the factor came from a successful Cholesky
-                raise InvalidInputError(f"dpotrs/dpotri failed on feature {a}.")
-            lower = inverse_t.T
-            w = np.add(lower, lower.T, order="C")
-            w.ravel()[self._diag] -= lower.ravel()[self._diag]
-            w -= np.multiply.outer(beta, beta)  # W = K⁻¹ - ββᵀ;  ∂(-log p)/∂K = ½ W
-            g_sn[a] = 0.5 * noise[a] * float(w.ravel()[self._diag].sum())
-            m = w
-            m *= gram_free[a]  # M = W ∘ K_f
-            g_sf[a] = 0.5 * float(m.sum())
-            if self._sq_actions is not None:
-                g_lx[a] = 0.5 * (self._sq_actions @ m.ravel()) * inv_lx2[a]
-            else:
-                x = self._actions
-                g_lx[a] = (m.sum(axis=1) @ x**2 - np.sum(x * (m @ x), axis=0)) * inv_lx2[a]
-            blocks = np.add.reduceat(
-                np.add.reduceat(m, self._starts, axis=0), self._starts, axis=1
-            )  # B = Pᵀ M P, (L, L)
-            g_ls[a] = 0.5 * np.einsum("lm,lmd->d", blocks, sq_pair) * inv_ls2[a]
-            g_latents -= (latents * blocks.sum(axis=1)[:, None] - blocks @ latents) * inv_ls2[a]
+            # Upper triangle (Fortran) of W = K⁻¹ - ββᵀ: ∂(-log p)/∂K = ½ W. Its C-ordered
+            # transpose holds W in the lower triangle and zeros above.
+            inverse = inverse_from_cholesky(upper)
+            inverse = scipy.linalg.blas.dsyr(-1.0, beta, lower=0, a=inverse, overwrite_a=1)
+            half = inverse.T
+            g_sn[a] = 0.5 * noise[a] * float(half.ravel()[self._diag].sum())
+            gram_free[a] *= half  # X_a = tril(W_a) ∘ K_f,a, in place of K_f,a
+        halves = gram_free.reshape(dy, n * n)
+        diagonals = halves[:, self._diag]  # (dy, N)
+        g_sf = np.sum(halves, axis=1) - 0.5 * np.sum(diagonals, axis=1)
+        if self._sq_actions is not None:
+            # Σ X ∘ Δ_d for all features in one GEMM (the cached differences read once).
+            g_lx = (self._sq_actions @ halves.T).T * inv_lx2
+        else:
+            x = self._actions
+            squares = x**2
+            g_lx = (np.sum(gram_free, axis=2) + np.sum(gram_free, axis=1)) @ squares
+            g_lx -= 2.0 * np.einsum("and,nd->ad", gram_free @ x, x)
+            g_lx *= inv_lx2
+        lower_blocks = np.add.reduceat(
+            np.add.reduceat(gram_free, self._starts, axis=1), self._starts, axis=2
+        )  # Pᵀ X P, (dy, L, L)
+        blocks = lower_blocks + np.swapaxes(lower_blocks, 1, 2)  # B = Pᵀ M P
+        diagonal_blocks = np.add.reduceat(diagonals, self._starts, axis=1)  # (dy, L)
+        blocks -= diagonal_blocks[:, :, None] * np.eye(layout.n_objects)
+        sq_pair = (latents[:, None, :] - latents[None, :, :]) ** 2  # (L, L, ds)
+        g_ls = 0.5 * np.einsum("alm,lmd->ad", blocks, sq_pair) * inv_ls2
+        row_sums = blocks.sum(axis=2)  # (dy, L)
+        # ∂/∂s_l = -Σ_a Σ_l' B_a[l,l'] (s_l - s_l') / ℓ_a²
+        g_latents = -(
+            latents * (row_sums.T @ inv_ls2) - np.einsum("ald,ad->ld", blocks @ latents, inv_ls2)
+        )
         grad = np.empty(layout.size)
         grad[layout.latents] = g_latents.ravel()
         grad[layout.log_signal_variance] = g_sf

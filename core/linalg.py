@@ -1,10 +1,12 @@
-"""Small linear-algebra helpers: Cholesky with a jitter ladder."""
+"""Small linear-algebra helpers: Cholesky with a jitter ladder, the inverse from a Cholesky
+factor by GEMMs, and weighted Gram differences by symmetric rank-k updates."""
 
 from __future__ import annotations
 
 import numpy as np
 import scipy.linalg
 import scipy.linalg.blas
+import scipy.linalg.lapack
 
 from core.errors import NotPositiveDefiniteError
 from core.validation import FloatArray
@@ -55,6 +57,10 @@ def log_det_from_cholesky(factor: FloatArray) -> float:
     return float(2.0 * np.sum(np.log(np.diag(factor))))
 
 
+#: Orders up to which :func:`weighted_gram_difference` uses plain products (call overhead).
+_SMALL_GRAM = 32
+
+
 def _signed_roots(matrix: FloatArray, weights: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Columns of ``matrix · diag(√|w|)`` split by the sign of w (zero weights dropped)."""
     root = matrix * np.sqrt(np.abs(weights))
@@ -82,6 +88,10 @@ def weighted_gram_difference(
         Shape (n, n), C-ordered: the UPPER triangle (diagonal included) holds the result and
         the strictly lower triangle is zero.
     """
+    n = left.shape[0]
+    if n <= _SMALL_GRAM:  # two tiny GEMMs beat four BLAS calls and the sign split
+        full = (left * left_weights) @ left.T - (right * right_weights) @ right.T
+        return np.triu(full)
     a_pos, a_neg = _signed_roots(left, left_weights)
     b_pos, b_neg = _signed_roots(right, right_weights)
     result: FloatArray | None = None
@@ -100,6 +110,69 @@ def weighted_gram_difference(
             overwrite_c=1,
         )
     if result is None:
-        n = left.shape[0]
         return np.zeros((n, n))
     return np.asarray(result.T, dtype=np.float64)
+
+
+#: Triangles up to this order are inverted by LAPACK ``dtrtri`` directly; larger ones by
+#: halves, with the off-diagonal block by two GEMMs (``dtrtri`` of OpenBLAS runs at a fraction
+#: of the GEMM rate: at order 400 the recursion is ~2x faster).
+TRIANGULAR_BLOCK = 64
+#: Above this order :func:`inverse_from_cholesky` calls LAPACK ``dpotri`` (measured on
+#: OpenBLAS 0.3, one thread: the recursion wins 1.6-1.7x at orders 200-400, 1.2x at 800, and
+#: breaks even at 1200-2400, where its GEMMs on full triangles waste flops).
+RECURSIVE_INVERSE_MAX = 1024
+
+
+def upper_triangular_inverse(upper: FloatArray) -> FloatArray:
+    """U⁻¹ of an invertible upper-triangular U, by recursive halving:
+
+        [[A, B], [0, C]]⁻¹ = [[A⁻¹, -A⁻¹ B C⁻¹], [0, C⁻¹]]
+
+    (the blocked algorithm of LAPACK's ``dtrtri``, with GEMMs for the off-diagonal block).
+
+    Args:
+        upper: U; its strictly lower triangle must be zero. Shape (n, n).
+
+    Returns:
+        U⁻¹, Fortran-ordered, strictly lower triangle zero. Shape (n, n).
+    """
+    n = upper.shape[0]
+    if n <= TRIANGULAR_BLOCK:
+        inverse, info = scipy.linalg.lapack.dtrtri(upper, lower=0)
+        if info != 0:
+            raise NotPositiveDefiniteError(
+                f"dtrtri: the triangular factor is singular (info {info})."
+            )
+        return np.asarray(inverse, dtype=np.float64)
+    half = n // 2 if n < 64 else n // 32 * 16  # aligned blocks for the GEMMs, 0 < half < n
+    first = upper_triangular_inverse(upper[:half, :half])
+    second = upper_triangular_inverse(upper[half:, half:])
+    out = np.zeros((n, n), order="F")
+    out[:half, :half] = first
+    out[half:, half:] = second
+    np.matmul(-(first @ upper[:half, half:]), second, out=out[:half, half:])
+    return out
+
+
+def inverse_from_cholesky(upper: FloatArray) -> FloatArray:
+    """A⁻¹ = U⁻¹ U⁻ᵀ from the upper Cholesky factor of A = UᵀU (``dpotri`` by
+    :func:`upper_triangular_inverse` and LAPACK ``dlauum``).
+
+    Args:
+        upper: U, Fortran-ordered for speed; strictly lower triangle zero. Shape (n, n).
+
+    Returns:
+        Fortran-ordered (n, n): the upper triangle (diagonal included) holds A⁻¹, the strictly
+        lower triangle is zero. Its C-ordered transpose has A⁻¹ in the lower triangle.
+    """
+    if upper.shape[0] > RECURSIVE_INVERSE_MAX:
+        product, info = scipy.linalg.lapack.dpotri(upper, lower=0)
+        if info != 0:  # pragma: no cover - the factor came from a successful Cholesky
+            raise NotPositiveDefiniteError(f"dpotri failed (info {info}).")
+        return np.asarray(product, dtype=np.float64)
+    inverse_u = upper_triangular_inverse(upper)
+    product, info = scipy.linalg.lapack.dlauum(inverse_u, lower=0, overwrite_c=1)
+    if info != 0:  # pragma: no cover - dlauum only fails on bad arguments
+        raise NotPositiveDefiniteError(f"dlauum failed (info {info}).")
+    return np.asarray(product, dtype=np.float64)

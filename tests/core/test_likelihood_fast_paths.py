@@ -1,0 +1,167 @@
+"""The fast evaluation paths of the dense likelihood agree with the textbook formulas.
+
+:class:`core.likelihood.ManifoldLikelihood` forms one triangle of W = K⁻¹ - ββᵀ (the inverse
+from the Cholesky factor by recursive GEMMs, :func:`core.linalg.inverse_from_cholesky`) and
+contracts it blockwise; :mod:`bench.direct_likelihood` builds every ∂K/∂θ densely and uses
+:func:`numpy.linalg.inv`. Both are exact, so they agree to round-off.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+import core.linalg
+from bench.direct_likelihood import direct_value_and_gradient
+from core.errors import NotPositiveDefiniteError
+from core.likelihood import ManifoldLikelihood
+from core.linalg import (
+    inverse_from_cholesky,
+    upper_triangular_inverse,
+    weighted_gram_difference,
+)
+from core.parameters import ParameterLayout, initial_hyperparameters
+from core.types import TrainingData
+
+#: Relative agreement of two exact evaluations (values are O(10²), gradients O(10²)).
+TOLERANCE = 1e-9
+
+
+def _problem(
+    n_objects: int, counts: list[int], dx: int, dy: int, ds: int, seed: int
+) -> tuple[TrainingData, np.ndarray]:
+    """Random touches (objects interleaved, uneven counts) and a random packed vector."""
+    rng = np.random.default_rng(seed)
+    index = rng.permutation(np.repeat(np.arange(n_objects), counts))
+    n = index.size
+    truth = rng.standard_normal((n_objects, ds))
+    actions = rng.standard_normal((n, dx))
+    weights = rng.standard_normal((ds + dx, dy))
+    observations = np.sin(np.hstack([truth[index], actions]) @ weights)
+    observations += 0.1 * rng.standard_normal((n, dy))
+    data = TrainingData(tuple(f"o{i}" for i in range(n_objects)), index, actions, observations)
+    layout = ParameterLayout.for_data(data, ds)
+    vector = layout.pack(
+        rng.standard_normal((n_objects, ds)),
+        initial_hyperparameters(data, ds, latent_lengthscale=1.5),
+    )
+    return data, vector + 0.3 * rng.standard_normal(layout.size)
+
+
+def _relative(value: np.ndarray, reference: np.ndarray) -> float:
+    return float(np.max(np.abs(value - reference)) / np.max(np.abs(reference)))
+
+
+@pytest.mark.parametrize(
+    ("n_objects", "counts", "dx", "dy", "ds"),
+    [
+        (3, [4, 7, 5], 2, 2, 2),  # below the recursion block: LAPACK dtrtri
+        (4, [40, 25, 50, 35], 3, 2, 2),  # N = 150: two levels of the recursive inverse
+        (5, [30, 2, 20, 10, 21], 1, 1, 1),  # an object with two touches, N = 83
+    ],
+)
+@pytest.mark.parametrize("cached", [True, False])
+def test_value_and_gradient_match_the_direct_formula(
+    n_objects: int,
+    counts: list[int],
+    dx: int,
+    dy: int,
+    ds: int,
+    cached: bool,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    data, vector = _problem(n_objects, counts, dx, dy, ds, seed=sum(counts))
+    if not cached:
+        monkeypatch.setattr(ManifoldLikelihood, "CACHE_LIMIT", 0)
+    likelihood = ManifoldLikelihood(data, ds)
+    latents, hyper = likelihood.layout.unpack(vector)
+    value_ref, grad_ref = direct_value_and_gradient(data, latents, hyper)
+    value, grad = likelihood.value_and_gradient(vector)
+    assert value == pytest.approx(value_ref, rel=TOLERANCE)
+    assert _relative(grad, grad_ref) <= TOLERANCE
+    assert likelihood.value(vector) == pytest.approx(value_ref, rel=TOLERANCE)
+
+
+def test_noise_free_gram_matches_the_product_kernel() -> None:
+    data, vector = _problem(3, [5, 6, 4], 2, 2, 2, seed=3)
+    likelihood = ManifoldLikelihood(data, 2)
+    latents, hyper = likelihood.layout.unpack(vector)
+    order = np.argsort(data.object_index, kind="stable")
+    obj = data.object_index[order]
+    actions = data.actions[order]
+    gram = likelihood.noise_free_gram(vector)
+    for a in range(2):
+        sq_s = np.sum(
+            ((latents[obj][:, None] - latents[obj][None]) / hyper.latent_lengthscales[a]) ** 2,
+            axis=2,
+        )
+        sq_x = np.sum(
+            ((actions[:, None] - actions[None]) / hyper.action_lengthscales[a]) ** 2, axis=2
+        )
+        expected = hyper.signal_variance[a] * np.exp(-0.5 * sq_s) * np.exp(-0.5 * sq_x)
+        np.testing.assert_allclose(gram[a], expected, rtol=1e-13, atol=1e-15)
+
+
+def _spd(n: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    points = rng.standard_normal((n, 3))
+    sq = np.sum((points[:, None] - points[None]) ** 2, axis=2)
+    return np.exp(-0.5 * sq) + 1e-2 * np.eye(n)
+
+
+@pytest.mark.parametrize("n", [1, 7, 64, 65, 150, 300])
+def test_inverse_from_cholesky_matches_numpy(n: int) -> None:
+    matrix = _spd(n, seed=n)
+    upper = scipy.linalg.cholesky(matrix, lower=False)
+    result = inverse_from_cholesky(np.asfortranarray(upper))
+    expected = np.linalg.inv(matrix)
+    assert np.all(np.tril(result, -1) == 0.0)
+    # The inverse's error is ~cond(K)·eps: cond ≈ 1e3-1e4 here.
+    assert _relative(np.triu(result), np.triu(expected)) < 1e-11
+
+
+def test_recursive_and_lapack_inverse_branches_agree(monkeypatch: pytest.MonkeyPatch) -> None:
+    matrix = _spd(90, seed=1)
+    upper = np.asfortranarray(scipy.linalg.cholesky(matrix, lower=False))
+    recursive = inverse_from_cholesky(upper)
+    monkeypatch.setattr(core.linalg, "RECURSIVE_INVERSE_MAX", 10)
+    lapack = inverse_from_cholesky(upper)
+    monkeypatch.setattr(core.linalg, "RECURSIVE_INVERSE_MAX", 1024)
+    monkeypatch.setattr(core.linalg, "TRIANGULAR_BLOCK", 4)  # five levels of halving
+    deep = inverse_from_cholesky(upper)
+    assert _relative(recursive, lapack) < 1e-12
+    assert _relative(deep, lapack) < 1e-12
+    assert np.all(np.tril(lapack, -1) == 0.0)
+
+
+def test_upper_triangular_inverse_is_exact_on_a_triangle() -> None:
+    rng = np.random.default_rng(2)
+    upper = np.triu(rng.standard_normal((100, 100))) + 10.0 * np.eye(100)
+    inverse = upper_triangular_inverse(upper)
+    np.testing.assert_allclose(inverse @ upper, np.eye(100), atol=1e-13)
+    assert np.all(np.tril(inverse, -1) == 0.0)
+
+
+def test_a_singular_triangle_is_reported() -> None:
+    upper = np.triu(np.ones((5, 5)))
+    upper[2, 2] = 0.0
+    with pytest.raises(NotPositiveDefiniteError, match="singular"):
+        upper_triangular_inverse(upper)
+
+
+@pytest.mark.parametrize("n", [5, 80])  # plain products below 32, dsyrk updates above
+def test_weighted_gram_difference_handles_signs_and_zeros(n: int) -> None:
+    rng = np.random.default_rng(n)
+    left, right = rng.standard_normal((n, n)), rng.standard_normal((n, 7))
+    left_weights = rng.uniform(0.1, 2.0, n)
+    left_weights[:3] = [-1e-14, 0.0, -0.5]  # round-off negatives, zeros, real negatives
+    right_weights = rng.uniform(0.1, 2.0, 7)
+    right_weights[0] = -3e-15
+    expected = (left * left_weights) @ left.T - (right * right_weights) @ right.T
+    result = weighted_gram_difference(left, left_weights, right, right_weights)
+    assert np.all(np.tril(result, -1) == 0.0)
+    np.testing.assert_allclose(np.triu(result), np.triu(expected), rtol=1e-12, atol=1e-12)
+    zeros = weighted_gram_difference(left, np.zeros(n), right, np.zeros(7))
+    assert zeros.shape == (n, n)
+    assert not np.any(zeros)
