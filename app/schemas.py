@@ -312,8 +312,11 @@ class CollectionObject(BaseModel):
 class CollectionCreate(BaseModel):
     """``POST /collections``: touch each object ``samples_per_object`` times on the rig.
 
-    ``action_design``: ``random`` draws x ~ N(0, action_scale² I) per touch (the paper's
-    design); ``teaching`` repeats the teaching action x = 0.
+    ``action_design``: ``random`` draws a fresh x ~ N(0, action_scale² I) for every touch (the
+    paper's design; each object gets its own actions); ``shared`` draws ``samples_per_object``
+    actions from the same prior (scrambled Sobol, :func:`core.designs.shared_design`) and touches
+    every object with each of them (a shared design: fits and plans take the exact Kronecker
+    path); ``teaching`` repeats the teaching action x = 0.
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -321,7 +324,7 @@ class CollectionCreate(BaseModel):
     name: Annotated[str, Field(max_length=200)] = ""
     objects: Annotated[list[CollectionObject], Field(min_length=2, max_length=100)]
     samples_per_object: Annotated[int, Field(ge=2, le=1000)] = 20
-    action_design: Literal["random", "teaching"] = "random"
+    action_design: Literal["random", "shared", "teaching"] = "random"
     action_scale: Annotated[float, Field(gt=0.0, le=100.0)] = 1.0
     seed: Seed | None = None
 

@@ -31,7 +31,7 @@ from app.services import objects, states
 from app.services.events import EventBus
 from app.services.rig import RigService, raw_series, trace_preview
 from app.services.runs import RunCancelled, RunHandle, RunManager
-from core.designs import CollectionDesign
+from core.designs import CollectionDesign, random_design, shared_design
 from core.errors import CoreError
 from core.validation import FloatArray
 from hardware.errors import HardwareError
@@ -255,17 +255,23 @@ class CollectionService:
             self._finish(run_id, "failed", f"internal error: {type(exc).__name__}: {exc}")
 
     def _design(self, body: CollectionCreate) -> CollectionDesign:
-        """The request's design: its M actions (random or the teaching action x = 0), each on
-        every object in turn."""
+        """The request's design (:mod:`core.designs`), x ~ N(0, action_scale² I).
+
+        ``random``: a fresh action for every touch (the paper's design; each object gets its own
+        ``samples_per_object`` actions). ``shared``: M = ``samples_per_object`` actions
+        (scrambled Sobol through the prior), each applied to every object in turn. ``teaching``:
+        the teaching action x = 0, M times on every object.
+        """
         rng = np.random.default_rng(body.seed)
-        dx, n_objects = self._rig.action_dim, len(body.objects)
+        dx, n_objects, per_object = self._rig.action_dim, len(body.objects), body.samples_per_object
+        mean, cov = np.zeros(dx), body.action_scale**2 * np.eye(dx)
         if body.action_design == "random":
-            actions = body.action_scale * rng.standard_normal((body.samples_per_object, dx))
-        else:
-            actions = np.zeros((body.samples_per_object, dx))
+            return random_design(n_objects, per_object, mean, cov, rng)
+        if body.action_design == "shared":
+            return shared_design(n_objects, per_object, mean, cov, rng)
         return CollectionDesign(
-            object_index=np.repeat(np.arange(n_objects, dtype=np.int64), actions.shape[0]),
-            actions=np.tile(actions, (n_objects, 1)),
+            object_index=np.repeat(np.arange(n_objects, dtype=np.int64), per_object),
+            actions=np.zeros((n_objects * per_object, dx)),
             shared=True,
         )
 

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import csv
 import io
 
 import numpy as np
 from sqlalchemy.orm import Session
 
 from app import crud
-from app.documents import read_training_csv, write_training_csv
+from app.documents import TrainingCsvWriter, read_training_csv
 from app.errors import BadInputError, ConflictError, NotFoundError
 from app.models import Dataset
 from app.schemas import DatasetCreate, DatasetPublic, Page, SampleIn
@@ -188,21 +187,15 @@ def _training_data(session: Session, dataset: Dataset) -> TrainingData:
 def export_csv(session: Session, dataset_id: int) -> str:
     """The dataset as training CSV (floats written with ``repr``: exact round trip).
 
-    A ready dataset is written by :func:`app.documents.write_training_csv`; a partial one (a
-    collection in progress or interrupted) row by row in the same format.
+    Written touch by touch by :class:`app.documents.TrainingCsvWriter`, so a partial dataset (a
+    collection in progress or interrupted, which is not yet training data) exports in the same
+    format as a ready one.
     """
     dataset = require(session, dataset_id)
-    if dataset.status == "ready":
-        return write_training_csv(_training_data(session, dataset))
     out = io.StringIO()
-    writer = csv.writer(out, lineterminator="\n")
-    writer.writerow(
-        ["object"]
-        + [f"x_{i + 1}" for i in range(dataset.action_dim)]
-        + [f"y_{i + 1}" for i in range(dataset.observation_dim)]
-    )
+    writer = TrainingCsvWriter(out, dataset.action_dim, dataset.observation_dim)
     for name, action, observation in crud.dataset_samples(session, dataset.id):
-        writer.writerow([name, *map(repr, action.tolist()), *map(repr, observation.tolist())])
+        writer.write(name, action, observation)
     return out.getvalue()
 
 

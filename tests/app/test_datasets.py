@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from app import crud
+from app.documents import DocumentError, read_training_csv
 from tests.app.conftest import experiment1_csv
 
 CSV_HEADERS = {"content-type": "text/csv"}
@@ -141,3 +144,25 @@ def test_upload_size_limit(tmp_path) -> None:  # type: ignore[no-untyped-def]
         response = small.post("/api/v1/datasets", content=chunks(), headers=CSV_HEADERS)
         assert response.status_code == 413
         assert response.json()["limit_bytes"] == 2048
+
+
+def test_a_partial_dataset_exports_in_the_same_format(client: TestClient) -> None:
+    """A collection in progress (one object, one touch: not yet training data) exports its
+    touches so far, in the training CSV format, floats exact."""
+    context = client.app.state.context  # type: ignore[attr-defined]
+    action, observation = np.array([0.1, -2.5e-7]), np.array([1 / 3, 7.0, -0.0])
+    with context.database.session() as session:
+        dataset = crud.create_dataset(
+            session, name="partial", source="collection", status="collecting",
+            object_names=["cup"], action_dim=2, observation_dim=3,
+        )  # fmt: skip
+        crud.add_samples(session, dataset, [("cup", action, observation, None)])
+        session.commit()
+        dataset_id = dataset.id
+    exported = client.get(f"/api/v1/datasets/{dataset_id}/export?format=csv")
+    assert exported.status_code == 200
+    assert exported.text == f"object,x_1,x_2,y_1,y_2,y_3\ncup,0.1,-2.5e-07,{1 / 3!r},7.0,-0.0\n"
+    with pytest.raises(
+        DocumentError, match="at least 2 objects"
+    ):  # one object: not training data yet
+        read_training_csv(exported.text)

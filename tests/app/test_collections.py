@@ -1,0 +1,91 @@
+"""Collection designs on the simulated rig: what the stored dataset's actions are.
+
+``random`` draws a fresh action for every touch (the paper's design, ``core.designs.random_design``:
+each object its own actions); ``shared`` touches every object with the same M actions
+(``core.designs.shared_design``); ``teaching`` repeats x = 0.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+import pytest
+
+from app.documents import read_training_csv
+from core.designs import random_design, shared_design
+from core.types import TrainingData
+from tests.app.conftest import TestClient
+
+API = "/api/v1"
+CUPS = ["paper_cup", "bumpy_glass", "stainless_cup"]
+TOUCHES = 3
+SEED = 11
+SCALE = 0.5
+
+
+def collect(client: TestClient, design: str) -> TrainingData:
+    """Run a collection of the three cups with ``design``; the stored dataset."""
+    created = client.post(
+        f"{API}/collections",
+        json={
+            "objects": [{"name": n, "slot": i} for i, n in enumerate(CUPS)],
+            "samples_per_object": TOUCHES,
+            "action_design": design,
+            "action_scale": SCALE,
+            "seed": SEED,
+        },
+    )
+    assert created.status_code == 201, created.text
+    assert created.json()["total"] == len(CUPS) * TOUCHES
+    deadline = time.monotonic() + 120
+    run: dict[str, Any] = created.json()
+    while run["status"] in ("queued", "running") and time.monotonic() < deadline:
+        time.sleep(0.05)
+        run = client.get(f"{API}/collections/{run['id']}").json()
+    assert run["status"] == "completed", run
+    assert client.get(f"{API}/datasets/{run['dataset_id']}").json()["status"] == "ready"
+    data = read_training_csv(client.get(f"{API}/datasets/{run['dataset_id']}/export").text)
+    assert data.object_names == tuple(CUPS)
+    assert np.bincount(data.object_index).tolist() == [TOUCHES] * len(CUPS)
+    return data
+
+
+def per_object(data: TrainingData) -> list[np.ndarray]:
+    """Each object's actions, in the order it was touched. Shape (TOUCHES, dx) each."""
+    return [data.actions[data.object_index == obj] for obj in range(data.n_objects)]
+
+
+def test_random_design_draws_every_touch_afresh(client: TestClient) -> None:
+    data = collect(client, "random")
+    actions = per_object(data)
+    # Every touch its own action: no two touches (of one object or of two) share one.
+    assert np.unique(data.actions, axis=0).shape[0] == len(CUPS) * TOUCHES
+    for a in range(len(CUPS)):
+        for b in range(a + 1, len(CUPS)):
+            assert not np.allclose(actions[a], actions[b])
+    # The paper's design of core.designs, object by object.
+    cov = SCALE**2 * np.eye(data.action_dim)
+    expected = random_design(
+        len(CUPS), TOUCHES, np.zeros(data.action_dim), cov, np.random.default_rng(SEED)
+    )
+    np.testing.assert_array_equal(data.object_index, expected.object_index)
+    np.testing.assert_array_equal(data.actions, expected.actions)
+
+
+@pytest.mark.parametrize("design", ["shared", "teaching"])
+def test_shared_designs_give_every_object_the_same_actions(client: TestClient, design: str) -> None:
+    data = collect(client, design)
+    actions = per_object(data)
+    for other in actions[1:]:
+        np.testing.assert_array_equal(other, actions[0])
+    if design == "teaching":
+        np.testing.assert_array_equal(actions[0], np.zeros_like(actions[0]))
+        return
+    assert np.unique(actions[0], axis=0).shape[0] == TOUCHES
+    cov = SCALE**2 * np.eye(data.action_dim)
+    expected = shared_design(
+        len(CUPS), TOUCHES, np.zeros(data.action_dim), cov, np.random.default_rng(SEED)
+    )
+    np.testing.assert_array_equal(actions[0], expected.actions[expected.object_index == 0])
