@@ -201,7 +201,10 @@ class ManifoldLikelihood:
             gram_free[a] *= half  # X_a = tril(W_a) ∘ K_f,a, in place of K_f,a
         halves = gram_free.reshape(dy, n * n)
         diagonals = halves[:, self._diag]  # (dy, N)
-        g_sf = np.sum(halves, axis=1) - 0.5 * np.sum(diagonals, axis=1)
+        lower_blocks = np.add.reduceat(
+            np.add.reduceat(gram_free, self._starts, axis=2), self._starts, axis=1
+        )  # Pᵀ X P, (dy, L, L)
+        g_sf = np.sum(lower_blocks, axis=(1, 2)) - 0.5 * np.sum(diagonals, axis=1)
         if self._sq_actions is not None:
             # Σ X ∘ Δ_d for all features in one GEMM (the cached differences read once).
             g_lx = (self._sq_actions @ halves.T).T * inv_lx2
@@ -211,9 +214,6 @@ class ManifoldLikelihood:
             g_lx = (np.sum(gram_free, axis=2) + np.sum(gram_free, axis=1)) @ squares
             g_lx -= 2.0 * np.einsum("and,nd->ad", gram_free @ x, x)
             g_lx *= inv_lx2
-        lower_blocks = np.add.reduceat(
-            np.add.reduceat(gram_free, self._starts, axis=1), self._starts, axis=2
-        )  # Pᵀ X P, (dy, L, L)
         blocks = lower_blocks + np.swapaxes(lower_blocks, 1, 2)  # B = Pᵀ M P
         diagonal_blocks = np.add.reduceat(diagonals, self._starts, axis=1)  # (dy, L)
         blocks -= diagonal_blocks[:, :, None] * np.eye(layout.n_objects)
