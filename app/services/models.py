@@ -1,11 +1,11 @@
 """Models: fit in the background with progress events, read, export and import documents.
 
 The GP posterior is not stored, only how it was conditioned (the row's ``posterior``: the model
-document's ``posterior`` field, :func:`posterior_record`). :class:`ModelStore` rebuilds a
-:class:`ManifoldModel` from the dataset, latents, hyperparameters and that record
-(deterministic, :func:`condition_as_recorded`), so a model predicts the same after it leaves the
-in-memory cache of recent ones. Rows from before the record existed (``posterior`` NULL) are
-rebuilt as :func:`core.posterior.condition` chooses by default, as they were then.
+document's ``posterior`` field, :func:`app.documents.posterior_field`). :class:`ModelStore`
+rebuilds a :class:`ManifoldModel` from the dataset, latents, hyperparameters and that record
+(deterministic, :func:`app.documents.condition_as_recorded`), so a model predicts the same after
+it leaves the in-memory cache of recent ones. Rows from before the record existed (``posterior``
+NULL) are rebuilt as :func:`core.posterior.condition` chooses by default, as they were then.
 """
 
 from __future__ import annotations
@@ -22,7 +22,13 @@ from sqlalchemy.orm import Session
 
 from app import crud
 from app.db import Database
-from app.documents import DocumentError, model_from_document, model_to_document
+from app.documents import (
+    DocumentError,
+    condition_as_recorded,
+    model_from_document,
+    model_to_document,
+    posterior_field,
+)
 from app.errors import AppError, BadInputError, ConflictError, NotFoundError
 from app.models import ModelRecord, utc_now
 from app.schemas import (
@@ -37,16 +43,7 @@ from app.services import datasets
 from app.services.events import EventBus
 from core.errors import CoreError
 from core.manifold import FitOptions, iter_fit
-from core.posterior import condition
-from core.sparse import condition_sparse
-from core.types import (
-    FitDiagnostics,
-    GPPosterior,
-    Hyperparameters,
-    InducingPoints,
-    ManifoldModel,
-    TrainingData,
-)
+from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
 
 logger = logging.getLogger(__name__)
 
@@ -89,82 +86,12 @@ def _diagnostics_from_dict(values: dict[str, Any] | None) -> FitDiagnostics | No
     )
 
 
-def posterior_record(posterior: GPPosterior) -> dict[str, Any]:
-    """How the GP was conditioned, as stored on a model row (the same dict as the model
-    document's ``posterior`` field, :mod:`app.documents`).
-
-    Returns:
-        ``{"structure": "dense"}``, ``{"structure": "kronecker"}`` or ``{"structure": "sparse",
-        "n_inducing": m, "inducing_touches": [...]}`` (the training touches used as inducing
-        points, in order; indices into the dataset's samples in upload order).
-    """
-    record: dict[str, Any] = {"structure": str(posterior.structure)}
-    if posterior.inducing is not None:
-        record["n_inducing"] = posterior.inducing.size
-        record["inducing_touches"] = [int(i) for i in posterior.inducing.touch_index]
-    return record
-
-
-def condition_as_recorded(
-    data: TrainingData,
-    latents: np.ndarray[Any, np.dtype[np.float64]],
-    hyperparameters: Hyperparameters,
-    diagnostics: FitDiagnostics | None,
-    record: dict[str, Any] | None,
-) -> ManifoldModel:
-    """Rebuild a model's GP posterior exactly as :func:`posterior_record` recorded it.
-
-    Args:
-        data: The model's training touches (N of them, in the dataset's order).
-        latents: Object latents. Shape (L, ds).
-        hyperparameters: Per-feature hyperparameters.
-        diagnostics: Fit diagnostics to attach, if any.
-        record: The row's ``posterior`` record; ``None`` for a row stored before it existed,
-            rebuilt as :func:`core.posterior.condition` chooses by default (``"auto"``).
-
-    Raises:
-        ValueError: The record is malformed (an unknown structure, inducing touches that are
-            not distinct indices in [0, N)).
-        core.errors.CoreError: The structure cannot be used for the data.
-    """
-    if record is None:
-        return condition(data, latents, hyperparameters, diagnostics)
-    structure = record.get("structure")
-    if structure not in ("dense", "kronecker", "sparse"):
-        raise ValueError(
-            f"posterior.structure: expected dense, kronecker or sparse, found {structure!r}."
-        )
-    touches = record.get("inducing_touches")
-    if structure != "sparse" or touches is None:
-        kwargs: dict[str, Any] = {}
-        if structure == "sparse":
-            kwargs["n_inducing"] = int(record["n_inducing"])
-        return condition(data, latents, hyperparameters, diagnostics, structure=structure, **kwargs)
-    index = np.asarray(touches, dtype=np.int64)
-    if (
-        index.ndim != 1
-        or index.size == 0
-        or index.min() < 0
-        or index.max() >= data.n_touches
-        or np.unique(index).size != index.size
-    ):
-        raise ValueError(
-            "posterior.inducing_touches: expected distinct touch indices in "
-            f"0..{data.n_touches - 1}, found {index.tolist()[:5]} (of {index.size})."
-        )
-    index.flags.writeable = False
-    inducing = InducingPoints(
-        object_index=data.object_index[index], actions=data.actions[index], touch_index=index
-    )
-    return condition_sparse(data, latents, hyperparameters, diagnostics, inducing=inducing)
-
-
 def store_fitted(row: ModelRecord, model: ManifoldModel, fit_seconds: float | None) -> None:
-    """Copy a fitted model's latents, hyperparameters, posterior record (:func:`posterior_record`)
-    and diagnostics into its row; mark ready."""
+    """Copy a fitted model's latents, hyperparameters, posterior record
+    (:func:`app.documents.posterior_field`) and diagnostics into its row; mark ready."""
     h = model.hyperparameters
     row.latents = model.latents
-    row.posterior = posterior_record(model.posterior)
+    row.posterior = posterior_field(model.posterior)
     row.signal_variance = h.signal_variance
     row.noise_variance = h.noise_variance
     row.latent_lengthscales = h.latent_lengthscales
@@ -419,7 +346,12 @@ class ModelStore:
         )
         try:
             model = condition_as_recorded(
-                data, row.latents, hyper, _diagnostics_from_dict(row.diagnostics), row.posterior
+                data,
+                row.latents,
+                hyper,
+                _diagnostics_from_dict(row.diagnostics),
+                row.posterior,
+                where="model row",
             )
         except (CoreError, ValueError, KeyError, TypeError) as exc:
             raise StoredModelError(

@@ -16,11 +16,16 @@ import numpy as np
 import pytest
 
 from app.config import Settings
-from app.documents import model_to_document
+from app.documents import (
+    DocumentError,
+    condition_as_recorded,
+    model_to_document,
+    posterior_field,
+)
 from app.main import create_app
 from app.models import ModelRecord
 from app.services.events import EventBus
-from app.services.models import ModelStore, condition_as_recorded, posterior_record
+from app.services.models import ModelStore, StoredModelError
 from core.designs import collect, shared_design
 from core.posterior import condition, predict
 from core.sparse import condition_sparse, select_inducing_points
@@ -114,7 +119,7 @@ def test_evicted_model_predicts_as_imported(client: TestClient, which: str) -> N
         with context.database.session() as session:
             row = session.get(ModelRecord, model_id)
             assert row is not None
-            assert row.posterior == posterior_record(original.posterior)
+            assert row.posterior == posterior_field(original.posterior)
             first = store.load(session, model_id)
             store.load(session, other_id)  # evicts model_id
             rebuilt = store.load(session, model_id)
@@ -168,15 +173,16 @@ def test_without_the_record_a_sparse_model_would_come_back_otherwise() -> None:
 @pytest.mark.parametrize(
     ("record", "fragment"),
     [
-        ({"structure": "diagonal"}, "posterior.structure"),
-        ({"structure": "sparse", "inducing_touches": [0, 60]}, "0..59"),
+        ({"structure": "diagonal"}, "model row: posterior.structure"),
+        ({"structure": "sparse", "inducing_touches": [0, 60]}, "outside 0..59"),
         ({"structure": "sparse", "inducing_touches": [3, 3]}, "distinct"),
         ({"structure": "sparse", "inducing_touches": []}, "distinct"),
+        ({"structure": "sparse"}, "needs 'inducing_touches' or an integer 'n_inducing'"),
     ],
 )
 def test_a_malformed_record_says_what_is_wrong(record: dict[str, Any], fragment: str) -> None:
-    with pytest.raises(ValueError, match=fragment):
-        condition_as_recorded(random_data(), LATENTS, HYPER, None, record)
+    with pytest.raises(DocumentError, match=fragment):
+        condition_as_recorded(random_data(), LATENTS, HYPER, None, record, where="model row")
 
 
 def test_a_corrupted_row_is_a_server_error_naming_the_model(client: TestClient) -> None:
@@ -190,9 +196,10 @@ def test_a_corrupted_row_is_a_server_error_naming_the_model(client: TestClient) 
     store = ModelStore(context.database, EventBus(context.database))
     try:
         with context.database.session() as session:
-            from app.services.models import StoredModelError
-
-            with pytest.raises(StoredModelError, match=f"Model {model_id} cannot be rebuilt"):
+            with pytest.raises(
+                StoredModelError, match=f"Model {model_id} cannot be rebuilt"
+            ) as info:
                 store.load(session, model_id)
     finally:
         store.close()
+    assert "model row: " in str(info.value)  # the recorded structure does not fit the data
