@@ -14,7 +14,9 @@ good as every start.
 The starts differ in the initial latent length-scale. From a long one (objects look alike) the
 first quasi-Newton steps can overshoot into the flat corner where ℓ^s sits on its lower bound
 (K^s = I: every object its own function, zero gradient), from which L-BFGS-B never returns; a
-start at the latent spread avoids it, and the best of both wins feature by feature.
+start at the latent spread avoids it, and the best of both wins, feature by feature. (Trying
+the second start only when the first ends in the corner was measured worse: at L=100 × M=100
+one feature kept a poorer optimum with a long length-scale and the fit ended 3,800 nats lower.)
 """
 
 from __future__ import annotations
@@ -202,7 +204,7 @@ def iter_fit_separately(
         ftol, gtol: L-BFGS-B tolerances.
         latent_lengthscale_starts: Extra starts per feature: the same hyperparameters with
             every latent length-scale set to each of these values (clipped to the bounds).
-            The starting vector itself is always the first start.
+            The starting vector itself is always the first start; the best optimum is kept.
         stall_nats, stall_iterations, stall_relative: Early stop of each L-BFGS-B run
             (:func:`minimize_free`).
 
