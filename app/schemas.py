@@ -114,6 +114,31 @@ class FeatureHyperparameters(BaseModel):
     action_lengthscales: list[float]
 
 
+class ModelPosterior(BaseModel):
+    """How a ready model's GP is conditioned (the model document's ``posterior`` field).
+
+    ``dense``: every training touch, one N x N covariance per feature. ``kronecker``: the data
+    are a shared design (every object touched with the same actions), the covariance factorises
+    exactly. ``sparse``: m = ``n_inducing`` inducing points (the training touches listed in
+    ``inducing_touches``) stand in for all N; predictions are an approximation.
+    """
+
+    structure: Literal["dense", "kronecker", "sparse"] = Field(
+        description="How the GP posterior is conditioned: dense, kronecker or sparse."
+    )
+    n_inducing: int | None = Field(
+        default=None,
+        description="Sparse only: m, the number of inducing points (null otherwise).",
+    )
+    inducing_touches: list[int] | None = Field(
+        default=None,
+        description=(
+            "Sparse only: the training touches used as inducing points, in order (0-based "
+            "indices into the dataset's samples in upload order); null otherwise."
+        ),
+    )
+
+
 class ModelPublic(BaseModel):
     """``GET /models/{id}``."""
 
@@ -133,6 +158,14 @@ class ModelPublic(BaseModel):
     fit_seconds: float | None
     diagnostics: dict[str, Any] | None
     progress: dict[str, Any] | None
+    posterior: ModelPosterior | None = Field(
+        default=None,
+        description=(
+            "How the GP was conditioned (structure; for sparse, the inducing points). Null while "
+            "fitting, for a failed model, and for a model stored before this was recorded (such "
+            "a model is conditioned as the default structure 'auto' chooses)."
+        ),
+    )
     created_at: datetime
     finished_at: datetime | None
 

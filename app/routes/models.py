@@ -34,7 +34,8 @@ def list_models(
 
 @router.get("/{model_id}")
 def get_model(model_id: IdPath, session: SessionDep) -> ModelPublic:
-    """A model: status, object latents, hyperparameters per feature, fit time and progress."""
+    """A model: status, object latents, hyperparameters per feature, fit time, progress and
+    how its GP is conditioned (``posterior``: structure; for sparse, the inducing points)."""
     return models.get(session, model_id)
 
 

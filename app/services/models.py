@@ -18,6 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
+from pydantic import ValidationError
 from sqlalchemy.orm import Session
 
 from app import crud
@@ -35,6 +36,7 @@ from app.schemas import (
     FeatureHyperparameters,
     ModelAccepted,
     ModelCreate,
+    ModelPosterior,
     ModelPublic,
     ObjectLatent,
     Page,
@@ -129,6 +131,12 @@ def to_public(row: ModelRecord) -> ModelPublic:
             for a in range(row.signal_variance.shape[0])
         ]
     status = row.status if row.status in ("fitting", "ready", "failed") else "failed"
+    posterior: ModelPosterior | None = None
+    if row.posterior is not None:
+        try:
+            posterior = ModelPosterior.model_validate(row.posterior)
+        except ValidationError:  # changed behind the server's back; load() says so (500)
+            logger.warning("model %d: malformed posterior record %r", row.id, row.posterior)
     return ModelPublic(
         id=row.id,
         status=status,
@@ -146,6 +154,7 @@ def to_public(row: ModelRecord) -> ModelPublic:
         fit_seconds=row.fit_seconds,
         diagnostics=row.diagnostics,
         progress=row.progress,
+        posterior=posterior,
         created_at=row.created_at,
         finished_at=row.finished_at,
     )

@@ -195,11 +195,67 @@ def test_a_corrupted_row_is_a_server_error_naming_the_model(client: TestClient) 
         session.commit()
     store = ModelStore(context.database, EventBus(context.database))
     try:
-        with context.database.session() as session:
-            with pytest.raises(
-                StoredModelError, match=f"Model {model_id} cannot be rebuilt"
-            ) as info:
-                store.load(session, model_id)
+        with (
+            context.database.session() as session,
+            pytest.raises(StoredModelError, match=f"Model {model_id} cannot be rebuilt") as info,
+        ):
+            store.load(session, model_id)
     finally:
         store.close()
     assert "model row: " in str(info.value)  # the recorded structure does not fit the data
+
+
+def test_get_model_shows_how_it_was_conditioned(client: TestClient) -> None:
+    expected: dict[int, dict[str, Any]] = {}
+    for make in (*MODELS.values(), lambda: condition(shared_data(), LATENTS, HYPER)):
+        original = make()
+        expected[import_document(client, original)] = {
+            "structure": original.posterior.structure,
+            "n_inducing": None,
+            "inducing_touches": None,
+            **posterior_field(original.posterior),
+        }
+    shown = {i: client.get(f"{API}/models/{i}").json()["posterior"] for i in expected}
+    assert shown == expected
+    assert sorted(record["structure"] for record in shown.values()) == [
+        "dense",
+        "kronecker",
+        "sparse",
+        "sparse",
+    ]
+    own = next(r for r in shown.values() if r["n_inducing"] == OWN_INDUCING.size)
+    assert own["inducing_touches"] == OWN_INDUCING.tolist()
+    listed = client.get(f"{API}/models").json()["data"]
+    assert {m["id"]: m["posterior"] for m in listed} == expected
+
+
+def test_a_model_without_a_usable_record_shows_no_posterior(client: TestClient) -> None:
+    """Rows from before the record (NULL), and a record changed behind the server's back: the
+    model still reads (posterior null); only using it fails."""
+    old_id = import_document(client, dense_on_shared())
+    broken_id = import_document(client, sparse_selected())
+    context = client.app.state.context  # type: ignore[attr-defined]
+    with context.database.session() as session:
+        for model_id, record in ((old_id, None), (broken_id, {"structure": "diagonal"})):
+            row = session.get(ModelRecord, model_id)
+            assert row is not None
+            row.posterior = record
+        session.commit()
+    for model_id in (old_id, broken_id):
+        response = client.get(f"{API}/models/{model_id}")
+        assert response.status_code == 200, response.text
+        assert response.json()["status"] == "ready"
+        assert response.json()["posterior"] is None
+
+
+def test_the_posterior_is_documented_in_the_openapi_schema(client: TestClient) -> None:
+    schemas = client.get(f"{API}/openapi.json").json()["components"]["schemas"]
+    field = schemas["ModelPublic"]["properties"]["posterior"]
+    assert "How the GP was conditioned" in field["description"]
+    assert {"$ref": "#/components/schemas/ModelPosterior"} in field["anyOf"]
+    posterior = schemas["ModelPosterior"]
+    assert posterior["required"] == ["structure"]
+    assert posterior["properties"]["structure"]["enum"] == ["dense", "kronecker", "sparse"]
+    for name in ("structure", "n_inducing", "inducing_touches"):
+        assert posterior["properties"][name]["description"]
+    assert "inducing points" in " ".join(posterior["description"].split())
