@@ -59,6 +59,7 @@ import scipy.optimize
 from core.errors import ConvergenceError, CoreError, InvalidInputError, NotPositiveDefiniteError
 from core.hyperparameter_fit import (
     FAILED_VALUE,
+    SeparableProgress,
     SeparableResult,
     feature_data,
     iter_fit_separately,
@@ -385,20 +386,7 @@ def fit_hyperparameters(
     hyper = initial_hyperparameters(data, layout.latent_dim, options.initial_latent_lengthscale)
     vector = np.clip(layout.pack(normalised, hyper), lower, upper)
     problem = _Problem(likelihood, lower, upper, structure, options.n_inducing)
-    stream = iter_fit_separately(
-        problem.feature_likelihoods(),
-        layout,
-        vector,
-        lower,
-        upper,
-        options.max_iterations,
-        options.ftol,
-        options.gtol,
-        options.hyperparameter_latent_lengthscales,
-        options.stall_nats,
-        options.stall_iterations,
-        options.stall_relative,
-    )
+    stream = problem.fit_separately(vector, layout, options, options.max_iterations)
     while True:
         try:
             next(stream)
@@ -463,6 +451,26 @@ class _Problem:
                 for a in range(data.observation_dim)
             ]
         return self._features
+
+    def fit_separately(
+        self, vector: FloatArray, layout: ParameterLayout, options: FitOptions, max_iterations: int
+    ) -> Generator[SeparableProgress, None, SeparableResult]:
+        """The hyperparameters of ``vector`` fitted feature by feature, S fixed
+        (:func:`core.hyperparameter_fit.iter_fit_separately` with ``options``' settings)."""
+        return iter_fit_separately(
+            self.feature_likelihoods(),
+            layout,
+            vector,
+            self.lower,
+            self.upper,
+            max_iterations,
+            options.ftol,
+            options.gtol,
+            options.hyperparameter_latent_lengthscales,
+            options.stall_nats,
+            options.stall_iterations,
+            options.stall_relative,
+        )
 
 
 _Result = TypeVar("_Result")
@@ -721,19 +729,8 @@ class _FitRun:
         (:func:`core.hyperparameter_fit.iter_fit_separately`)."""
         options = self.options
         initial_iterations = start.iterations
-        stream = iter_fit_separately(
-            problem.feature_likelihoods(),
-            self.layout,
-            start.vector,
-            problem.lower,
-            problem.upper,
-            options.hyperparameter_iterations,
-            options.ftol,
-            options.gtol,
-            options.hyperparameter_latent_lengthscales,
-            options.stall_nats,
-            options.stall_iterations,
-            options.stall_relative,
+        stream = problem.fit_separately(
+            start.vector, self.layout, options, options.hyperparameter_iterations
         )
         try:
             while True:
