@@ -220,7 +220,8 @@ def test_history_compares_policies_and_exports(page: Any, demo: Demo, tmp_path: 
 
 
 def test_collection_through_the_ui(page: Any, demo: Demo) -> None:
-    """Collect a small dataset on the simulated rig from the Collection page."""
+    """Collect a small dataset on the simulated rig from the Collection page, with the shared
+    design: every object is touched with the same actions."""
     open_dashboard(page, demo, "#collection")
     rows = page.locator("#col-objects .object-row")
     objects = demo.get("/objects")["data"]
@@ -228,6 +229,17 @@ def test_collection_through_the_ui(page: Any, demo: Demo) -> None:
     n_objects = rows.count()
     page.locator("#col-name").fill("browser test")
     page.locator("#col-samples").fill("2")
+    design = page.get_by_test_id("collection-design")
+    help_text = page.get_by_test_id("collection-design-help")
+    expect(design).to_have_value("random")
+    expect(help_text).to_contain_text("a fresh action")
+    assert [o.get_attribute("value") for o in design.locator("option").all()] == [
+        "random",
+        "shared",
+        "teaching",
+    ]
+    design.select_option("shared")
+    expect(help_text).to_contain_text("applied to every object")
     before = len(demo.get("/datasets")["data"])
     page.get_by_test_id("collection-start").click()
     # The progress identifies the new run (the demo's own collection, shown before the click,
@@ -253,6 +265,20 @@ def test_collection_through_the_ui(page: Any, demo: Demo) -> None:
     newest = max(datasets, key=lambda d: d["id"])
     assert newest["name"] == "browser test"
     assert newest["n_samples"] == 2 * n_objects
+    runs = demo.get("/collections?limit=100")["data"]
+    assert [r["params"]["action_design"] for r in runs if r["dataset_id"] == newest["id"]] == [
+        "shared"
+    ]
+    # The stored dataset: the same two actions (in the same order) on every object.
+    samples = demo.get(f"/datasets/{newest['id']}/export?format=json")["samples"]
+    actions: dict[str, list[list[float]]] = {}
+    for sample in samples:
+        actions.setdefault(sample["object"], []).append(sample["action"])
+    assert len(actions) == n_objects
+    first = next(iter(actions.values()))
+    assert len(first) == 2, first
+    assert first[0] != first[1], first
+    assert all(touches == first for touches in actions.values()), actions
     expect(page.get_by_test_id("dataset-row")).to_have_count(len(datasets))
     save_screenshot(page, "dashboard-collection")
 

@@ -10,6 +10,19 @@ import { $, badge, el, fill, guarded, throttle, toast, vec } from "../ui.js";
 const ACTIVE = ["queued", "running", "paused"];
 let run = null; // the collection on show
 
+// What each action design (the API's action_design) does, shown under the select.
+const DESIGN_HELP = {
+  random: "Random: a fresh action x ~ N(0, σ²I) for every touch, so each object gets its own actions.",
+  shared:
+    "Shared: “touches per object” actions drawn once (Sobol points through N(0, σ²I)) and applied to " +
+    "every object, action by action; fits and plans then take the exact Kronecker path.",
+  teaching: "Teaching: the teaching action x = 0, repeated on every object.",
+};
+
+function showDesignHelp() {
+  $("col-design-help").textContent = DESIGN_HELP[$("col-design").value] ?? "";
+}
+
 function objectRow(name = "", slot = "") {
   const row = el(
     "div",
@@ -154,6 +167,7 @@ async function startCollection(form) {
   toast(`Collection #${created.id} started.`, "ok");
   await loadRun(created.id);
   form.reset();
+  showDesignHelp();
 }
 
 async function upload(form) {
@@ -170,6 +184,8 @@ async function upload(form) {
 
 export function init() {
   $("col-add-object").addEventListener("click", () => $("col-objects").append(objectRow()));
+  $("col-design").addEventListener("change", showDesignHelp);
+  showDesignHelp();
   $("collection-form").addEventListener("submit", (e) => {
     e.preventDefault();
     guarded(() => startCollection(e.currentTarget), e.submitter);
