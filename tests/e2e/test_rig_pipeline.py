@@ -2,7 +2,7 @@
 
 All three devices run behind pseudo-terminals and the real drivers talk to them through pyserial
 (GRBL at 115200 baud, the Dynamixel bus at 1 Mbaud, the tactile stream at 460800 baud); simulated
-time runs 20 times faster than real time. The composition is the product's:
+time runs 10 times faster than real time. The composition is the product's:
 action x → DMP (core) → joint trajectory → rig (hardware) → observation y → manifold (core) →
 active recognition (core).
 
@@ -29,7 +29,10 @@ from hardware.sim.rig import pty_rig
 ACTIONS_PER_OBJECT = 8
 TOUCH_DURATION_S = 5.0
 CONTROL_PERIOD_S = 0.04
-SPEED = 20.0
+# Simulated seconds per real second: 4 ms of real time per 40 ms control step. At 20x (2 ms per
+# step) a loaded CI host skipped 44% of the setpoints, distorting the touches it learned from and
+# recognised with (a miss at p = 1.000).
+SPEED = 10.0
 CHOSEN = "clear_plastic_cup"  # O3: the paper finds it close to the paper cup (O1)
 
 
@@ -88,11 +91,12 @@ def test_collect_fit_and_recognise_on_the_serial_rig() -> None:
     frames = sum(r.n_frames for r in records)
     dropped = sum(r.dropped_frames for r in records)
     late = sum(r.late_steps for r in records)
+    setpoints = touches * round(TOUCH_DURATION_S / CONTROL_PERIOD_S + 1)
     accuracy = np.mean([answer == target for target, (answer, _, _) in answers.items()])
     print(
         f"\nrig pipeline through ptys: {touches} touches ({len(rows)} collected, "
         f"{touches - len(rows)} recognising), {frames} frames, {dropped} dropped, "
-        f"{late} late setpoints of {touches * round(TOUCH_DURATION_S / CONTROL_PERIOD_S + 1)}"
+        f"{late} late setpoints of {setpoints}"
         f"\n  collect {collected - started:.1f} s, fit {fitted - collected:.1f} s, "
         f"recognise {recognised - fitted:.1f} s, wall {recognised - started:.1f} s"
         f"\n  accuracy {accuracy:.0%}: "
@@ -102,5 +106,6 @@ def test_collect_fit_and_recognise_on_the_serial_rig() -> None:
     assert dropped <= 0.01 * (frames + dropped)
     assert all(r.n_frames >= 0.9 * TOUCH_DURATION_S * 100 for r in records)
     assert model.latents.shape == (4, 2)
-    assert answers[CHOSEN][0] == CHOSEN
-    assert accuracy >= 0.75  # expected 4/4; one miss tolerated
+    pace = f"{late} of {setpoints} setpoints late"
+    assert answers[CHOSEN][0] == CHOSEN, pace
+    assert accuracy >= 0.75, pace  # expected 4/4; one miss tolerated
