@@ -2,8 +2,9 @@
 
 How a fit runs (:func:`iter_fit`):
 
-1. **Starts.** Start 0 is data-driven (:func:`core.initialisation.pca_latents`); starts
-   1..R draw S ~ N(0, I) (``FitOptions.restarts``). Every start has unit latent spread, the
+1. **Starts.** Start 0 is data-driven (:func:`core.initialisation.data_driven_latents`: PCA
+   of the object profiles below 8 objects, Isomap from 8 on, see :mod:`core.initialisation`);
+   starts 1..R draw S ~ N(0, I) (``FitOptions.restarts``). Every start has unit latent spread, the
    data-relative initial hyperparameters of :func:`core.parameters.initial_hyperparameters`
    and latent length-scales ≈10× the spread. Start 0 first fits the hyperparameters with S
    frozen — one small problem per feature, from the current and a unit latent length-scale,
@@ -69,7 +70,7 @@ from core.hyperparameter_fit import (
     iter_fit_separately,
     minimize_free,
 )
-from core.initialisation import normalise_spread, pca_latents, random_latents
+from core.initialisation import data_driven_latents, normalise_spread, random_latents
 from core.kronecker import find_shared_design
 from core.parameters import ParameterLayout, initial_hyperparameters, parameter_bounds
 from core.posterior import (
@@ -425,7 +426,7 @@ class _Start:
     """Book-keeping of one start."""
 
     index: int
-    kind: str  # "pca", "random", "de"
+    kind: str  # "data" (start 0), "random", "de"
     vector: FloatArray
     iterations: int = 0
     screen_value: float = np.inf  # -log p on the screening data
@@ -573,8 +574,10 @@ class _FitRun:
         options = self.options
         layout = self.layout
         n_objects = self.data.n_objects
-        pca_vector = self._initial_vector(pca_latents(self.data, layout.latent_dim, self.rng))
-        self.starts.append(_Start(0, "pca", pca_vector))
+        data_vector = self._initial_vector(
+            data_driven_latents(self.data, layout.latent_dim, self.rng)
+        )
+        self.starts.append(_Start(0, "data", data_vector))
         for i in range(options.restarts):
             latents = random_latents(n_objects, layout.latent_dim, self.rng)
             self.starts.append(_Start(i + 1, "random", self._initial_vector(latents)))
@@ -586,7 +589,7 @@ class _FitRun:
         # 1. Every L-BFGS start on the working data (screening subsample or all the data).
         limit = options.screen_iterations if self.screen is not None else options.max_iterations
         for start in self.starts:
-            if start.kind == "pca" and options.hyperparameter_iterations > 0:
+            if start.kind == "data" and options.hyperparameter_iterations > 0:
                 yield from self._optimise_separately(start, working, n_starts)
             yield from self._optimise(start, working, everything, limit, phase, n_starts)
 
