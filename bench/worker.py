@@ -6,7 +6,9 @@ Run: ``python -m bench.worker '{"objects": 100, "per_object": 100, "structure": 
 * ``evaluate_s``: median seconds of one likelihood value + gradient;
 * ``fit_s``, ``fit_iterations``, ``fit_log_likelihood``, ``fit_r2``: one L-BFGS start
   (:func:`core.manifold.fit_manifold` with ``restarts=0``) and the Procrustes R² of its latents
-  against the truth;
+  against the truth; ``truth_log_likelihood``: the joint optimum reached from the true latents
+  (hyperparameters fitted with them held fixed first), what the fit should reach — measured
+  after ``peak_mb``;
 * ``plan_setup_s`` (the candidate statistics, once per model), ``plan_ms`` (median of one
   active planning step, default :class:`core.planning.Planner` settings);
 * ``peak_mb`` (``ru_maxrss`` of this process) and ``baseline_mb`` (after the imports).
@@ -23,11 +25,14 @@ import numpy as np
 
 from bench import scenarios
 from bench.harness import measure, peak_rss_mb
-from core.manifold import FitOptions, fit_manifold
+from core.hyperparameter_fit import minimize_free
+from core.manifold import FitOptions, fit_hyperparameters, fit_manifold
 from core.metrics import procrustes_r2
+from core.parameters import parameter_bounds
 from core.planning import ActivePolicy, Planner
 from core.posterior import make_likelihood
 from core.recognition import RecognitionSession
+from core.types import TrainingData
 
 
 def run(arguments: dict[str, Any]) -> dict[str, Any]:
@@ -90,7 +95,35 @@ def run(arguments: dict[str, Any]) -> dict[str, Any]:
 
         out["update_ms"] = 1e3 * measure(update, repeats=5, warmup=1, budget_s=20.0).median_s
     out["peak_mb"] = peak_rss_mb()
+    if arguments.get("fit", False):
+        out["truth_log_likelihood"] = truth_optimum(scenarios.true_latents(world), data, structure)
     return out
+
+
+def truth_optimum(truth: np.ndarray, data: TrainingData, structure: Any) -> float:
+    """Log-likelihood of the joint optimum (S and γ, one L-BFGS-B run with the fit's settings)
+    reached from the true latents ``truth`` (L, 2) with hyperparameters fitted to them first."""
+    options = FitOptions(structure=structure)
+    fixed = fit_hyperparameters(data, truth, options)
+    likelihood = make_likelihood(data, 2, structure)
+    layout = likelihood.layout
+    lower, upper = parameter_bounds(data, layout, options.latent_bound)
+    start = np.clip(layout.pack(fixed.latents, fixed.hyperparameters), lower, upper)
+    result = minimize_free(
+        likelihood,
+        start,
+        np.ones(layout.size, dtype=bool),
+        lower,
+        upper,
+        options.max_iterations,
+        options.ftol,
+        options.gtol,
+        None,
+        options.stall_nats,
+        options.stall_iterations,
+        options.stall_relative,
+    )
+    return -float(result.fun)
 
 
 def main() -> None:
