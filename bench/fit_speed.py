@@ -23,12 +23,12 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from core.hyperparameter_fit import minimize_free
+from bench.reference_fit import joint_optimum
 from core.initialisation import pca_latents, random_latents
 from core.likelihood import ManifoldLikelihood
 from core.manifold import FitOptions, _FitRun, fit_hyperparameters, fit_manifold
 from core.metrics import abs_correlation, procrustes_r2
-from core.parameters import initial_hyperparameters, parameter_bounds
+from core.parameters import initial_hyperparameters
 from core.types import ManifoldModel, TrainingData
 from core.worlds import (
     EXPERIMENT1_THETAS,
@@ -94,22 +94,8 @@ def experiment1(seeds: int, noise_std: float, options: FitOptions) -> None:
 
 def _fit_from(data: TrainingData, start: ManifoldModel, options: FitOptions) -> tuple[float, float]:
     """Log-likelihood and |corr(θ, s)| of the joint L-BFGS-B optimum reached from ``start``."""
-    likelihood = ManifoldLikelihood(data, start.latent_dim)
-    layout = likelihood.layout
-    lower, upper = parameter_bounds(data, layout, options.latent_bound)
-    vector = np.clip(layout.pack(start.latents, start.hyperparameters), lower, upper)
-    result = minimize_free(
-        likelihood,
-        vector,
-        np.ones(layout.size, dtype=bool),
-        lower,
-        upper,
-        options.max_iterations,
-        options.ftol,
-        options.gtol,
-    )
-    latents, _ = layout.unpack(result.x)
-    return -float(result.fun), abs_correlation(np.array(EXPERIMENT1_THETAS), latents)
+    log_likelihood, latents = joint_optimum(data, start, options)
+    return log_likelihood, abs_correlation(np.array(EXPERIMENT1_THETAS), latents)
 
 
 def issue3_one_start(seed: int = 0) -> None:

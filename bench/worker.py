@@ -25,10 +25,9 @@ import numpy as np
 
 from bench import scenarios
 from bench.harness import measure, peak_rss_mb
-from core.hyperparameter_fit import minimize_free
+from bench.reference_fit import joint_optimum
 from core.manifold import FitOptions, fit_hyperparameters, fit_manifold
 from core.metrics import procrustes_r2
-from core.parameters import parameter_bounds
 from core.planning import ActivePolicy, Planner
 from core.posterior import make_likelihood
 from core.recognition import RecognitionSession
@@ -101,29 +100,11 @@ def run(arguments: dict[str, Any]) -> dict[str, Any]:
 
 
 def truth_optimum(truth: np.ndarray, data: TrainingData, structure: Any) -> float:
-    """Log-likelihood of the joint optimum (S and γ, one L-BFGS-B run with the fit's settings)
-    reached from the true latents ``truth`` (L, 2) with hyperparameters fitted to them first."""
+    """Log-likelihood of the joint optimum reached from the true latents ``truth`` (L, 2), with
+    hyperparameters fitted to them first (:func:`bench.reference_fit.joint_optimum`)."""
     options = FitOptions(structure=structure)
-    fixed = fit_hyperparameters(data, truth, options)
-    likelihood = make_likelihood(data, 2, structure)
-    layout = likelihood.layout
-    lower, upper = parameter_bounds(data, layout, options.latent_bound)
-    start = np.clip(layout.pack(fixed.latents, fixed.hyperparameters), lower, upper)
-    result = minimize_free(
-        likelihood,
-        start,
-        np.ones(layout.size, dtype=bool),
-        lower,
-        upper,
-        options.max_iterations,
-        options.ftol,
-        options.gtol,
-        None,
-        options.stall_nats,
-        options.stall_iterations,
-        options.stall_relative,
-    )
-    return -float(result.fun)
+    log_likelihood, _ = joint_optimum(data, fit_hyperparameters(data, truth, options), options)
+    return log_likelihood
 
 
 def main() -> None:
