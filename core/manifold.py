@@ -2,15 +2,16 @@
 
 How a fit runs (:func:`iter_fit`):
 
-1. **Starts.** Start 0 is data-driven (:func:`core.initialisation.data_driven_latents`: PCA
-   of the object profiles below 8 objects, Isomap from 8 on, see :mod:`core.initialisation`);
-   starts 1..R draw S ~ N(0, I) (``FitOptions.restarts``). Every start has unit latent spread, the
+1. **Starts.** The first starts are data-driven (:func:`core.initialisation.data_driven_starts`:
+   the PCA of the object profiles below 8 objects; from 8 on their Isomap, then their PCA);
+   R more draw S ~ N(0, I) (``FitOptions.restarts``). Every start has unit latent spread, the
    data-relative initial hyperparameters of :func:`core.parameters.initial_hyperparameters`
-   and latent length-scales ≈10× the spread. Start 0 first fits the hyperparameters with S
-   frozen — one small problem per feature, from the current and a unit latent length-scale,
-   best kept per feature (:mod:`core.hyperparameter_fit`) — then everything jointly; random
-   starts go straight to the joint fit (with frozen random latents the hyperparameters adapt
-   to a meaningless arrangement: on Experiment 1 that took 10-20× more joint iterations).
+   and latent length-scales ≈10× the spread. Data-driven starts first fit the hyperparameters
+   with S frozen — one small problem per feature, from the current and a unit latent
+   length-scale, best kept per feature (:mod:`core.hyperparameter_fit`) — then everything
+   jointly; random starts go straight to the joint fit (with frozen random latents the
+   hyperparameters adapt to a meaningless arrangement: on Experiment 1 that took 10-20× more
+   joint iterations).
 2. **Screening.** When some object has more touches than ``screen_touches_per_object``,
    every start is first optimised (at most ``screen_iterations``) on one random subsample of
    that many touches per object, which costs ~(N/n)³ less per evaluation. The
@@ -70,7 +71,7 @@ from core.hyperparameter_fit import (
     iter_fit_separately,
     minimize_free,
 )
-from core.initialisation import data_driven_latents, normalise_spread, random_latents
+from core.initialisation import data_driven_starts, normalise_spread, random_latents
 from core.kronecker import find_shared_design
 from core.parameters import ParameterLayout, initial_hyperparameters, parameter_bounds
 from core.posterior import (
@@ -97,12 +98,12 @@ class FitOptions:
     """Settings of :func:`iter_fit` / :func:`fit_manifold`.
 
     Attributes:
-        optimizer: ``"lbfgs"`` (PCA start + random restarts, L-BFGS-B) or ``"de"`` (the same,
-            plus one differential-evolution start polished with L-BFGS-B).
-        restarts: Random restarts on top of the data-driven start 0 (≥ 0).
+        optimizer: ``"lbfgs"`` (data-driven starts + random restarts, L-BFGS-B) or ``"de"``
+            (the same, plus one differential-evolution start polished with L-BFGS-B).
+        restarts: Random restarts on top of the data-driven starts (≥ 0).
         max_iterations: L-BFGS-B iteration limit of each joint optimisation (≥ 1).
-        hyperparameter_iterations: Iteration limit of start 0's first stage, hyperparameters
-            with S frozen (≥ 0; 0 skips the stage).
+        hyperparameter_iterations: Iteration limit of the data-driven starts' first stage,
+            hyperparameters with S frozen (≥ 0; 0 skips the stage).
         ftol: L-BFGS-B relative reduction tolerance (> 0).
         gtol: L-BFGS-B projected-gradient tolerance (> 0).
         screen_touches_per_object: Touches per object in the screening subsample (0 = no
@@ -232,9 +233,10 @@ class FitProgress:
             on: the screening subsample in ``"screen"`` and ``"de"`` (and
             ``"hyperparameters"`` when screening), all the data in ``"joint"``.
         best_log_likelihood: Best full-data log-likelihood so far (-inf before any).
-        phase: The stage: ``"hyperparameters"`` (start 0, S frozen), ``"screen"`` (joint, on
-            the subsample), ``"de"``, ``"joint"`` (all the data); the same with ``" done"``
-            appended for the event that ends a stage; ``"done"`` for the final event.
+        phase: The stage: ``"hyperparameters"`` (data-driven starts, S frozen), ``"screen"``
+            (joint, on the subsample), ``"de"``, ``"joint"`` (all the data); the same with
+            ``" done"`` appended for the event that ends a stage; ``"done"`` for the final
+            event.
         model: The fitted model, on the final event only.
     """
 
@@ -426,7 +428,7 @@ class _Start:
     """Book-keeping of one start."""
 
     index: int
-    kind: str  # "data" (start 0), "random", "de"
+    kind: str  # "data" (data-driven), "random", "de"
     vector: FloatArray
     iterations: int = 0
     screen_value: float = np.inf  # -log p on the screening data
@@ -574,13 +576,11 @@ class _FitRun:
         options = self.options
         layout = self.layout
         n_objects = self.data.n_objects
-        data_vector = self._initial_vector(
-            data_driven_latents(self.data, layout.latent_dim, self.rng)
-        )
-        self.starts.append(_Start(0, "data", data_vector))
-        for i in range(options.restarts):
+        for latents in data_driven_starts(self.data, layout.latent_dim, self.rng):
+            self.starts.append(_Start(len(self.starts), "data", self._initial_vector(latents)))
+        for _ in range(options.restarts):
             latents = random_latents(n_objects, layout.latent_dim, self.rng)
-            self.starts.append(_Start(i + 1, "random", self._initial_vector(latents)))
+            self.starts.append(_Start(len(self.starts), "random", self._initial_vector(latents)))
         n_starts = len(self.starts) + (1 if options.optimizer == "de" else 0)
         working = self.screen if self.screen is not None else self.full
         everything = np.ones(layout.size, dtype=bool)

@@ -11,7 +11,7 @@ from core.initialisation import (
     ISOMAP_MIN_OBJECTS,
     _geodesic_distances,
     _pairwise_distances,
-    data_driven_latents,
+    data_driven_starts,
     isomap_latents,
     normalise_spread,
     object_profiles,
@@ -71,18 +71,15 @@ def test_a_disconnected_neighbour_graph_falls_back_to_pca() -> None:
 def test_few_objects_keep_the_pca_start() -> None:
     data = sample_experiment1(np.random.default_rng(0))
     assert data.n_objects < ISOMAP_MIN_OBJECTS
-    np.testing.assert_array_equal(
-        data_driven_latents(data, 1, np.random.default_rng(0)),
-        pca_latents(data, 1, np.random.default_rng(0)),
-    )
+    (only,) = data_driven_starts(data, 1, np.random.default_rng(0))
+    np.testing.assert_array_equal(only, pca_latents(data, 1, np.random.default_rng(0)))
 
 
-def test_many_objects_take_the_isomap_start() -> None:
+def test_many_objects_start_from_isomap_and_pca() -> None:
     data, _ = curved_world_data(ISOMAP_MIN_OBJECTS + 4)
-    np.testing.assert_array_equal(
-        data_driven_latents(data, 2, np.random.default_rng(0)),
-        isomap_latents(data, 2, np.random.default_rng(0)),
-    )
+    isomap, pca = data_driven_starts(data, 2, np.random.default_rng(0))
+    np.testing.assert_array_equal(isomap, isomap_latents(data, 2, np.random.default_rng(0)))
+    np.testing.assert_array_equal(pca, pca_latents(data, 2, np.random.default_rng(0)))
 
 
 def test_latent_dimensions_beyond_the_embedding_are_filled() -> None:
