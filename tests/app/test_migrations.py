@@ -20,17 +20,9 @@ from app.models import Base, ModelRecord
 from app.services.events import EventBus
 from app.services.models import ModelStore
 from core.posterior import condition, predict
-from core.types import Hyperparameters
 from core.worlds import sample_experiment1
 from tests.app.conftest import make_settings
-
-HYPER = Hyperparameters(
-    signal_variance=np.array([0.5, 0.4, 0.3]),
-    noise_variance=np.array([0.01, 0.02, 0.03]),
-    latent_lengthscales=np.array([[1.0], [2.0], [3.0]]),
-    action_lengthscales=np.array([[0.7], [0.8], [0.9]]),
-)
-LATENTS = np.array([[-1.2], [-0.1], [0.3], [1.0]])
+from tests.app.posterior_cases import HYPER, LATENTS
 
 
 def migrate(database: Database, migrations_dir: Path, revision: str, down: bool = False) -> None:
