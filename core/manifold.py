@@ -394,13 +394,7 @@ def fit_hyperparameters(
     hyper = initial_hyperparameters(data, layout.latent_dim, options.initial_latent_lengthscale)
     vector = np.clip(layout.pack(normalised, hyper), lower, upper)
     problem = _Problem(likelihood, lower, upper, structure, options.n_inducing)
-    stream = problem.fit_separately(vector, layout, options, options.max_iterations)
-    while True:
-        try:
-            next(stream)
-        except StopIteration as stop:
-            result: SeparableResult = stop.value
-            break
+    result = _run_to_end(problem.fit_separately(vector, layout, options, options.max_iterations))
     final = result.vector
     s, h = layout.unpack(final)
     free = np.zeros(layout.size, dtype=bool)
@@ -412,7 +406,7 @@ def fit_hyperparameters(
         iterations=result.iterations,
         converged=result.converged,
         message=result.message,
-        jitter_used=max([likelihood.max_jitter] + [f.max_jitter for f in problem._features or []]),
+        jitter_used=problem.max_jitter,
         hyperparameters_at_bounds=at_bounds,
     )
     s, h = normalise_latents(s, h)
@@ -459,6 +453,11 @@ class _Problem:
                 for a in range(data.observation_dim)
             ]
         return self._features
+
+    @property
+    def max_jitter(self) -> float:
+        """The largest jitter any of this problem's likelihoods needed (per-feature ones too)."""
+        return max([self.likelihood.max_jitter] + [f.max_jitter for f in self._features or []])
 
     def fit_separately(
         self, vector: FloatArray, layout: ParameterLayout, options: FitOptions, max_iterations: int
@@ -863,8 +862,7 @@ class _FitRun:
             converged=winner.converged,
             message=winner.message,
             jitter_used=max(
-                self.full.likelihood.max_jitter,
-                self.screen.likelihood.max_jitter if self.screen is not None else 0.0,
+                self.full.max_jitter, self.screen.max_jitter if self.screen is not None else 0.0
             ),
             hyperparameters_at_bounds=at_bounds,
         )
@@ -911,6 +909,16 @@ def _at_bounds(
         elif vector[i] >= upper[i] - _AT_BOUND:
             hits.append(f"{names[i]} (upper)")
     return tuple(hits)
+
+
+def _run_to_end(generator: Generator[Any, None, _Result]) -> _Result:
+    """Exhaust ``generator`` (its progress unused) and return what it returned."""
+    while True:
+        try:
+            next(generator)
+        except StopIteration as stop:
+            result: _Result = stop.value
+            return result
 
 
 def _stream(
