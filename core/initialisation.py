@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse.csgraph
+import scipy.spatial.distance
 
 from core.errors import InvalidInputError
 from core.types import TrainingData
@@ -191,10 +192,8 @@ def pca_latents(data: TrainingData, latent_dim: int, rng: np.random.Generator) -
 
 
 def _pairwise_distances(points: FloatArray) -> FloatArray:
-    sq = np.sum(points**2, axis=1)
-    d2: FloatArray = sq[:, None] + sq[None, :] - 2.0 * points @ points.T
-    np.fill_diagonal(d2, 0.0)
-    return np.sqrt(np.maximum(d2, 0.0))
+    """Euclidean distances between the rows of ``points`` (n, d). Shape (n, n)."""
+    return np.asarray(scipy.spatial.distance.cdist(points, points), dtype=np.float64)
 
 
 def _geodesic_distances(distances: FloatArray, k: int) -> FloatArray | None:
