@@ -27,6 +27,9 @@ so with Y_a the centred observations as an L × M matrix and Ỹ = U_sᵀ Y_a U_
   Bᵀ K^s B = P_x Λ_s P_xᵀ for P_x = U_x C̃ᵀ, each bracket one triangle from symmetric rank-k
   updates (:func:`core.linalg.weighted_gram_difference`), and ‖B‖ = ‖C̃‖. The two
   eigendecompositions dominate (at L = 400, M = 100 about two thirds of an evaluation).
+  For a few objects on many actions (L ≤ 4, M ≥ 50) the value and gradient come instead from
+  L Cholesky blocks of order M after rotating by U_s alone (:mod:`core.kronecker_blocks`):
+  the same numbers, 1.1-1.9x faster per evaluation.
 
 Everything is O(dy (L³ + M³ + L·M·(L + M))) time and O(dy (L² + M² + L·M)) memory, against
 O(dy (L·M)³) and O(dy (L·M)²) for the dense path: exact, not an approximation (tests match the
@@ -55,6 +58,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.errors import InvalidInputError, NotPositiveDefiniteError
+from core.kronecker_blocks import BlockSums, block_sums, block_value, use_blocks
 from core.linalg import JITTER_LADDER, weighted_gram_difference
 from core.parameters import ParameterLayout
 from core.types import (
@@ -202,6 +206,9 @@ class KroneckerLikelihood:
         grid = np.empty((data.observation_dim, data.n_touches))
         grid[:, self.design.grid_index] = centred.T
         self._grid_y = grid.reshape(data.observation_dim, data.n_objects, m)
+        #: Evaluate through L Cholesky blocks (few objects) instead of eigendecomposing K^x
+        #: (:mod:`core.kronecker_blocks`); the eigendecompositions remain the fallback.
+        self.blocks = use_blocks(data.n_objects, m)
         self.max_jitter = 0.0
         self.evaluations = 0
 
@@ -215,13 +222,12 @@ class KroneckerLikelihood:
         )
         return sp, beta_grid
 
-    def _decompose(self, vector: FloatArray) -> _Spectral:
-        """Everything but β: the value and the gradient do not need β in the grid basis."""
-        latents, log_sf, log_sn, log_ls, log_lx = self.layout.split(vector)
+    def _grams(self, vector: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """K^s (dy, L, L) and K^x (dy, M, M), unit diagonals, and the per-dimension squared
+        latent differences (ds, L·L) at a packed vector."""
+        latents, _, _, log_ls, log_lx = self.layout.split(vector)
         dy = self.layout.observation_dim
         n_objects, m = self.data.n_objects, self.design.size
-        signal = np.exp(log_sf)
-        noise = np.exp(log_sn)
         differences = np.empty((latents.shape[1], n_objects, n_objects))
         for d, column in enumerate(latents.T):
             np.subtract.outer(column, column, out=differences[d])
@@ -230,6 +236,19 @@ class KroneckerLikelihood:
         action_gram = (-0.5 * np.exp(-2.0 * log_lx)) @ self._sq_design
         latent_gram = np.exp(latent_gram, out=latent_gram).reshape(dy, n_objects, n_objects)
         action_gram = np.exp(action_gram, out=action_gram).reshape(dy, m, m)
+        return latent_gram, action_gram, latent_sq
+
+    def _decompose(
+        self,
+        vector: FloatArray,
+        grams: tuple[FloatArray, FloatArray, FloatArray] | None = None,
+    ) -> _Spectral:
+        """Everything but β: the value and the gradient do not need β in the grid basis."""
+        _, log_sf, log_sn, _, _ = self.layout.split(vector)
+        dy = self.layout.observation_dim
+        signal = np.exp(log_sf)
+        noise = np.exp(log_sn)
+        latent_gram, action_gram, latent_sq = grams if grams is not None else self._grams(vector)
         latent_values, latent_vectors = np.linalg.eigh(latent_gram)
         action_values, action_vectors = np.linalg.eigh(action_gram)
         # METHOD.md eq. (M1): eigenvalues of σ_f² K^s ⊗ K^x + σ_n² I
@@ -283,35 +302,29 @@ class KroneckerLikelihood:
     def value(self, vector: FloatArray) -> float:
         """-log p at a packed vector."""
         self.evaluations += 1
-        return self._value(self._decompose(vector))
+        grams = None
+        if self.blocks:
+            _, log_sf, log_sn, _, _ = self.layout.split(vector)
+            grams = self._grams(vector)
+            value = block_value(grams[0], grams[1], self._grid_y, np.exp(log_sf), np.exp(log_sn))
+            if value is not None:
+                return value
+        return self._value(self._decompose(vector, grams))
 
-    def value_and_gradient(self, vector: FloatArray) -> tuple[float, FloatArray]:
-        """-log p and its gradient with respect to the packed vector (same layout).
+    def _spectral_sums(self, sp: _Spectral) -> BlockSums:
+        """The value and the gradient's block sums through the eigendecompositions.
 
-        The block sums of W ∘ K_f (module docstring) as Ω_s = U_s diag(w_s) U_sᵀ - P_s Λ_x P_sᵀ
-        with P_s = U_s C̃ = β U_x, and Ω_x = U_x diag(w_x) U_xᵀ - P_x Λ_s P_xᵀ with
-        P_x = U_x C̃ᵀ = βᵀ U_s (C̃ = Ỹ / D): β itself is never formed, and each Ω is one
-        triangle from symmetric rank-k updates. Cost per feature
-        2 L M (L + M) (Ỹ) + 2 L M (L + M) (P_s, P_x) + L² (L + M) + M² (M + L) (the updates).
+        Ω_s = U_s diag(w_s) U_sᵀ - P_s Λ_x P_sᵀ with P_s = U_s C̃ = β U_x, and
+        Ω_x = U_x diag(w_x) U_xᵀ - P_x Λ_s P_xᵀ with P_x = U_x C̃ᵀ = βᵀ U_s (C̃ = Ỹ / D): β
+        itself is never formed, and each Ω is one triangle from symmetric rank-k updates. Cost
+        per feature 2 L M (L + M) (Ỹ) + 2 L M (L + M) (P_s, P_x) + L² (L + M) + M² (M + L)
+        (the updates).
         """
-        self.evaluations += 1
-        layout = self.layout
-        latents, log_sf, log_sn, log_ls, log_lx = layout.split(vector)
-        signal = np.exp(log_sf)
-        noise = np.exp(log_sn)
-        inv_ls2 = np.exp(-2.0 * log_ls)  # (dy, ds)
-        inv_lx2 = np.exp(-2.0 * log_lx)  # (dy, dx)
-        sp = self._decompose(vector)
         inv_d = 1.0 / sp.spectrum  # (dy, L, M)
         scaled = sp.rotated * inv_d  # C̃ = U_sᵀ β U_x, (dy, L, M)
-        total = self._value(sp, scaled)
-        # tr W = Σ 1/D - ‖β‖², and ‖β‖ = ‖C̃‖ (orthogonal bases)
-        g_sn = 0.5 * noise * (np.sum(inv_d, axis=(1, 2)) - np.sum(scaled**2, axis=(1, 2)))
         w_s = (inv_d @ sp.action_values[:, :, None])[:, :, 0]  # (dy, L)
         w_x = (sp.latent_values[:, None, :] @ inv_d)[:, 0, :]  # (dy, M)
-        n_objects = latents.shape[0]
-        dy, m = w_x.shape
-        # Upper triangles X of σ_f² K ∘ Ω: the symmetric block sums are X + Xᵀ - diag(X).
+        dy, n_objects, m = scaled.shape
         latent_half = np.empty((dy, n_objects, n_objects))
         action_half = np.empty((dy, m, m))
         for a in range(dy):
@@ -322,13 +335,44 @@ class KroneckerLikelihood:
             np.multiply(sp.latent_gram[a], omega, out=latent_half[a])
             omega = weighted_gram_difference(u_x, w_x[a], p_x, sp.latent_values[a])
             np.multiply(sp.action_gram[a], omega, out=action_half[a])
-        latent_half *= signal[:, None, None]
-        action_half *= signal[:, None, None]
+        return BlockSums(
+            value=self._value(sp, scaled),
+            # tr W = Σ 1/D - ‖β‖², and ‖β‖ = ‖C̃‖ (orthogonal bases)
+            noise_trace=np.sum(inv_d, axis=(1, 2)) - np.sum(scaled**2, axis=(1, 2)),
+            latent_half=latent_half,
+            action_half=action_half,
+        )
+
+    def value_and_gradient(self, vector: FloatArray) -> tuple[float, FloatArray]:
+        """-log p and its gradient with respect to the packed vector (same layout).
+
+        The block sums of W ∘ K_f (module docstring) come from L Cholesky blocks for few
+        objects (:mod:`core.kronecker_blocks`), else from the eigendecompositions
+        (:meth:`_spectral_sums`); the gradient is assembled from them the same way.
+        """
+        self.evaluations += 1
+        layout = self.layout
+        latents, log_sf, log_sn, log_ls, log_lx = layout.split(vector)
+        signal = np.exp(log_sf)
+        noise = np.exp(log_sn)
+        inv_ls2 = np.exp(-2.0 * log_ls)  # (dy, ds)
+        inv_lx2 = np.exp(-2.0 * log_lx)  # (dy, dx)
+        grams = self._grams(vector)
+        latent_sq = grams[2]
+        sums = block_sums(grams[0], grams[1], self._grid_y, signal, noise) if self.blocks else None
+        if sums is None:
+            sums = self._spectral_sums(self._decompose(vector, grams))
+        g_sn = 0.5 * noise * sums.noise_trace
+        # Upper triangles X of σ_f² K ∘ Ω: the symmetric block sums are X + Xᵀ - diag(X).
+        latent_half = sums.latent_half * signal[:, None, None]
+        action_half = sums.action_half * signal[:, None, None]
+        n_objects = latents.shape[0]
+        dy, m, _ = action_half.shape
         latent_diag = np.einsum("all->al", latent_half)  # (dy, L)
         # ½ Σ B = ½ (2 Σ X - tr X)
         g_sf = np.sum(latent_half, axis=(1, 2)) - 0.5 * np.sum(latent_diag, axis=1)
         # ½ Σ B ∘ (s_d - s_d')² = Σ X ∘ (s_d - s_d')² (zero diagonal)
-        g_ls = (latent_half.reshape(dy, -1) @ sp.latent_sq.T) * inv_ls2
+        g_ls = (latent_half.reshape(dy, -1) @ latent_sq.T) * inv_ls2
         # B [1, S] = X V + Xᵀ V - diag(X) V
         basis = np.hstack([np.ones((n_objects, 1)), latents])  # (L, 1 + ds)
         products = latent_half @ basis + np.swapaxes(basis.T @ latent_half, 1, 2)
@@ -345,7 +389,7 @@ class KroneckerLikelihood:
         grad[layout.log_noise_variance] = g_sn
         grad[layout.log_latent_lengthscales] = g_ls.ravel()
         grad[layout.log_action_lengthscales] = g_lx.ravel()
-        return total, grad
+        return sums.value, grad
 
 
 def condition_kronecker(

@@ -1,0 +1,137 @@
+"""The few-objects Kronecker evaluation (L Cholesky blocks, :mod:`core.kronecker_blocks`)
+matches the dense path and the eigendecomposition path, and falls back where it must."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import core.kronecker
+from core.designs import collect, shared_design
+from core.kronecker import KroneckerLikelihood
+from core.kronecker_blocks import (
+    BLOCK_MAX_OBJECTS,
+    BLOCK_MIN_ACTIONS,
+    NOISE_FRACTION_FLOOR,
+    block_sums,
+    use_blocks,
+)
+from core.likelihood import ManifoldLikelihood
+from core.manifold import FitOptions, fit_hyperparameters
+from core.types import Hyperparameters, TrainingData
+from core.worlds import random_experiment2_world
+from tests.core.test_kronecker import CASES, TOLERANCE, Case, make_problem, relative
+
+#: A case the default rule evaluates through the blocks.
+FEW_OBJECTS = Case("few-objects", 3, 60, 3, 2, 2)
+
+
+def both_paths(
+    data: TrainingData, latent_dim: int, vector: np.ndarray
+) -> tuple[tuple[float, np.ndarray], tuple[float, np.ndarray], KroneckerLikelihood]:
+    """Value and gradient through the blocks and through the eigendecompositions."""
+    blocks = KroneckerLikelihood(data, latent_dim)
+    blocks.blocks = True
+    eigen = KroneckerLikelihood(data, latent_dim)
+    eigen.blocks = False
+    return blocks.value_and_gradient(vector), eigen.value_and_gradient(vector), blocks
+
+
+@pytest.mark.parametrize("case", [*CASES, FEW_OBJECTS], ids=lambda c: c.name)
+def test_blocks_match_the_dense_and_the_eigendecomposition_paths(case: Case) -> None:
+    data, latents, hyper = make_problem(case, seed=3)
+    dense = ManifoldLikelihood(data, case.latent_dim)
+    vector = dense.layout.pack(latents, hyper)
+    (value_b, grad_b), (value_e, grad_e), blocks = both_paths(data, case.latent_dim, vector)
+    value_d, grad_d = dense.value_and_gradient(vector)
+    assert abs(value_b - value_d) <= TOLERANCE * abs(value_d)
+    assert relative(grad_b, grad_d) <= TOLERANCE
+    assert abs(value_b - value_e) <= 1e-12 * abs(value_e)
+    assert relative(grad_b, grad_e) <= 1e-10
+    assert blocks.value(vector) == pytest.approx(value_b, rel=1e-12)
+
+
+def test_the_default_rule_uses_blocks_for_few_objects_on_many_actions() -> None:
+    assert use_blocks(BLOCK_MAX_OBJECTS, BLOCK_MIN_ACTIONS)
+    assert not use_blocks(BLOCK_MAX_OBJECTS + 1, 100)
+    assert not use_blocks(2, BLOCK_MIN_ACTIONS - 1)
+    data, _, _ = make_problem(FEW_OBJECTS, seed=4)
+    assert KroneckerLikelihood(data, 2).blocks
+    small, _, _ = make_problem(CASES[0], seed=4)  # 4 objects, 10 actions
+    assert not KroneckerLikelihood(small, 2).blocks
+
+
+def test_block_gradient_matches_finite_differences() -> None:
+    data, latents, hyper = make_problem(FEW_OBJECTS, seed=5)
+    likelihood = KroneckerLikelihood(data, 2)
+    assert likelihood.blocks
+    vector = likelihood.layout.pack(latents, hyper)
+    _, grad = likelihood.value_and_gradient(vector)
+    step = 1e-6
+    numeric = np.empty_like(grad)
+    for i in range(vector.size):
+        up, down = vector.copy(), vector.copy()
+        up[i] += step
+        down[i] -= step
+        numeric[i] = (likelihood.value(up) - likelihood.value(down)) / (2 * step)
+    assert relative(grad, numeric) < 1e-6
+
+
+def test_blocks_of_singular_latent_and_action_grams_match_the_dense_path() -> None:
+    """Coincident objects (λ_j at round-off around zero: B_j = σ_n² I) and a repeated design
+    action (K^x singular)."""
+    rng = np.random.default_rng(6)
+    n_objects, n_actions = 4, 50
+    world = random_experiment2_world(
+        rng, n_objects=n_objects, latent_dim=2, action_dim=2, observation_dim=2
+    )
+    data = collect(world, shared_design(n_objects, n_actions, np.zeros(2), np.eye(2), rng), rng)
+    actions = data.actions.copy()  # object-major, design order
+    actions[1::n_actions] = actions[::n_actions]
+    data = TrainingData(data.object_names, data.object_index, actions, data.observations)
+    latents = rng.standard_normal((n_objects, 2))
+    latents[1] = latents[0]
+    latents[2] = latents[0] + 1e-9
+    hyper = Hyperparameters(
+        signal_variance=np.array([1.3, 0.6]),
+        noise_variance=np.array([0.05, 0.01]),
+        latent_lengthscales=np.array([[1.5, 0.8], [3.0, 2.0]]),
+        action_lengthscales=np.array([[1.2, 2.0], [0.9, 1.4]]),
+    )
+    dense = ManifoldLikelihood(data, 2)
+    vector = dense.layout.pack(latents, hyper)
+    (value_b, grad_b), _, blocks = both_paths(data, 2, vector)
+    assert blocks.blocks
+    value_d, grad_d = dense.value_and_gradient(vector)
+    assert abs(value_b - value_d) <= TOLERANCE * abs(value_d)
+    assert np.max(np.abs(grad_b - grad_d)) <= TOLERANCE * np.max(np.abs(grad_d))
+
+
+def test_a_noise_variance_below_the_floor_falls_back_to_the_eigendecompositions() -> None:
+    data, latents, hyper = make_problem(FEW_OBJECTS, seed=7)
+    noise = hyper.noise_variance.copy()
+    noise[1] = 0.1 * NOISE_FRACTION_FLOOR * hyper.signal_variance[1]
+    hyper = Hyperparameters(
+        hyper.signal_variance, noise, hyper.latent_lengthscales, hyper.action_lengthscales
+    )
+    likelihood = KroneckerLikelihood(data, 2)
+    assert likelihood.blocks
+    vector = likelihood.layout.pack(latents, hyper)
+    latent_gram, action_gram, _ = likelihood._grams(vector)
+    grid_y = likelihood._grid_y
+    assert block_sums(latent_gram, action_gram, grid_y, hyper.signal_variance, noise) is None
+    (value_b, grad_b), (value_e, grad_e), _ = both_paths(data, 2, vector)
+    assert value_b == value_e
+    np.testing.assert_array_equal(grad_b, grad_e)
+
+
+def test_a_hyperparameter_fit_reaches_the_same_optimum_through_the_blocks(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    data, latents, _ = make_problem(FEW_OBJECTS, seed=8, shuffle=False)
+    options = FitOptions(hyperparameter_latent_lengthscales=())
+    with_blocks = fit_hyperparameters(data, latents, options)
+    monkeypatch.setattr(core.kronecker, "use_blocks", lambda n_objects, n_actions: False)
+    without = fit_hyperparameters(data, latents, options)
+    assert with_blocks.posterior.structure == without.posterior.structure == "kronecker"
+    assert with_blocks.log_likelihood == pytest.approx(without.log_likelihood, abs=1e-3)
