@@ -18,6 +18,13 @@ import numpy as np
 from core.types import Hyperparameters, TrainingData
 from core.validation import FloatArray
 
+#: The stopping rule of GPy's ``optimize()`` (its L-BFGS-B wrapper leaves scipy's
+#: ``fmin_l_bfgs_b`` defaults: factr = 1e7, i.e. a relative reduction of 1e7 machine epsilons,
+#: and pgtol = 1e-5; ``max_iters`` = 1000 caps iterations and evaluations).
+GPY_FTOL = 1e7 * float(np.finfo(np.float64).eps)
+GPY_GTOL = 1e-5
+GPY_MAX_ITERATIONS = 1000
+
 
 def load_gpy() -> tuple[Any, str]:
     """The ``GPy`` module, or ``None`` and the reason it could not be imported."""
@@ -78,7 +85,7 @@ class GPyFit:
     evaluations: int
 
 
-def fit(models: list[Any], max_iters: int = 1000) -> GPyFit:
+def fit(models: list[Any], max_iters: int = GPY_MAX_ITERATIONS) -> GPyFit:
     """``model.optimize()`` (GPy's default L-BFGS-B) on every model in turn."""
     started = time.perf_counter()
     evaluations = 0
