@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg.lapack
 
-from core.linalg import inverse_from_cholesky, weighted_gram_difference
+from core.linalg import inverse_from_cholesky
 from core.validation import FloatArray
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
@@ -172,10 +172,10 @@ def block_sums(
         vectors = latent_vectors[a]
         inner = np.diag(w_s) - (alpha @ kx) @ alpha.T
         latent_half[a] = np.triu(latent_gram[a] * (vectors @ inner @ vectors.T))
-        # Ω_x upper triangle: Σ_j λ_j B_j⁻¹ - Aᵀ Λ_s A (one triangle by dsyrk)
-        omega_x = weighted_gram_difference(np.empty((m, 0)), np.empty(0), alpha.T, latent_values[a])
-        omega_x += inverse_sum
-        np.multiply(kx, omega_x, out=action_half[a])
+        # K^x ∘ Ω_x, Ω_x = Σ_j λ_j B_j⁻¹ - Aᵀ Λ_s A, upper triangle (the lower one zeroed by
+        # the upper triangle of K^x)
+        inverse_sum -= (alpha.T * latent_values[a]) @ alpha
+        np.multiply(np.triu(kx), inverse_sum, out=action_half[a])
     return BlockSums(
         value=total, noise_trace=noise_trace, latent_half=latent_half, action_half=action_half
     )
