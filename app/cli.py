@@ -379,7 +379,7 @@ def _forward(ctx: typer.Context, command: Callable[..., Any]) -> None:
 
 @app.command(
     "serve",
-    help="Run the REST API, the live event stream and the dashboard.",
+    help="Run the REST API, the live event stream, the dashboard and the live 3D view.",
     context_settings=_FORWARDED,
     add_help_option=False,
 )

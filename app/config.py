@@ -41,6 +41,8 @@ class Settings(BaseSettings):
             steps of a simulated trial.
         frontend_dir: Folder of the static dashboard served at ``/`` (if it exists).
         migrations_dir: Folder of the Alembic environment.
+        viz: Whether ``activetouch serve`` runs the live 3D view (viser) beside the app.
+        viz_port: Its port (0: a free one). It binds ``host``, as the app does.
     """
 
     model_config = SettingsConfigDict(
@@ -61,6 +63,8 @@ class Settings(BaseSettings):
     max_simulated_step_interval_s: float = Field(default=10.0, ge=0.0)
     frontend_dir: Path = PROJECT_ROOT / "frontend"
     migrations_dir: Path = PROJECT_ROOT / "migrations"
+    viz: bool = True
+    viz_port: int = Field(default=8081, ge=0, le=65535)
 
     @property
     def token(self) -> str | None:

@@ -33,15 +33,14 @@ import httpx
 import numpy as np
 import typer
 import uvicorn
-from fastapi import FastAPI
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from app.config import Settings, is_loopback
 from app.documents import write_training_csv
+from app.live_view import LiveView
 from app.main import API_PREFIX, create_app
 from app.server_cli import GracefulServer
-from app.viz import ManifoldView, TrialFollower
 from core.worlds import sample_experiment1
 
 #: Name of the dataset the demo collects (and finds again on the next start).
@@ -164,8 +163,7 @@ class DemoServer:
         self._server: uvicorn.Server | None = None
         self._thread: threading.Thread | None = None
         self._served = threading.Event()  # set when the server thread's run() has returned
-        self.view: ManifoldView | None = None
-        self._follower: TrialFollower | None = None
+        self.live: LiveView | None = None
         self._client: httpx.Client | None = None
         self.port = options.port
 
@@ -193,9 +191,9 @@ class DemoServer:
     def start(self) -> None:
         """Start the viser view and the web app; return once the app answers."""
         self._started_at = time.perf_counter()
-        self.view = ManifoldView(host=self.options.host, port=self.options.viz_port)
+        self.live = LiveView(self.options.host, self.options.viz_port)
         app = create_app(self.settings)
-        add_viz_route(app, self.view)
+        self.live.attach(app)
         config = uvicorn.Config(
             app,
             host=self.options.host,
@@ -225,15 +223,12 @@ class DemoServer:
             base_url=self.base_url + API_PREFIX, headers=headers, timeout=30
         )
         self.timings.server_ready_s = self._elapsed()
-        self._follower = TrialFollower(
-            self.view, self.base_url, token=self.token, on_error=self._follower_error
-        ).start()
+        self.live.follow(self.base_url, token=self.token, on_error=self._follower_error)
 
     def stop(self) -> None:
         """Stop the follower, the web app and the view."""
-        if self._follower is not None:
-            self._follower.stop()
-            self._follower = None
+        if self.live is not None:
+            self.live.stop_following()
         if self._server is not None:
             # GracefulServer ends the open event streams (browser tabs) before it waits for
             # connections, so they close cleanly (no cancelled responses, no tracebacks).
@@ -246,9 +241,9 @@ class DemoServer:
         if self._client is not None:
             self._client.close()
             self._client = None
-        if self.view is not None:
-            self.view.close()
-            self.view = None
+        if self.live is not None:
+            self.live.close()
+            self.live = None
 
     def wait(self) -> None:
         """Block until Ctrl-C (or until the web app stops)."""
@@ -312,8 +307,8 @@ class DemoServer:
         self.timings.dataset_ready_s = self._elapsed()
         model = self._ready_model(dataset)
         self.timings.model_ready_s = self._elapsed()
-        if self.view is not None and self._follower is not None:
-            self._follower.show_model(model["id"])
+        if self.live is not None:
+            self.live.show_model(model["id"])
         return DemoState(
             dataset_id=int(dataset["id"]),
             model_id=int(model["id"]),
@@ -327,9 +322,9 @@ class DemoServer:
     @property
     def viz_url(self) -> str:
         """The viser view as seen from this machine."""
-        if self.view is None:
+        if self.live is None:
             raise DemoError("the demo server is not started.")
-        return self.view.url
+        return self.live.view.url
 
     def _experiment1_dataset(self) -> dict[str, Any]:
         for dataset in self._list("/datasets", "list datasets"):
@@ -474,20 +469,6 @@ class DemoServer:
                         bar.update(task, completed=total)
                     return record
                 time.sleep(poll_s)
-
-
-def add_viz_route(app: FastAPI, view: ManifoldView) -> None:
-    """Add ``GET /api/v1/viz`` → ``{"port", "url"}`` so the dashboard can embed the view.
-
-    The route goes first: the dashboard's static mount at ``/`` would otherwise shadow it.
-    """
-
-    def viz() -> dict[str, Any]:
-        return {"port": view.port, "url": view.url, "clients": view.n_clients}
-
-    app.add_api_route(f"{API_PREFIX}/viz", viz, methods=["GET"], tags=["viz"])
-    route = app.router.routes.pop()
-    app.router.routes.insert(0, route)
 
 
 def _interrupt(signum: int, frame: object) -> None:

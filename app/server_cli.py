@@ -1,4 +1,4 @@
-"""``activetouch serve``: run the web app with uvicorn.
+"""``activetouch serve``: run the web app with uvicorn, and the live 3D view beside it.
 
 :func:`serve` is the function; :func:`serve_command` is the typer command the CLI registers
 (``app.command("serve")(serve_command)``). ``python -m app.server_cli`` runs it on its own.
@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import socket
 import sys
+import threading
+import time
 from typing import Annotated, Any, Literal
 
 import typer
@@ -17,10 +19,13 @@ import uvicorn
 from starlette.applications import Starlette
 
 from app.config import ConfigurationError, Settings
+from app.live_view import LiveView
 from app.main import create_app
 
 #: Seconds uvicorn waits for open responses at shutdown before cancelling them.
 GRACEFUL_SHUTDOWN_S = 5
+#: Seconds the 3D view's follower waits for the web app to start listening.
+FOLLOW_START_TIMEOUT_S = 120.0
 
 
 def end_event_streams(app: object) -> None:
@@ -59,11 +64,14 @@ def serve(
     tactile_port: str | None = None,
     api_token: str | None = None,
     log_level: str = "info",
+    viz: bool | None = None,
+    viz_port: int | None = None,
 ) -> None:
-    """Serve the API (and the dashboard) until interrupted.
+    """Serve the API (and the dashboard), and the live 3D view beside them, until interrupted.
 
     Arguments left ``None`` come from the environment (``ACTIVETOUCH_*``), ``.env`` or the
-    defaults (127.0.0.1:8000, ``sqlite:///activetouch.db``, mock hardware).
+    defaults (127.0.0.1:8000, ``sqlite:///activetouch.db``, mock hardware, the 3D view on port
+    8081 of the same address). The view draws every trial as it runs; the dashboard embeds it.
 
     Raises:
         ConfigurationError: A non-loopback host without an API token, or other unsafe settings.
@@ -79,22 +87,85 @@ def serve(
             "finger_port": finger_port,
             "tactile_port": tactile_port,
             "api_token": api_token,
+            "viz": viz,
+            "viz_port": viz_port,
         }.items()
         if value is not None
     }
-    settings = Settings(**overrides)
-    app = create_app(settings)  # refuses unsafe settings before anything binds
-    config = uvicorn.Config(
-        app,
-        host=settings.host,
-        port=settings.port,
-        log_level=log_level,
-        timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S,
-    )
-    server = GracefulServer(config)
-    server.run()
-    if not server.started:  # as uvicorn.run: the port was taken, or the app failed to start
-        sys.exit(3)
+    if not ServedApp(Settings(**overrides), log_level).run():
+        sys.exit(3)  # as uvicorn.run: the port was taken, or the app failed to start
+
+
+class ServedApp:
+    """The web app under uvicorn and, unless ``settings.viz`` is off, the live 3D view.
+
+    Args:
+        settings: What to serve; unsafe settings are refused here, before anything binds.
+        log_level: uvicorn's log level.
+
+    Raises:
+        ConfigurationError: A non-loopback host without an API token, or other unsafe settings.
+    """
+
+    def __init__(self, settings: Settings, log_level: str = "info") -> None:
+        self.settings = settings
+        self.app = create_app(settings)
+        self.live = LiveView(settings.host, settings.viz_port) if settings.viz else None
+        if self.live is not None:
+            self.live.attach(self.app)
+        self.server = GracefulServer(
+            uvicorn.Config(
+                self.app,
+                host=settings.host,
+                port=settings.port,
+                log_level=log_level,
+                timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S,
+            )
+        )
+
+    def run(self) -> bool:
+        """Serve until the server is told to exit (Ctrl-C, SIGTERM, ``server.should_exit``);
+        the view follows the app's trials once it listens, and is closed at the end.
+
+        Returns:
+            Whether the server started.
+        """
+        if self.live is not None:
+            threading.Thread(
+                target=follow_when_listening,
+                args=(self.server, self.live, self.settings),
+                name="viz-follower-start",
+                daemon=True,
+            ).start()
+        try:
+            self.server.run()
+        finally:
+            if self.live is not None:
+                self.live.close()
+        return bool(self.server.started)
+
+
+def listening_url(server: uvicorn.Server, host: str) -> str:
+    """``http://host:port`` of a started server, as seen from this machine (the port it bound,
+    which differs from the configured one when that was 0)."""
+    listeners = getattr(server, "servers", [])  # set by uvicorn once it listens
+    sockets = [s for listener in listeners for s in (listener.sockets or [])]
+    port = int(sockets[0].getsockname()[1]) if sockets else int(server.config.port)
+    if host in ("0.0.0.0", "::", ""):
+        host = "127.0.0.1"
+    elif ":" in host:
+        host = f"[{host}]"
+    return f"http://{host}:{port}"
+
+
+def follow_when_listening(server: uvicorn.Server, live: LiveView, settings: Settings) -> None:
+    """Once ``server`` listens, let ``live`` follow its trials (gives up if it never starts)."""
+    deadline = time.monotonic() + FOLLOW_START_TIMEOUT_S
+    while not server.started:
+        if server.should_exit or time.monotonic() > deadline:
+            return
+        time.sleep(0.05)
+    live.follow(listening_url(server, settings.host), token=settings.token)
 
 
 def serve_command(
@@ -125,8 +196,16 @@ def serve_command(
         ),
     ] = None,
     log_level: Annotated[str, typer.Option(help="uvicorn log level.")] = "info",
+    viz: Annotated[
+        bool | None,
+        typer.Option("--viz/--no-viz", help="Run the live 3D view (viser) beside the app."),
+    ] = None,
+    viz_port: Annotated[
+        int | None,
+        typer.Option(min=0, max=65535, help="3D view port (default 8081; 0: a free one)."),
+    ] = None,
 ) -> None:
-    """Run the REST API, the live event stream and the dashboard."""
+    """Run the REST API, the live event stream, the dashboard and the live 3D view."""
     if hardware is not None and hardware not in ("mock", "serial"):
         raise typer.BadParameter("expected 'mock' or 'serial'.", param_hint="--hardware")
     try:
@@ -140,6 +219,8 @@ def serve_command(
             tactile_port=tactile_port,
             api_token=api_token,
             log_level=log_level,
+            viz=viz,
+            viz_port=viz_port,
         )
     except ConfigurationError as exc:
         typer.echo(f"activetouch serve: {exc}", err=True)

@@ -147,7 +147,8 @@ def test_demo_trial_through_the_ui(page: Any, demo: Demo) -> None:
 def test_viser_view_connects_and_follows_the_trial(
     page: Any, browser: Any, demo: Demo, page_errors: PageErrors
 ) -> None:
-    view = demo.server.view
+    assert demo.server.live is not None
+    view = demo.server.live.view
     assert view is not None
     open_dashboard(page, demo, viz=True)
     frame = page.get_by_test_id("viser-frame")

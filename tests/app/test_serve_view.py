@@ -1,0 +1,105 @@
+"""``activetouch serve`` runs the live 3D view beside the app: the dashboard finds it at
+``GET /api/v1/viz``, it follows a trial run through the API to its end, and ``--no-viz``
+leaves it out."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+
+from app.server_cli import ServedApp, listening_url
+from tests.app.conftest import experiment1_document, make_settings
+
+API = "/api/v1"
+
+
+@pytest.fixture
+def served(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[ServedApp]:
+    """The app on a free port of 127.0.0.1, in a thread, with or without the view."""
+    viz = bool(getattr(request, "param", True))
+    served = ServedApp(make_settings(tmp_path, port=0, viz=viz, viz_port=0), log_level="warning")
+    thread = threading.Thread(target=served.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 60
+    while not served.server.started:
+        assert thread.is_alive(), "the server stopped while starting"
+        assert time.monotonic() < deadline, "the server did not start within 60 s"
+        time.sleep(0.05)
+    try:
+        yield served
+    finally:
+        served.server.should_exit = True
+        thread.join(timeout=30)
+        assert not thread.is_alive(), "the server did not stop"
+
+
+def wait_finished(client: httpx.Client, trial_id: int, timeout_s: float = 60) -> dict[str, Any]:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        trial: dict[str, Any] = client.get(f"{API}/trials/{trial_id}").json()
+        if trial["status"] not in ("queued", "running", "paused"):
+            return trial
+        assert time.monotonic() < deadline, f"trial {trial_id} still {trial['status']}"
+        time.sleep(0.1)
+
+
+def test_serve_runs_the_view_and_it_follows_a_trial(served: ServedApp) -> None:
+    assert served.live is not None
+    view = served.live.view
+    base = listening_url(served.server, "127.0.0.1")
+    with httpx.Client(base_url=base, timeout=30) as client:
+        info = client.get(f"{API}/viz").json()
+        assert info["port"] == view.port > 0
+        page = httpx.get(f"http://127.0.0.1:{view.port}/", timeout=30)
+        assert page.status_code == 200
+        assert "<html" in page.text.lower()
+        imported = client.post(f"{API}/models/import", json=experiment1_document(0))
+        assert imported.status_code == 201, imported.text
+        created = client.post(
+            f"{API}/trials",
+            json={
+                "model_id": imported.json()["id"], "mode": "simulated", "target": "O2",
+                "seed": 4, "max_steps": 4,
+                "simulation": {"world": "experiment1", "step_interval_s": 0.0},
+            },
+        )  # fmt: skip
+        assert created.status_code == 201, created.text
+        trial = wait_finished(client, created.json()["id"])
+    assert trial["status"] == "completed"
+    final_mean = np.asarray(trial["steps"][-1]["belief"]["mean"])
+    deadline = time.monotonic() + 15
+    while time.monotonic() < deadline:
+        belief = view.belief
+        if belief is not None and np.allclose(belief.mean, final_mean, rtol=1e-12, atol=0):
+            break
+        time.sleep(0.1)
+    assert view.model is not None
+    assert list(view.model.object_names) == ["O1", "O2", "O3", "O4"]
+    assert view.belief is not None
+    np.testing.assert_allclose(view.belief.mean, final_mean, rtol=1e-12)
+
+
+@pytest.mark.parametrize("served", [False], indirect=True)
+def test_no_viz_serves_the_app_alone(served: ServedApp) -> None:
+    assert served.live is None
+    base = listening_url(served.server, "127.0.0.1")
+    assert httpx.get(f"{base}{API}/viz", timeout=30).status_code == 404
+    assert httpx.get(f"{base}{API}/health", timeout=30).status_code == 200
+
+
+@pytest.mark.parametrize(
+    ("host", "expected"),
+    [("0.0.0.0", "127.0.0.1"), ("::", "127.0.0.1"), ("::1", "[::1]"), ("10.0.0.5", "10.0.0.5")],
+)
+def test_listening_url_names_an_address_this_machine_can_reach(
+    tmp_path: Path, host: str, expected: str
+) -> None:
+    served = ServedApp(make_settings(tmp_path, port=8123, viz=False))
+    assert listening_url(served.server, host) == f"http://{expected}:8123"
