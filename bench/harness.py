@@ -22,6 +22,8 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_info, threadpool_limits
 
+from core.validation import FloatArray
+
 
 @dataclass(frozen=True)
 class Timing:
@@ -82,14 +84,40 @@ def blas_threads(threads: int) -> Iterator[None]:
         yield
 
 
-def gemm_rate(size: int = 1024, repeats: int = 5) -> float:
-    """Measured double-precision GEMM rate (flop/s) of a size × size product, median of repeats,
-    under the current thread limit."""
+def gemm_product(size: int = 1024) -> tuple[Callable[[], object], float]:
+    """A size × size double-precision product to time, and its flop count."""
     rng = np.random.default_rng(0)
     a = rng.standard_normal((size, size))
     b = rng.standard_normal((size, size))
-    timing = measure(lambda: a @ b, repeats=repeats, warmup=1)
-    return 2.0 * size**3 / timing.median_s
+    return (lambda: a @ b), 2.0 * size**3
+
+
+def gemm_rate(size: int = 1024, repeats: int = 5) -> float:
+    """Measured double-precision GEMM rate (flop/s) of a size × size product, median of repeats,
+    under the current thread limit."""
+    product, flops = gemm_product(size)
+    timing = measure(product, repeats=repeats, warmup=1)
+    return flops / timing.median_s
+
+
+def paired_times(
+    first: Callable[[], object], second: Callable[[], object], repeats: int, warmup: int = 1
+) -> tuple[FloatArray, FloatArray]:
+    """Wall seconds of ``first()`` and ``second()`` called alternately ``repeats`` times each.
+
+    A ratio of the two taken pair by pair (then its median) shrugs off the slow drifts of a
+    shared machine that would skew a ratio of two medians measured minutes apart.
+    """
+    for _ in range(warmup):
+        first()
+        second()
+    times = np.empty((2, max(repeats, 1)))
+    for k in range(times.shape[1]):
+        for row, function in enumerate((first, second)):
+            started = time.perf_counter()
+            function()
+            times[row, k] = time.perf_counter() - started
+    return times[0], times[1]
 
 
 def machine() -> dict[str, Any]:
