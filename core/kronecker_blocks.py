@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg.lapack
 
+from core.errors import NotPositiveDefiniteError
 from core.linalg import inverse_from_cholesky
 from core.validation import FloatArray
 
@@ -94,6 +95,21 @@ def _factor_blocks(
     return factors
 
 
+def _latent_eigh(latent_gram: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Eigenvalues (dy, L) and eigenvectors (dy, L, L) of each feature's small K^s, by LAPACK
+    ``dsyevd`` directly (for a few 4 × 4 matrices ``numpy.linalg.eigh``'s overhead is most of
+    its time)."""
+    dy, n_objects, _ = latent_gram.shape
+    values = np.empty((dy, n_objects))
+    vectors = np.empty((dy, n_objects, n_objects))
+    for a in range(dy):
+        w, v, info = scipy.linalg.lapack.dsyevd(latent_gram[a], compute_v=1, lower=1)
+        if info != 0:  # pragma: no cover - a symmetric matrix with finite entries
+            raise NotPositiveDefiniteError(f"dsyevd failed on feature {a} (info {info}).")
+        values[a], vectors[a] = w, v
+    return values, vectors
+
+
 def _log_det(factors: list[FloatArray]) -> float:
     """Σ_j log det B_j from the Cholesky factors."""
     diagonals = np.array([np.diagonal(factor) for factor in factors])
@@ -108,7 +124,7 @@ def block_value(
     noise: FloatArray,
 ) -> float | None:
     """-log p, or ``None`` where the blocks do not apply (see :func:`block_sums`)."""
-    latent_values, latent_vectors = np.linalg.eigh(latent_gram)
+    latent_values, latent_vectors = _latent_eigh(latent_gram)
     rotated = np.swapaxes(latent_vectors, 1, 2) @ grid_y  # Ŷ (dy, L, M)
     total = 0.5 * grid_y.size * _LOG_2PI
     for a in range(grid_y.shape[0]):
@@ -144,7 +160,7 @@ def block_sums(
         caller then uses the eigendecompositions, whose jitter ladder handles those cases.
     """
     dy, n_objects, m = grid_y.shape
-    latent_values, latent_vectors = np.linalg.eigh(latent_gram)
+    latent_values, latent_vectors = _latent_eigh(latent_gram)
     rotated = np.swapaxes(latent_vectors, 1, 2) @ grid_y  # Ŷ (dy, L, M)
     total = 0.5 * grid_y.size * _LOG_2PI
     noise_trace = np.empty(dy)
