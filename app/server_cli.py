@@ -8,6 +8,7 @@ the open event streams first, so it neither hangs on them nor cancels them with 
 
 from __future__ import annotations
 
+import os
 import socket
 import sys
 import threading
@@ -228,4 +229,8 @@ def serve_command(
 
 
 if __name__ == "__main__":
-    typer.run(serve_command)
+    from threadpoolctl import threadpool_limits
+
+    # As the activetouch command (app.cli.main), but numpy is loaded by now: limit it live.
+    with threadpool_limits(limits=int(os.environ.get("ACTIVETOUCH_BLAS_THREADS", "1"))):
+        typer.run(serve_command)
