@@ -20,6 +20,7 @@ from core.likelihood import ManifoldLikelihood
 from core.manifold import FitOptions, fit_hyperparameters
 from core.types import Hyperparameters, TrainingData
 from core.worlds import random_experiment2_world
+from tests.core.finite_differences import central_differences
 from tests.core.test_kronecker import CASES, TOLERANCE, Case, make_problem, relative
 
 #: A case the default rule evaluates through the blocks.
@@ -67,13 +68,7 @@ def test_block_gradient_matches_finite_differences() -> None:
     assert likelihood.blocks
     vector = likelihood.layout.pack(latents, hyper)
     _, grad = likelihood.value_and_gradient(vector)
-    step = 1e-6
-    numeric = np.empty_like(grad)
-    for i in range(vector.size):
-        up, down = vector.copy(), vector.copy()
-        up[i] += step
-        down[i] -= step
-        numeric[i] = (likelihood.value(up) - likelihood.value(down)) / (2 * step)
+    numeric = central_differences(likelihood.value, vector)
     assert relative(grad, numeric) < 1e-6
 
 

@@ -17,6 +17,7 @@ from core.posterior import AUTO_SPARSE_ABOVE, condition, predict, resolve_struct
 from core.sparse import SparseLikelihood, condition_sparse, select_inducing_points
 from core.types import GaussianBelief, Hyperparameters, TrainingData
 from core.worlds import random_experiment2_world, sample_dataset
+from tests.core.finite_differences import central_differences
 
 
 def make_problem(
@@ -55,13 +56,7 @@ def test_bound_is_below_the_exact_log_likelihood_and_gradient_is_exact(n_inducin
     vector = exact.layout.pack(latents, hyper)
     value, grad = sparse.value_and_gradient(vector)
     assert value > exact.value(vector)  # -F ≥ -log p
-    step = 1e-6
-    numeric = np.empty_like(grad)
-    for i in range(vector.size):
-        up, down = vector.copy(), vector.copy()
-        up[i] += step
-        down[i] -= step
-        numeric[i] = (sparse.value(up) - sparse.value(down)) / (2 * step)
+    numeric = central_differences(sparse.value, vector)
     np.testing.assert_allclose(grad, numeric, rtol=1e-5, atol=1e-6 * np.abs(numeric).max())
 
 
@@ -193,16 +188,9 @@ def test_many_objects_use_per_object_sums_with_the_same_moments_and_gradient(
     assert value == pytest.approx(
         float(mutual_information(predictive_moments(model, belief, stats), belief)[0]), rel=1e-10
     )
-    step = 1e-6
-    numeric = np.empty(2)
-    for d in range(2):
-        up, down = x.copy(), x.copy()
-        up[d] += step
-        down[d] -= step
-        numeric[d] = (
-            mutual_information_and_gradient(model, belief, up)[0]
-            - mutual_information_and_gradient(model, belief, down)[0]
-        ) / (2 * step)
+    numeric = central_differences(
+        lambda point: mutual_information_and_gradient(model, belief, point)[0], x
+    )
     np.testing.assert_allclose(gradient, numeric, rtol=1e-5, atol=1e-8)
 
 
