@@ -1108,3 +1108,21 @@ def wait_for_clients(view: ManifoldView, count: int = 1, timeout_s: float = 10.0
             return True
         time.sleep(0.05)
     return view.n_clients >= count
+
+
+def wait_for_belief_mean(
+    view: ManifoldView, mean: FloatArray, timeout_s: float = 15.0, rtol: float = 1e-12
+) -> bool:
+    """Wait until ``view`` shows a belief whose mean is ``mean`` (shape (ds,), to ``rtol``), as
+    after its follower has drawn a trial's last step; whether it did in time."""
+
+    def shown() -> bool:
+        belief = view.belief
+        return belief is not None and bool(np.allclose(belief.mean, mean, rtol=rtol, atol=0))
+
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if shown():
+            return True
+        time.sleep(0.05)
+    return shown()

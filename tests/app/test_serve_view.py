@@ -8,14 +8,15 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import httpx
 import numpy as np
 import pytest
 
 from app.server_cli import ServedApp, listening_url
+from app.viz import wait_for_belief_mean
 from tests.app.conftest import experiment1_document, make_settings
+from tests.app.trial_waits import wait_finished
 
 API = "/api/v1"
 
@@ -40,16 +41,6 @@ def served(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[ServedApp
         assert not thread.is_alive(), "the server did not stop"
 
 
-def wait_finished(client: httpx.Client, trial_id: int, timeout_s: float = 60) -> dict[str, Any]:
-    deadline = time.monotonic() + timeout_s
-    while True:
-        trial: dict[str, Any] = client.get(f"{API}/trials/{trial_id}").json()
-        if trial["status"] not in ("queued", "running", "paused"):
-            return trial
-        assert time.monotonic() < deadline, f"trial {trial_id} still {trial['status']}"
-        time.sleep(0.1)
-
-
 def test_serve_runs_the_view_and_it_follows_a_trial(served: ServedApp) -> None:
     assert served.live is not None
     view = served.live.view
@@ -71,15 +62,12 @@ def test_serve_runs_the_view_and_it_follows_a_trial(served: ServedApp) -> None:
             },
         )  # fmt: skip
         assert created.status_code == 201, created.text
-        trial = wait_finished(client, created.json()["id"])
+        trial = wait_finished(
+            lambda trial_id: client.get(f"{API}/trials/{trial_id}").json(), created.json()["id"]
+        )
     assert trial["status"] == "completed"
     final_mean = np.asarray(trial["steps"][-1]["belief"]["mean"])
-    deadline = time.monotonic() + 15
-    while time.monotonic() < deadline:
-        belief = view.belief
-        if belief is not None and np.allclose(belief.mean, final_mean, rtol=1e-12, atol=0):
-            break
-        time.sleep(0.1)
+    wait_for_belief_mean(view, final_mean)
     assert view.model is not None
     assert list(view.model.object_names) == ["O1", "O2", "O3", "O4"]
     assert view.belief is not None

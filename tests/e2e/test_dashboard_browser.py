@@ -16,7 +16,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from app.viz import wait_for_clients
+from app.viz import wait_for_belief_mean, wait_for_clients
+from tests.app.trial_waits import wait_finished
 from tests.e2e.conftest import DOCS_FLAG, Demo, PageErrors, save_screenshot
 
 pytestmark = pytest.mark.browser
@@ -44,16 +45,6 @@ def newest_trial(demo: Demo) -> dict[str, Any]:
     summary = max(trials, key=lambda t: t["id"])
     detail: dict[str, Any] = demo.get(f"/trials/{summary['id']}")
     return detail
-
-
-def wait_finished(demo: Demo, trial_id: int, timeout_s: float = 60) -> dict[str, Any]:
-    deadline = time.monotonic() + timeout_s
-    while True:
-        trial: dict[str, Any] = demo.get(f"/trials/{trial_id}")
-        if trial["status"] not in ("queued", "running", "paused"):
-            return trial
-        assert time.monotonic() < deadline, f"trial {trial_id} still {trial['status']}"
-        time.sleep(0.2)
 
 
 def test_every_page_renders_with_the_estop(page: Any, demo: Demo) -> None:
@@ -171,14 +162,9 @@ def test_viser_view_connects_and_follows_the_trial(
         body["simulation"] = {"world": demo.state.world, "step_interval_s": 0.0}
     created = demo.server.client.post("/trials", json=body)
     assert created.status_code == 201, created.text
-    trial = wait_finished(demo, created.json()["id"])
+    trial = wait_finished(lambda trial_id: demo.get(f"/trials/{trial_id}"), created.json()["id"])
     final_mean = np.asarray(trial["steps"][-1]["belief"]["mean"])
-    deadline = time.monotonic() + 15
-    while time.monotonic() < deadline:
-        belief = view.belief
-        if belief is not None and np.allclose(belief.mean, final_mean, rtol=1e-12, atol=0):
-            break
-        time.sleep(0.1)
+    wait_for_belief_mean(view, final_mean)
     assert view.belief is not None
     np.testing.assert_allclose(view.belief.mean, final_mean, rtol=1e-12)
     # The view on its own page, for the screenshot.
