@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 import core.kronecker
-from core.designs import collect, shared_design
 from core.kronecker import KroneckerLikelihood
 from core.kronecker_blocks import (
     BLOCK_MAX_OBJECTS,
@@ -19,9 +18,9 @@ from core.kronecker_blocks import (
 from core.likelihood import ManifoldLikelihood
 from core.manifold import FitOptions, fit_hyperparameters
 from core.types import Hyperparameters, TrainingData
-from core.worlds import random_experiment2_world
 from tests.core.finite_differences import central_differences
 from tests.core.test_kronecker import CASES, TOLERANCE, Case, make_problem, relative
+from tests.core.test_kronecker_fast_paths import singular_problem
 
 #: A case the default rule evaluates through the blocks.
 FEW_OBJECTS = Case("few-objects", 3, 60, 3, 2, 2)
@@ -75,24 +74,7 @@ def test_block_gradient_matches_finite_differences() -> None:
 def test_blocks_of_singular_latent_and_action_grams_match_the_dense_path() -> None:
     """Coincident objects (λ_j at round-off around zero: B_j = σ_n² I) and a repeated design
     action (K^x singular)."""
-    rng = np.random.default_rng(6)
-    n_objects, n_actions = 4, 50
-    world = random_experiment2_world(
-        rng, n_objects=n_objects, latent_dim=2, action_dim=2, observation_dim=2
-    )
-    data = collect(world, shared_design(n_objects, n_actions, np.zeros(2), np.eye(2), rng), rng)
-    actions = data.actions.copy()  # object-major, design order
-    actions[1::n_actions] = actions[::n_actions]
-    data = TrainingData(data.object_names, data.object_index, actions, data.observations)
-    latents = rng.standard_normal((n_objects, 2))
-    latents[1] = latents[0]
-    latents[2] = latents[0] + 1e-9
-    hyper = Hyperparameters(
-        signal_variance=np.array([1.3, 0.6]),
-        noise_variance=np.array([0.05, 0.01]),
-        latent_lengthscales=np.array([[1.5, 0.8], [3.0, 2.0]]),
-        action_lengthscales=np.array([[1.2, 2.0], [0.9, 1.4]]),
-    )
+    data, latents, hyper = singular_problem(n_objects=4, n_actions=50, seed=6)
     dense = ManifoldLikelihood(data, 2)
     vector = dense.layout.pack(latents, hyper)
     (value_b, grad_b), _, blocks = both_paths(data, 2, vector)

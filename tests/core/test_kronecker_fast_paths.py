@@ -18,9 +18,12 @@ from core.worlds import random_experiment2_world
 TOLERANCE = 1e-8
 
 
-@pytest.mark.parametrize(("n_objects", "n_actions"), [(33, 4), (3, 40)])
-def test_singular_factors_match_the_dense_path(n_objects: int, n_actions: int) -> None:
-    rng = np.random.default_rng(n_objects)
+def singular_problem(
+    n_objects: int, n_actions: int, seed: int
+) -> tuple[TrainingData, np.ndarray, Hyperparameters]:
+    """A shared design whose design action 1 repeats action 0 (K^x singular) and whose objects
+    0, 1 coincide and 2 nearly does (K^s singular: a zero eigenvalue, computed at ±1e-16)."""
+    rng = np.random.default_rng(seed)
     world = random_experiment2_world(
         rng, n_objects=n_objects, latent_dim=2, action_dim=2, observation_dim=2
     )
@@ -30,7 +33,7 @@ def test_singular_factors_match_the_dense_path(n_objects: int, n_actions: int) -
     actions[1::n_actions] = actions[::n_actions]  # design action 1 repeats action 0
     data = TrainingData(data.object_names, data.object_index, actions, data.observations)
     latents = rng.standard_normal((n_objects, 2))
-    latents[1] = latents[0]  # K^s singular: a zero eigenvalue, computed at ±1e-16
+    latents[1] = latents[0]
     latents[2] = latents[0] + 1e-9
     hyper = Hyperparameters(
         signal_variance=np.array([1.3, 0.6]),
@@ -38,6 +41,12 @@ def test_singular_factors_match_the_dense_path(n_objects: int, n_actions: int) -
         latent_lengthscales=np.array([[1.5, 0.8], [3.0, 2.0]]),  # long: K^s nearly low rank
         action_lengthscales=np.array([[1.2, 2.0], [0.9, 1.4]]),
     )
+    return data, latents, hyper
+
+
+@pytest.mark.parametrize(("n_objects", "n_actions"), [(33, 4), (3, 40)])
+def test_singular_factors_match_the_dense_path(n_objects: int, n_actions: int) -> None:
+    data, latents, hyper = singular_problem(n_objects, n_actions, seed=n_objects)
     dense = ManifoldLikelihood(data, 2)
     kron = KroneckerLikelihood(data, 2)
     vector = dense.layout.pack(latents, hyper)
