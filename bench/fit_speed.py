@@ -24,9 +24,10 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from bench.reference_fit import joint_optimum
+from core.fit_run import FitRun
 from core.initialisation import pca_latents, random_latents
 from core.likelihood import ManifoldLikelihood
-from core.manifold import FitOptions, _FitRun, fit_hyperparameters, fit_manifold
+from core.manifold import FitOptions, fit_hyperparameters, fit_manifold
 from core.metrics import abs_correlation, procrustes_r2
 from core.parameters import initial_hyperparameters
 from core.types import ManifoldModel, TrainingData
@@ -50,7 +51,7 @@ def experiment1(seeds: int, noise_std: float, options: FitOptions) -> None:
         data = sample_experiment1(np.random.default_rng(seed), noise_std=noise_std)
         start = time.perf_counter()
         cpu_start = time.process_time()
-        run = _FitRun(data, 1, np.random.default_rng(1000 + seed), options)
+        run = FitRun(data, 1, np.random.default_rng(1000 + seed), options)
         model = None
         for event in run.events():
             model = event.model if event.model is not None else model

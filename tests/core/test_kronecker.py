@@ -10,6 +10,7 @@ import pytest
 from bench.reference_moments import direct_moments_batch
 from core.designs import collect, shared_design
 from core.errors import CoreError, InvalidInputError
+from core.fit_run import FitRun
 from core.information_gradient import mutual_information_and_gradient
 from core.kronecker import (
     KroneckerLikelihood,
@@ -21,7 +22,7 @@ from core.kronecker import (
     require_shared_design,
 )
 from core.likelihood import ManifoldLikelihood
-from core.manifold import FitOptions, _FitRun, fit_manifold
+from core.manifold import FitOptions, fit_manifold
 from core.moments import (
     ActionStatistics,
     action_statistics,
@@ -332,7 +333,7 @@ def test_a_fit_on_a_shared_design_runs_through_kronecker_and_matches_the_dense_f
 
 def test_screening_a_shared_design_keeps_it_shared() -> None:
     data, _, _ = make_problem(CASES[2], seed=21)
-    run = _FitRun(data, 2, np.random.default_rng(22), FitOptions(screen_touches_per_object=3))
+    run = FitRun(data, 2, np.random.default_rng(22), FitOptions(screen_touches_per_object=3))
     assert isinstance(run.full.likelihood, KroneckerLikelihood)
     assert run.screen is not None
     assert isinstance(run.screen.likelihood, KroneckerLikelihood)

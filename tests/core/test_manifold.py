@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
+from core.fit_run import FitRun
 from core.initialisation import normalise_spread, pca_latents, random_latents
 from core.likelihood import ManifoldLikelihood
 from core.manifold import (
     FitCancelledError,
     FitOptions,
     FitProgress,
-    _FitRun,
     fit_hyperparameters,
     fit_manifold,
     iter_fit,
@@ -214,7 +214,7 @@ def test_hyperparameters_at_bounds_are_reported() -> None:
 
 def test_degenerate_optimum_is_recognised() -> None:
     data = small_data(dy=2)
-    run = _FitRun(data, 2, np.random.default_rng(0), FitOptions(restarts=0))
+    run = FitRun(data, 2, np.random.default_rng(0), FitOptions(restarts=0))
     layout: ParameterLayout = run.layout
     vector = layout.pack(
         np.array([[0.0, 1.0], [1.0, 0.0], [-1.0, -1.0]]), initial_hyperparameters(data, 2, 1.0)

@@ -1,0 +1,602 @@
+"""How a manifold fit runs: starts, screening, differential evolution, choice, normalisation.
+
+The engine behind :func:`core.manifold.iter_fit` (:class:`FitRun`):
+
+1. **Starts.** The first starts are data-driven (:func:`core.initialisation.data_driven_starts`:
+   the PCA of the object profiles below 8 objects; from 8 on their Isomap, then their PCA);
+   R more draw S ~ N(0, I) (``FitOptions.restarts``). Every start has unit latent spread, the
+   data-relative initial hyperparameters of :func:`core.parameters.initial_hyperparameters`
+   and latent length-scales ≈10× the spread. Data-driven starts first fit the hyperparameters
+   with S frozen — one small problem per feature, from the current and a unit latent
+   length-scale, best kept per feature (:mod:`core.hyperparameter_fit`) — then everything
+   jointly; random starts go straight to the joint fit (with frozen random latents the
+   hyperparameters adapt to a meaningless arrangement: on Experiment 1 that took 10-20× more
+   joint iterations).
+2. **Screening.** When some object has more touches than ``screen_touches_per_object``,
+   every start is first optimised (at most ``screen_iterations``) on one random subsample of
+   that many touches per object, which costs ~(N/n)³ less per evaluation. The
+   ``polish_starts`` best screened starts — ranked by their likelihood on all the data at the
+   screened parameters (one evaluation each; the subsample's own likelihood ranked a start
+   whose optimum has |corr| 0.53 first on an Experiment-1 data set, above the PCA start's
+   0.994) — are then optimised on all the data, from their
+   screened latents with fresh initial hyperparameters (hyperparameters fitted to a subsample
+   transfer badly, see :meth:`FitRun._transfer`): first the hyperparameters alone, feature
+   by feature as in 1., then jointly. Going straight to the joint fit from fresh
+   hyperparameters, the first quasi-Newton steps can throw every latent length-scale onto its
+   lower bound (K^s = I, a flat corner L-BFGS-B never leaves): measured at L=4, M=100,
+   dx=6, that corner was 770 nats below the optimum. Without screening (every object has at
+   most that many touches, or ``screen_touches_per_object=0``) every start is optimised on all
+   the data.
+3. **Differential evolution** (``optimizer="de"``): one more start, a
+   :func:`scipy.optimize.differential_evolution` search over the same bounded vector on the
+   screening data (value only), seeded with the best start so far, refined with L-BFGS-B and
+   always polished on all the data.
+4. **Choice.** The best full-data likelihood among the polished starts wins, except that a
+   *degenerate* winner is replaced by a non-degenerate polished start. The next screened
+   start is polished too while every polished start is degenerate, or while its full-data
+   likelihood at its screened parameters beats the best polished start's (so no start left
+   unpolished looks better than the winner). Degenerate: some latent length-scale sits on
+   its lower bound (objects uncorrelated in a feature), or every feature's length-scale of
+   some latent dimension sits on its upper bound (an unused dimension).
+   ``FitDiagnostics.starts_log_likelihood`` holds the full-data log-likelihood of every
+   start: after polishing for the polished ones, at the screened parameters for the others.
+5. **Normalisation.** Latents are centred and scaled to RMS distance 1 from their centre, and
+   the latent length-scales divided by the same factor, which leaves the likelihood unchanged;
+   the model is built with :func:`core.posterior.condition`.
+
+Every L-BFGS-B run also stops once it stalls (``FitOptions.stall_nats`` /
+``stall_relative``): log-likelihood gains of hundredths of a nat per iteration along a flat
+ridge cost most of the iterations otherwise.
+
+Bounds (log space, relative to the data): see :func:`core.parameters.parameter_bounds`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Generator
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.optimize
+
+from core.errors import ConvergenceError, InvalidInputError, NotPositiveDefiniteError
+from core.fit_options import FitOptions, FitProgress
+from core.hyperparameter_fit import (
+    FAILED_VALUE,
+    SeparableProgress,
+    SeparableResult,
+    feature_data,
+    iter_fit_separately,
+    minimize_free,
+)
+from core.initialisation import data_driven_starts, normalise_spread, random_latents
+from core.kronecker import find_shared_design
+from core.optimiser_stream import stream_optimiser
+from core.parameters import ParameterLayout, initial_hyperparameters, parameter_bounds
+from core.posterior import Likelihood, Structure, condition, make_likelihood, resolve_structure
+from core.sparse import DEFAULT_INDUCING_POINTS
+from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
+from core.validation import FloatArray, as_float_array
+
+#: Distance (log units) from a bound that counts as sitting on it.
+AT_BOUND = 1e-4
+
+
+def normalise_latents(
+    latents: FloatArray, hyperparameters: Hyperparameters
+) -> tuple[FloatArray, Hyperparameters]:
+    """Centre S, scale it to RMS distance 1 from its centre, and rescale ℓ^s to match.
+
+    s' = (s - centre) / c and ℓ^s' = ℓ^s / c leave every kernel value, hence the likelihood,
+    unchanged (the model is identifiable only up to such maps, METHOD.md M2).
+
+    Args:
+        latents: Shape (L, ds).
+        hyperparameters: Hyperparameters with ds latent dimensions.
+
+    Returns:
+        The normalised latents (L, ds) and hyperparameters.
+    """
+    latents = as_float_array(latents, "latents", (None, hyperparameters.latent_dim))
+    normalised, _, scale = normalise_spread(latents)
+    h = hyperparameters
+    return normalised, Hyperparameters(
+        signal_variance=h.signal_variance,
+        noise_variance=h.noise_variance,
+        latent_lengthscales=h.latent_lengthscales / scale,
+        action_lengthscales=h.action_lengthscales,
+    )
+
+
+@dataclass
+class Start:
+    """Book-keeping of one start."""
+
+    index: int
+    kind: str  # "data" (data-driven), "random", "de"
+    vector: FloatArray
+    iterations: int = 0
+    screen_value: float = np.inf  # -log p on the screening data
+    full_value: float = np.inf  # -log p on all the data
+    polished: bool = False
+    converged: bool = False
+    message: str = ""
+
+
+@dataclass
+class FitProblem:
+    """A likelihood with its bounds (all the data, or the screening subsample)."""
+
+    likelihood: Likelihood
+    lower: FloatArray
+    upper: FloatArray
+    structure: Structure = "auto"
+    n_inducing: int = DEFAULT_INDUCING_POINTS
+    _features: list[Likelihood] | None = None
+
+    def feature_likelihoods(self) -> list[Likelihood]:
+        """One likelihood per feature (dy = 1 each), built on first use."""
+        if self._features is None:
+            data = self.likelihood.data
+            latent_dim = self.likelihood.layout.latent_dim
+            self._features = [
+                make_likelihood(feature_data(data, a), latent_dim, self.structure, self.n_inducing)
+                for a in range(data.observation_dim)
+            ]
+        return self._features
+
+    @property
+    def max_jitter(self) -> float:
+        """The largest jitter any of this problem's likelihoods needed (per-feature ones too)."""
+        return max([self.likelihood.max_jitter] + [f.max_jitter for f in self._features or []])
+
+    def fit_separately(
+        self, vector: FloatArray, layout: ParameterLayout, options: FitOptions, max_iterations: int
+    ) -> Generator[SeparableProgress, None, SeparableResult]:
+        """The hyperparameters of ``vector`` fitted feature by feature, S fixed
+        (:func:`core.hyperparameter_fit.iter_fit_separately` with ``options``' settings)."""
+        return iter_fit_separately(
+            self.feature_likelihoods(),
+            layout,
+            vector,
+            self.lower,
+            self.upper,
+            max_iterations,
+            options.ftol,
+            options.gtol,
+            options.hyperparameter_latent_lengthscales,
+            options.stall_nats,
+            options.stall_iterations,
+            options.stall_relative,
+        )
+
+
+class FitRun:
+    """State of one fit; :meth:`events` is the generator behind :func:`core.manifold.iter_fit`."""
+
+    def __init__(
+        self,
+        data: TrainingData,
+        latent_dim: int,
+        rng: np.random.Generator,
+        options: FitOptions,
+    ) -> None:
+        if not isinstance(data, TrainingData):
+            raise InvalidInputError(f"data: expected TrainingData, received {type(data).__name__}.")
+        if isinstance(latent_dim, bool) or not isinstance(latent_dim, int | np.integer):
+            raise InvalidInputError(f"latent_dim: expected an integer, received {latent_dim!r}.")
+        if latent_dim < 1:
+            raise InvalidInputError(f"latent_dim: must be ≥ 1, received {latent_dim}.")
+        if not isinstance(rng, np.random.Generator):
+            raise InvalidInputError(
+                f"rng: expected numpy.random.Generator, received {type(rng).__name__}."
+            )
+        if not isinstance(options, FitOptions):
+            raise InvalidInputError(
+                f"options: expected FitOptions, received {type(options).__name__}."
+            )
+        self.data = data
+        self.latent_dim = int(latent_dim)
+        self.rng = rng
+        self.options = options
+        self.structure, _ = resolve_structure(data, options.structure)
+        full = make_likelihood(data, self.latent_dim, self.structure, options.n_inducing)
+        self.layout: ParameterLayout = full.layout
+        lower, upper = parameter_bounds(data, self.layout, options.latent_bound)
+        self.full = FitProblem(full, lower, upper, self.structure, options.n_inducing)
+        self.screen: FitProblem | None = None
+        counts = data.touches_per_object()
+        k = options.screen_touches_per_object
+        if k and np.any(counts > k):
+            subset = self._subsample(k)
+            # The screening subsample of a shared design is a shared design (see _subsample).
+            screen_structure = "kronecker" if self.structure == "kronecker" else options.structure
+            screen_likelihood = make_likelihood(
+                subset, self.latent_dim, screen_structure, options.n_inducing
+            )
+            # Bounds stay those of all the data, so screened vectors are valid full vectors.
+            self.screen = FitProblem(
+                screen_likelihood, lower, upper, screen_structure, options.n_inducing
+            )
+        self.starts: list[Start] = []
+        self.best_full = np.inf
+
+    # -- set-up ------------------------------------------------------------------------------
+
+    def _subsample(self, per_object: int) -> TrainingData:
+        data = self.data
+        keep: list[np.ndarray[Any, np.dtype[np.intp]]] = []
+        design = find_shared_design(data) if self.structure == "kronecker" else None
+        if design is not None:
+            # The same design actions for every object, so the subsample is a shared design.
+            chosen = self.rng.choice(design.size, size=per_object, replace=False)
+            rows = np.flatnonzero(np.isin(design.grid_index % design.size, chosen))
+            return TrainingData(
+                object_names=data.object_names,
+                object_index=data.object_index[rows],
+                actions=data.actions[rows],
+                observations=data.observations[rows],
+            )
+        for obj in range(data.n_objects):
+            idx = np.flatnonzero(data.object_index == obj)
+            if idx.size > per_object:
+                idx = np.sort(self.rng.choice(idx, size=per_object, replace=False))
+            keep.append(idx)
+        rows = np.concatenate(keep)
+        return TrainingData(
+            object_names=data.object_names,
+            object_index=data.object_index[rows],
+            actions=data.actions[rows],
+            observations=data.observations[rows],
+        )
+
+    def _initial_vector(self, latents: FloatArray) -> FloatArray:
+        hyper = initial_hyperparameters(
+            self.data, self.latent_dim, self.options.initial_latent_lengthscale
+        )
+        return np.clip(self.layout.pack(latents, hyper), self.full.lower, self.full.upper)
+
+    # -- the generator -----------------------------------------------------------------------
+
+    def events(self) -> Generator[FitProgress, None, None]:
+        """Run the fit, yielding progress; the last event carries the model."""
+        options = self.options
+        layout = self.layout
+        n_objects = self.data.n_objects
+        for latents in data_driven_starts(self.data, layout.latent_dim, self.rng):
+            self.starts.append(Start(len(self.starts), "data", self._initial_vector(latents)))
+        for _ in range(options.restarts):
+            latents = random_latents(n_objects, layout.latent_dim, self.rng)
+            self.starts.append(Start(len(self.starts), "random", self._initial_vector(latents)))
+        n_starts = len(self.starts) + (1 if options.optimizer == "de" else 0)
+        working = self.screen if self.screen is not None else self.full
+        everything = np.ones(layout.size, dtype=bool)
+        phase = "screen" if self.screen is not None else "joint"
+
+        # 1. Every L-BFGS start on the working data (screening subsample or all the data).
+        limit = options.screen_iterations if self.screen is not None else options.max_iterations
+        for start in self.starts:
+            if start.kind == "data" and options.hyperparameter_iterations > 0:
+                yield from self._optimise_separately(start, working, n_starts)
+            yield from self._optimise(start, working, everything, limit, phase, n_starts)
+
+        # 2. Differential evolution on the working data, seeded with the best start so far.
+        if options.optimizer == "de":
+            seed_vector = self._best_working(working).vector.copy()
+            de_start = Start(len(self.starts), "de", seed_vector)
+            self.starts.append(de_start)
+            yield from self._differential_evolution(de_start, working, n_starts)
+            yield from self._optimise(de_start, working, everything, limit, phase, n_starts)
+
+        # 3. Polish the best screened starts on all the data (and the DE start), from their
+        #    screened latents with fresh hyperparameters; if the best polished start is
+        #    degenerate, polish the next ones until one is not (or none is left).
+        if self.screen is not None:
+            for start in self.starts:
+                start.full_value = self._full_value(start.vector)
+            ranked = sorted(self.starts, key=lambda s: (s.full_value, s.screen_value))
+            queue_ = ranked[: options.polish_starts]
+            queue_ += [s for s in self.starts if s.kind == "de" and s not in queue_]
+            rest = [s for s in ranked if s not in queue_]
+            while queue_:
+                start = queue_.pop(0)
+                start.vector = self._transfer(start.vector)
+                if options.hyperparameter_iterations > 0:
+                    yield from self._optimise_separately(start, self.full, n_starts)
+                yield from self._optimise(
+                    start, self.full, everything, options.max_iterations, "joint", n_starts
+                )
+                start.polished = True
+                if not queue_ and rest and self._needs_more_polish(rest[0]):
+                    queue_.append(rest.pop(0))
+        else:
+            for start in self.starts:
+                start.polished = True
+
+        model = self._final_model()
+        yield FitProgress(
+            start=model.diagnostics.best_start if model.diagnostics else 0,
+            n_starts=n_starts,
+            iteration=model.diagnostics.iterations if model.diagnostics else 0,
+            log_likelihood=model.log_likelihood,
+            best_log_likelihood=model.log_likelihood,
+            phase="done",
+            model=model,
+        )
+
+    # -- pieces ------------------------------------------------------------------------------
+
+    def _needs_more_polish(self, candidate: Start) -> bool:
+        """Polish ``candidate`` (the best unpolished start) too when every polished start is
+        degenerate, or when its full-data value, at its screened parameters, already beats
+        the best polished start (the screening ranked them wrongly)."""
+        polished = [s for s in self.starts if s.polished and np.isfinite(s.full_value)]
+        if all(self._is_degenerate(s.vector) for s in polished):
+            return True
+        return candidate.full_value < min(s.full_value for s in polished)
+
+    def _transfer(self, vector: FloatArray) -> FloatArray:
+        """The full-data starting point of a screened start: its screened latents
+        (normalised) with fresh initial hyperparameters. Hyperparameters fitted to a subsample
+        transfer badly (measured on Experiment 1: a feature left at ℓ^s ≈ 48, where the full
+        fit stays on a plateau 65 nats below the optimum, and 2-20x more iterations)."""
+        latents, _ = self.layout.unpack(vector)
+        normalised, _, _ = normalise_spread(latents)
+        return self._initial_vector(normalised)
+
+    def _best_working(self, working: FitProblem) -> Start:
+        key = (lambda s: s.screen_value) if working is self.screen else (lambda s: s.full_value)
+        return min(self.starts, key=key)
+
+    def _full_value(self, vector: FloatArray) -> float:
+        try:
+            return self.full.likelihood.value(vector)
+        except NotPositiveDefiniteError:
+            return np.inf
+
+    def _record(self, start: Start, problem: FitProblem, value: float) -> None:
+        if problem is self.full:
+            start.full_value = value
+            self.best_full = min(self.best_full, value)
+        else:
+            start.screen_value = value
+
+    def _optimise(
+        self,
+        start: Start,
+        problem: FitProblem,
+        free: np.ndarray[Any, np.dtype[np.bool_]],
+        max_iterations: int,
+        phase: str,
+        n_starts: int,
+    ) -> Generator[FitProgress, None, None]:
+        """L-BFGS-B on the ``free`` entries of ``start.vector``, streaming progress."""
+        options = self.options
+        base = start.vector.copy()
+        initial_iterations = start.iterations
+
+        def run(callback: Callable[[Any], None]) -> scipy.optimize.OptimizeResult:
+            return minimize_free(
+                problem.likelihood,
+                base,
+                free,
+                problem.lower,
+                problem.upper,
+                max_iterations,
+                options.ftol,
+                options.gtol,
+                callback,
+                options.stall_nats,
+                options.stall_iterations,
+                options.stall_relative,
+            )
+
+        stream = stream_optimiser(run, options.progress_every)
+        try:
+            while True:
+                iteration, value = next(stream)
+                yield FitProgress(
+                    start=start.index,
+                    n_starts=n_starts,
+                    iteration=initial_iterations + iteration,
+                    log_likelihood=-value,
+                    best_log_likelihood=-self.best_full,
+                    phase=phase,
+                )
+        except StopIteration as stop:
+            result: scipy.optimize.OptimizeResult = stop.value
+        finally:
+            stream.close()
+        start.vector = base.copy()
+        start.vector[free] = result.x
+        start.iterations = initial_iterations + int(result.nit)
+        start.converged = bool(result.success)
+        start.message = str(result.message)
+        self._record(start, problem, float(result.fun))
+        yield FitProgress(
+            start=start.index,
+            n_starts=n_starts,
+            iteration=start.iterations,
+            log_likelihood=-float(result.fun),
+            best_log_likelihood=-self.best_full,
+            phase=f"{phase} done",
+        )
+
+    def _optimise_separately(
+        self, start: Start, problem: FitProblem, n_starts: int
+    ) -> Generator[FitProgress, None, None]:
+        """The hyperparameters with S frozen, one feature at a time
+        (:func:`core.hyperparameter_fit.iter_fit_separately`)."""
+        options = self.options
+        initial_iterations = start.iterations
+        stream = problem.fit_separately(
+            start.vector, self.layout, options, options.hyperparameter_iterations
+        )
+        try:
+            while True:
+                step = next(stream)
+                yield FitProgress(
+                    start=start.index,
+                    n_starts=n_starts,
+                    iteration=initial_iterations + step.iterations,
+                    log_likelihood=-step.value,
+                    best_log_likelihood=-self.best_full,
+                    phase="hyperparameters",
+                )
+        except StopIteration as stop:
+            result: SeparableResult = stop.value
+        start.vector = result.vector
+        start.iterations = initial_iterations + result.iterations
+        start.converged = result.converged
+        start.message = result.message
+        self._record(start, problem, result.value)
+        yield FitProgress(
+            start=start.index,
+            n_starts=n_starts,
+            iteration=start.iterations,
+            log_likelihood=-result.value,
+            best_log_likelihood=-self.best_full,
+            phase="hyperparameters done",
+        )
+
+    def _differential_evolution(
+        self, start: Start, problem: FitProblem, n_starts: int
+    ) -> Generator[FitProgress, None, None]:
+        """Differential evolution over the whole bounded vector, seeded with ``start``."""
+        options = self.options
+        likelihood = problem.likelihood
+        seed = np.random.default_rng(self.rng.integers(2**63))
+
+        def objective(vector: FloatArray) -> float:
+            try:
+                return likelihood.value(vector)
+            except NotPositiveDefiniteError:
+                return FAILED_VALUE
+
+        def run(callback: Callable[[Any], None]) -> scipy.optimize.OptimizeResult:
+            return scipy.optimize.differential_evolution(
+                objective,
+                bounds=scipy.optimize.Bounds(problem.lower, problem.upper),
+                x0=start.vector,
+                popsize=options.de_population,
+                maxiter=options.de_generations,
+                polish=False,
+                init="latinhypercube",
+                rng=seed,
+                callback=callback,
+                updating="immediate",
+            )
+
+        stream = stream_optimiser(run, 1)
+        try:
+            while True:
+                generation, value = next(stream)
+                yield FitProgress(
+                    start=start.index,
+                    n_starts=n_starts,
+                    iteration=generation,
+                    log_likelihood=-value,
+                    best_log_likelihood=-self.best_full,
+                    phase="de",
+                )
+        except StopIteration as stop:
+            result: scipy.optimize.OptimizeResult = stop.value
+        finally:
+            stream.close()
+        start.vector = np.asarray(result.x, dtype=np.float64).copy()
+        start.iterations = int(result.nit)
+        start.message = str(result.message)
+        self._record(start, problem, float(result.fun))
+        yield FitProgress(
+            start=start.index,
+            n_starts=n_starts,
+            iteration=start.iterations,
+            log_likelihood=-float(result.fun),
+            best_log_likelihood=-self.best_full,
+            phase="de done",
+        )
+
+    def _is_degenerate(self, vector: FloatArray) -> bool:
+        layout = self.layout
+        sl = layout.log_latent_lengthscales
+        log_ls = vector[sl].reshape(layout.observation_dim, layout.latent_dim)
+        low = self.full.lower[sl].reshape(log_ls.shape)
+        high = self.full.upper[sl].reshape(log_ls.shape)
+        at_low = log_ls <= low + AT_BOUND
+        at_high = log_ls >= high - AT_BOUND
+        return bool(np.any(at_low) or np.any(np.all(at_high, axis=0)))
+
+    def _final_model(self) -> ManifoldModel:
+        candidates = [s for s in self.starts if s.polished and np.isfinite(s.full_value)]
+        if not candidates:
+            raise ConvergenceError(
+                "every start of the manifold fit failed (the Gram matrices stayed singular): "
+                "check for duplicate touches with conflicting observations."
+            )
+        candidates.sort(key=lambda s: s.full_value)
+        winner = candidates[0]
+        if self._is_degenerate(winner.vector):
+            healthy = [s for s in candidates if not self._is_degenerate(s.vector)]
+            if healthy:
+                winner = healthy[0]
+        everything = np.ones(self.layout.size, dtype=bool)
+        on_bounds = at_bounds(
+            winner.vector, self.full.lower, self.full.upper, self.layout, everything
+        )
+        diagnostics = FitDiagnostics(
+            starts_log_likelihood=tuple(-s.full_value for s in self.starts),
+            best_start=winner.index,
+            iterations=winner.iterations,
+            converged=winner.converged,
+            message=winner.message,
+            jitter_used=max(
+                self.full.max_jitter, self.screen.max_jitter if self.screen is not None else 0.0
+            ),
+            hyperparameters_at_bounds=on_bounds,
+        )
+        latents, hyper = self.layout.unpack(winner.vector)
+        latents, hyper = normalise_latents(latents, hyper)
+        return condition(
+            self.data,
+            latents,
+            hyper,
+            diagnostics,
+            structure=self.structure,
+            n_inducing=self.options.n_inducing,
+        )
+
+    def best_model_so_far(self) -> ManifoldModel | None:
+        """The best parameters reached so far, conditioned on all the data (or ``None``)."""
+        done = [s for s in self.starts if np.isfinite(s.full_value)]
+        if not done:
+            done = [s for s in self.starts if np.isfinite(s.screen_value)]
+            for s in done:
+                s.full_value = self._full_value(s.vector)
+            done = [s for s in done if np.isfinite(s.full_value)]
+        if not done:
+            return None
+        best = min(done, key=lambda s: s.full_value)
+        latents, hyper = normalise_latents(*self.layout.unpack(best.vector))
+        return condition(
+            self.data, latents, hyper, structure=self.structure, n_inducing=self.options.n_inducing
+        )
+
+
+def at_bounds(
+    vector: FloatArray,
+    lower: FloatArray,
+    upper: FloatArray,
+    layout: ParameterLayout,
+    free: np.ndarray[Any, np.dtype[np.bool_]],
+) -> tuple[str, ...]:
+    """Names of the ``free`` entries of ``vector`` within :data:`AT_BOUND` of a bound, each
+    with ``(lower)`` or ``(upper)``."""
+    names = layout.names()
+    hits = []
+    for i in np.flatnonzero(free):
+        if vector[i] <= lower[i] + AT_BOUND:
+            hits.append(f"{names[i]} (lower)")
+        elif vector[i] >= upper[i] - AT_BOUND:
+            hits.append(f"{names[i]} (upper)")
+    return tuple(hits)
