@@ -22,7 +22,8 @@ from typing import Any
 from fastapi import FastAPI
 
 from app.main import API_PREFIX
-from app.viz import ManifoldView, TrialFollower
+from app.viz import ManifoldView
+from app.viz_follower import TrialFollower
 
 
 def add_viz_route(app: FastAPI, view: ManifoldView) -> None:

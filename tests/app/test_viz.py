@@ -8,8 +8,9 @@ import urllib.request
 import numpy as np
 import pytest
 
-from app.viz import (
-    ManifoldView,
+from app.viz import ManifoldView
+from app.viz_follower import sse_events
+from app.viz_geometry import (
     ellipse_points,
     ellipsoid_mesh,
     embed_latents,
@@ -19,7 +20,6 @@ from app.viz import (
     response_grid,
     scale_to_box,
     scene_layout,
-    sse_events,
     surface_mesh,
     trajectory_plot_points,
 )
