@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from app.cli_collect import collect_command
@@ -42,7 +43,9 @@ app = typer.Typer(
 paper_app = typer.Typer(help="Reproduce the paper's experiments.", no_args_is_help=True)
 app.add_typer(paper_app, name="paper")
 
-stderr = Console(stderr=True)
+stderr = Console(stderr=True, soft_wrap=True)
+#: Human-readable results (without ``--json``); progress, messages and errors go to stderr.
+stdout = Console(soft_wrap=True)
 
 
 class Optimizer(StrEnum):
@@ -83,7 +86,7 @@ def progress_bar(disable: bool = False) -> Progress:
 
 def fail(message: str) -> typer.Exit:
     """Print a one-line error to stderr and return the exit to raise."""
-    stderr.print(f"[red]error:[/red] {message}")
+    stderr.print(f"[red]error:[/red] {escape(message)}")
     return typer.Exit(code=2)
 
 
@@ -163,13 +166,13 @@ def fit(
     if as_json:
         sys.stdout.write(json.dumps(document) + "\n")
     else:
-        stderr.print(
+        stdout.print(
             f"fitted {len(model.object_names)} objects, ds={latent_dim}, "
             f"log-likelihood {model.log_likelihood:.3f} in {seconds:.2f} s"
-            + (f"; written to {out}" if out else "")
+            + (f"; written to {escape(str(out))}" if out else "")
         )
         for name, latent in zip(model.object_names, model.latents, strict=True):
-            stderr.print(f"  {name:>12s}  s = {np.array2string(latent, precision=4)}")
+            stdout.print(f"  {escape(f'{name:>12s}')}  s = {np.array2string(latent, precision=4)}")
 
 
 def load_model(path: Path) -> ManifoldModel:
@@ -221,7 +224,9 @@ def dataset(
         make_world(world, world_seed, noise_std), np.random.default_rng(seed), touches
     )
     out.write_text(write_training_csv(data))
-    stderr.print(f"wrote {data.n_touches} touches of {data.n_objects} objects to {out}")
+    stderr.print(
+        f"wrote {data.n_touches} touches of {data.n_objects} objects to {escape(str(out))}"
+    )
 
 
 @app.command()
@@ -296,13 +301,14 @@ def recognize(
             }
             records.append(record)
             if not as_json:
-                stderr.print(
+                stdout.print(
                     f"step {step.step:2d}  x = {np.array2string(step.action, precision=3)}  "
                     f"MI {step.mutual_information:.3f}  "
                     f"μ = {np.array2string(step.belief.mean, precision=3)}  "
-                    f"nearest {names[step.nearest_object]}  answer {names[step.answer]} "
+                    f"nearest {escape(names[step.nearest_object])}  "
+                    f"answer {escape(names[step.answer])} "
                     f"(p = {step.probabilities.max():.3f})"
-                    + (f"  [{step.stop_reason}]" if step.done else "")
+                    + (f"  (stopped: {step.stop_reason})" if step.done else "")
                 )
     except CoreError as exc:
         raise fail(str(exc)) from None
@@ -318,7 +324,8 @@ def recognize(
         sys.stdout.write(json.dumps(result) + "\n")
     else:
         verdict = "[green]correct[/green]" if result["correct"] else "[red]wrong[/red]"
-        stderr.print(f"recognised {final['answer']} after {len(records)} touches: {verdict}")
+        answer = escape(final["answer"])
+        stdout.print(f"recognised {answer} after {len(records)} touches: {verdict}")
 
 
 @paper_app.command("exp1")
@@ -354,7 +361,8 @@ def paper_exp1(
     if as_json:
         sys.stdout.write(json.dumps(figures.to_dict()) + "\n")
     else:
-        Console().print(figures.table())
+        # Redirected, Rich would fold the table at 80 columns.
+        stdout.print(figures.table(), width=None if stdout.is_terminal else 120)
 
 
 # Sub-commands that live with the code they drive (modules that import only typer and rich).

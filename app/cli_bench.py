@@ -12,10 +12,11 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from bench.run import Options, report, run
 
-stderr = Console(stderr=True)
+stderr = Console(stderr=True, soft_wrap=True)
 
 
 def bench_command(
@@ -43,7 +44,7 @@ def bench_command(
         )
 
     def progress(message: str) -> None:
-        stderr.print(f"[dim]bench:[/dim] {message}")
+        stderr.print(f"[dim]bench:[/dim] {escape(message)}")
 
     figures = run(Options(quick=quick, threads=counts, plot=plot, seed=seed, progress=progress))
     if as_json:

@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal, TextIO
 
 import typer
+from rich.markup import escape
 
 from app.cli_rig import (
     AsJson,
@@ -361,9 +362,9 @@ def _report(summary: dict[str, Any], as_json: bool) -> None:
         sys.stdout.write(json.dumps(summary) + "\n")
     kept = f"{summary['recorded']} of {summary['planned']} touches"
     if summary["error"] is not None:
-        console.print(f"[red]collection stopped:[/red] {summary['error']}")
+        console.print(f"[red]collection stopped:[/red] {escape(str(summary['error']))}")
         console.print(
-            f"the rig is {summary['rig_state']}; kept {kept} in {summary['out']}"
+            f"the rig is {summary['rig_state']}; kept {kept} in {escape(str(summary['out']))}"
             + (
                 ""
                 if summary["fit_ready"]
@@ -375,5 +376,5 @@ def _report(summary: dict[str, Any], as_json: bool) -> None:
     if not as_json:
         console.print(
             f"collected {kept} of {len(summary['objects'])} objects in "
-            f"{summary['seconds']:.1f} s → {summary['out']}"
+            f"{summary['seconds']:.1f} s → {escape(str(summary['out']))}"
         )

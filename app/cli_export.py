@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 if TYPE_CHECKING:
     from sqlalchemy.orm import Session
@@ -42,7 +43,7 @@ export_app = typer.Typer(
     help="Export datasets, models and trials from the server's database (read-only).",
     no_args_is_help=True,
 )
-console = Console(stderr=True)
+console = Console(stderr=True, soft_wrap=True)
 
 Db = Annotated[
     str | None,
@@ -61,7 +62,7 @@ _PAGE = 500
 
 def fail(message: str, code: int = 2) -> typer.Exit:
     """Print a one-line error to stderr and return the exit to raise."""
-    console.print(f"[red]error:[/red] {message}")
+    console.print(f"[red]error:[/red] {escape(message)}")
     return typer.Exit(code=code)
 
 
@@ -152,7 +153,7 @@ def _write(text: str, out: Path | None, what: str) -> None:
         out.write_text(text, encoding="utf-8")
     except OSError as exc:
         raise fail(f"--out: cannot write {out}: {exc.strerror}") from None
-    console.print(f"wrote {what} to {out}")
+    console.print(f"wrote {escape(what)} to {escape(str(out))}")
 
 
 @contextmanager
@@ -246,7 +247,7 @@ def _print_listing(listing: dict[str, list[dict[str, Any]]]) -> None:
         for header, _ in spec:
             table.add_column(header)
         for row in rows:
-            table.add_row(*(str(cell(row)) for _, cell in spec))
+            table.add_row(*(escape(str(cell(row))) for _, cell in spec))
         out.print(table)
 
 

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 if TYPE_CHECKING:  # the drivers, numpy and the DMPs are imported when a command runs
     import numpy as np
@@ -41,7 +42,9 @@ rig_app = typer.Typer(
     help="Check the rig: status, homing, turning a slot under the finger, a touch, e-stop.",
     no_args_is_help=True,
 )
-console = Console(stderr=True)
+console = Console(stderr=True, soft_wrap=True)
+#: Human-readable results (without ``--json``).
+stdout = Console(soft_wrap=True)
 
 #: How a simulated rig is wired (the values of :class:`app.rig_factory.SimulationMode`).
 SimulationName = Literal["in-process", "pty"]
@@ -86,7 +89,7 @@ AsJson = Annotated[bool, typer.Option("--json", help="Print a JSON document on s
 
 def fail(message: str, code: int) -> typer.Exit:
     """Print a one-line error to stderr and return the exit to raise."""
-    console.print(f"[red]error:[/red] {message}")
+    console.print(f"[red]error:[/red] {escape(message)}")
     return typer.Exit(code=code)
 
 
@@ -212,7 +215,7 @@ def _print(document: dict[str, Any], as_json: bool) -> None:
             value = ", ".join(
                 f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in value.items()
             )
-        console.print(f"[bold]{key}[/bold]: {value}")
+        stdout.print(f"[bold]{escape(key)}[/bold]: {escape(str(value))}")
 
 
 @rig_app.command()
@@ -392,14 +395,14 @@ def estop(
                 turntable.emergency_stop()
                 stopped.append("turntable (soft reset)")
             except HardwareError as exc:
-                console.print(f"[yellow]warning:[/yellow] turntable: {exc}")
+                console.print(f"[yellow]warning:[/yellow] turntable: {escape(str(exc))}")
         if finger is not None:
             try:
                 finger.transport.open()
                 finger.emergency_stop(torque_off=True)
                 stopped.append("finger (torque off)")
             except HardwareError as exc:
-                console.print(f"[yellow]warning:[/yellow] finger: {exc}")
+                console.print(f"[yellow]warning:[/yellow] finger: {escape(str(exc))}")
     finally:
         for device in (turntable, finger):
             if device is not None:
@@ -408,4 +411,4 @@ def estop(
             handle.close()
     if not stopped:
         raise fail("no device could be reached.", 1)
-    console.print(f"emergency stop sent to: {', '.join(stopped)}")
+    stdout.print(f"emergency stop sent to: {escape(', '.join(stopped))}")

@@ -34,6 +34,7 @@ import numpy as np
 import typer
 import uvicorn
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from app.config import Settings, is_loopback
@@ -371,7 +372,7 @@ class DemoServer:
         self.console.print(
             f"Collecting the training set on the simulated rig: {len(objects)} objects × "
             f"{self.options.touches_per_object} touches "
-            f"({', '.join(o.name for o in objects)})."
+            f"({escape(', '.join(o.name for o in objects))})."
         )
         run = self._call(
             "POST",
@@ -559,5 +560,5 @@ def demo_command(
     try:
         run_demo(options)
     except DemoError as exc:
-        Console(stderr=True).print(f"[red]demo failed:[/red] {exc}")
+        Console(stderr=True, soft_wrap=True).print(f"[red]demo failed:[/red] {escape(str(exc))}")
         raise typer.Exit(code=1) from exc

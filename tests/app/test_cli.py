@@ -148,3 +148,42 @@ def test_fit_with_a_sparse_structure_records_it_in_the_document(csv_path):
     assert (
         model.posterior.inducing.touch_index.tolist() == document["posterior"]["inducing_touches"]
     )
+
+
+def test_results_without_json_go_to_stdout_and_lines_are_not_folded(csv_path, model_path):
+    fitted = runner.invoke(app, ["fit", str(csv_path), "--latent-dim", "1", "--restarts", "0"])
+    assert fitted.exit_code == 0, fitted.output
+    assert "fitted 4 objects" in fitted.stdout
+    assert "fitted" not in fitted.stderr
+    result = runner.invoke(
+        app,
+        [
+            "recognize", "--model", str(model_path), "--world", "exp1", "--target", "O2",
+            "--policy", "active", "--steps", "3", "--seed", "2",
+        ],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    lines = result.stdout.splitlines()
+    steps = [line for line in lines if line.startswith("step ")]
+    assert 1 <= len(steps) <= 3
+    assert all("answer" in line for line in steps)
+    assert lines[-1].startswith("recognised ")
+    # The last step says why the trial stopped; no line is folded at the runner's 80 columns.
+    assert steps[-1].endswith(")")
+    assert "(stopped: " in steps[-1]
+    assert len(lines) == len(steps) + 1
+    assert "step" not in result.stderr
+
+
+def test_messages_show_bracketed_names_verbatim(tmp_path, csv_path):
+    # Rich reads "[...]" as markup: a path or an object name with brackets must be escaped,
+    # neither swallowed ("[final]") nor crashing the error printer ("[/b]").
+    missing = tmp_path / "run[final]" / "[/b].csv"
+    result = runner.invoke(app, ["fit", str(missing), "--latent-dim", "1"])
+    assert result.exit_code == 2
+    assert str(missing) in result.stderr
+    renamed = tmp_path / "renamed.csv"
+    renamed.write_text(csv_path.read_text().replace("O3,", "cup[red],"))
+    fitted = runner.invoke(app, ["fit", str(renamed), "--latent-dim", "1", "--restarts", "0"])
+    assert fitted.exit_code == 0, fitted.output
+    assert "cup[red]  s = " in fitted.stdout
