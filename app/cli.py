@@ -45,7 +45,8 @@ app.add_typer(paper_app, name="paper")
 
 stderr = Console(stderr=True, soft_wrap=True)
 #: Human-readable results (without ``--json``); progress, messages and errors go to stderr.
-stdout = Console(soft_wrap=True)
+#: Redirected, Rich would draw tables 80 columns wide, folding every row: 120 then.
+stdout = Console(soft_wrap=True, width=None if sys.stdout.isatty() else 120)
 
 
 class Optimizer(StrEnum):
@@ -361,8 +362,7 @@ def paper_exp1(
     if as_json:
         sys.stdout.write(json.dumps(figures.to_dict()) + "\n")
     else:
-        # Redirected, Rich would fold the table at 80 columns.
-        stdout.print(figures.table(), width=None if stdout.is_terminal else 120)
+        stdout.print(figures.table())
 
 
 # Sub-commands that live with the code they drive (modules that import only typer and rich).

@@ -201,7 +201,7 @@ def _all(page: Callable[[int, int], Page[Any]]) -> list[dict[str, Any]]:
 def _print_listing(listing: dict[str, list[dict[str, Any]]]) -> None:
     from rich.table import Table
 
-    out = Console()
+    out = Console(width=None if sys.stdout.isatty() else 120)  # 80 wide folds every row
     columns: dict[str, list[tuple[str, Callable[[dict[str, Any]], Any]]]] = {
         "datasets": [
             ("id", lambda r: r["id"]),
