@@ -166,7 +166,7 @@ def check_plan(
         typer.Exit: (code 2) a touch whose trajectory the rig would refuse.
     """
     from hardware.errors import UnsafeTrajectoryError
-    from hardware.rig import check_trajectory
+    from hardware.trajectories import check_trajectory
 
     joints = handle.rig.finger.joints
     for k, (obj, x) in enumerate(zip(plan.object_index, plan.actions, strict=True)):
