@@ -31,7 +31,9 @@ class FitOptions:
         ftol: L-BFGS-B relative reduction tolerance (> 0).
         gtol: L-BFGS-B projected-gradient tolerance (> 0).
         screen_touches_per_object: Touches per object in the screening subsample (0 = no
-            screening; otherwise ≥ 2).
+            screening; otherwise ≥ 2). Where the subsample would not make an evaluation at
+            least :data:`core.fit_run.SCREEN_MIN_SAVING` times cheaper, screening runs on all
+            the data (see :mod:`core.fit_run`).
         screen_iterations: L-BFGS-B iteration limit of each start on the screening subsample
             (≥ 1); starts still crawling then are not promising.
         polish_starts: How many of the best screened starts (ranked by their likelihood on

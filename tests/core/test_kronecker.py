@@ -10,7 +10,7 @@ import pytest
 from bench.reference_moments import direct_moments_batch
 from core.designs import collect, shared_design
 from core.errors import CoreError, InvalidInputError
-from core.fit_run import FitRun
+from core.fit_run import FitRun, evaluation_cost
 from core.information_gradient import mutual_information_and_gradient
 from core.kronecker import (
     KroneckerLikelihood,
@@ -332,12 +332,38 @@ def test_a_fit_on_a_shared_design_runs_through_kronecker_and_matches_the_dense_f
 
 
 def test_screening_a_shared_design_keeps_it_shared() -> None:
-    data, _, _ = make_problem(CASES[2], seed=21)
+    data, _, _ = make_problem(CASES[0], seed=21)  # 4 objects x 10 actions: M^3 dominates
     run = FitRun(data, 2, np.random.default_rng(22), FitOptions(screen_touches_per_object=3))
     assert isinstance(run.full.likelihood, KroneckerLikelihood)
     assert run.screen is not None
+    assert run.screen is not run.full
     assert isinstance(run.screen.likelihood, KroneckerLikelihood)
-    assert run.screen.likelihood.data.n_touches == CASES[2].n_objects * 3
+    assert run.screen.likelihood.data.n_touches == CASES[0].n_objects * 3
+
+
+def test_screening_that_would_not_save_runs_on_all_the_data() -> None:
+    # 12 objects x 5 actions: the 12 x 12 latent factorisations dominate an evaluation, so a
+    # 3-action subsample would save 1.25x (below SCREEN_MIN_SAVING) and only blur the starts.
+    data, _, _ = make_problem(CASES[2], seed=21)
+    assert evaluation_cost(data, "kronecker", 512) == 12**3 + 5**3 + 12 * 5 * (12 + 5)
+    run = FitRun(
+        data, 2, np.random.default_rng(22), FitOptions(screen_touches_per_object=3, restarts=1)
+    )
+    assert run.screen is run.full
+    phases, model = [], None
+    for event in run.events():
+        phases.append((event.start, event.phase))
+        model = event.model if event.model is not None else model
+    assert model is not None
+    assert np.isfinite(model.log_likelihood)
+    # The winner goes on from its screened point on all the data: no fresh hyperparameters.
+    first = next(i for i, (_, phase) in enumerate(phases) if phase.startswith("joint"))
+    polish = phases[first:]
+    assert all(phase in ("joint", "joint done", "done") for _, phase in polish)
+    assert model.diagnostics is not None
+    assert model.diagnostics.starts_log_likelihood[model.diagnostics.best_start] == pytest.approx(
+        model.log_likelihood
+    )
     with pytest.raises(InvalidInputError, match="structure: expected one of"):
         FitOptions(structure="banded")  # type: ignore[arg-type]
 
