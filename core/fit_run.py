@@ -382,6 +382,26 @@ class FitRun:
         if problem is self.screen:
             start.screen_value = value
 
+    def _progress(
+        self, start: Start, n_starts: int, iteration: int, value: float, phase: str
+    ) -> FitProgress:
+        """A progress event of ``start`` at -log p = ``value``."""
+        return FitProgress(
+            start=start.index,
+            n_starts=n_starts,
+            iteration=iteration,
+            log_likelihood=-value,
+            best_log_likelihood=-self.best_full,
+            phase=phase,
+        )
+
+    def _finished(
+        self, start: Start, problem: FitProblem, value: float, phase: str, n_starts: int
+    ) -> FitProgress:
+        """Record the value ``start`` ended a stage with; the event that ends the stage."""
+        self._record(start, problem, value)
+        return self._progress(start, n_starts, start.iterations, value, f"{phase} done")
+
     def _optimise(
         self,
         start: Start,
@@ -416,14 +436,7 @@ class FitRun:
         try:
             while True:
                 iteration, value = next(stream)
-                yield FitProgress(
-                    start=start.index,
-                    n_starts=n_starts,
-                    iteration=initial_iterations + iteration,
-                    log_likelihood=-value,
-                    best_log_likelihood=-self.best_full,
-                    phase=phase,
-                )
+                yield self._progress(start, n_starts, initial_iterations + iteration, value, phase)
         except StopIteration as stop:
             result: scipy.optimize.OptimizeResult = stop.value
         finally:
@@ -433,15 +446,7 @@ class FitRun:
         start.iterations = initial_iterations + int(result.nit)
         start.converged = bool(result.success)
         start.message = str(result.message)
-        self._record(start, problem, float(result.fun))
-        yield FitProgress(
-            start=start.index,
-            n_starts=n_starts,
-            iteration=start.iterations,
-            log_likelihood=-float(result.fun),
-            best_log_likelihood=-self.best_full,
-            phase=f"{phase} done",
-        )
+        yield self._finished(start, problem, float(result.fun), phase, n_starts)
 
     def _optimise_separately(
         self, start: Start, problem: FitProblem, n_starts: int
@@ -456,13 +461,12 @@ class FitRun:
         try:
             while True:
                 step = next(stream)
-                yield FitProgress(
-                    start=start.index,
-                    n_starts=n_starts,
-                    iteration=initial_iterations + step.iterations,
-                    log_likelihood=-step.value,
-                    best_log_likelihood=-self.best_full,
-                    phase="hyperparameters",
+                yield self._progress(
+                    start,
+                    n_starts,
+                    initial_iterations + step.iterations,
+                    step.value,
+                    "hyperparameters",
                 )
         except StopIteration as stop:
             result: SeparableResult = stop.value
@@ -470,15 +474,7 @@ class FitRun:
         start.iterations = initial_iterations + result.iterations
         start.converged = result.converged
         start.message = result.message
-        self._record(start, problem, result.value)
-        yield FitProgress(
-            start=start.index,
-            n_starts=n_starts,
-            iteration=start.iterations,
-            log_likelihood=-result.value,
-            best_log_likelihood=-self.best_full,
-            phase="hyperparameters done",
-        )
+        yield self._finished(start, problem, result.value, "hyperparameters", n_starts)
 
     def _differential_evolution(
         self, start: Start, problem: FitProblem, n_starts: int
@@ -512,14 +508,7 @@ class FitRun:
         try:
             while True:
                 generation, value = next(stream)
-                yield FitProgress(
-                    start=start.index,
-                    n_starts=n_starts,
-                    iteration=generation,
-                    log_likelihood=-value,
-                    best_log_likelihood=-self.best_full,
-                    phase="de",
-                )
+                yield self._progress(start, n_starts, generation, value, "de")
         except StopIteration as stop:
             result: scipy.optimize.OptimizeResult = stop.value
         finally:
@@ -527,15 +516,7 @@ class FitRun:
         start.vector = np.asarray(result.x, dtype=np.float64).copy()
         start.iterations = int(result.nit)
         start.message = str(result.message)
-        self._record(start, problem, float(result.fun))
-        yield FitProgress(
-            start=start.index,
-            n_starts=n_starts,
-            iteration=start.iterations,
-            log_likelihood=-float(result.fun),
-            best_log_likelihood=-self.best_full,
-            phase="de done",
-        )
+        yield self._finished(start, problem, float(result.fun), "de", n_starts)
 
     def _is_degenerate(self, vector: FloatArray) -> bool:
         layout = self.layout
