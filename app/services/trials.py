@@ -6,10 +6,12 @@ trial's run lock, so control requests (pause, resume, stop, abort) never interle
 
 from __future__ import annotations
 
+import functools
 import logging
 import threading
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -598,8 +600,14 @@ class TrialService:
     # --- simulated and rig trials -------------------------------------------------------------
 
     def _drive(self, handle: RunHandle, trial_id: int) -> None:
-        """Worker: plan, touch, record, until done, stopped or failed."""
+        """Worker: plan, touch, record, until done, stopped or failed.
+
+        The write that ends the trial (its last step, or the failure) is made only after the
+        touch source is closed and the rig given back, so a trial seen as ended never still
+        holds the rig.
+        """
         source: TouchSource | None = None
+        end: Callable[[], None] | None = None
         try:
             with self._database.session() as session:
                 trial = require(session, trial_id)
@@ -630,31 +638,47 @@ class TrialService:
                 planned = recognition.suggest(rng)
                 touch: Touch = source.touch(planned.action, rng)
                 step = recognition.observe(touch.action, touch.observation)
-                self._record_worker_step(
-                    trial_id, model, step, touch.trajectory, time.perf_counter() - started
+                record = functools.partial(
+                    self._record_worker_step,
+                    trial_id,
+                    model,
+                    step,
+                    touch.trajectory,
+                    time.perf_counter() - started,
                 )
                 if step.done:
+                    end = record
                     return
+                record()
                 handle.sleep(interval_s)
         except RunCancelled as cancelled:
             if cancelled.kind == "shutdown":
-                self._fail(trial_id, "server shut down")
+                end = functools.partial(self._fail, trial_id, "server shut down")
             else:  # normally already set by the request; an e-stop only tells the handle
-                self._fail(trial_id, f"{cancelled.kind} by the operator", cancelled.kind)
+                end = functools.partial(
+                    self._fail, trial_id, f"{cancelled.kind} by the operator", cancelled.kind
+                )
         except HardwareError as exc:
             requested = handle.stop_requested
             if requested in ("stopped", "aborted"):  # the stop interrupted the touch
-                self._fail(trial_id, f"{requested} by the operator ({exc})", requested)
+                end = functools.partial(
+                    self._fail, trial_id, f"{requested} by the operator ({exc})", requested
+                )
             else:
-                self._fail(trial_id, f"{type(exc).__name__}: {exc}")
+                end = functools.partial(self._fail, trial_id, f"{type(exc).__name__}: {exc}")
         except (CoreError, AppError, ValueError, ArithmeticError) as exc:
-            self._fail(trial_id, f"{type(exc).__name__}: {exc}")
+            end = functools.partial(self._fail, trial_id, f"{type(exc).__name__}: {exc}")
         except Exception as exc:
             logger.exception("trial %d crashed", trial_id)
-            self._fail(trial_id, f"internal error: {type(exc).__name__}: {exc}")
+            end = functools.partial(
+                self._fail, trial_id, f"internal error: {type(exc).__name__}: {exc}"
+            )
         finally:
             if source is not None:
                 source.close()
+            self._runs.release_rig(handle.label)
+            if end is not None:
+                end()
 
     def _record_worker_step(
         self,

@@ -219,3 +219,52 @@ def test_device_fault_fails_the_run_with_reason_and_keeps_samples(client: TestCl
     dataset = client.get(f"{API}/datasets/{run['dataset_id']}").json()
     assert dataset["n_samples"] == run["done"] >= 2
     assert client.get(f"{API}/rig").json()["state"] == "fault"
+
+
+def test_a_rig_trial_seen_ended_no_longer_holds_the_rig(
+    client: TestClient, monkeypatch: Any
+) -> None:
+    # Closing the rig's touch source (it gives the lease back) is made slow: the trial must
+    # still show as completed only once the rig is free, never completed but held.
+    from app.services.worlds import WorldFactory
+
+    opened = WorldFactory.open
+
+    def open_slowly(self: WorldFactory, *args: Any, **kwargs: Any) -> Any:
+        source = opened(self, *args, **kwargs)
+        close = source.close
+
+        def slow_close() -> None:
+            time.sleep(0.5)
+            close()
+
+        source.close = slow_close
+        return source
+
+    monkeypatch.setattr(WorldFactory, "open", open_slowly)
+    rows = ["object," + ",".join(f"x_{i}" for i in range(1, 7)) + ","
+            + ",".join(f"y_{i}" for i in range(1, 6))]  # fmt: skip
+    rng = np.random.default_rng(5)
+    for name in CUPS:
+        for _ in range(4):
+            values = np.concatenate([0.3 * rng.standard_normal(6), rng.random(5)])
+            rows.append(name + "," + ",".join(f"{v:.6f}" for v in values))
+    dataset = client.post(
+        f"{API}/datasets", content="\n".join(rows) + "\n", headers={"content-type": "text/csv"}
+    )
+    assert dataset.status_code == 201, dataset.text
+    model = client.post(
+        f"{API}/models/import", json=rig_model_document(client, dataset.json()["id"])
+    )
+    assert model.status_code == 201, model.text
+    trial = client.post(
+        f"{API}/trials",
+        json={"model_id": model.json()["id"], "mode": "rig", "target_slot": 0,
+              "max_steps": 1, "seed": 1},
+    )  # fmt: skip
+    assert trial.status_code == 201, trial.text
+    path = f"{API}/trials/{trial.json()['id']}"
+    done = wait_until(client, path, lambda t: t["status"] not in ("queued", "running"))
+    rig = client.get(f"{API}/rig").json()
+    assert done["status"] == "completed", done
+    assert rig["held_by"] is None, rig
