@@ -268,3 +268,31 @@ def test_a_rig_trial_seen_ended_no_longer_holds_the_rig(
     rig = client.get(f"{API}/rig").json()
     assert done["status"] == "completed", done
     assert rig["held_by"] is None, rig
+
+
+def test_a_collection_seen_ended_no_longer_holds_the_rig(
+    client: TestClient, monkeypatch: Any
+) -> None:
+    # The rig service's lease gives the reservation back as the touching ends, before the
+    # run is ended: a guard on that order (the race a trial had, see the test above).
+    from app.services.collections import CollectionService
+
+    holders: list[str | None] = []
+    finish = CollectionService._finish
+
+    def finish_and_note(self: CollectionService, *args: Any) -> None:
+        holders.append(self._runs.rig_holder)  # who holds the rig as the run is ended
+        finish(self, *args)
+
+    monkeypatch.setattr(CollectionService, "_finish", finish_and_note)
+    created = client.post(
+        f"{API}/collections",
+        json={"objects": [{"name": n, "slot": i} for i, n in enumerate(CUPS)],
+              "samples_per_object": 2, "seed": 4},
+    )  # fmt: skip
+    assert created.status_code == 201, created.text
+    path = f"{API}/collections/{created.json()['id']}"
+    done = wait_until(client, path, lambda r: r["status"] not in ("queued", "running"))
+    assert done["status"] == "completed", done
+    assert holders == [None], holders
+    assert client.get(f"{API}/rig").json()["held_by"] is None
