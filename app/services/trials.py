@@ -678,7 +678,18 @@ class TrialService:
                 source.close()
             self._runs.release_rig(handle.label)
             if end is not None:
-                end()
+                self._end(trial_id, end)
+
+    def _end(self, trial_id: int, end: Callable[[], None]) -> None:
+        """Make the write that ends a trial; if that fails, fail the trial instead of leaving it
+        running."""
+        try:
+            end()
+        except (CoreError, AppError, ValueError, ArithmeticError) as exc:
+            self._fail(trial_id, f"{type(exc).__name__}: {exc}")
+        except Exception as exc:
+            logger.exception("trial %d: its last step could not be recorded", trial_id)
+            self._fail(trial_id, f"internal error: {type(exc).__name__}: {exc}")
 
     def _record_worker_step(
         self,

@@ -221,6 +221,34 @@ def test_simulated_trial_completes_and_streams_events(client: TestClient, model_
     assert [int(e["id"]) for e in resumed] == [i for i in ids if i > middle]
 
 
+def test_a_last_step_that_cannot_be_recorded_fails_the_trial(
+    client: TestClient, model_id: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The last step is written after the touch source is let go: a failure there must still end
+    # the trial (failed, saying why), not leave it running.
+    from app.services.trials import TrialService
+
+    store = TrialService._store_step
+
+    def refuse_the_last(session: Any, trial: Any, model: Any, step: Any, *rest: Any) -> Any:
+        if step.done:
+            raise ValueError("disk full while writing the last step")
+        return store(session, trial, model, step, *rest)
+
+    monkeypatch.setattr(TrialService, "_store_step", staticmethod(refuse_the_last))
+    created = client.post(
+        f"{API}/trials",
+        json={"model_id": model_id, "mode": "simulated", "target": "O2", "seed": 1,
+              "max_steps": 3, "tolerance": 0.0},
+    )  # fmt: skip
+    assert created.status_code == 201, created.text
+    trial = wait_for(client, created.json()["id"], lambda t: t["status"] != "running"
+                     and t["status"] != "queued")  # fmt: skip
+    assert trial["status"] == "failed"
+    assert "disk full while writing the last step" in trial["reason"]
+    assert trial["n_steps"] == 2
+
+
 def parse_sse(text: str) -> list[dict[str, Any]]:
     import json
 
