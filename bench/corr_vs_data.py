@@ -27,6 +27,7 @@ from threadpoolctl import threadpool_limits
 
 from bench.reference_fit import joint_optimum
 from core.designs import collect, shared_design
+from core.initialisation import normalise_spread
 from core.manifold import FitOptions, fit_hyperparameters
 from core.metrics import abs_correlation
 from core.types import TrainingData
@@ -47,9 +48,9 @@ def dataset(design: str, touches: int, seed: int, noise_std: float) -> TrainingD
 
 
 def normalised(latents: FloatArray) -> FloatArray:
-    """Centred, unit RMS spread (the fit's reporting convention), signed to agree with θ."""
-    s = latents[:, 0] - latents[:, 0].mean()
-    s = s / np.sqrt(np.mean(s**2))
+    """The fit's reporting convention (:func:`core.initialisation.normalise_spread`), signed to
+    agree with θ. Shape (L,) for latents of shape (L, 1)."""
+    s = normalise_spread(latents)[0][:, 0]
     theta = np.array(EXPERIMENT1_THETAS)
     signed = s if float(np.dot(s, theta - theta.mean())) >= 0 else -s
     return np.asarray(signed, dtype=np.float64)

@@ -17,6 +17,7 @@ from app.documents import (
 from core.posterior import condition, predict
 from core.types import Hyperparameters
 from core.worlds import sample_experiment1
+from tests.app.posterior_cases import HYPER, LATENTS
 
 
 @pytest.fixture
@@ -61,14 +62,7 @@ def test_csv_needs_two_objects_with_two_touches():
 
 
 def test_model_document_round_trip_predicts_identically(data):
-    hyper = Hyperparameters(
-        signal_variance=np.array([0.5, 0.4, 0.3]),
-        noise_variance=np.array([0.01, 0.02, 0.03]),
-        latent_lengthscales=np.array([[1.0], [2.0], [3.0]]),
-        action_lengthscales=np.array([[0.7], [0.8], [0.9]]),
-    )
-    latents = np.array([[-1.2], [-0.1], [0.3], [1.0]])
-    model = condition(data, latents, hyper)
+    model = condition(data, LATENTS, HYPER)
     document = json.loads(json.dumps(model_to_document(model, fit_seconds=1.5)))
     assert document["format"] == "activetouch-model/1"
     assert [o["name"] for o in document["objects"]] == list(data.object_names)
