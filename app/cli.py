@@ -21,12 +21,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import typer
-from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from app.cli_collect import collect_command
 from app.cli_export import export_app
+from app.cli_output import messages as stderr
+from app.cli_output import results as stdout
 from app.cli_rig import rig_app
 
 if TYPE_CHECKING:
@@ -42,11 +43,6 @@ app = typer.Typer(
 )
 paper_app = typer.Typer(help="Reproduce the paper's experiments.", no_args_is_help=True)
 app.add_typer(paper_app, name="paper")
-
-stderr = Console(stderr=True, soft_wrap=True)
-#: Human-readable results (without ``--json``); progress, messages and errors go to stderr.
-#: Redirected, Rich would draw tables 80 columns wide, folding every row: 120 then.
-stdout = Console(soft_wrap=True, width=None if sys.stdout.isatty() else 120)
 
 
 class Optimizer(StrEnum):

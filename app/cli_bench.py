@@ -11,12 +11,10 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
 from rich.markup import escape
 
+from app.cli_output import messages as stderr
 from bench.run import Options, report, run
-
-stderr = Console(stderr=True, soft_wrap=True)
 
 
 def bench_command(

@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal, TextIO
 import typer
 from rich.markup import escape
 
+from app.cli_output import messages as console
 from app.cli_rig import (
     AsJson,
     FingerPort,
@@ -45,7 +46,6 @@ from app.cli_rig import (
     TactilePort,
     TurntablePort,
     connected_rig,
-    console,
     fail,
     touch_actions,
 )

@@ -29,8 +29,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-from rich.console import Console
 from rich.markup import escape
+
+from app.cli_output import messages as console
+from app.cli_output import results
 
 if TYPE_CHECKING:
     from sqlalchemy.orm import Session
@@ -43,7 +45,6 @@ export_app = typer.Typer(
     help="Export datasets, models and trials from the server's database (read-only).",
     no_args_is_help=True,
 )
-console = Console(stderr=True, soft_wrap=True)
 
 Db = Annotated[
     str | None,
@@ -201,7 +202,7 @@ def _all(page: Callable[[int, int], Page[Any]]) -> list[dict[str, Any]]:
 def _print_listing(listing: dict[str, list[dict[str, Any]]]) -> None:
     from rich.table import Table
 
-    out = Console(width=None if sys.stdout.isatty() else 120)  # 80 wide folds every row
+    out = results
     columns: dict[str, list[tuple[str, Callable[[dict[str, Any]], Any]]]] = {
         "datasets": [
             ("id", lambda r: r["id"]),

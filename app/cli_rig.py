@@ -28,8 +28,10 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import typer
-from rich.console import Console
 from rich.markup import escape
+
+from app.cli_output import messages as console
+from app.cli_output import results as stdout
 
 if TYPE_CHECKING:  # the drivers, numpy and the DMPs are imported when a command runs
     import numpy as np
@@ -42,9 +44,6 @@ rig_app = typer.Typer(
     help="Check the rig: status, homing, turning a slot under the finger, a touch, e-stop.",
     no_args_is_help=True,
 )
-console = Console(stderr=True, soft_wrap=True)
-#: Human-readable results (without ``--json``).
-stdout = Console(soft_wrap=True)
 
 #: How a simulated rig is wired (the values of :class:`app.rig_factory.SimulationMode`).
 SimulationName = Literal["in-process", "pty"]

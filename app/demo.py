@@ -37,6 +37,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from app.cli_output import messages
 from app.config import Settings, is_loopback
 from app.documents import write_training_csv
 from app.live_view import LiveView
@@ -560,5 +561,5 @@ def demo_command(
     try:
         run_demo(options)
     except DemoError as exc:
-        Console(stderr=True, soft_wrap=True).print(f"[red]demo failed:[/red] {escape(str(exc))}")
+        messages.print(f"[red]demo failed:[/red] {escape(str(exc))}")
         raise typer.Exit(code=1) from exc
