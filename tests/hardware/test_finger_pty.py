@@ -16,7 +16,7 @@ from hardware.errors import (
     ServoHardwareError,
     ServoHardwareErrorFlags,
 )
-from hardware.finger import DYNAMIXEL_BAUDRATE, Finger
+from hardware.finger import DYNAMIXEL_BAUDRATE, Finger, FingerConfig
 from hardware.sim.dynamixel_device import DynamixelBus
 from hardware.sim.pty import PtyEmulator
 from hardware.sim.world import Plant
@@ -31,8 +31,8 @@ def bus() -> Iterator[tuple[DynamixelBus, PtyEmulator]]:
         yield device, emulator
 
 
-def open_finger(emulator: PtyEmulator) -> Finger:
-    finger = Finger(SerialTransport(emulator.port, DYNAMIXEL_BAUDRATE))
+def open_finger(emulator: PtyEmulator, config: FingerConfig | None = None) -> Finger:
+    finger = Finger(SerialTransport(emulator.port, DYNAMIXEL_BAUDRATE), config)
     finger.connect()
     return finger
 
@@ -101,10 +101,14 @@ def test_silent_servo_times_out(bus: tuple[DynamixelBus, PtyEmulator]) -> None:
 
 def test_late_replies_are_not_taken_for_answers(bus: tuple[DynamixelBus, PtyEmulator]) -> None:
     device, emulator = bus
-    finger = open_finger(emulator)
+    # Replies due 225 ms after the request, late by 75 ms on a 150 ms reply timeout and caught by
+    # the 150 ms quiet wait before each retry. The margins are wide so that a test thread held up
+    # for tens of milliseconds (the GIL in a busy test process) still sees the timeout: CI once
+    # ran this with 60 ms replies on a 34 ms timeout, and a 26 ms stall took a reply as in time.
+    finger = open_finger(emulator, FingerConfig(min_packet_timeout_ms=150.0))
     finger.write_goal([10.0, 5.0])
     settle(finger, [10.0, 5.0])
-    device.delay_replies(1, 0.6)  # 60 ms real at speed 10: after the SDK has given up
+    device.delay_replies(1, 2.25)  # sim seconds: 225 ms real at speed 10
     with pytest.raises(DeviceTimeout):
         finger.read_state()
     device.delay_replies(1, 0.0)
