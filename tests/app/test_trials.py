@@ -50,6 +50,19 @@ def wait_for(client: TestClient, trial_id: int, predicate: Any, timeout_s: float
     raise AssertionError(f"timed out; last state {trial['status']} with {trial['n_steps']} steps")
 
 
+def wait_until_steady(client: TestClient, trial_id: int, quiet_s: float = 0.2) -> int:
+    """The trial's step count once it has not changed for ``quiet_s`` (a paused run's)."""
+    deadline = time.monotonic() + 20
+    steps = client.get(f"{API}/trials/{trial_id}").json()["n_steps"]
+    while time.monotonic() < deadline:
+        time.sleep(quiet_s)
+        now = client.get(f"{API}/trials/{trial_id}").json()["n_steps"]
+        if now == steps:
+            return int(steps)
+        steps = now
+    raise AssertionError(f"trial {trial_id} still adding steps ({steps}) after 20 s")
+
+
 def test_scripted_trial_names_the_object(client: TestClient, model_id: int) -> None:
     rng = np.random.default_rng(11)
     trial = scripted(client, model_id, target="O3", max_steps=8, tolerance=0.0)
@@ -179,9 +192,10 @@ def test_simulated_trial_pause_resume_abort(client: TestClient, model_id: int) -
     wait_for(client, tid, lambda t: t["n_steps"] >= 2)
     paused = client.post(f"{API}/trials/{tid}/pause").json()
     assert paused["status"] == "paused"
-    time.sleep(0.1)  # at most the step in flight is recorded after the pause
-    held = client.get(f"{API}/trials/{tid}").json()["n_steps"]
-    time.sleep(0.2)
+    # At most the step in flight is recorded after the pause; then nothing more.
+    held = wait_until_steady(client, tid)
+    assert held <= paused["n_steps"] + 1
+    time.sleep(0.3)
     assert client.get(f"{API}/trials/{tid}").json()["n_steps"] == held
     client.post(f"{API}/trials/{tid}/resume")
     wait_for(client, tid, lambda t: t["n_steps"] >= held + 2)

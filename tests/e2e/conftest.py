@@ -72,9 +72,9 @@ def save_screenshot(page: Any, name: str, docs: bool = False, **kwargs: Any) -> 
     return path
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def browser() -> Iterator[Any]:
-    """Headless Debian Chromium under Playwright."""
+    """Headless Debian Chromium under Playwright, closed after the module that used it."""
     if not CHROMIUM.exists():
         pytest.fail(
             f"{CHROMIUM} is missing: run scripts/install_browser.sh (Debian's chromium package)."
