@@ -106,8 +106,8 @@ def fit_with_progress(
             best = event.best_log_likelihood
             bar.update(
                 task,
-                status=f"{event.phase}: start {event.start + 1}/{event.n_starts}, "
-                f"iteration {event.iteration}"
+                status=f"{escape(event.phase)}: start {event.start + 1:d}/{event.n_starts:d}, "
+                f"iteration {event.iteration:d}"
                 + (f", best log-lik {best:.2f}" if np.isfinite(best) else ""),
             )
             if event.model is not None:
@@ -164,12 +164,14 @@ def fit(
         sys.stdout.write(json.dumps(document) + "\n")
     else:
         stdout.print(
-            f"fitted {len(model.object_names)} objects, ds={latent_dim}, "
+            f"fitted {len(model.object_names):d} objects, ds={latent_dim:d}, "
             f"log-likelihood {model.log_likelihood:.3f} in {seconds:.2f} s"
             + (f"; written to {escape(str(out))}" if out else "")
         )
         for name, latent in zip(model.object_names, model.latents, strict=True):
-            stdout.print(f"  {escape(f'{name:>12s}')}  s = {np.array2string(latent, precision=4)}")
+            stdout.print(
+                f"  {escape(f'{name:>12s}')}  s = {escape(np.array2string(latent, precision=4))}"
+            )
 
 
 def load_model(path: Path) -> ManifoldModel:
@@ -222,7 +224,7 @@ def dataset(
     )
     out.write_text(write_training_csv(data))
     stderr.print(
-        f"wrote {data.n_touches} touches of {data.n_objects} objects to {escape(str(out))}"
+        f"wrote {data.n_touches:d} touches of {data.n_objects:d} objects to {escape(str(out))}"
     )
 
 
@@ -298,14 +300,16 @@ def recognize(
             }
             records.append(record)
             if not as_json:
+                shown_action = np.array2string(step.action, precision=3)
+                shown_mean = np.array2string(step.belief.mean, precision=3)
                 stdout.print(
-                    f"step {step.step:2d}  x = {np.array2string(step.action, precision=3)}  "
+                    f"step {step.step:2d}  x = {escape(shown_action)}  "
                     f"MI {step.mutual_information:.3f}  "
-                    f"μ = {np.array2string(step.belief.mean, precision=3)}  "
+                    f"μ = {escape(shown_mean)}  "
                     f"nearest {escape(names[step.nearest_object])}  "
                     f"answer {escape(names[step.answer])} "
                     f"(p = {step.probabilities.max():.3f})"
-                    + (f"  (stopped: {step.stop_reason})" if step.done else "")
+                    + (f"  (stopped: {escape(step.stop_reason or '')})" if step.done else "")
                 )
     except CoreError as exc:
         raise fail(str(exc)) from None
@@ -320,9 +324,10 @@ def recognize(
     if as_json:
         sys.stdout.write(json.dumps(result) + "\n")
     else:
-        verdict = "[green]correct[/green]" if result["correct"] else "[red]wrong[/red]"
-        answer = escape(final["answer"])
-        stdout.print(f"recognised {answer} after {len(records)} touches: {verdict}")
+        stdout.print(
+            f"recognised {escape(final['answer'])} after {len(records):d} touches: "
+            f"{'[green]correct[/green]' if result['correct'] else '[red]wrong[/red]'}"
+        )
 
 
 @paper_app.command("exp1")

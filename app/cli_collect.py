@@ -337,7 +337,7 @@ def _collect(
                     bar.update(
                         task,
                         completed=len(recorded),
-                        status=f"{touch.object_name} (slot {touch.slot})",
+                        status=f"{escape(touch.object_name)} (slot {touch.slot:d})",
                     )
             except HardwareError as exc:
                 error, code = f"{type(exc).__name__}: {exc}", 1
@@ -364,7 +364,8 @@ def _report(summary: dict[str, Any], as_json: bool) -> None:
     if summary["error"] is not None:
         console.print(f"[red]collection stopped:[/red] {escape(str(summary['error']))}")
         console.print(
-            f"the rig is {summary['rig_state']}; kept {kept} in {escape(str(summary['out']))}"
+            f"the rig is {escape(str(summary['rig_state']))}; kept {escape(kept)} in "
+            f"{escape(str(summary['out']))}"
             + (
                 ""
                 if summary["fit_ready"]
@@ -375,6 +376,6 @@ def _report(summary: dict[str, Any], as_json: bool) -> None:
         return
     if not as_json:
         console.print(
-            f"collected {kept} of {len(summary['objects'])} objects in "
+            f"collected {escape(kept)} of {len(summary['objects']):d} objects in "
             f"{summary['seconds']:.1f} s → {escape(str(summary['out']))}"
         )

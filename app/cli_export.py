@@ -242,7 +242,7 @@ def _print_listing(listing: dict[str, list[dict[str, Any]]]) -> None:
     for kind, spec in columns.items():
         rows = listing[kind]
         if not rows:
-            out.print(f"[bold]{kind}[/bold]: none")
+            out.print(f"[bold]{escape(kind)}[/bold]: none")
             continue
         table = Table(title=f"{kind} ({len(rows)})", title_justify="left")
         for header, _ in spec:
@@ -266,8 +266,8 @@ def dataset_command(
         text = datasets.export_csv(session, dataset_id)
     if summary.status != "ready":
         console.print(
-            f"[yellow]note:[/yellow] dataset {dataset_id} is {summary.status}: "
-            f"exporting the {summary.n_samples} samples recorded."
+            f"[yellow]note:[/yellow] dataset {dataset_id:d} is {escape(summary.status)}: "
+            f"exporting the {summary.n_samples:d} samples recorded."
         )
     _write(text, out, f"dataset {dataset_id} ({summary.n_samples} samples)")
 

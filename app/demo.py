@@ -271,7 +271,9 @@ class DemoServer:
 
     def _follower_error(self, exc: Exception) -> None:
         if self._server is not None and not self._server.should_exit:
-            self.console.log(f"[dim]3D view: event stream interrupted ({exc}); reconnecting[/dim]")
+            self.console.log(
+                f"[dim]3D view: event stream interrupted ({escape(str(exc))}); reconnecting[/dim]"
+            )
 
     # -- REST helpers -------------------------------------------------------------------------
 
@@ -371,8 +373,8 @@ class DemoServer:
         self._call("POST", "/rig/home", "home the simulated rig")
         objects = self.rig_objects()
         self.console.print(
-            f"Collecting the training set on the simulated rig: {len(objects)} objects × "
-            f"{self.options.touches_per_object} touches "
+            f"Collecting the training set on the simulated rig: {len(objects):d} objects × "
+            f"{self.options.touches_per_object:d} touches "
             f"({escape(', '.join(o.name for o in objects))})."
         )
         run = self._call(
@@ -408,8 +410,8 @@ class DemoServer:
             if model["dataset_id"] == dataset["id"] and model["status"] == "ready":
                 return model
         self.console.print(
-            f"Fitting the object manifold (ds = {self.options.latent_dim}, "
-            f"{self.options.restarts} restarts) to {dataset['n_samples']} touches."
+            f"Fitting the object manifold (ds = {self.options.latent_dim:d}, "
+            f"{self.options.restarts:d} restarts) to {dataset['n_samples']:d} touches."
         )
         accepted = self._call(
             "POST",
@@ -497,8 +499,8 @@ def run_demo(options: DemoOptions, console: Console | None = None) -> DemoState:
     demo.start()
     try:
         out.print(
-            f"[bold]ActiveTouch demo[/bold] — dashboard [link]{demo.dashboard_url}[/link] "
-            f"(up after {demo.timings.server_ready_s:.1f} s), 3D view {demo.viz_url}"
+            f"[bold]ActiveTouch demo[/bold] — dashboard [link]{escape(demo.dashboard_url)}[/link] "
+            f"(up after {demo.timings.server_ready_s:.1f} s), 3D view {escape(demo.viz_url)}"
         )
         if options.open_browser:
             webbrowser.open(demo.dashboard_url)
@@ -506,9 +508,9 @@ def run_demo(options: DemoOptions, console: Console | None = None) -> DemoState:
         t = state.timings
         out.print(
             f"[green]Ready[/green] after {t.model_ready_s:.1f} s "
-            f"({'collected' if t.collected else 'reused'} dataset #{state.dataset_id}, "
-            f"{'fitted' if t.fitted else 'reused'} model #{state.model_id}).\n"
-            f"Open [link]{state.dashboard_url}[/link] → Trials → [bold]Start trial[/bold]. "
+            f"({'collected' if t.collected else 'reused'} dataset #{state.dataset_id:d}, "
+            f"{'fitted' if t.fitted else 'reused'} model #{state.model_id:d}).\n"
+            f"Open [link]{escape(state.dashboard_url)}[/link] → Trials → [bold]Start trial[/bold]. "
             "Ctrl-C stops."
         )
         demo.wait()

@@ -12,6 +12,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
+from rich.markup import escape
 from rich.table import Table
 
 from core.evaluation import accuracy_by_touch, accuracy_per_object, evaluate
@@ -80,29 +81,29 @@ class Experiment1Figures:
         rand = np.asarray(self.random_correlations)
         table.add_row(
             "|corr(θ, s)|, learned manifold",
-            f"{PAPER_CORRELATION}",
+            f"{PAPER_CORRELATION:g}",
             f"median {np.median(corr):.4f} (range {corr.min():.4f}–{corr.max():.4f})",
         )
         table.add_row(
             "|corr(θ, s_w)|, random-latent baseline",
-            f"{PAPER_RANDOM_CORRELATION}",
+            f"{PAPER_RANDOM_CORRELATION:g}",
             f"median {np.median(rand):.4f} (range {rand.min():.4f}–{rand.max():.4f})",
         )
         table.add_row("fit seconds per data set", "—", f"median {np.median(self.fit_seconds):.2f}")
         for name, figures in self.policies.items():
             curve = " ".join(f"{100 * a:.0f}" for a in figures.accuracy_by_touch)
             table.add_row(
-                f"accuracy % by touch 1..T, {name}",
+                f"accuracy % by touch 1..T, {escape(name)}",
                 "converges to the true object within T = 10" if name == "active" else "—",
                 curve,
             )
         for name, figures in self.policies.items():
             table.add_row(
-                f"accuracy at T, {name} (nearest-latent rule)",
+                f"accuracy at T, {escape(name)} (nearest-latent rule)",
                 "—",
                 f"{100 * figures.accuracy_by_touch[-1]:.1f}% "
                 f"({100 * figures.nearest_accuracy_by_touch[-1]:.1f}%), "
-                f"{figures.trials} trials",
+                f"{figures.trials:d} trials",
             )
         return table
 
