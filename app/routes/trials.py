@@ -65,7 +65,11 @@ def post_observation(
 
 @router.post("/{trial_id}/pause")
 def pause_trial(trial_id: IdPath, session: SessionDep, context: ContextDep) -> TrialPublic:
-    """Pause a running trial (409 otherwise)."""
+    """Pause a running trial (409 otherwise).
+
+    A server-driven trial finishes the touch in flight, records it, and then waits: its step
+    count may still grow by one after this answers.
+    """
     return context.trials.control(session, trial_id, "pause")
 
 
@@ -77,7 +81,11 @@ def resume_trial(trial_id: IdPath, session: SessionDep, context: ContextDep) -> 
 
 @router.post("/{trial_id}/stop")
 def stop_trial(trial_id: IdPath, session: SessionDep, context: ContextDep) -> TrialPublic:
-    """Stop a trial; the answer so far becomes its result."""
+    """Stop a trial; the answer of the last step recorded by then becomes its result.
+
+    A server-driven trial starts no further touch; a touch already in flight may still be
+    recorded as a step after this answers (the result stays as answered).
+    """
     return context.trials.control(session, trial_id, "stop")
 
 
