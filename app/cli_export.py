@@ -173,14 +173,14 @@ def _app_errors() -> Iterator[None]:
 @export_app.command("list")
 def list_command(db: Db = None, as_json: AsJson = False) -> None:
     """List the datasets, models and trials in the database."""
-    from app.services import datasets, models, trials
+    from app.services import datasets, models, trial_views
 
     with open_session(db) as (_, session):
         listing = {
             "datasets": _all(lambda limit, offset: datasets.list_page(session, limit, offset)),
             "models": _all(lambda limit, offset: models.list_page(session, None, limit, offset)),
             "trials": _all(
-                lambda limit, offset: trials.list_page(session, None, None, limit, offset)
+                lambda limit, offset: trial_views.list_page(session, None, None, limit, offset)
             ),
         }
     if as_json:
@@ -301,10 +301,10 @@ def trial_command(
     db: Db = None,
 ) -> None:
     """A trial's steps as CSV (one row per touch), or the whole trial as JSON."""
-    from app.services import datasets, models, trials
+    from app.services import datasets, models, trial_views
 
     with open_session(db) as (_, session), _app_errors():
-        trial = trials.get(session, trial_id)
+        trial = trial_views.get(session, trial_id)
         model = models.get(session, trial.model_id)
         names = datasets.get(session, model.dataset_id).objects
     if as_json:

@@ -17,7 +17,7 @@ from app.schemas import (
     TrialPublic,
     TrialSummary,
 )
-from app.services import trials
+from app.services import trial_views
 
 router = APIRouter(prefix="/trials", tags=["trials"])
 
@@ -37,7 +37,7 @@ def list_trials(
     offset: Offset = 0,
 ) -> Page[TrialSummary]:
     """Trials, newest first, filtered by model and status."""
-    return trials.list_page(session, model_id, status, limit, offset)
+    return trial_views.list_page(session, model_id, status, limit, offset)
 
 
 @router.get("/{trial_id}", response_model=TrialPublic)

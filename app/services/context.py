@@ -13,7 +13,8 @@ from app.services.events import EventBus
 from app.services.models import ModelStore
 from app.services.rig import RigService
 from app.services.runs import RunManager
-from app.services.trials import TrialService, TrialViews
+from app.services.trial_views import TrialViews
+from app.services.trials import TrialService
 from app.services.worlds import WorldFactory
 
 logger = logging.getLogger(__name__)
