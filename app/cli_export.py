@@ -244,7 +244,7 @@ def _print_listing(listing: dict[str, list[dict[str, Any]]]) -> None:
         if not rows:
             out.print(f"[bold]{escape(kind)}[/bold]: none")
             continue
-        table = Table(title=f"{kind} ({len(rows)})", title_justify="left")
+        table = Table(title=f"{escape(kind)} ({len(rows):d})", title_justify="left")
         for header, _ in spec:
             table.add_column(header)
         for row in rows:

@@ -67,8 +67,8 @@ class Experiment1Figures:
     def table(self) -> Table:
         """A rich table: figure, paper, ours."""
         table = Table(
-            title=f"Experiment 1 — {self.seeds} data seeds, noise std {self.noise_std}, "
-            f"T = {self.max_steps}, {self.trials_per_object} trials per object per seed",
+            title=f"Experiment 1 — {self.seeds:d} data seeds, noise std {self.noise_std:g}, "
+            f"T = {self.max_steps:d}, {self.trials_per_object:d} trials per object per seed",
             caption="The paper's figures are from one data set. Our |corr| is that of the "
             "maximum-likelihood optimum: a fit started from S = θ ends at the same point, and "
             "more touches per object do not bring it closer to 1 (python -m bench.corr_vs_data).",

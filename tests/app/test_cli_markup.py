@@ -20,7 +20,7 @@ from rich.console import Console
 from rich.markup import escape
 
 APP = Path(__file__).resolve().parents[2] / "app"
-RICH_CALLS = {"print", "log", "rule", "update", "add_task", "add_row"}
+RICH_CALLS = {"print", "log", "rule", "update", "add_task", "add_row", "Table", "add_column"}
 NUMERIC_TYPES = set("bcdoxXneEfFgG%")
 
 
@@ -64,9 +64,11 @@ def unescaped_interpolations(source: str, filename: str) -> list[str]:
     """``file:line: expression`` for each unsafe interpolation into a Rich call."""
     problems = []
     for node in ast.walk(ast.parse(source)):
-        if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)):
+        if not isinstance(node, ast.Call):
             continue
-        if node.func.attr not in RICH_CALLS:
+        func = node.func
+        name = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", None)
+        if name not in RICH_CALLS:
             continue
         for argument in [*node.args, *(keyword.value for keyword in node.keywords)]:
             problems += [
@@ -95,6 +97,7 @@ def test_no_unescaped_value_reaches_rich_in_app() -> None:
         ("console.print(f\"{escape(f'{name:>12s}')}\")", []),
         ('bar.update(task, status=f"{touch.name} (slot {touch.slot:d})")', ["{touch.name}"]),
         ('table.add_row(f"{policy}", "—")', ["{policy}"]),
+        ('Table(title=f"{kind} ({len(rows):d})")', ["{kind}"]),
         ('console.print("x = " + f"{np.array2string(mean)}")', ["{np.array2string(mean)}"]),
         ('values.update(f"{key}")', ["{key}"]),
     ],
