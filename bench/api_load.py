@@ -1,6 +1,6 @@
 """Benchmark: ``GET /trials/{id}`` under 20 concurrent clients while a simulated trial runs.
 
-Starts the server as a process (``python -m app.server_cli``) on 127.0.0.1 with a temporary
+Starts the server as a process (``python -m app.cli.serve``) on 127.0.0.1 with a temporary
 database, imports an Experiment 1 model (true latents, fixed hyperparameters: no fit), starts a
 simulated trial that keeps touching (one step every ``--step-interval-s``), then lets
 ``--clients`` threads, each with its own keep-alive connection, read the trial as fast as they
@@ -62,7 +62,7 @@ def start_server(database: Path, port: int) -> subprocess.Popen[bytes]:
     """The API server as a child process, returned once ``/health`` answers."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("ACTIVETOUCH_")}
     process = subprocess.Popen(
-        [sys.executable, "-m", "app.server_cli", "--port", str(port),
+        [sys.executable, "-m", "app.cli.serve", "--port", str(port),
          "--database-url", f"sqlite:///{database}", "--log-level", "warning"],
         cwd=ROOT, env=env,
     )  # fmt: skip

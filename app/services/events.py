@@ -8,7 +8,7 @@ Subscribers are async generators in the server's event loop, woken thread-safely
 :meth:`EventBus.close` ends every open stream (and any opened later) after what it has sent, so
 a server that is shutting down sees its SSE responses complete instead of having to cancel them
 (uvicorn logs each cancelled response as an error with a traceback). The server calls it when
-its shutdown begins (:class:`app.server_cli.GracefulServer`), before it waits for connections.
+its shutdown begins (:class:`app.cli.serve.GracefulServer`), before it waits for connections.
 """
 
 from __future__ import annotations

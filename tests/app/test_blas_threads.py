@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import typer
 
-from app.cli import BLAS_THREAD_VARIABLES, pin_blas_threads
+from app.cli.main import BLAS_THREAD_VARIABLES, pin_blas_threads
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -49,7 +49,8 @@ def _clean_environment() -> dict[str, str]:
 def test_numpy_loaded_after_pinning_runs_one_thread() -> None:
     """In a fresh process with no BLAS variable set (OpenBLAS would start one thread per core)."""
     script = (
-        "from app.cli import pin_blas_threads; pin_blas_threads(); import numpy, scipy.linalg; "
+        "from app.cli.main import pin_blas_threads; pin_blas_threads(); "
+        "import numpy, scipy.linalg; "
         "from threadpoolctl import threadpool_info; "
         "print(max(i['num_threads'] for i in threadpool_info()))"
     )
@@ -67,7 +68,7 @@ def test_numpy_loaded_after_pinning_runs_one_thread() -> None:
 
 def test_the_cli_refuses_a_bad_thread_count() -> None:
     result = subprocess.run(
-        [sys.executable, "-c", "from app.cli import main; main()", "--help"],
+        [sys.executable, "-c", "from app.cli.main import main; main()", "--help"],
         cwd=ROOT,
         env={**_clean_environment(), "ACTIVETOUCH_BLAS_THREADS": "many"},
         capture_output=True,

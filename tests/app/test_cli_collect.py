@@ -12,7 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 from app import rig_factory
-from app.cli import app
+from app.cli.main import app
 from app.documents import read_training_csv
 from app.errors import BadInputError
 from app.rig_factory import RigHandle

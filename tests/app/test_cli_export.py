@@ -15,7 +15,7 @@ from fastapi.testclient import TestClient
 from typer.testing import CliRunner
 
 from app import crud
-from app.cli import app
+from app.cli.main import app
 from app.db import Database
 from app.documents import model_from_document, read_training_csv
 from app.main import create_app

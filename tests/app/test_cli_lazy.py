@@ -12,12 +12,12 @@ from typing import Any, get_args
 import pytest
 from typer.testing import CliRunner
 
-from app.cli import app
-from app.cli_bench import bench_command
-from app.cli_rig import SimulationName
-from app.demo import demo_command
+from app.cli.bench import bench_command
+from app.cli.demo import demo_command
+from app.cli.main import app
+from app.cli.rig import SimulationName
+from app.cli.serve import serve_command
 from app.rig_factory import SimulationMode
-from app.server_cli import serve_command
 from tests.app.conftest import experiment1_csv
 
 runner = CliRunner()
@@ -26,7 +26,7 @@ PROJECT = Path(__file__).resolve().parents[2]
 
 PROBE = """
 import json, sys
-from app.cli import app
+from app.cli.main import app
 loaded_at_start = sorted(m for m in {heavy!r} + ("numpy", "scipy") if m in sys.modules)
 for args in {commands!r}:
     try:
@@ -71,7 +71,7 @@ def test_help_and_fit_import_neither_the_web_stack_nor_numpy_at_start(tmp_path: 
             ],
         ]
     )
-    assert loaded["start"] == []  # importing app.cli: typer and rich only
+    assert loaded["start"] == []  # importing app.cli.main: typer and rich only
     assert loaded["after"] == []  # a fit needs numpy and the core, not the web stack
     assert json.loads((tmp_path / "m.json").read_text())["format"] == "activetouch-model/1"
 

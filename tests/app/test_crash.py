@@ -31,11 +31,11 @@ def _free_port() -> int:
 
 @contextmanager
 def server(database_url: str, port: int, log: Path) -> Iterator[subprocess.Popen[bytes]]:
-    """``python -m app.server_cli`` on 127.0.0.1:port, ready when /health answers."""
+    """``python -m app.cli.serve`` on 127.0.0.1:port, ready when /health answers."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("ACTIVETOUCH_")}
     with log.open("ab") as out:
         process = subprocess.Popen(
-            [sys.executable, "-m", "app.server_cli", "--port", str(port),
+            [sys.executable, "-m", "app.cli.serve", "--port", str(port),
              "--database-url", database_url, "--log-level", "warning"],
             cwd=ROOT, env=env, stdout=out, stderr=subprocess.STDOUT,
         )  # fmt: skip

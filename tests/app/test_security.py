@@ -29,7 +29,7 @@ def test_refuses_other_hosts_without_token(tmp_path: Path) -> None:
 def test_serve_command_refuses_and_exits_2(tmp_path: Path) -> None:
     import typer
 
-    from app.server_cli import serve_command
+    from app.cli.serve import serve_command
 
     cli = typer.Typer()
     cli.command()(serve_command)

@@ -13,8 +13,8 @@ import httpx
 import numpy as np
 import pytest
 
-from app.server_cli import ServedApp, listening_url
-from app.viz_follower import wait_for_belief_mean
+from app.cli.serve import ServedApp, listening_url
+from app.viz.follower import wait_for_belief_mean
 from tests.app.conftest import experiment1_document, make_settings
 from tests.app.trial_waits import wait_finished
 

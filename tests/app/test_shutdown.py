@@ -10,8 +10,8 @@ from pathlib import Path
 import httpx
 import uvicorn
 
+from app.cli.serve import GracefulServer
 from app.main import create_app
-from app.server_cli import GracefulServer
 from tests.app.conftest import TestClient, make_settings
 
 API = "/api/v1"

@@ -8,9 +8,8 @@ import urllib.request
 import numpy as np
 import pytest
 
-from app.viz import ManifoldView
-from app.viz_follower import sse_events
-from app.viz_geometry import (
+from app.viz.follower import sse_events
+from app.viz.geometry import (
     ellipse_points,
     ellipsoid_mesh,
     embed_latents,
@@ -23,6 +22,7 @@ from app.viz_geometry import (
     surface_mesh,
     trajectory_plot_points,
 )
+from app.viz.view import ManifoldView
 from core.posterior import condition, predict
 from core.types import GaussianBelief, Hyperparameters, ManifoldModel
 from core.worlds import EXPERIMENT1_THETAS, sample_experiment1

@@ -19,7 +19,7 @@ from typing import Any
 import pytest
 from rich.console import Console
 
-from app.demo import DemoOptions, DemoServer, DemoState
+from app.cli.demo import DemoOptions, DemoServer, DemoState
 
 ROOT = Path(__file__).resolve().parents[2]
 CHROMIUM = Path(os.environ.get("ACTIVETOUCH_CHROMIUM", "/usr/bin/chromium"))

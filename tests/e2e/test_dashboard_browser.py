@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from app.viz_follower import wait_for_belief_mean, wait_for_clients
+from app.viz.follower import wait_for_belief_mean, wait_for_clients
 from tests.app.trial_waits import wait_finished
 from tests.e2e.conftest import DOCS_FLAG, Demo, PageErrors, save_screenshot
 

@@ -7,7 +7,7 @@ import time
 
 from typer.testing import CliRunner
 
-from app.cli_rig import rig_app
+from app.cli.rig import rig_app
 from hardware.clock import ScaledClock
 from hardware.sim.rig import simulated_devices, start_emulators
 

@@ -24,11 +24,11 @@ import typer
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from app.cli_collect import collect_command
-from app.cli_export import export_app
-from app.cli_output import messages as stderr
-from app.cli_output import results as stdout
-from app.cli_rig import rig_app
+from app.cli.collect import collect_command
+from app.cli.export import export_app
+from app.cli.output import messages as stderr
+from app.cli.output import results as stdout
+from app.cli.rig import rig_app
 
 if TYPE_CHECKING:
     from core.manifold import FitOptions
@@ -340,7 +340,7 @@ def paper_exp1(
     as_json: Annotated[bool, typer.Option("--json", help="Print the figures as JSON.")] = False,
 ) -> None:
     """Experiment 1 end to end: manifold, random-latent baseline, recognition; vs the paper."""
-    from app.paper import run_experiment1
+    from app.paper.exp1 import run_experiment1
     from core.errors import CoreError
 
     try:
@@ -393,8 +393,8 @@ def _forward(ctx: typer.Context, command: Callable[..., Any]) -> None:
     add_help_option=False,
 )
 def serve(ctx: typer.Context) -> None:
-    """Forward to :func:`app.server_cli.serve_command` (its help is the one shown)."""
-    from app.server_cli import serve_command
+    """Forward to :func:`app.cli.serve.serve_command` (its help is the one shown)."""
+    from app.cli.serve import serve_command
 
     _forward(ctx, serve_command)
 
@@ -406,8 +406,8 @@ def serve(ctx: typer.Context) -> None:
     add_help_option=False,
 )
 def demo(ctx: typer.Context) -> None:
-    """Forward to :func:`app.demo.demo_command`."""
-    from app.demo import demo_command
+    """Forward to :func:`app.cli.demo.demo_command`."""
+    from app.cli.demo import demo_command
 
     _forward(ctx, demo_command)
 
@@ -420,8 +420,8 @@ def demo(ctx: typer.Context) -> None:
     add_help_option=False,
 )
 def bench(ctx: typer.Context) -> None:
-    """Forward to :func:`app.cli_bench.bench_command`."""
-    from app.cli_bench import bench_command
+    """Forward to :func:`app.cli.bench.bench_command`."""
+    from app.cli.bench import bench_command
 
     _forward(ctx, bench_command)
 

@@ -31,8 +31,8 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from rich.markup import escape
 
-from app.cli_output import messages as console
-from app.cli_output import results
+from app.cli.output import messages as console
+from app.cli.output import results
 
 if TYPE_CHECKING:
     from sqlalchemy.orm import Session

@@ -36,8 +36,8 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal, TextIO
 import typer
 from rich.markup import escape
 
-from app.cli_output import messages as console
-from app.cli_rig import (
+from app.cli.output import messages as console
+from app.cli.rig import (
     AsJson,
     FingerPort,
     RigOptions,
@@ -300,7 +300,7 @@ def _collect(
     force: bool,
 ) -> tuple[list[CollectedTouch], str | None, int, float]:
     """Run the collection into the files; return the touches, the error, exit code, seconds."""
-    from app.cli import progress_bar
+    from app.cli.main import progress_bar
     from app.documents import TrainingCsvWriter
     from app.services.collections import iter_collection
     from app.services.rig import raw_series

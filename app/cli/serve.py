@@ -1,7 +1,7 @@
 """``activetouch serve``: run the web app with uvicorn, and the live 3D view beside it.
 
 :func:`serve` is the function; :func:`serve_command` is the typer command the CLI registers
-(``app.command("serve")(serve_command)``). ``python -m app.server_cli`` runs it on its own.
+(``app.command("serve")(serve_command)``). ``python -m app.cli.serve`` runs it on its own.
 :class:`GracefulServer` is the uvicorn server both ``serve`` and the demo run: its shutdown ends
 the open event streams first, so it neither hangs on them nor cancels them with tracebacks.
 """
@@ -20,8 +20,8 @@ import uvicorn
 from starlette.applications import Starlette
 
 from app.config import ConfigurationError, Settings
-from app.live_view import LiveView
 from app.main import create_app
+from app.viz.live import LiveView
 
 #: Seconds uvicorn waits for open responses at shutdown before cancelling them.
 GRACEFUL_SHUTDOWN_S = 5

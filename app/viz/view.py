@@ -12,10 +12,10 @@ caller::
 
 The dashboard embeds it in an ``<iframe>`` pointing at :attr:`ManifoldView.url`.
 
-What it draws is computed in :mod:`app.viz_geometry` (pure functions, unit-tested without a
+What it draws is computed in :mod:`app.viz.geometry` (pure functions, unit-tested without a
 server): where the latent points go in 3D, the outline of a Gaussian belief (interval, ellipse,
 ellipsoid), the learned GP response over (s, x) as a surface mesh, the finger's pose for two joint
-angles. :class:`~app.viz_follower.TrialFollower` in :mod:`app.viz_follower` keeps a view in step
+angles. :class:`~app.viz.follower.TrialFollower` in :mod:`app.viz.follower` keeps a view in step
 with the web app through its REST API and event stream alone, so the view works beside any server,
 in-process or not.
 
@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from app.viz_geometry import (
+from app.viz.geometry import (
     BELIEF_COLOR,
     HIGHLIGHT_COLOR,
     PALETTE,

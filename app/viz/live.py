@@ -22,8 +22,8 @@ from typing import Any
 from fastapi import FastAPI
 
 from app.main import API_PREFIX
-from app.viz import ManifoldView
-from app.viz_follower import TrialFollower
+from app.viz.follower import TrialFollower
+from app.viz.view import ManifoldView
 
 
 def add_viz_route(app: FastAPI, view: ManifoldView) -> None:

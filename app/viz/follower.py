@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from app.viz import ManifoldView
-from app.viz_geometry import FloatArray
+from app.viz.geometry import FloatArray
+from app.viz.view import ManifoldView
 from core.types import GaussianBelief
 
 

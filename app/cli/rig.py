@@ -30,8 +30,8 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 import typer
 from rich.markup import escape
 
-from app.cli_output import messages as console
-from app.cli_output import results as stdout
+from app.cli.output import messages as console
+from app.cli.output import results as stdout
 
 if TYPE_CHECKING:  # the drivers, numpy and the DMPs are imported when a command runs
     import numpy as np

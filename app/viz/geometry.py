@@ -1,4 +1,4 @@
-"""Pure geometry of the live 3D view (:mod:`app.viz`), unit-tested without a server.
+"""Pure geometry of the live 3D view (:mod:`app.viz.view`), unit-tested without a server.
 
 Where the latent points go in 3D, the outline of a Gaussian belief (interval, ellipse, ellipsoid),
 the learned GP response over (s, x) as a surface mesh, the finger's pose for two joint angles, the

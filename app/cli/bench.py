@@ -13,7 +13,7 @@ from typing import Annotated
 import typer
 from rich.markup import escape
 
-from app.cli_output import messages as stderr
+from app.cli.output import messages as stderr
 from bench.run import Options, report, run
 
 

@@ -37,12 +37,12 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from app.cli_output import messages
+from app.cli.output import messages
+from app.cli.serve import GracefulServer
 from app.config import Settings, is_loopback
 from app.documents import write_training_csv
-from app.live_view import LiveView
 from app.main import API_PREFIX, create_app
-from app.server_cli import GracefulServer
+from app.viz.live import LiveView
 from core.worlds import sample_experiment1
 
 #: Name of the dataset the demo collects (and finds again on the next start).

@@ -1,0 +1,1 @@
+"""The ``activetouch`` command line: one module per command group (``main`` builds the app)."""
