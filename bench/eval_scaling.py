@@ -9,8 +9,10 @@ identical trial by trial (and as documents, wall time and worker count aside), a
 crosses the network: the pickled context sent once per worker, and per task the pickled task
 (function reference and trial key) and the pickled result.
 
-One run of each (the evaluation itself is 2,000 trials); wall and CPU seconds and the machine's
-load are printed, since the machine is shared.
+One run of each (the evaluation itself is 2,000 trials). Wall seconds, the CPU seconds of this
+process and of the cluster's processes (sampled with psutil), and the machine's load are printed:
+on a shared machine the CPU seconds per wall second show how much of the cores a run actually
+got.
 
 Run: ``.venv/bin/python -m bench.eval_scaling [--trials 250] [--json]``
 """
@@ -22,7 +24,10 @@ import json
 import os
 import pickle
 import sys
+import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -34,6 +39,37 @@ from app.evaluation.spec import EvaluationSpec
 from bench.harness import machine
 from core.manifold import FitOptions, fit_manifold
 from core.worlds import Experiment1World, sample_dataset
+
+
+@contextmanager
+def child_cpu_seconds(period_s: float = 0.25) -> Iterator[dict[int, float]]:
+    """CPU seconds (user + system) of every descendant process, sampled until the block ends.
+
+    The cluster's processes exit when the run closes it, so their last sample is kept.
+    """
+    import psutil
+
+    last: dict[int, float] = {}
+    done = threading.Event()
+
+    def sample() -> None:
+        while True:
+            for child in psutil.Process().children(recursive=True):
+                try:
+                    times = child.cpu_times()
+                except psutil.Error:
+                    continue
+                last[child.pid] = times.user + times.system
+            if done.wait(period_s):
+                return
+
+    thread = threading.Thread(target=sample, daemon=True)
+    thread.start()
+    try:
+        yield last
+    finally:
+        done.set()
+        thread.join()
 
 
 def comparable(document: dict[str, Any]) -> dict[str, Any]:
@@ -57,10 +93,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     for name, workers in (("in_process", None), ("workers_1", 1), ("workers_2", 2)):
         cpu = time.process_time()
         started = time.perf_counter()
-        report = run_evaluation(model, spec, workers=workers)
+        with child_cpu_seconds() as children:
+            report = run_evaluation(model, spec, workers=workers)
+        wall = time.perf_counter() - started
         runs[name] = {
-            "wall_s": time.perf_counter() - started,
+            "wall_s": wall,
             "parent_cpu_s": time.process_time() - cpu,
+            "cluster_processes_cpu_s": sum(children.values()),
+            "cpu_share_of_wall": (time.process_time() - cpu + sum(children.values())) / wall,
             "workers": report.workers,
             "trials": len(report.records),
             "load_after": os.getloadavg()[0],
@@ -107,7 +147,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     else:
         for name, run in runs.items():
             print(
-                f"{name:>10s}: {run['wall_s']:7.1f} s wall, {run['trials']} trials, "
+                f"{name:>10s}: {run['wall_s']:7.1f} s wall, "
+                f"{run['parent_cpu_s'] + run['cluster_processes_cpu_s']:7.1f} s CPU, "
+                f"{run['trials']} trials, "
                 f"identical to in-process: {identical[name]}"
             )
         ratio = figures["ratio_workers_1_over_workers_2"]

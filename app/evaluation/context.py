@@ -42,14 +42,17 @@ TrialKey = tuple[str, str, int]
 def rig_tables() -> dict[str, tuple[str, ...]]:
     """Simulated rig tables by name: ``default`` and any table ``hardware.sim.materials`` names.
 
-    ``hardware.sim.materials.TABLES`` (name → object names), when it exists, adds its tables.
+    ``hardware.sim.materials.TABLES`` (name → a table with ``objects``, or the object names),
+    when it exists, adds its tables.
     """
     from hardware.sim import materials
 
     tables: dict[str, tuple[str, ...]] = {"default": tuple(materials.DEFAULT_TABLE)}
     extra = getattr(materials, "TABLES", None)
     if isinstance(extra, dict):
-        tables.update({str(k): tuple(v) for k, v in extra.items()})
+        for name, table in extra.items():
+            objects: Any = getattr(table, "objects", table)
+            tables[str(name)] = tuple(str(o) for o in objects)
     return tables
 
 
