@@ -32,8 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from app.evaluation.cluster import local_cluster
-from app.evaluation.context import TrialContext, run_trial_task
+from app.evaluation.cluster import batches, local_cluster
+from app.evaluation.context import TrialContext, run_trials_task
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
 from bench.harness import machine
@@ -120,7 +120,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     }
     context = TrialContext(model, spec)
     keys = context.trial_keys()
-    task_bytes = [len(pickle.dumps((run_trial_task, key), protocol=5)) for key in keys]
+    tasks = batches(keys, 2)
+    task_bytes = [len(pickle.dumps((run_trials_task, batch), protocol=5)) for batch in tasks]
     result_bytes = [len(pickle.dumps(r, protocol=5)) for r in base.records]
     summary = base.to_dict(include_trials=False)
     figures = {
@@ -134,9 +135,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         / runs["workers_2"]["wall_s"],
         "bytes": {
             "context_once_per_worker": len(pickle.dumps(context, protocol=5)),
+            "trials_per_task_2_workers": len(tasks[0]),
             "task_median": float(np.median(task_bytes)),
-            "result_median": float(np.median(result_bytes)),
-            "result_max": int(max(result_bytes)),
+            "result_per_trial_median": float(np.median(result_bytes)),
+            "result_per_trial_max": int(max(result_bytes)),
         },
         "accuracy_at_T": {p: s["accuracy_by_touch"][-1] for p, s in summary["policies"].items()},
         "comparison": summary["comparison"],

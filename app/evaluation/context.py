@@ -213,6 +213,6 @@ class TrialContext:
                     rig.close()
 
 
-def run_trial_task(context: TrialContext, key: TrialKey) -> TrialRecord:
-    """The task of one trial (runs on a worker; ``context`` is the worker's scattered copy)."""
-    return context.run(key)
+def run_trials_task(context: TrialContext, keys: list[TrialKey]) -> list[TrialRecord]:
+    """The task of a batch of trials (runs on a worker; ``context`` is its scattered copy)."""
+    return [context.run(key) for key in keys]
