@@ -63,6 +63,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--trials", type=int, default=20, help="Replay trials per object.")
     parser.add_argument("--seed", type=int, default=0, help="Collection and fit seed.")
     parser.add_argument("--workers", type=int, default=None, help="Dask worker processes.")
+    parser.add_argument(
+        "--table", default=None, help="Simulated table to collect from (collect --table)."
+    )
+    parser.add_argument(
+        "--object", action="append", default=None, help="Collect only these objects (repeat)."
+    )
+    parser.add_argument("--action-scale", type=float, default=1.0, help="collect --action-scale.")
     parser.add_argument("--json", action="store_true", help="Print the figures as JSON only.")
     args = parser.parse_args(argv)
     folder = Path(tempfile.mkdtemp(prefix="eval_replay."))
@@ -70,6 +77,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     executable = str(Path(sys.executable).with_name("activetouch"))
     started = time.perf_counter()
     collect = [executable, "collect", "--sim", "--touches", str(args.touches)]
+    collect += ["--action-scale", str(args.action_scale)]
+    collect += ["--table", args.table] if args.table else []
+    for name in args.object or []:
+        collect += ["--object", name]
     subprocess.run(
         [*collect, "--seed", str(args.seed), "--out", str(collection), "--force"],
         check=True,
@@ -96,10 +107,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     command += ["--json", "--out", str(report_path)]
     if args.workers:
         command += ["--workers", str(args.workers)]
-    done = subprocess.run(command, check=True, capture_output=True, text=True)
+    done = subprocess.run(command, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise SystemExit(f"evaluate failed ({done.returncode}): {done.stderr[-2000:]}")
     report = json.loads(done.stdout)
     figures = {
         "benchmark": "eval_replay",
+        "table": args.table or "default",
+        "action_scale": args.action_scale,
         "objects": list(data.object_names),
         "touches_per_object": args.touches,
         "fit_touches_per_object": args.fit,
