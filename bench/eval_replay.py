@@ -70,6 +70,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "--object", action="append", default=None, help="Collect only these objects (repeat)."
     )
     parser.add_argument("--action-scale", type=float, default=1.0, help="collect --action-scale.")
+    parser.add_argument(
+        "--design",
+        choices=("random", "shared"),
+        default="random",
+        help="collect --design: random (object by object) or shared (action by action, so the "
+        "held-out touches of every object come last in time).",
+    )
     parser.add_argument("--json", action="store_true", help="Print the figures as JSON only.")
     args = parser.parse_args(argv)
     folder = Path(tempfile.mkdtemp(prefix="eval_replay."))
@@ -77,7 +84,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     executable = str(Path(sys.executable).with_name("activetouch"))
     started = time.perf_counter()
     collect = [executable, "collect", "--sim", "--touches", str(args.touches)]
-    collect += ["--action-scale", str(args.action_scale)]
+    collect += ["--action-scale", str(args.action_scale), "--design", args.design]
     collect += ["--table", args.table] if args.table else []
     for name in args.object or []:
         collect += ["--object", name]
@@ -115,6 +122,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "benchmark": "eval_replay",
         "table": args.table or "default",
         "action_scale": args.action_scale,
+        "design": args.design,
         "objects": list(data.object_names),
         "touches_per_object": args.touches,
         "fit_touches_per_object": args.fit,

@@ -177,7 +177,10 @@ def _summarise_policy(
 
 
 def comparison_sentence(summaries: dict[str, dict[str, Any]], level: float) -> str:
-    """ "active reaches 95 % after 3 touches, passive after 6" (or "does not within T").
+    """ "active reaches 95 % accuracy after 3 touches, passive after 6 touches".
+
+    A policy that never gets there: "… does not reach 95 % accuracy within 10 touches" (first)
+    or "passive does not within 10 touches".
 
     Args:
         summaries: The result of :func:`summarise`.
@@ -187,12 +190,15 @@ def comparison_sentence(summaries: dict[str, dict[str, Any]], level: float) -> s
     for index, (policy, summary) in enumerate(summaries.items()):
         touch = first_touch_reaching(summary["accuracy_by_touch"], level)
         steps = len(summary["accuracy_by_touch"])
-        if touch is None:
-            text = f"does not within {steps} touches"
-        else:
-            text = f"after {touch} touch{'es' if touch != 1 else ''}"
+        after = None if touch is None else f"after {touch} touch{'es' if touch != 1 else ''}"
         if index == 0:
-            parts.append(f"{policy} reaches {100 * level:g} % accuracy {text}")
+            parts.append(
+                f"{policy} reaches {100 * level:g} % accuracy {after}"
+                if after
+                else f"{policy} does not reach {100 * level:g} % accuracy within {steps} touches"
+            )
         else:
-            parts.append(f"{policy} {text}")
+            parts.append(
+                f"{policy} {after}" if after else f"{policy} does not within {steps} touches"
+            )
     return ", ".join(parts)

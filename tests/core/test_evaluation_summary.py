@@ -133,6 +133,9 @@ def test_policies_are_summarised_apart_and_compared():
     )
     summary["passive"]["accuracy_by_touch"] = [0.0, 0.0, 0.5]
     assert comparison_sentence(summary, 0.95).endswith("passive does not within 3 touches")
+    assert comparison_sentence({"passive": summary["passive"]}, 0.95) == (
+        "passive does not reach 95 % accuracy within 3 touches"
+    )
 
 
 def test_summary_rejects_foreign_objects_and_long_trials():
