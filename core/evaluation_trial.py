@@ -37,13 +37,15 @@ from core.worlds import World
 #: Observation source of a trial: (action (dx,), the trial's world generator) → observation (dy,).
 Observe = Callable[[FloatArray, np.random.Generator], FloatArray]
 
-#: How a policy scores the unused recorded actions (C, dx) of a replay under the planning belief;
-#: the largest score is touched next. Shape (C,).
-ReplayScore = Callable[[Planner, GaussianBelief, FloatArray], FloatArray]
+#: How a policy scores the unused recorded actions (C, dx) of a replay, given the planning belief
+#: and the current object posterior (L,); the largest score is touched next. Shape (C,).
+ReplayScore = Callable[[Planner, GaussianBelief, FloatArray, FloatArray], FloatArray]
 
 
-def information_score(planner: Planner, belief: GaussianBelief, actions: FloatArray) -> FloatArray:
-    """U1 of each recorded action under the belief (METHOD.md (M4))."""
+def information_score(
+    planner: Planner, belief: GaussianBelief, probabilities: FloatArray, actions: FloatArray
+) -> FloatArray:
+    """U1 of each recorded action under the belief (METHOD.md (M4)); the posterior is unused."""
     return planner.mutual_information(belief, actions)
 
 
@@ -305,7 +307,8 @@ def run_replay_trial(
         if entry.replay_score is None:
             chosen = int(policy_rng.integers(len(unused)))
         else:
-            chosen = int(np.argmax(entry.replay_score(planner, belief, candidates)))
+            scores = entry.replay_score(planner, belief, session.probabilities, candidates)
+            chosen = int(np.argmax(scores))
         index = unused.pop(chosen)
         session.observe(pool.actions[index], pool.observations[index])
     return _record(model, policy, target, trial, seed, session.steps)
