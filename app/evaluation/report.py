@@ -49,6 +49,16 @@ class EvaluationReport:
                 f"T capped at {self.steps} (asked {self.spec.steps}): the smallest pool of "
                 f"recorded touches of a target has {self.steps}."
             )
+        if self.spec.world == "replay" and self.spec.trials_per_target > 1:
+            from core.evaluation_trial import POLICIES
+
+            fixed = [p for p in self.spec.policies if POLICIES[p].replay_score is not None]
+            if fixed:
+                notes.append(
+                    f"replay: {', '.join(fixed)} choose(s) the recorded touch deterministically, "
+                    "so their trials of one target repeat each other (unless a trial stops "
+                    "early); their intervals count trials, not independent draws."
+                )
         if self.stopped:
             notes.append("stopped before every trial finished; the summary covers those that did.")
         return notes

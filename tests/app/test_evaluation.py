@@ -120,6 +120,9 @@ def test_replay_world_caps_t_at_the_pool_and_says_so(exp1_model):
     assert document["steps"] == 3
     assert document["steps_requested"] == 10
     assert "capped at 3" in document["notes"][0]
+    assert "active choose(s) the recorded touch deterministically" in document["notes"][1]
+    active = [r for r in report.records if r.policy == "active" and r.target == "O2"]
+    assert active[0].actions == active[1].actions
 
 
 @pytest.mark.parametrize(
