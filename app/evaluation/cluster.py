@@ -44,10 +44,49 @@ def local_cluster(workers: int) -> Any:
         n_workers=workers,
         threads_per_worker=1,
         processes=True,
-        dashboard_address=None,
+        dashboard_address=":0",
         silence_logs=logging.ERROR,
         env=WORKER_ENVIRONMENT,
     )
+
+
+def probe(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> None:
+    """Open and close one Dask connection to ``address`` (a handshake), in a thread of its own.
+
+    Done before a ``Client`` exists: a client whose start fails is left half-built and its
+    clean-up blocks for seconds more at exit.
+
+    Raises:
+        BadInputError: Not an address, nothing answers, or what answers is not Dask, within
+            ``timeout_s``.
+    """
+    import asyncio
+    from concurrent.futures import ThreadPoolExecutor
+
+    from distributed.comm import connect as open_comm
+
+    async def handshake() -> None:
+        comm = await open_comm(address, timeout=timeout_s)
+        await comm.close()
+
+    def run() -> None:
+        asyncio.run(asyncio.wait_for(handshake(), timeout_s + 1.0))
+
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        try:
+            pool.submit(run).result()
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise BadInputError(
+                f"scheduler: cannot reach a Dask scheduler at {address!r} within "
+                f"{timeout_s:g} s ({type(exc).__name__}: {exc}).",
+                field="scheduler",
+            ) from None
+        except Exception as exc:  # a garbled handshake: whatever answers does not speak Dask
+            raise BadInputError(
+                f"scheduler: something answers at {address!r} but it is not a Dask scheduler "
+                f"(its handshake failed: {type(exc).__name__}).",
+                field="scheduler",
+            ) from None
 
 
 def connect(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> Any:
@@ -58,11 +97,12 @@ def connect(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> Any:
     """
     from distributed import Client
 
+    probe(address, timeout_s)
     try:
         client = Client(address, timeout=f"{timeout_s}s", set_as_default=False)
-    except (OSError, TimeoutError, ValueError) as exc:
+    except Exception as exc:
         raise BadInputError(
-            f"scheduler: cannot reach the Dask scheduler at {address!r} within "
+            f"scheduler: cannot reach a Dask scheduler at {address!r} within "
             f"{timeout_s:g} s ({type(exc).__name__}: {exc}).",
             field="scheduler",
         ) from None

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import socket
+import threading
+
 import numpy as np
 import pytest
 
@@ -81,3 +84,36 @@ def test_an_unreachable_scheduler_is_named(model):
     # Port 9 (discard) on the loopback: nothing listens, the connection is refused.
     with pytest.raises(BadInputError, match=r"scheduler: cannot reach .*tcp://127.0.0.1:9"):
         run_evaluation(model, SPEC, scheduler="tcp://127.0.0.1:9")
+    with pytest.raises(BadInputError, match="missing port number in address 'nonsense'"):
+        run_evaluation(model, SPEC, scheduler="nonsense")
+
+
+def test_a_server_that_is_not_dask_is_named(model):
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(1)
+    port = listener.getsockname()[1]
+
+    def answer_garbage() -> None:
+        connection, _ = listener.accept()
+        with connection:
+            connection.sendall(b"HTTP/1.1 400 Bad Request\r\n\r\n" * 4)
+
+    thread = threading.Thread(target=answer_garbage, daemon=True)
+    thread.start()
+    try:
+        with pytest.raises(BadInputError, match=rf"scheduler: .*tcp://127.0.0.1:{port}"):
+            run_evaluation(model, SPEC, scheduler=f"tcp://127.0.0.1:{port}")
+    finally:
+        listener.close()
+        thread.join(timeout=5)
+
+
+def test_a_scheduler_without_workers_is_named(model):
+    from distributed import LocalCluster
+
+    with (
+        LocalCluster(n_workers=0, processes=False, dashboard_address=":0") as empty,
+        pytest.raises(BadInputError, match=r"has no worker.*dask worker"),
+    ):
+        run_evaluation(model, SPEC, scheduler=empty.scheduler_address)
