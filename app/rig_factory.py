@@ -27,7 +27,7 @@ from hardware.errors import ConfigurationError
 from hardware.finger import DYNAMIXEL_BAUDRATE, Finger, FingerConfig
 from hardware.records import TouchRecord
 from hardware.rig import Rig, RigConfig, RigLease, TouchProgress
-from hardware.sim.materials import DEFAULT_TABLE
+from hardware.sim.materials import DEFAULT_TABLE_NAME, get_table
 from hardware.sim.rig import SimulatedRig, in_process_rig, pty_rig
 from hardware.tactile import TACTILE_BAUDRATE, TactileConfig, TactileSensor
 from hardware.teaching import PAPER_TOUCH_DURATION_S, teaching_trajectory
@@ -69,10 +69,12 @@ class RigHandle:
     Attributes:
         rig: The rig.
         simulation: The simulated devices, when the rig is simulated.
+        table: The name of a simulated rig's table (None: a real rig, or a list of objects).
     """
 
     rig: Rig
     simulation: SimulatedRig | None = None
+    table: str | None = None
 
     @property
     def object_names(self) -> list[str] | None:
@@ -126,7 +128,8 @@ def open_rig(
     *,
     ports: RigPorts | None = None,
     simulate: SimulationMode | None = None,
-    objects: Sequence[str] = DEFAULT_TABLE,
+    table: str = DEFAULT_TABLE_NAME,
+    objects: Sequence[str] | None = None,
     seed: int = 0,
     speed: float | None = None,
     rig_config: RigConfig | None = None,
@@ -136,24 +139,34 @@ def open_rig(
     Args:
         ports: Serial ports of a real rig (ignored when ``simulate`` is given).
         simulate: Simulate the devices in process or behind pseudo-terminals.
-        objects: Preset objects of a simulated table, slot 0 first (default: the paper's four
-            cups, then a ceramic mug, a wooden block and a foam sponge).
+        table: Named table of a simulated rig (:data:`hardware.sim.materials.TABLES`; default:
+            the paper's four cups, then a ceramic mug, a wooden block and a foam sponge).
+        objects: Preset objects of a simulated table, slot 0 first, instead of ``table``'s.
         seed: Seed of the simulated world.
         speed: Simulated seconds per real second. In process, None means virtual time (as fast
             as the computer goes); behind pseudo-terminals the default is 20.
         rig_config: Rig settings.
 
     Raises:
-        ConfigurationError: Neither ports nor a simulation were given.
+        ConfigurationError: Neither ports nor a simulation were given, or an unknown table
+            (the message lists the tables).
     """
+    table_name = None
+    if simulate is not None and objects is None:
+        objects = get_table(table).objects
+        table_name = table
     if simulate is SimulationMode.pty:
+        assert objects is not None
         return RigHandle(
-            *_sim(pty_rig(objects, seed=seed, speed=speed or 20.0, rig_config=rig_config))
+            *_sim(pty_rig(objects, seed=seed, speed=speed or 20.0, rig_config=rig_config)),
+            table=table_name,
         )
     if simulate is SimulationMode.in_process:
+        assert objects is not None
         clock: Clock = VirtualClock() if speed is None else ScaledClock(speed)
         return RigHandle(
-            *_sim(in_process_rig(objects, seed=seed, clock=clock, rig_config=rig_config))
+            *_sim(in_process_rig(objects, seed=seed, clock=clock, rig_config=rig_config)),
+            table=table_name,
         )
     if ports is None:
         raise ConfigurationError(

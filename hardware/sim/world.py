@@ -178,7 +178,7 @@ def heat_flow_w(
     if target is None or touch.force_n <= 0.0:
         return 0.0
     area_m2 = finger.max_contact_area_mm2 * 1e-6 * touch.force_n / (touch.force_n + 1.5)
-    skin, body = finger.skin_effusivity, target.material.effusivity
+    skin, body = finger.skin_effusivity, target.material.effusivity_at(contact_time_s)
     effective = skin * body / (skin + body)
     return (
         area_m2
