@@ -306,3 +306,90 @@ def iter_collect(
             record = actions.touch(lease, action, slot=slot)
             yield CollectedTouch(index, total, name, slot, action.copy(), record)
             index += 1
+
+
+class RigWorld:
+    """A rig (typically simulated) as a :class:`core.worlds.World`: observing object l with
+    action x touches l's slot with x and returns the touch's observation.
+
+    Lets :func:`core.evaluation.evaluate` run recognition trials on the rig itself (the honest
+    protocol: observations come from the touches, not from the learned GP).
+
+    Args:
+        lease: A lease on a connected rig.
+        actions: The action → trajectory map.
+        slots: Object name → slot, in the world's object order.
+        action_mean: Mean of the collection design's actions. Shape (dx,).
+        action_cov: Covariance of the collection design's actions. Shape (dx, dx).
+    """
+
+    def __init__(
+        self,
+        lease: RigLease,
+        actions: TouchActions,
+        slots: dict[str, int],
+        action_mean: npt.ArrayLike,
+        action_cov: npt.ArrayLike,
+    ) -> None:
+        if not slots:
+            raise ConfigurationError("slots: at least one object is needed.")
+        self.lease = lease
+        self.actions = actions
+        self.slots = dict(slots)
+        self._names = tuple(self.slots)
+        dx = actions.action_dim
+        self._mean = np.asarray(action_mean, dtype=np.float64).reshape(dx)
+        self._cov = np.asarray(action_cov, dtype=np.float64).reshape(dx, dx)
+        self.touches = 0
+
+    @property
+    def object_names(self) -> tuple[str, ...]:
+        """The objects, in the order of ``slots``."""
+        return self._names
+
+    @property
+    def action_dim(self) -> int:
+        """dx."""
+        return self.actions.action_dim
+
+    @property
+    def observation_dim(self) -> int:
+        """dy: the tactile channels."""
+        return len(self.lease.rig.tactile.config.channel_names)
+
+    @property
+    def action_mean(self) -> FloatArray:
+        """Mean of the design's actions. Shape (dx,)."""
+        return self._mean
+
+    @property
+    def action_cov(self) -> FloatArray:
+        """Covariance of the design's actions. Shape (dx, dx)."""
+        return self._cov
+
+    def mean_response(self, object_index: int, actions: FloatArray) -> FloatArray:
+        """Not known on a rig: the world is measured, not modelled.
+
+        Raises:
+            ConfigurationError: Always.
+        """
+        raise ConfigurationError("a rig has no known mean response; touch it (observe).")
+
+    def observe(
+        self, object_index: int, actions: FloatArray, rng: np.random.Generator
+    ) -> FloatArray:
+        """Touch object ``object_index`` with every action (M, dx). Shape (M, dy).
+
+        ``rng`` is unused: the rig's (or simulation's) own randomness makes the noise.
+        """
+        x = np.atleast_2d(np.asarray(actions, dtype=np.float64))
+        if x.shape[1] != self.action_dim:
+            raise ConfigurationError(
+                f"actions: expected shape (M, {self.action_dim}), received {x.shape}."
+            )
+        slot = self.slots[self._names[object_index]]
+        rows = []
+        for action in x:
+            rows.append(self.actions.touch(self.lease, action, slot=slot).observation)
+            self.touches += 1
+        return np.asarray(rows, dtype=np.float64)

@@ -50,15 +50,28 @@ class Material:
     def effusivity_at(self, contact_time_s: float) -> float:
         """Effusivity felt after ``contact_time_s`` of contact.
 
-        A coated body: the heat front reaches depth √(α t) after t, so the coating dominates
-        while t ≪ d²/α and the body once t ≫ d²/α; the blend
-        e(t) = e_body + (e_coat − e_body) · exp(−t / (d²/α)) is a smooth stand-in for the exact
-        two-layer solution (a series in image sources) with the same two limits.
+        A coated body: the surface heat flux of a layer (effusivity e_c, thermal time
+        τ = d²/α) on a semi-infinite body (e_b) brought to a step in surface temperature is,
+        by the method of images, that of a half-space of effusivity
+
+            e(t) = e_c [1 + 2 Σ_{n≥1} (−Γ)ⁿ exp(−n² τ / t)],  Γ = (e_c − e_b) / (e_c + e_b),
+
+        which is e_c for t ≪ τ and e_b for t ≫ τ (30 terms; the series converges
+        geometrically, |Γ| < 1).
         """
         if self.coating_effusivity is None or self.coating_time_s <= 0:
             return self.effusivity
-        weight = math.exp(-max(contact_time_s, 0.0) / self.coating_time_s)
-        return self.effusivity + (self.coating_effusivity - self.effusivity) * weight
+        if contact_time_s <= 0:
+            return self.coating_effusivity
+        coat, body = self.coating_effusivity, self.effusivity
+        reflection = (coat - body) / (coat + body)
+        ratio = self.coating_time_s / contact_time_s
+        series = sum(
+            (-reflection) ** n * math.exp(-n * n * ratio)
+            for n in range(1, 31)
+            if n * n * ratio < 700
+        )
+        return coat * (1.0 + 2.0 * series)
 
     def __post_init__(self) -> None:
         for field_name in (
@@ -146,11 +159,11 @@ ALUMINIUM = Material("aluminium (thin can)", 1.5, 0.35, 0.08, 0.6, 0.5, 24000.0)
 CORK = Material("cork", 2.0, 0.60, 0.15, 30.0, 0.6, 140.0)
 
 # Look-alikes (docs/simulation.md, "Tables"): one cup, changed in one property each.
-PET_STIFF = replace(PET, name="PET, thick wall", stiffness_n_per_mm=0.9)
-PET_WAXED = replace(PET, name="PET, wax film", friction=0.30, stick_slip=0.08)
-# A 0.6 mm PET wall (α ≈ 1.2e-7 m²/s: d²/α ≈ 3 s) with water (e ≈ 1580) behind it.
+PET_STIFF = replace(PET, name="PET, thicker wall", stiffness_n_per_mm=0.68)
+PET_WAXED = replace(PET, name="PET, wax film", friction=0.40, stick_slip=0.16)
+# A 1.4 mm PET wall (α ≈ 1.2e-7 m²/s: d²/α ≈ 16 s) with water (e ≈ 1580) behind it.
 PET_ON_WATER = replace(
-    PET, name="PET wall on water", effusivity=1580.0, coating_effusivity=560.0, coating_time_s=3.0
+    PET, name="PET wall on water", effusivity=1580.0, coating_effusivity=560.0, coating_time_s=16.0
 )
 # Micro-textured steel plates: one relief depth, four pitches (sliding at v excites v / pitch).
 MICRO_TEXTURE = Material("micro-textured steel", 80.0, 0.35, 0.10, 20.0, 0.03, 7600.0)
