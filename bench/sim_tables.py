@@ -26,9 +26,10 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -38,7 +39,7 @@ from app.rig_factory import RigWorld, TouchActions
 from core.designs import random_design
 from core.evaluation import accuracy_by_touch, accuracy_per_object, evaluate
 from core.manifold import FitOptions, fit_manifold
-from core.planning import Planner, make_policy
+from core.planning import ActionBox, Planner, make_policy
 from core.recognition import RecognitionSettings, default_prior
 from core.types import TrainingData
 from core.validation import FloatArray
@@ -143,20 +144,31 @@ def sensitivity(
 
 
 def collect_training(
-    table: str, actions: TouchActions, touches: int, scale: float, seed: int
+    table: str,
+    actions: TouchActions,
+    touches: int,
+    scale: float,
+    seed: int,
+    noise: NoiseModel | None = None,
+    interleave: bool = False,
 ) -> TrainingData:
-    """A random-design training set on the simulated rig (object by object, as ``collect``)."""
+    """A random-design training set on the simulated rig (object by object, as ``collect``;
+    with ``interleave``, round-robin over the objects, so slow drift is spread evenly)."""
     objects = get_table(table).objects
     dx = actions.action_dim
     design = random_design(
         len(objects), touches, np.zeros(dx), scale**2 * np.eye(dx), np.random.default_rng(seed)
     )
-    sim = in_process_rig(objects, seed=seed, rig_config=RigConfig())
+    sim = in_process_rig(objects, seed=seed, rig_config=RigConfig(), noise=noise)
     observations = np.empty((design.actions.shape[0], 5))
+    order = np.arange(design.actions.shape[0])
+    if interleave:
+        order = order.reshape(len(objects), touches).T.reshape(-1)
     try:
         with sim.rig.acquire("bench.sim_tables") as lease:
             lease.connect()
-            for k, (obj, x) in enumerate(zip(design.object_index, design.actions, strict=True)):
+            for k in order:
+                obj, x = design.object_index[k], design.actions[k]
                 observations[k] = actions.touch(lease, x, slot=int(obj)).observation
     finally:
         sim.close()
@@ -171,6 +183,8 @@ def trials(
     steps: int,
     seed: int,
     log: Any,
+    noise: NoiseModel | None = None,
+    box_std: float = 0.0,
 ) -> dict[str, Any]:
     """Fit ds = 2, then simulated-rig trials per policy; accuracy by touch and per object."""
     start = time.perf_counter()
@@ -182,8 +196,12 @@ def trials(
     results: dict[str, Any] = {"fit_s": fit_s, "log_likelihood": model.log_likelihood}
     objects = get_table(table).objects
     for k, name in enumerate(POLICIES):
-        planner = Planner(model, make_policy(name))
-        sim = in_process_rig(objects, seed=seed + 100 + k, rig_config=RigConfig())
+        box = None
+        if box_std > 0:
+            centre, spread = data.actions.mean(axis=0), data.actions.std(axis=0)
+            box = ActionBox(centre - box_std * spread, centre + box_std * spread)
+        planner = Planner(model, make_policy(name), box=box)
+        sim = in_process_rig(objects, seed=seed + 100 + k, rig_config=RigConfig(), noise=noise)
         begin = time.perf_counter()
         try:
             with sim.rig.acquire("bench.sim_tables") as lease:
@@ -242,6 +260,17 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, default=10, help="T, touches per trial.")
     parser.add_argument("--repeats", type=int, default=12, help="Noisy touches for Σ.")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--no-drift", action="store_true", help="Switch the slow drift off.")
+    parser.add_argument(
+        "--box-std",
+        type=float,
+        default=0.0,
+        help="Plan within mean ± this many std of the training actions (0: their full range).",
+    )
+    parser.add_argument("--data", help="Training set cache (.npz): loaded if present, else saved.")
+    parser.add_argument(
+        "--interleave", action="store_true", help="Collect round-robin over the objects."
+    )
     parser.add_argument("--json", action="store_true", help="Print one JSON document.")
     args = parser.parse_args(argv)
 
@@ -269,10 +298,43 @@ def main(argv: list[str] | None = None) -> None:
             ]
         if args.part in ("trials", "both"):
             start = time.perf_counter()
-            data = collect_training(args.table, actions, args.touches, args.action_scale, args.seed)
+            noise = replace(NoiseModel(), drift=NO_DRIFT) if args.no_drift else None
+            if args.data and os.path.exists(args.data):
+                cached = np.load(args.data)
+                data = TrainingData(
+                    get_table(args.table).objects,
+                    cached["object_index"],
+                    cached["actions"],
+                    cached["observations"],
+                )
+            else:
+                data = collect_training(
+                    args.table,
+                    actions,
+                    args.touches,
+                    args.action_scale,
+                    args.seed,
+                    noise,
+                    args.interleave,
+                )
+                if args.data:
+                    np.savez(
+                        args.data,
+                        object_index=data.object_index,
+                        actions=data.actions,
+                        observations=data.observations,
+                    )
             log(f"collected {data.n_touches:d} touches in {time.perf_counter() - start:.0f} s")
             report["trials"] = trials(
-                args.table, actions, data, args.trials, args.steps, args.seed, log
+                args.table,
+                actions,
+                data,
+                args.trials,
+                args.steps,
+                args.seed,
+                log,
+                noise,
+                args.box_std,
             )
     if args.json:
         sys.stdout.write(json.dumps(report) + "\n")
