@@ -341,6 +341,7 @@ class RigWorld:
         self._mean = np.asarray(action_mean, dtype=np.float64).reshape(dx)
         self._cov = np.asarray(action_cov, dtype=np.float64).reshape(dx, dx)
         self.touches = 0
+        self._last_slot: int | None = None
 
     @property
     def object_names(self) -> tuple[str, ...]:
@@ -375,6 +376,19 @@ class RigWorld:
         """
         raise ConfigurationError("a rig has no known mean response; touch it (observe).")
 
+    def reseat(self) -> None:
+        """Turn the last touched object away and back, as between trials (a new placement).
+
+        Call it between trials (e.g. from :func:`core.evaluation.evaluate`'s callback): the
+        touches of one trial share the object's placement; separate trials should not.
+        """
+        if self._last_slot is None:
+            return
+        others = [s for s in self.slots.values() if s != self._last_slot]
+        if others:
+            self.lease.move_to_slot(others[0])
+        self._last_slot = None
+
     def observe(
         self, object_index: int, actions: FloatArray, rng: np.random.Generator
     ) -> FloatArray:
@@ -388,6 +402,7 @@ class RigWorld:
                 f"actions: expected shape (M, {self.action_dim}), received {x.shape}."
             )
         slot = self.slots[self._names[object_index]]
+        self._last_slot = slot
         rows = []
         for action in x:
             rows.append(self.actions.touch(self.lease, action, slot=slot).observation)
