@@ -17,7 +17,8 @@ temperature see one heat exchange), so this module fits the GPs to y' = M (y - c
 ``noise_model="auto"`` keeps the correlated model when its leave-one-out predictive
 log-likelihood of the raw observations beats the independent one's by more than the number of
 correlations it estimated, dy(dy-1)/2 nats (an AIC-like allowance: those correlations were also
-estimated from the left-out touch). See docs/noise-model.md for the comparison on data.
+estimated from the left-out touch), and by more than two standard errors of the paired
+per-touch differences. See docs/noise-model.md for the comparison on data.
 """
 
 from __future__ import annotations
@@ -210,12 +211,15 @@ def within_object_transform(data: TrainingData) -> ObservationTransform:
     return whitening_transform(base, covariance, "pooled within-object covariance")
 
 
-def loo_log_likelihood(model: ManifoldModel) -> float | None:
-    """Leave-one-out predictive log-likelihood of the raw training observations, in nats.
+def loo_log_likelihoods(model: ManifoldModel) -> FloatArray | None:
+    """Leave-one-out predictive log-density of every raw training observation, in nats.
 
-    Σ_i Σ_a log N(y'_ai; μ_-i, σ²_-i) + N · log|det M| with σ²_-i = 1/[K_a⁻¹]_ii and
+    Σ_a log N(y'_ai; μ_-i, σ²_-i) + log|det M| per touch i, with σ²_-i = 1/[K_a⁻¹]_ii and
     y'_ai - μ_-i = β_ai / [K_a⁻¹]_ii (exact for the dense and Kronecker posteriors, at the fitted
     latents and hyperparameters). ``None`` for a sparse posterior (no exact leave-one-out).
+
+    Returns:
+        Shape (N,), or ``None``.
     """
     posterior = model.posterior
     if posterior.structure == "sparse":
@@ -224,7 +228,13 @@ def loo_log_likelihood(model: ManifoldModel) -> float | None:
     log_density = 0.5 * np.log(diagonal) - 0.5 * posterior.beta**2 / diagonal
     log_density -= 0.5 * np.log(2.0 * np.pi)
     jacobian = 0.0 if model.transform is None else model.transform.log_jacobian
-    return float(log_density.sum() + model.data.n_touches * jacobian)
+    return np.asarray(log_density.sum(axis=0) + jacobian, dtype=np.float64)
+
+
+def loo_log_likelihood(model: ManifoldModel) -> float | None:
+    """Sum of :func:`loo_log_likelihoods` (``None`` for a sparse posterior)."""
+    values = loo_log_likelihoods(model)
+    return None if values is None else float(values.sum())
 
 
 def _stage(
@@ -294,9 +304,14 @@ def _with_note(model: ManifoldModel, note: str) -> ManifoldModel:
 
 
 def _choose(independent: ManifoldModel, correlated: ManifoldModel) -> ManifoldModel:
-    """``"auto"``: the correlated model if its LOO gain exceeds dy(dy-1)/2 nats."""
-    loo_independent = loo_log_likelihood(independent)
-    loo_correlated = loo_log_likelihood(correlated)
+    """``"auto"``: the correlated model if its leave-one-out gain is clear.
+
+    Clear: the total gain Σ_i d_i (d_i the per-touch difference of leave-one-out log-densities)
+    exceeds both dy(dy-1)/2 nats (the estimated correlations) and two standard errors of the
+    sum, 2 · sqrt(N) · std(d).
+    """
+    loo_independent = loo_log_likelihoods(independent)
+    loo_correlated = loo_log_likelihoods(correlated)
     dy = independent.data.observation_dim
     allowance = 0.5 * dy * (dy - 1)
     if loo_independent is None or loo_correlated is None:
@@ -305,12 +320,15 @@ def _choose(independent: ManifoldModel, correlated: ManifoldModel) -> ManifoldMo
             "auto: independent (a sparse posterior has no exact leave-one-out likelihood to "
             "compare; ask for 'correlated' explicitly)",
         )
-    gain = loo_correlated - loo_independent
+    differences = loo_correlated - loo_independent
+    gain = float(differences.sum())
+    two_se = float(2.0 * np.sqrt(differences.shape[0]) * differences.std(ddof=1))
     scores = (
-        f"leave-one-out log-likelihood {loo_correlated:.2f} (correlated) vs "
-        f"{loo_independent:.2f} (independent) nats, gain {gain:.2f} against an allowance of "
-        f"{allowance:.0f} for the {allowance:.0f} estimated correlations"
+        f"leave-one-out log-likelihood {loo_correlated.sum():.2f} (correlated) vs "
+        f"{loo_independent.sum():.2f} (independent) nats: gain {gain:.2f}, needed more than "
+        f"{max(allowance, two_se):.2f} (the {allowance:.0f} estimated correlations and two "
+        f"standard errors, {two_se:.2f})"
     )
-    if gain > allowance:
+    if gain > max(allowance, two_se):
         return _with_note(correlated, f"auto: correlated; {scores}")
     return _with_note(independent, f"auto: independent; {scores}")

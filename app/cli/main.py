@@ -257,7 +257,7 @@ def fit(
             mark = " <- chosen" if c.latent_dim == selection.chosen else ""
             stdout.print(
                 f"  ds={c.latent_dim:d}  {c.mean:.3f} ± {c.standard_error:.3f}  "
-                f"vs best {c.difference:+.3f} ± {c.difference_standard_error:.3f}{mark}"
+                f"vs best {c.difference:+.3f} ± {c.difference_standard_error:.3f}{escape(mark)}"
             )
         stdout.print(escape(selection.explanation))
     noise_note = model.transform.note if model.transform is not None else "none"
