@@ -283,7 +283,7 @@ def iter_fit_noise_model(
         transform = correlated_transform(models[-1], base)
         yield from _stage(fit(transform_data(data, transform)), "correlated", models)
         second = attach_transform(models[-1], transform, data)
-        final = second if noise_model == "correlated" else _choose(first, second)
+        final = second if noise_model == "correlated" else choose_noise_model(first, second)
     if final.transform is not None and noise_model != "auto":
         final = _with_note(final, f"{noise_model} (as asked); {final.transform.note}")
     last = FitProgress(
@@ -303,8 +303,8 @@ def _with_note(model: ManifoldModel, note: str) -> ManifoldModel:
     return dataclasses.replace(model, transform=dataclasses.replace(model.transform, note=note))
 
 
-def _choose(independent: ManifoldModel, correlated: ManifoldModel) -> ManifoldModel:
-    """``"auto"``: the correlated model if its leave-one-out gain is clear.
+def choose_noise_model(independent: ManifoldModel, correlated: ManifoldModel) -> ManifoldModel:
+    """``"auto"``: the correlated model if its leave-one-out gain is clear (note added).
 
     Clear: the total gain Σ_i d_i (d_i the per-touch difference of leave-one-out log-densities)
     exceeds both dy(dy-1)/2 nats (the estimated correlations) and two standard errors of the
