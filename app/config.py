@@ -43,6 +43,8 @@ class Settings(BaseSettings):
         migrations_dir: Folder of the Alembic environment.
         viz: Whether ``activetouch serve`` runs the live 3D view (viser) beside the app.
         viz_port: Its port (0: a free one). It binds ``host``, as the app does.
+        dask_scheduler: Address of a Dask scheduler (``tcp://host:8786``) that evaluations
+            run their trials on; none: in-process, or a local cluster of the request's workers.
     """
 
     model_config = SettingsConfigDict(
@@ -65,6 +67,7 @@ class Settings(BaseSettings):
     migrations_dir: Path = PROJECT_ROOT / "migrations"
     viz: bool = True
     viz_port: int = Field(default=8081, ge=0, le=65535)
+    dask_scheduler: str | None = None
 
     @property
     def token(self) -> str | None:

@@ -15,6 +15,8 @@ from sqlalchemy.orm import Session
 
 from app.models import (
     Dataset,
+    Evaluation,
+    EvaluationTrial,
     EventRecord,
     FloatArray,
     ModelRecord,
@@ -379,3 +381,118 @@ def list_objects(session: Session, limit: int, offset: int) -> tuple[list[Object
         select(ObjectRecord).order_by(ObjectRecord.name).limit(limit).offset(offset)
     ).all()
     return list(rows), session.scalar(select(func.count()).select_from(ObjectRecord)) or 0
+
+
+# --- evaluations ------------------------------------------------------------------------------
+
+
+def create_evaluation(session: Session, **fields: Any) -> Evaluation:
+    """Add an evaluation row (flushed, so it has an id)."""
+    evaluation = Evaluation(**fields)
+    session.add(evaluation)
+    session.flush()
+    return evaluation
+
+
+def get_evaluation(session: Session, evaluation_id: int) -> Evaluation | None:
+    """The evaluation with this id, if any."""
+    return session.get(Evaluation, evaluation_id)
+
+
+def list_evaluations(
+    session: Session, model_id: int | None, status: str | None, limit: int, offset: int
+) -> tuple[list[Evaluation], int]:
+    """Evaluations, newest first, filtered by model and status, and the count."""
+    query = select(Evaluation)
+    count_query = select(func.count()).select_from(Evaluation)
+    if model_id is not None:
+        query = query.where(Evaluation.model_id == model_id)
+        count_query = count_query.where(Evaluation.model_id == model_id)
+    if status is not None:
+        query = query.where(Evaluation.status == status)
+        count_query = count_query.where(Evaluation.status == status)
+    rows = session.scalars(query.order_by(Evaluation.id.desc()).limit(limit).offset(offset))
+    return list(rows.all()), session.scalar(count_query) or 0
+
+
+def set_evaluation_status(
+    session: Session, evaluation: Evaluation, status: str, reason: str | None = None
+) -> None:
+    """Change an evaluation's status (timestamps follow); the caller checked the transition."""
+    evaluation.status = status
+    if reason is not None:
+        evaluation.reason = reason
+    now = utc_now()
+    evaluation.updated_at = now
+    if status == "running" and evaluation.started_at is None:
+        evaluation.started_at = now
+    if status not in ACTIVE_STATES:
+        evaluation.finished_at = now
+
+
+def add_evaluation_trial(
+    session: Session, evaluation: Evaluation, record: dict[str, Any]
+) -> EvaluationTrial:
+    """Add a finished trial (a ``TrialRecord.to_dict()``) as number ``done + 1``; bump ``done``.
+
+    Raises:
+        KeyError: ``record`` lacks ``policy``, ``target``, ``trial``, ``correct`` or ``touches``.
+    """
+    row = EvaluationTrial(
+        evaluation_id=evaluation.id,
+        number=evaluation.done + 1,
+        policy=str(record["policy"]),
+        target=str(record["target"]),
+        trial=int(record["trial"]),
+        correct=bool(record["correct"]),
+        touches=int(record["touches"]),
+        record=record,
+    )
+    session.add(row)
+    evaluation.done = row.number
+    evaluation.updated_at = utc_now()
+    return row
+
+
+def evaluation_trials(session: Session, evaluation_id: int) -> list[EvaluationTrial]:
+    """The finished trials of an evaluation, in the order they finished."""
+    return list(
+        session.scalars(
+            select(EvaluationTrial)
+            .where(EvaluationTrial.evaluation_id == evaluation_id)
+            .order_by(EvaluationTrial.number)
+        ).all()
+    )
+
+
+def get_evaluation_trial(
+    session: Session, evaluation_id: int, number: int
+) -> EvaluationTrial | None:
+    """Finished trial ``number`` (1-based, in finishing order) of an evaluation, if any."""
+    return session.scalars(
+        select(EvaluationTrial).where(
+            EvaluationTrial.evaluation_id == evaluation_id, EvaluationTrial.number == number
+        )
+    ).first()
+
+
+def fail_interrupted_evaluations(session: Session, reason: str) -> list[int]:
+    """Mark evaluations left queued/running/paused by a previous process as failed.
+
+    Their finished trials are kept. Commits.
+
+    Returns:
+        The ids that were changed.
+    """
+    ids = list(
+        session.scalars(select(Evaluation.id).where(Evaluation.status.in_(ACTIVE_STATES))).all()
+    )
+    if ids:
+        now = utc_now()
+        session.execute(
+            update(Evaluation)
+            .where(Evaluation.id.in_(ids))
+            .values(status="failed", reason=reason, finished_at=now, updated_at=now)
+        )
+    session.commit()
+    return ids
