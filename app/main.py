@@ -15,6 +15,7 @@ from app.config import Settings
 from app.deps import require_token
 from app.errors import PayloadTooLargeError, install_error_handlers
 from app.routes import collections, datasets, events, health, models, objects, rig, trials
+from app.routes.evaluations import router as evaluations_router
 from app.services.context import start_context
 from app.services.health import version
 
@@ -99,6 +100,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     api = APIRouter(prefix=API_PREFIX, dependencies=[Depends(require_token)])
     for module in (health, objects, datasets, models, trials, rig, collections, events):
         api.include_router(module.router)
+    api.include_router(evaluations_router)
     app.include_router(api)
     if settings.frontend_dir.is_dir():
         app.mount("/", StaticFiles(directory=settings.frontend_dir, html=True), name="frontend")

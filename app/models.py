@@ -258,9 +258,11 @@ class EventRecord(Base):
 class Evaluation(Base):
     """A policy evaluation job (issue 12): its request, state, progress and final summary.
 
-    ``spec`` is the request as the API received it (``EvaluationCreate``); ``summary`` is the
+    ``spec`` is the request as the API received it (``EvaluationCreate``); ``steps`` the T
+    actually run (fewer than asked when a replay pool caps it); ``summary`` is the
     ``activetouch-evaluation/1`` document of the finished report without its ``trials`` (those
-    are :class:`EvaluationTrial` rows, written as each trial finishes).
+    are :class:`EvaluationTrial` rows, written as each trial finishes); ``workers`` is the
+    number asked for until the report says how many ran trials.
     """
 
     __tablename__ = "evaluations"
@@ -273,6 +275,7 @@ class Evaluation(Base):
     reason: Mapped[str | None] = mapped_column(Text, default=None)
     done: Mapped[int] = mapped_column(Integer, default=0)
     total: Mapped[int] = mapped_column(Integer, default=0)
+    steps: Mapped[int] = mapped_column(Integer)  # T run: the request's, or a replay pool's cap
     workers: Mapped[int | None] = mapped_column(Integer, default=None)
     seconds: Mapped[float | None] = mapped_column(Float, default=None)
     summary: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)

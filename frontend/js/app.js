@@ -10,8 +10,9 @@ import * as collection from "./pages/collection.js";
 import * as models from "./pages/models.js";
 import * as trials from "./pages/trials.js";
 import * as history from "./pages/history.js";
+import * as evaluation from "./pages/evaluation.js";
 
-const pages = { rig, objects, collection, models, trials, history };
+const pages = { rig, objects, collection, models, trials, history, evaluation };
 let current = null;
 
 function chip(id, text, kind) {

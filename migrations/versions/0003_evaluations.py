@@ -34,6 +34,7 @@ def upgrade() -> None:
     sa.Column('reason', sa.Text(), nullable=True),
     sa.Column('done', sa.Integer(), nullable=False),
     sa.Column('total', sa.Integer(), nullable=False),
+    sa.Column('steps', sa.Integer(), nullable=False),
     sa.Column('workers', sa.Integer(), nullable=True),
     sa.Column('seconds', sa.Float(), nullable=True),
     sa.Column('summary', sa.JSON(), nullable=True),
