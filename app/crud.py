@@ -465,6 +465,25 @@ def evaluation_trials(session: Session, evaluation_id: int) -> list[EvaluationTr
     )
 
 
+def evaluation_trial_page(
+    session: Session, evaluation_id: int, limit: int, offset: int
+) -> tuple[list[EvaluationTrial], int]:
+    """Finished trials ``offset+1 .. offset+limit`` (in finishing order), and the count."""
+    rows = session.scalars(
+        select(EvaluationTrial)
+        .where(EvaluationTrial.evaluation_id == evaluation_id)
+        .order_by(EvaluationTrial.number)
+        .limit(limit)
+        .offset(offset)
+    ).all()
+    count = session.scalar(
+        select(func.count())
+        .select_from(EvaluationTrial)
+        .where(EvaluationTrial.evaluation_id == evaluation_id)
+    )
+    return list(rows), count or 0
+
+
 def get_evaluation_trial(
     session: Session, evaluation_id: int, number: int
 ) -> EvaluationTrial | None:

@@ -19,7 +19,7 @@ from app import crud
 from app.errors import BadInputError, NotFoundError
 from app.evaluation.report import EvaluationReport
 from app.evaluation.spec import EvaluationSpec
-from app.models import Evaluation, EvaluationTrial
+from app.models import Evaluation, EvaluationTrial, utc_now
 from app.schemas import (
     EvaluationCreate,
     EvaluationPublic,
@@ -90,15 +90,19 @@ def _records(rows: list[EvaluationTrial]) -> tuple[TrialRecord, ...]:
 
 def stored_report(session: Session, row: Evaluation) -> EvaluationReport:
     """The evaluation's report rebuilt from what is stored: its spec, every finished trial, T,
-    time and workers; ``stopped`` unless it completed. For a completed job it is the engine's
-    report (the same document and CSV)."""
+    time (so far, while it runs) and workers; ``stopped`` once it ended without completing. For
+    a completed job it is the engine's report (the same document and CSV)."""
     body = EvaluationCreate.model_validate(row.spec)
+    seconds = row.seconds
+    if seconds is None:  # not ended with a report: the time it has run (or ran) so far
+        started = row.started_at or row.created_at
+        seconds = max(0.0, ((row.finished_at or utc_now()) - started).total_seconds())
     return EvaluationReport(
         spec=build_spec(body),
         records=_records(crud.evaluation_trials(session, row.id)),
-        seconds=row.seconds if row.seconds is not None else 0.0,
+        seconds=seconds,
         workers=row.workers if row.workers is not None else 1,
-        stopped=row.status != "completed",
+        stopped=row.status in ("stopped", "aborted", "failed"),
         object_names=tuple(crud.model_object_names(session, row.model_id)),
         steps=row.steps,
     )
@@ -149,10 +153,8 @@ def trials_page(
 ) -> Page[EvaluationTrialSummary]:
     """The finished trials of an evaluation, in the order they finished."""
     require(session, evaluation_id)
-    rows = crud.evaluation_trials(session, evaluation_id)
-    return Page[EvaluationTrialSummary](
-        data=[_trial_summary(r) for r in rows[offset : offset + limit]], count=len(rows)
-    )
+    rows, count = crud.evaluation_trial_page(session, evaluation_id, limit, offset)
+    return Page[EvaluationTrialSummary](data=[_trial_summary(r) for r in rows], count=count)
 
 
 def trial(session: Session, evaluation_id: int, number: int) -> EvaluationTrialPublic:

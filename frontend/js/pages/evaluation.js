@@ -8,6 +8,7 @@ import * as store from "../store.js";
 import { $, badge, el, fill, guarded, num, setOptions, throttle, toast } from "../ui.js";
 
 const ACTIVE = ["queued", "running", "paused"];
+const SHOWN_TRIALS = 500; // finished trials listed (the newest)
 const POLICY_COLORS = { active: "#1f5fbf", passive: "#d9822b" };
 let evaluation = null; // GET /evaluations/{id}
 let pollTimer = null;
@@ -150,18 +151,11 @@ function render() {
   drawConfusion();
 }
 
-/** "active reaches 95 % accuracy after 3 touches, passive after 6" from the summary. */
+/** The engine's sentence: "active reaches 95 % accuracy after 3 touches, passive after 6". */
 function comparison() {
-  const level = evaluation.spec.confidence ?? 0.95;
-  const entries = policies();
-  if (!entries.length) return "";
-  const text = entries.map(([policy, s], i) => {
-    const touch = s.accuracy_by_touch.findIndex((a) => a >= level) + 1;
-    const when = touch ? `after ${touch} touch${touch === 1 ? "" : "es"}` : `not within ${s.accuracy_by_touch.length} touches`;
-    return i === 0 ? `${policy} reaches ${Math.round(level * 1000) / 10} % accuracy ${when}` : `${policy} ${when}`;
-  });
-  const partial = evaluation.summary.partial ? " (so far)" : "";
-  return `${text.join(", ")}${partial}.`;
+  const summary = evaluation.summary;
+  if (!summary || !summary.comparison) return "";
+  return `${summary.comparison}${summary.partial ? " (so far)" : ""}.`;
 }
 
 function drawAccuracy() {
@@ -294,7 +288,9 @@ function drawConfusion() {
 
 async function renderTrials() {
   const id = evaluation.id;
-  const rows = await apiList(`/evaluations/${id}/trials`, { max: 500, pageSize: 500 });
+  // The newest SHOWN_TRIALS finished trials.
+  const page = await api(`/evaluations/${id}/trials?limit=${SHOWN_TRIALS}&offset=${Math.max(0, evaluation.done - SHOWN_TRIALS)}`);
+  const rows = page.data;
   if (!evaluation || evaluation.id !== id) return;
   const open = (n) => {
     location.hash = `#trials?evaluation=${id}&trial=${n}`;
@@ -314,7 +310,8 @@ async function renderTrials() {
       ),
     ),
   );
-  $("eval-trials-count").textContent = `${evaluation.done} finished trial${evaluation.done === 1 ? "" : "s"}${evaluation.done > rows.length ? ` (the last ${rows.length} listed)` : ""}.`;
+  const count = page.count;
+  $("eval-trials-count").textContent = `${count} finished trial${count === 1 ? "" : "s"}${count > rows.length ? ` (the newest ${rows.length} listed)` : ""}.`;
 }
 
 const reloadSoon = throttle(async () => {

@@ -277,7 +277,7 @@ export async function loadEvaluationTrial(evaluationId, number) {
     "Answer: ",
     el("strong", { "data-testid": "trial-result-object" }, r.answers[last]),
     r.correct ? " ✓ correct" : ` ✗ wrong (target ${r.target})`,
-    el("div", { class: "small muted" }, `after ${r.touches} touch${r.touches === 1 ? "" : "es"} · ${r.stop_reason} · trial ${r.trial} of its cell, seed [${r.seed.join(", ")}]`),
+    el("div", { class: "small muted" }, `after ${r.touches} touch${r.touches === 1 ? "" : "es"} · ${r.stop_reason} · trial index ${r.trial} of its (policy, target) cell, seed [${r.seed.join(", ")}]`),
   );
   fill(
     $("trial-facts"),
