@@ -25,6 +25,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from app.cli.collect import collect_command
+from app.cli.evaluate import evaluate_command
 from app.cli.export import export_app
 from app.cli.output import messages as stderr
 from app.cli.output import results as stdout
@@ -369,6 +370,7 @@ def paper_exp1(
 # Sub-commands that live with the code they drive (modules that import only typer and rich).
 app.add_typer(rig_app, name="rig", help="Check and drive the rig (real ports or --sim).")
 app.command("collect")(collect_command)
+app.command("evaluate")(evaluate_command)
 app.add_typer(export_app, name="export")
 
 #: Context of a command that hands every argument (``--help`` included) to another command.

@@ -11,9 +11,9 @@ import time
 from collections.abc import Callable, Sequence
 
 from app.errors import BadInputError
+from app.evaluation.context import TrialContext
 from app.evaluation.report import EvaluationReport
 from app.evaluation.spec import EvaluationSpec
-from app.evaluation.worlds import TrialContext
 from core.evaluation_records import TrialRecord
 from core.types import ManifoldModel, TrainingData
 
