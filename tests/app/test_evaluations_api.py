@@ -386,7 +386,6 @@ def test_bad_requests_name_what_is_wrong(client: TestClient, settings: Settings)
 
 
 def test_an_unreachable_scheduler_fails_the_job_with_a_clear_reason(tmp_path: Path) -> None:
-    pytest.importorskip("app.evaluation.cluster", reason="the engine's Dask runner is not merged")
     port = _free_port()  # nothing listens there
     settings = make_settings(tmp_path, dask_scheduler=f"tcp://127.0.0.1:{port}")
     with TestClient(create_app(settings)) as client:
@@ -397,6 +396,43 @@ def test_an_unreachable_scheduler_fails_the_job_with_a_clear_reason(tmp_path: Pa
         assert ended["status"] == "failed"
         assert f"127.0.0.1:{port}" in ended["reason"]
         assert ended["done"] == 0
+
+
+def test_the_server_runs_trials_on_its_dask_cluster_or_local_workers(
+    tmp_path: Path, dask_cluster: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """ACTIVETOUCH_DASK_SCHEDULER sends the trials to that cluster; ``workers`` without it
+    starts a local cluster; both give the serial engine's trials."""
+    monkeypatch.setenv("ACTIVETOUCH_DASK_SCHEDULER", dask_cluster.scheduler_address)
+    settings = make_settings(tmp_path)
+    assert settings.dask_scheduler == dask_cluster.scheduler_address
+    body = {"world": "exp1", "trials_per_target": 2, "steps": 3, "seed": 9}
+    model = model_from_document(experiment1_document())
+    serial = run_evaluation(
+        model, EvaluationSpec(world="exp1", trials_per_target=2, steps=3, seed=9)
+    ).to_dict()
+    with TestClient(create_app(settings)) as client:
+        model_id = import_model(client)
+        created = start(client, model_id=model_id, workers=3, **body)  # the cluster wins
+        assert created["workers"] is None
+        ended = wait_ended(client, created["id"])
+        assert ended["status"] == "completed", ended
+        assert ended["workers"] == 2  # the cluster's
+        document = client.get(f"{API}/evaluations/{created['id']}/export").json()
+        assert document["trials"] == serial["trials"]
+        assert document["policies"] == serial["policies"]
+    monkeypatch.delenv("ACTIVETOUCH_DASK_SCHEDULER")
+    local = make_settings(tmp_path / "local")
+    assert local.dask_scheduler is None
+    with TestClient(create_app(local)) as client:
+        model_id = import_model(client)
+        created = start(client, model_id=model_id, workers=2, **body)
+        assert created["workers"] == 2
+        ended = wait_ended(client, created["id"])
+        assert ended["status"] == "completed", ended
+        assert ended["workers"] == 2
+        document = client.get(f"{API}/evaluations/{created['id']}/export").json()
+        assert document["trials"] == serial["trials"]
 
 
 # --- the migration ----------------------------------------------------------------------------
