@@ -418,7 +418,7 @@ class EvaluationCreate(BaseModel):
     )
     trials_per_target: Annotated[int, Field(ge=1, le=100_000)] = 10
     steps: Annotated[int, Field(ge=1, le=1000)] = 10
-    confidence: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.95
+    confidence: Annotated[float, Field(gt=0.0, le=1.0)] = 0.95
     seed: Seed = 0
     table: Name | None = Field(default=None, description="rig only: the simulated rig table.")
     workers: Annotated[int, Field(ge=1, le=256)] | None = None

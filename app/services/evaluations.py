@@ -93,7 +93,8 @@ class EvaluationService:
             ConflictError: (409) the model is still fitting (or failed), the dataset is still
                 being collected, or the server is shutting down.
             BadInputError: (422) a replay without a dataset (or a dataset without replay); a
-                replay dataset whose objects or dimensions do not match the model; an unknown
+                replay of the model's own training data; a replay dataset whose objects or
+                dimensions do not match the model; an unknown
                 policy or world (the message lists the allowed values).
         """
         model = self._models.load(session, body.model_id)
@@ -105,6 +106,14 @@ class EvaluationService:
                     "touches to replay.",
                     field="dataset_id",
                 )
+            fitted_on = crud.get_model(session, body.model_id)
+            if fitted_on is not None and fitted_on.dataset_id == body.dataset_id:
+                raise BadInputError(
+                    f"dataset_id: dataset {body.dataset_id} is the one model {body.model_id} "
+                    "was fitted to; a replay evaluates on held-out touches, never used for "
+                    "fitting.",
+                    field="dataset_id",
+                )
             replay = datasets.load_training_data(session, body.dataset_id)
         elif body.dataset_id is not None:
             raise BadInputError(
@@ -114,6 +123,7 @@ class EvaluationService:
         spec = build_spec(body)
         spec.check(model, replay)
         targets = spec.target_names(model)
+        total = len(spec.policies) * len(targets) * spec.trials_per_target
         workers = None if self._scheduler else body.workers
         if self._closing.is_set():
             raise ConflictError("The server is shutting down.", current_state="shutdown")
@@ -124,7 +134,7 @@ class EvaluationService:
             spec=body.model_dump(mode="json"),
             status="queued",
             done=0,
-            total=len(spec.policies) * len(targets) * spec.trials_per_target,
+            total=total,
             steps=spec.steps_used(model, replay),
             workers=workers,
         )

@@ -329,6 +329,11 @@ def test_bad_requests_name_what_is_wrong(client: TestClient, settings: Settings)
     assert no_dataset.status_code == 422
     assert no_dataset.json()["field"] == "dataset_id"
 
+    trained_on = client.get(f"{API}/models/{model_id}").json()["dataset_id"]
+    own = post(client, model_id=model_id, world="replay", dataset_id=trained_on)
+    assert own.status_code == 422
+    assert "fitted to" in own.json()["detail"]
+
     stray_dataset = post(client, model_id=model_id, world="exp1", dataset_id=1)
     assert stray_dataset.status_code == 422
     assert stray_dataset.json()["field"] == "dataset_id"
