@@ -144,6 +144,10 @@ def test_an_evaluation_runs_to_the_engines_report(client: TestClient) -> None:
     assert listed["count"] == 1
     assert listed["data"][0]["id"] == created["id"]
     assert listed["data"][0]["summary"] == summary
+    filtered = client.get(f"{API}/evaluations?status=completed&model_id={model_id}").json()
+    assert filtered["count"] == 1
+    assert client.get(f"{API}/evaluations?status=running").json()["count"] == 0
+    assert client.get(f"{API}/evaluations?model_id={model_id + 1}").json()["count"] == 0
 
 
 def test_trials_are_readable_one_by_one_and_export_as_csv(client: TestClient) -> None:
