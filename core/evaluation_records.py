@@ -70,6 +70,8 @@ class TrialRecord:
         touches: Touches performed (≤ T; fewer after an early stop).
         stop_reason: ``"max_steps"``, ``"converged"``, ``"confident"`` or ``"pool_exhausted"``.
         correct: Whether the final answer is the target.
+        nearest: The object whose learned latent is nearest the Gaussian belief's mean after
+            each touch (the paper's decision rule), when recorded; empty otherwise.
     """
 
     policy: str
@@ -83,6 +85,7 @@ class TrialRecord:
     touches: int
     stop_reason: str
     correct: bool
+    nearest: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         n = self.touches
@@ -92,6 +95,8 @@ class TrialRecord:
             "actions": len(self.actions),
             "mutual_information": len(self.mutual_information),
         }
+        if self.nearest:
+            lengths["nearest"] = len(self.nearest)
         wrong = {name: length for name, length in lengths.items() if length != n}
         if n < 1 or wrong:
             raise InvalidInputError(
@@ -116,6 +121,20 @@ class TrialRecord:
             )
         return self.answers + (self.answers[-1],) * (steps - self.touches)
 
+    def nearest_by_touch(self, steps: int) -> tuple[str, ...]:
+        """:attr:`nearest` after touch 1..``steps``, carried forward like the answers.
+
+        Raises:
+            InvalidInputError: ``steps`` is smaller than the touches, or nothing was recorded.
+        """
+        if not self.nearest:
+            raise InvalidInputError("nearest: this record has no nearest-latent answers.")
+        if steps < self.touches:
+            raise InvalidInputError(
+                f"steps: {steps} is fewer than the {self.touches} touches of this trial."
+            )
+        return self.nearest + (self.nearest[-1],) * (steps - self.touches)
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready; :meth:`from_dict` gives back an equal record (floats round-trip)."""
         return {
@@ -130,6 +149,7 @@ class TrialRecord:
             "touches": self.touches,
             "stop_reason": self.stop_reason,
             "correct": self.correct,
+            "nearest": list(self.nearest),
         }
 
     @classmethod
@@ -152,6 +172,7 @@ class TrialRecord:
                 touches=int(d["touches"]),
                 stop_reason=str(d["stop_reason"]),
                 correct=bool(d["correct"]),
+                nearest=tuple(str(n) for n in d.get("nearest", ())),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise InvalidInputError(f"trial record: missing or malformed field ({exc}).") from None

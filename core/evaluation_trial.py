@@ -175,6 +175,7 @@ def _record(
         touches=len(steps),
         stop_reason=str(steps[-1].stop_reason),
         correct=answers[-1] == target,
+        nearest=tuple(names[s.nearest_object] for s in steps),
     )
 
 
