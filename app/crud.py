@@ -19,6 +19,7 @@ from app.models import (
     FloatArray,
     ModelRecord,
     ObjectRecord,
+    RequestAudit,
     Run,
     Sample,
     Trial,
@@ -379,3 +380,29 @@ def list_objects(session: Session, limit: int, offset: int) -> tuple[list[Object
         select(ObjectRecord).order_by(ObjectRecord.name).limit(limit).offset(offset)
     ).all()
     return list(rows), session.scalar(select(func.count()).select_from(ObjectRecord)) or 0
+
+
+def add_request_audits(session: Session, rows: Iterable[dict[str, Any]]) -> int:
+    """Insert request-audit rows (``RequestAudit`` columns as keys). Commits; returns how many."""
+    records = [RequestAudit(**row) for row in rows]
+    session.add_all(records)
+    session.commit()
+    return len(records)
+
+
+def list_request_audits(
+    session: Session,
+    limit: int,
+    offset: int,
+    method: str | None = None,
+    path_prefix: str | None = None,
+) -> tuple[list[RequestAudit], int]:
+    """Recorded mutating requests, newest first, and the count (filtered by method and path)."""
+    query = select(RequestAudit)
+    if method is not None:
+        query = query.where(RequestAudit.method == method)
+    if path_prefix is not None:
+        query = query.where(RequestAudit.path.startswith(path_prefix, autoescape=True))
+    rows = session.scalars(query.order_by(RequestAudit.id.desc()).limit(limit).offset(offset)).all()
+    count = session.scalar(select(func.count()).select_from(query.subquery())) or 0
+    return list(rows), count

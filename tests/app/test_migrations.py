@@ -47,7 +47,7 @@ def test_head_matches_the_tables_of_the_app(tmp_path: Path) -> None:
     database = Database(settings.database_url)
     try:
         upgrade_to_head(database.engine, settings.migrations_dir)
-        assert revision_of(database) == "0002"
+        assert revision_of(database) == "0004_request_audit"
         with database.engine.connect() as connection:
             assert compare_metadata(MigrationContext.configure(connection), Base.metadata) == []
     finally:
@@ -76,7 +76,7 @@ def test_models_of_revision_0001_upgrade_and_load_as_before(tmp_path: Path) -> N
         with database.engine.connect() as connection:
             assert connection.execute(text("SELECT count(*) FROM models")).scalar() == 1
         migrate(database, settings.migrations_dir, "head")
-        assert revision_of(database) == "0002"
+        assert revision_of(database) == "0004_request_audit"
         assert "posterior" in model_columns(database)
         store = ModelStore(database, EventBus(database))
         try:
