@@ -48,7 +48,7 @@ class Settings(BaseSettings):
             too) and the 3D view need the token or a signed-in session. ``None`` (default): yes
             when ``host`` is not a loopback address. Set it to true behind a reverse proxy on
             the same machine, where every client appears as loopback.
-        session_ttl_s: How long a dashboard sign-in lasts.
+        session_ttl_s: How long a dashboard sign-in lasts without use (each request renews it).
     """
 
     model_config = SettingsConfigDict(

@@ -25,16 +25,18 @@ def sign_in(
 ) -> SessionStatus:
     """Check the API token once and set an HttpOnly, SameSite=Strict session cookie.
 
-    The cookie holds a random session id issued by the server (never the token); it expires
-    with the session (``session_ttl_s``). The token goes in the body, never in the URL.
+    The cookie holds a random session id issued by the server (never the token). The session
+    ends after ``session_ttl_s`` without use, at sign-out or at a server restart; the cookie when
+    the browser closes. The token goes in the body, never in the URL.
     """
     session = sessions_service.sign_in(
         context.settings, sessions, body.token if body is not None else None
     )
+    # The request presented the token (in its body): the audit records it as authenticated.
+    request.scope.setdefault("state", {})["identity"] = Identity("token")
     response.set_cookie(
         SESSION_COOKIE,
         session.session_id,
-        max_age=int(sessions.ttl_s),
         path="/",
         httponly=True,
         samesite="strict",

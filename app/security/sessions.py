@@ -1,8 +1,10 @@
 """Dashboard sessions: random ids issued by the server, kept in memory with an expiry.
 
 The cookie holds the session id, never the token. The store keeps only a SHA-256 digest of each
-id, so a memory dump of the store is no sign-in. Sessions end at expiry, at sign-out, and when
-the server restarts (the dashboard then asks for the token again).
+id, so a memory dump of the store is no sign-in. A session ends after ``ttl_s`` without use (each
+authenticated request renews it: an open dashboard polls, so it stays signed in while it is
+open), at sign-out, and when the server restarts (the dashboard then asks for the token again).
+The cookie itself has no ``Max-Age``: it goes when the browser closes.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ MAX_SESSIONS = 1000
 
 @dataclass(frozen=True)
 class Session:
-    """A signed-in session: its id (for the cookie, shown once) and when it expires."""
+    """A signed-in session: its id (for the cookie, shown once) and when it expires unless used."""
 
     session_id: str
     expires_at: datetime
@@ -37,7 +39,7 @@ class SessionStore:
     """Sessions in memory; thread-safe.
 
     Args:
-        ttl_s: Lifetime of a session in seconds (> 0).
+        ttl_s: How long a session lives without use, in seconds (> 0).
         clock: Monotonic clock in seconds (tests pass their own).
         max_sessions: Most sessions kept at once.
     """
@@ -58,7 +60,7 @@ class SessionStore:
 
     @property
     def ttl_s(self) -> float:
-        """Lifetime of a session in seconds."""
+        """How long a session lives without use, in seconds."""
         return self._ttl_s
 
     def create(self) -> Session:
@@ -72,7 +74,8 @@ class SessionStore:
         return Session(session_id, datetime.now(UTC) + timedelta(seconds=self._ttl_s))
 
     def is_valid(self, session_id: str | None) -> bool:
-        """Whether ``session_id`` is a live session (an expired one is forgotten)."""
+        """Whether ``session_id`` is a live session; a live one is renewed (``ttl_s`` from now),
+        an expired one forgotten."""
         if not session_id:
             return False
         key = _digest(session_id)
@@ -80,9 +83,11 @@ class SessionStore:
             expiry = self._expiry.get(key)
             if expiry is None:
                 return False
-            if self._clock() >= expiry:
+            now = self._clock()
+            if now >= expiry:
                 del self._expiry[key]
                 return False
+            self._expiry[key] = now + self._ttl_s
             return True
 
     def delete(self, session_id: str | None) -> bool:

@@ -86,9 +86,9 @@ def test_audit_filters_and_session_sign_ins(tmp_path: Path) -> None:
         assert client.post("/api/v1/session", json={"token": TOKEN}).status_code == 200
         client.post("/api/v1/rig/estop", headers={"X-Requested-With": "activetouch"})
         sign_ins = audit_rows(client, path_prefix="/api/v1/session")
-        assert [(r["status_code"], r["authenticated"]) for r in sign_ins] == [
-            (200, False),
-            (401, False),
+        assert [(r["status_code"], r["auth_method"]) for r in sign_ins] == [
+            (200, "token"),  # the token, presented in the body
+            (401, None),
         ]
         estops = audit_rows(client, path_prefix="/api/v1/rig/")
         assert len(estops) == 1
