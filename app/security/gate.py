@@ -31,6 +31,7 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 
 from app.config import Settings
 from app.security.sessions import SESSION_COOKIE, SessionStore
+from app.security.watch import watch_session
 
 MUTATING_METHODS = frozenset({"POST", "PUT", "PATCH", "DELETE"})
 #: Path prefix of the 3D view proxied through the app.
@@ -157,7 +158,8 @@ class AuthGate:
     """ASGI middleware applying :func:`refusal` to every HTTP and websocket request.
 
     It stores the caller's :class:`Identity` in ``scope["state"]["identity"]`` (read by the
-    health check, the session routes and the request audit).
+    health check, the session routes and the request audit). The event stream and websockets
+    opened with a session end when the session does (:mod:`app.security.watch`).
 
     Args:
         app: The wrapped application.
@@ -187,7 +189,16 @@ class AuthGate:
             self.settings, method, scope["path"], identity, headers, self.api_prefix, websocket
         )
         if refused is None:
-            await self.app(scope, receive, send)
+            if identity.method == "session" and (
+                websocket or scope["path"] == f"{self.api_prefix}/events"
+            ):
+                # A long-lived connection: it ends when its session does (sign-out, expiry).
+                session_id = session_id_of(headers)
+                await watch_session(
+                    self.app, scope, receive, send, lambda: self.sessions.is_live(session_id)
+                )
+            else:
+                await self.app(scope, receive, send)
         elif websocket:
             await receive()  # websocket.connect
             # Closing before accepting: the server answers the handshake with HTTP 403.

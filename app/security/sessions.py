@@ -90,6 +90,15 @@ class SessionStore:
             self._expiry[key] = now + self._ttl_s
             return True
 
+    def is_live(self, session_id: str | None) -> bool:
+        """Whether ``session_id`` is a live session, without renewing it (open streams ask
+        this before each chunk; only requests renew a session)."""
+        if not session_id:
+            return False
+        with self._lock:
+            expiry = self._expiry.get(_digest(session_id))
+            return expiry is not None and self._clock() < expiry
+
     def delete(self, session_id: str | None) -> bool:
         """End a session; returns whether it existed."""
         if not session_id:
