@@ -140,7 +140,10 @@ def refusal(
                 "in to the dashboard."
             )
         else:
-            detail = "This server requires 'Authorization: Bearer <token>' for changes."
+            detail = (
+                "This server requires the API token for changes: 'Authorization: Bearer "
+                "<token>', or sign in to the dashboard."
+            )
         return Refusal(401, detail)
     if identity.method == "session" and (mutating or websocket):
         if not same_origin(headers):

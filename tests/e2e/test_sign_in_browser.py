@@ -175,3 +175,55 @@ def test_the_demo_login_link_signs_in_once_and_leaves_the_address(page: Any, dem
     assert TOKEN not in page.url
     assert page.evaluate("() => location.hash") == "#trials"
     assert SESSION_COOKIE in {c["name"] for c in page.context.cookies()}
+
+
+@pytest.fixture(scope="module")
+def local_demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Demo]:
+    """On loopback with a token: reads open, changes need the sign-in (as before)."""
+    database = tmp_path_factory.mktemp("local") / "demo.db"
+    options = DemoOptions(
+        host="127.0.0.1", port=0, viz_port=0, database_url=f"sqlite:///{database}",
+        world="experiment1", touches_per_object=10, latent_dim=1, restarts=1,
+        max_iterations=150, seed=0, api_token=TOKEN, open_browser=False,
+    )  # fmt: skip
+    server = DemoServer(
+        options,
+        console=Console(stderr=True, force_terminal=False),
+        settings_overrides={"_env_file": None},
+    )
+    server.start()
+    try:
+        yield Demo(server=server, state=server.prepare())
+    finally:
+        server.stop()
+
+
+def test_on_loopback_reads_are_open_and_a_change_asks_to_sign_in(
+    page: Any, local_demo: Demo
+) -> None:
+    page.goto(f"{local_demo.server.base_url}/?viz=off#models")
+    expect(page.get_by_test_id("chip-events")).to_have_text("live")
+    expect(page.get_by_test_id("model-row")).to_have_count(1)  # read without signing in
+    expect(page.get_by_test_id("signin-dialog")).to_be_hidden()
+    expect(page.get_by_test_id("signin-button")).to_be_visible()
+    # A change without the session: refused, and the form comes up (not modal: the E-STOP
+    # stays reachable) in view.
+    page.get_by_test_id("estop").click()
+    expect(page.get_by_test_id("toasts")).to_contain_text("E-STOP FAILED")
+    dialog = page.get_by_test_id("signin-dialog")
+    expect(dialog).to_be_visible()
+    expect(dialog).to_be_in_viewport()
+    modal = page.evaluate("() => document.getElementById('signin-dialog').matches(':modal')")
+    assert modal is False
+    save_screenshot(page, "dashboard-sign-in-for-changes")
+    page.get_by_test_id("signin-token").fill(TOKEN)
+    page.get_by_test_id("signin-submit").click()
+    expect(dialog).to_be_hidden()
+    expect(page.get_by_test_id("signout-button")).to_be_visible()
+    page.get_by_test_id("estop").click()
+    expect(page.get_by_test_id("toasts")).to_contain_text("Emergency stop sent")
+    # Sign out: reads stay open on loopback.
+    page.get_by_test_id("signout-button").click()
+    expect(page.get_by_test_id("signin-button")).to_be_visible()
+    expect(page.get_by_test_id("model-row")).to_have_count(1)
+    assert page.request.get(f"{local_demo.server.base_url}/api/v1/trials").status == 200
