@@ -44,10 +44,10 @@ class Settings(BaseSettings):
         viz: Whether ``activetouch serve`` runs the live 3D view (viser) beside the app.
         viz_port: Its port (0: a free one). It binds loopback; off loopback the app proxies it
             at ``/viser/`` behind the sign-in (see :mod:`app.security`).
-        require_auth_for_reads: Whether every ``/api/v1`` request (reads and the event stream
-            too) and the 3D view need the token or a signed-in session. ``None`` (default): yes
-            when ``host`` is not a loopback address. Set it to true behind a reverse proxy on
-            the same machine, where every client appears as loopback.
+        require_auth_for_reads: Lock reads on loopback too: every ``/api/v1`` request (reads
+            and the event stream too) and the 3D view then need the token or a signed-in
+            session, as they always do off loopback. Set it behind a reverse proxy on the same
+            machine, where every client appears as loopback.
         session_ttl_s: How long a dashboard sign-in lasts without use (each request renews it).
     """
 
@@ -71,7 +71,7 @@ class Settings(BaseSettings):
     migrations_dir: Path = PROJECT_ROOT / "migrations"
     viz: bool = True
     viz_port: int = Field(default=8081, ge=0, le=65535)
-    require_auth_for_reads: bool | None = None
+    require_auth_for_reads: bool = False
     session_ttl_s: float = Field(default=12 * 3600.0, gt=0.0, le=30 * 24 * 3600.0)
 
     @property
@@ -84,11 +84,10 @@ class Settings(BaseSettings):
 
     @property
     def reads_need_auth(self) -> bool:
-        """Whether reads need authentication too ("off loopback"): decided by the bind address,
-        not the client's (behind a local proxy or tunnel every client looks like loopback)."""
-        if self.require_auth_for_reads is not None:
-            return self.require_auth_for_reads
-        return not is_loopback(self.host)
+        """Whether reads need authentication too: off loopback (decided by the bind address, not
+        the client's: behind a local proxy or tunnel every client looks like loopback) or when
+        ``require_auth_for_reads`` asks for it."""
+        return self.require_auth_for_reads or not is_loopback(self.host)
 
     def check_safe_to_serve(self) -> None:
         """Refuse to bind a non-loopback address without an API token.

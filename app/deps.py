@@ -10,7 +10,7 @@ from fastapi import Depends, Path, Query, Request
 from sqlalchemy.orm import Session
 
 from app.security.errors import ForbiddenError, UnauthorizedError
-from app.security.gate import MUTATING_METHODS, Identity, identify, refusal
+from app.security.gate import Identity, identify, refusal
 from app.security.sessions import SessionStore
 from app.services.context import AppContext
 
@@ -23,9 +23,6 @@ IdPath = Annotated[int, Path(ge=1, le=MAX_ID)]
 #: Paging of list endpoints.
 Limit = Annotated[int, Query(ge=1, le=1000)]
 Offset = Annotated[int, Query(ge=0, le=MAX_ID)]
-
-
-__all__ = ["MUTATING_METHODS", "ForbiddenError", "UnauthorizedError"]
 
 
 async def get_context(request: Request) -> AppContext:

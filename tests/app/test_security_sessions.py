@@ -88,8 +88,9 @@ def test_off_loopback_is_the_bind_address_or_the_switch(tmp_path: Path) -> None:
     assert refusal(settings, "GET", "/viserx", Identity(), {}, "/api/v1") is None
     locked = make_settings(tmp_path, require_auth_for_reads=True, api_token="t")
     assert locked.reads_need_auth
-    opened = make_settings(tmp_path, host="0.0.0.0", require_auth_for_reads=False, api_token="t")
-    assert not opened.reads_need_auth
+    # Off loopback there is no switch to open reads again.
+    still = make_settings(tmp_path, host="0.0.0.0", require_auth_for_reads=False, api_token="t")
+    assert still.reads_need_auth
 
 
 def test_locking_reads_needs_a_token(tmp_path: Path) -> None:
