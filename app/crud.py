@@ -390,6 +390,14 @@ def add_request_audits(session: Session, rows: Iterable[dict[str, Any]]) -> int:
     return len(records)
 
 
+def prune_request_audits(session: Session, keep: int) -> int:
+    """Delete all but the newest ``keep`` request-audit rows. Commits; returns how many went."""
+    newest = session.scalar(select(func.max(RequestAudit.id))) or 0
+    result = session.execute(delete(RequestAudit).where(RequestAudit.id <= newest - keep))
+    session.commit()
+    return int(getattr(result, "rowcount", 0) or 0)
+
+
 def list_request_audits(
     session: Session,
     limit: int,

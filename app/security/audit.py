@@ -50,12 +50,26 @@ class AuditEntry:
 Writer = Callable[[list[dict[str, Any]]], None]
 
 
-def database_writer(database: Database) -> Writer:
-    """A writer that inserts entries into ``database`` in one transaction."""
+#: Rows kept in the table; older ones are deleted (refused requests are recorded too, so a flood
+#: of them must not fill the disk).
+KEEP_ROWS = 200_000
+#: Rows written between two prunings.
+PRUNE_EVERY = 1000
+
+
+def database_writer(database: Database, keep: int = KEEP_ROWS) -> Writer:
+    """A writer that inserts entries into ``database`` in one transaction and, every
+    :data:`PRUNE_EVERY` rows, keeps only the newest ``keep``."""
+    written = 0
 
     def write(rows: list[dict[str, Any]]) -> None:
+        nonlocal written
         with database.session() as session:
             crud.add_request_audits(session, rows)
+            written += len(rows)
+            if written >= PRUNE_EVERY:
+                written = 0
+                crud.prune_request_audits(session, keep)
 
     return write
 

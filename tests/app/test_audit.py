@@ -4,15 +4,18 @@
 from __future__ import annotations
 
 import threading
+from dataclasses import asdict
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 from alembic.runtime.migration import MigrationContext
 from sqlalchemy import inspect
 
+from app import crud
 from app.db import Database, upgrade_to_head
 from app.main import create_app
-from app.security.audit import AuditEntry, AuditRecorder
+from app.security.audit import PRUNE_EVERY, AuditEntry, AuditRecorder, database_writer
 from tests.app.conftest import TestClient, import_model, make_settings
 from tests.app.test_migrations import migrate
 
@@ -141,8 +144,6 @@ def test_estop_answers_while_the_audit_writer_is_stuck(tmp_path: Path) -> None:
 def test_recorder_close_writes_what_is_queued() -> None:
     written: list[dict[str, Any]] = []
     recorder = AuditRecorder(written.extend)
-    from datetime import UTC, datetime
-
     entry = AuditEntry(datetime.now(UTC), "10.0.0.7", "POST", "/api/v1/x", None, 200, True,
                        "token", 1.5)  # fmt: skip
     for _ in range(3):
@@ -151,6 +152,25 @@ def test_recorder_close_writes_what_is_queued() -> None:
     assert len(written) == 3
     assert written[0]["client"] == "10.0.0.7"
     assert not recorder.submit(entry)  # closed
+
+
+def test_the_table_keeps_the_newest_rows(tmp_path: Path) -> None:
+    settings = make_settings(tmp_path)
+    database = Database(settings.database_url)
+    try:
+        upgrade_to_head(database.engine, settings.migrations_dir)
+        write = database_writer(database, keep=250)
+        entry = AuditEntry(datetime.now(UTC), "10.0.0.9", "POST", "/api/v1/session", None, 401,
+                           False, None, 0.2)  # fmt: skip
+        for _ in range(PRUNE_EVERY // 100):
+            write([asdict(entry)] * 100)  # the last batch reaches PRUNE_EVERY: pruned
+        with database.session() as session:
+            rows, count = crud.list_request_audits(session, limit=1000, offset=0)
+        assert count == 250
+        assert rows[0].id == PRUNE_EVERY
+        assert rows[-1].id == PRUNE_EVERY - 249
+    finally:
+        database.dispose()
 
 
 def test_migration_0004_up_and_down(tmp_path: Path) -> None:

@@ -136,7 +136,7 @@ def test_sign_in_follow_a_trial_live_and_sign_out(page: Any, demo: Demo) -> None
     estop = rows.filter(has_text="POST /api/v1/rig/estop")
     expect(estop).to_have_count(1)
     expect(estop.get_by_test_id("audit-status")).to_have_text("200")
-    save_screenshot(page, "dashboard-history-audit", docs=True)
+    save_screenshot(page, "dashboard-history-audit")
     assert demo.get(f"/trials/{trial_id}")["status"] == "completed"
 
     # Sign out: a fresh page asks for the token again and the API refuses the browser.
