@@ -21,6 +21,7 @@ from app.models import (
     FloatArray,
     ModelRecord,
     ObjectRecord,
+    RequestAudit,
     Run,
     Sample,
     Trial,
@@ -515,3 +516,37 @@ def fail_interrupted_evaluations(session: Session, reason: str) -> list[int]:
         )
     session.commit()
     return ids
+
+
+def add_request_audits(session: Session, rows: Iterable[dict[str, Any]]) -> int:
+    """Insert request-audit rows (``RequestAudit`` columns as keys). Commits; returns how many."""
+    records = [RequestAudit(**row) for row in rows]
+    session.add_all(records)
+    session.commit()
+    return len(records)
+
+
+def prune_request_audits(session: Session, keep: int) -> int:
+    """Delete all but the newest ``keep`` request-audit rows. Commits; returns how many went."""
+    newest = session.scalar(select(func.max(RequestAudit.id))) or 0
+    result = session.execute(delete(RequestAudit).where(RequestAudit.id <= newest - keep))
+    session.commit()
+    return int(getattr(result, "rowcount", 0) or 0)
+
+
+def list_request_audits(
+    session: Session,
+    limit: int,
+    offset: int,
+    method: str | None = None,
+    path_prefix: str | None = None,
+) -> tuple[list[RequestAudit], int]:
+    """Recorded mutating requests, newest first, and the count (filtered by method and path)."""
+    query = select(RequestAudit)
+    if method is not None:
+        query = query.where(RequestAudit.method == method)
+    if path_prefix is not None:
+        query = query.where(RequestAudit.path.startswith(path_prefix, autoescape=True))
+    rows = session.scalars(query.order_by(RequestAudit.id.desc()).limit(limit).offset(offset)).all()
+    count = session.scalar(select(func.count()).select_from(query.subquery())) or 0
+    return list(rows), count

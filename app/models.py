@@ -308,3 +308,21 @@ class EvaluationTrial(Base):
     touches: Mapped[int] = mapped_column(Integer)
     record: Mapped[dict[str, Any]] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utc_now)
+
+
+class RequestAudit(Base):
+    """A mutating API request (``POST``/``PUT``/``PATCH``/``DELETE``), refused ones included:
+    when, from which address, what, the outcome, and whether (and how) it authenticated."""
+
+    __tablename__ = "request_audit"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    time: Mapped[datetime] = mapped_column(UTCDateTime, default=utc_now, index=True)
+    client: Mapped[str | None] = mapped_column(String(100), default=None)
+    method: Mapped[str] = mapped_column(String(10))
+    path: Mapped[str] = mapped_column(String(500))
+    route: Mapped[str | None] = mapped_column(String(200), default=None)
+    status_code: Mapped[int] = mapped_column(Integer)
+    authenticated: Mapped[bool] = mapped_column(Boolean)
+    auth_method: Mapped[str | None] = mapped_column(String(20), default=None)
+    duration_ms: Mapped[float] = mapped_column(Float)

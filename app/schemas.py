@@ -474,3 +474,44 @@ class EvaluationTrialPublic(EvaluationTrialSummary):
     model_id: int
     objects: list[str]
     record: dict[str, Any]
+
+
+class HealthLocked(BaseModel):
+    """``GET /health`` off loopback without the token: that auth is required, nothing more."""
+
+    auth_required: Literal[True] = True
+
+
+class SignIn(BaseModel):
+    """The dashboard's sign-in: the server's API token (kept by no one but the server)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    token: Annotated[str, Field(min_length=1, max_length=1000)]
+
+
+class SessionStatus(BaseModel):
+    """How this request is authenticated, and what the server asks for."""
+
+    authenticated: bool
+    method: Literal["token", "session"] | None
+    auth_required: bool = Field(description="A token is configured: changes need it.")
+    reads_need_auth: bool = Field(
+        description="Off loopback: every request (reads, events, the 3D view) needs it."
+    )
+    expires_at: datetime | None = None
+
+
+class RequestAuditPublic(BaseModel):
+    """A recorded mutating request."""
+
+    id: int
+    time: datetime
+    client: str | None = Field(description="Client address as the server saw it.")
+    method: str
+    path: str
+    route: str | None = Field(description="The matched route template, if any.")
+    status_code: int
+    authenticated: bool
+    auth_method: Literal["token", "session"] | None
+    duration_ms: float

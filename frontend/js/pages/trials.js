@@ -230,6 +230,8 @@ async function loadViser() {
   }
   const params = new URLSearchParams(location.search);
   let url = params.get("viser");
+  // Off loopback the view is proxied by the app (`path`, behind the sign-in); else its port.
+  if (!url && info && info.path) url = new URL(info.path, location.href).href;
   if (!url && info && info.port) url = `${location.protocol}//${location.hostname}:${info.port}/`;
   if (!url) return;
   $("viser-open").href = url;
