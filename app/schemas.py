@@ -83,7 +83,22 @@ class ModelCreate(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     dataset_id: Id
-    latent_dim: Annotated[int, Field(ge=1, le=8)] = 2
+    latent_dim: Annotated[int, Field(ge=1, le=8)] | Literal["auto"] = Field(
+        default=2,
+        description=(
+            "ds, or 'auto': choose it by cross-validated held-out predictive likelihood "
+            "(candidates 1..min(5, L-1); the scores are reported in latent_selection)."
+        ),
+    )
+    noise_model: Literal["auto", "independent", "correlated"] = Field(
+        default="auto",
+        description=(
+            "independent: standardise every feature, independent noise per feature. "
+            "correlated: also whiten the noise covariance across features estimated from the "
+            "residuals of a first fit, then refit. auto: both, keep the correlated model when "
+            "it wins on leave-one-out predictive likelihood (docs/noise-model.md)."
+        ),
+    )
     optimizer: Literal["lbfgs", "de"] = "lbfgs"
     restarts: Annotated[int, Field(ge=0, le=50)] = 2
     seed: Seed | None = None
@@ -139,6 +154,44 @@ class ModelPosterior(BaseModel):
     )
 
 
+class NoiseModelPublic(BaseModel):
+    """The observation noise model a ready model applies (docs/noise-model.md)."""
+
+    kind: Literal["identity", "independent", "correlated"] = Field(
+        description=(
+            "identity: observations used as recorded (models fitted before noise models "
+            "existed); independent: each feature standardised, noise independent per feature; "
+            "correlated: standardised and the noise whitened by the estimated correlation."
+        )
+    )
+    correlation: list[list[float]] = Field(
+        description="Noise correlation across features that the model whitens (dy x dy)."
+    )
+    scale: list[float] = Field(description="Per-feature scale the features are divided by.")
+    note: str = Field(default="", description="How the noise model was chosen.")
+
+
+class LatentCandidatePublic(BaseModel):
+    """Cross-validated held-out score of one candidate latent dimension."""
+
+    latent_dim: int
+    mean: float = Field(description="Mean held-out log-likelihood per touch over folds (nats).")
+    standard_error: float
+    difference: float = Field(description="Mean paired difference to the best candidate.")
+    difference_standard_error: float
+    fold_scores: list[float]
+
+
+class LatentSelectionPublic(BaseModel):
+    """How ``latent_dim: "auto"`` chose ds."""
+
+    chosen: int
+    best: int
+    n_folds: int
+    candidates: list[LatentCandidatePublic]
+    explanation: str
+
+
 class ModelPublic(BaseModel):
     """``GET /models/{id}``."""
 
@@ -165,6 +218,17 @@ class ModelPublic(BaseModel):
             "fitting, for a failed model, and for a model stored before this was recorded (such "
             "a model is conditioned as the default structure 'auto' chooses)."
         ),
+    )
+    noise_model: NoiseModelPublic | None = Field(
+        default=None,
+        description=(
+            "The observation noise model applied (null while fitting or failed). Models stored "
+            "before noise models existed report kind 'identity'."
+        ),
+    )
+    latent_selection: LatentSelectionPublic | None = Field(
+        default=None,
+        description="For latent_dim 'auto': every candidate's score and why ds was chosen.",
     )
     created_at: datetime
     finished_at: datetime | None
