@@ -269,7 +269,7 @@ class TrialCreate(BaseModel):
 
     model_id: Id
     mode: Literal["scripted", "simulated", "rig"]
-    policy: Literal["active", "passive", "fixed"] = "active"
+    policy: Literal["active", "discriminative", "passive", "fixed"] = "active"
     max_steps: Annotated[int, Field(ge=1, le=1000)] = 20
     tolerance: Annotated[float, Field(ge=0.0, le=1e6)] = 1e-3
     confidence_threshold: Annotated[float, Field(gt=0.0, le=1.0)] | None = None
