@@ -66,6 +66,12 @@ class FitOptions:
             analogue of ``ftol``. On large problems the latents then stop creeping along a
             flat ridge (measured at L=100 × M=100: −log p 0.14 % from where 3000 more
             iterations would take it).
+        lbfgs_memory: Correction pairs every L-BFGS-B run keeps (scipy's ``maxcor``, ≥ 1).
+        screen_max_touches: Cap on the screening subsample's total size (0 = no cap): it takes
+            at most ``max(2, screen_max_touches // L)`` touches per object, fewer than
+            ``screen_touches_per_object`` when there are many objects. A dense evaluation
+            costs ~N³, so 25 touches from each of 20 objects (N = 500) screen at a third of
+            the cost of all N = 800 touches, not at the ~1/64 of a small subsample.
     """
 
     optimizer: Optimizer = "lbfgs"
@@ -88,6 +94,8 @@ class FitOptions:
     stall_nats: float = 1e-2
     stall_iterations: int = 20
     stall_relative: float = 1e-6
+    lbfgs_memory: int = 10
+    screen_max_touches: int = 0
 
     def __post_init__(self) -> None:
         if self.optimizer not in OPTIMIZERS:
@@ -106,6 +114,8 @@ class FitOptions:
             "progress_every": 1,
             "n_inducing": 1,
             "stall_iterations": 1,
+            "lbfgs_memory": 1,
+            "screen_max_touches": 0,
         }
         for name, minimum in minimums.items():
             value = getattr(self, name)

@@ -118,10 +118,11 @@ def weighted_gram_difference(
 #: halves, with the off-diagonal block by two GEMMs (``dtrtri`` of OpenBLAS runs at a fraction
 #: of the GEMM rate: at order 400 the recursion is ~2x faster).
 TRIANGULAR_BLOCK = 64
-#: Above this order :func:`inverse_from_cholesky` calls LAPACK ``dpotri`` (measured on
-#: OpenBLAS 0.3, one thread: the recursion wins 1.6-1.7x at orders 200-400, 1.2x at 800, and
-#: breaks even at 1200-2400, where its GEMMs on full triangles waste flops).
-RECURSIVE_INVERSE_MAX = 1024
+#: Above this order :func:`inverse_from_cholesky` calls LAPACK ``dpotri``. Measured with the
+#: scipy-openblas 0.3.31 wheel (AMD EPYC, one thread, interleaved medians): the recursion wins
+#: 1.1-1.2x at orders 100-300; ``dpotri`` wins from ~400 on (1.05x at 500, 1.2-1.3x at 800-1000).
+#: (An older OpenBLAS measured the recursion 1.2x faster at 800; the crossover is BLAS-specific.)
+RECURSIVE_INVERSE_MAX = 384
 
 
 def upper_triangular_inverse(upper: FloatArray) -> FloatArray:
