@@ -16,8 +16,8 @@ from app.deps import require_token
 from app.errors import PayloadTooLargeError, install_error_handlers
 from app.routes import audit as audit_routes
 from app.routes import collections, datasets, events, health, models, objects, rig, trials
-from app.routes.evaluations import router as evaluations_router
 from app.routes import session as session_routes
+from app.routes.evaluations import router as evaluations_router
 from app.security.audit import AuditMiddleware, AuditRecorder, database_writer
 from app.security.gate import AuthGate
 from app.security.sessions import SessionStore
