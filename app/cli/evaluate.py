@@ -165,7 +165,7 @@ def evaluate_command(
     from app.cli.main import load_model
     from app.errors import AppError
     from app.evaluation.runner import run_evaluation
-    from app.evaluation.spec import EvaluationSpec
+    from app.evaluation.spec import EvaluationSpec, world_name
     from core.errors import CoreError
 
     if workers is not None and scheduler is not None:
@@ -174,8 +174,12 @@ def evaluate_command(
     check_output(plot, "--plot")
     model = load_model(model_path)
     replay = read_data(data) if data is not None else None
+    try:
+        known_world = world_name(world)
+    except AppError as exc:
+        raise fail(_message(exc)) from None
     spec = EvaluationSpec(
-        world=world,
+        world=known_world,
         trials_per_target=trials,
         steps=steps,
         policies=split_names(policies, "--policies") or (),

@@ -1,9 +1,10 @@
 """Trials as tasks on Dask distributed: a ``LocalCluster`` of single-threaded processes, or an
 existing scheduler.
 
-The :class:`~app.evaluation.worlds.TrialContext` (model, spec, replay pools) is scattered to every
-worker once (``broadcast=True``); a task carries only the trial's key (policy, target, index) and
-a reference to that context, and returns one :class:`~core.evaluation_records.TrialRecord`.
+The :class:`~app.evaluation.context.TrialContext` (model, spec, replay pools) is scattered to
+every worker once (``broadcast=True``); a task carries only the keys (policy, target, index) of a
+batch of trials (up to :data:`MAX_BATCH`, at least :data:`TASKS_PER_WORKER` tasks per worker) and
+a reference to that context, and returns their :class:`~core.evaluation_records.TrialRecord`.
 Planners and their candidate statistics are built once per worker process, on its first trial.
 At most a few tasks per worker are queued at a time, so a stop cancels little and results come
 back as they finish.
@@ -16,7 +17,7 @@ from collections.abc import Callable
 from typing import Any
 
 from app.errors import BadInputError
-from app.evaluation.context import TrialContext, TrialKey, run_trial_task
+from app.evaluation.context import TrialContext, TrialKey, run_trials_task
 from core.evaluation_records import TrialRecord
 
 #: Environment of every worker process: BLAS on one thread (the worker's one core).
@@ -27,6 +28,12 @@ CONNECT_TIMEOUT_S = 5.0
 
 #: Tasks queued per worker beyond the one it runs.
 QUEUE_PER_WORKER = 2
+
+#: Most trials in one task.
+MAX_BATCH = 16
+
+#: Fewest tasks per worker when the trials are split into batches.
+TASKS_PER_WORKER = 4
 
 
 def local_cluster(workers: int) -> Any:
@@ -72,6 +79,16 @@ def connect(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> Any:
     return client
 
 
+def batches(keys: list[TrialKey], n_workers: int) -> list[list[TrialKey]]:
+    """Split the trials into tasks of up to :data:`MAX_BATCH` trials, ≥ 4 tasks per worker.
+
+    A task of several trials pays the scheduler's round trip once for all of them; small runs
+    keep one trial per task so every worker gets work.
+    """
+    size = max(1, min(MAX_BATCH, len(keys) // (TASKS_PER_WORKER * n_workers)))
+    return [keys[i : i + size] for i in range(0, len(keys), size)]
+
+
 def run_on_cluster(
     context: TrialContext,
     keys: list[TrialKey],
@@ -80,7 +97,7 @@ def run_on_cluster(
     workers: int | None,
     scheduler: str | None,
 ) -> tuple[bool, int]:
-    """Run ``keys`` as tasks; ``collect`` each record in this thread as it finishes.
+    """Run ``keys`` as tasks; ``collect`` each record in this thread as its task finishes.
 
     Returns:
         (stopped, number of workers).
@@ -100,20 +117,22 @@ def run_on_cluster(
     try:
         n_workers = max(1, len(client.scheduler_info(n_workers=-1)["workers"]))
         [shared] = client.scatter([context], broadcast=True, hash=False)
-        pending = iter(keys)
+        pending = iter(batches(keys, n_workers))
         window = n_workers * (1 + QUEUE_PER_WORKER)
 
-        def submit(key: TrialKey) -> Any:
-            policy, target, trial = key
-            return client.submit(
-                run_trial_task, shared, key, pure=False, key=f"trial-{policy}-{target}-{trial}"
-            )
+        def submit(batch: list[TrialKey]) -> Any:
+            policy, target, trial = batch[0]
+            name = f"trials-{policy}-{target}-{trial}-{len(batch)}"
+            return client.submit(run_trials_task, shared, batch, pure=False, key=name)
 
-        first = [submit(k) for _, k in zip(range(window), pending, strict=False)]
-        futures = as_completed(first, loop=client.loop)
+        first = [submit(b) for _, b in zip(range(window), pending, strict=False)]
+        # Results are fetched in the background as tasks finish (with_results), not one round
+        # trip at a time from this thread.
+        futures = as_completed(first, with_results=True, loop=client.loop)
         stopped = False
-        for future in futures:
-            collect(future.result())
+        for _, records in futures:
+            for record in records:
+                collect(record)
             if stop():
                 stopped = True
                 break

@@ -42,14 +42,17 @@ TrialKey = tuple[str, str, int]
 def rig_tables() -> dict[str, tuple[str, ...]]:
     """Simulated rig tables by name: ``default`` and any table ``hardware.sim.materials`` names.
 
-    ``hardware.sim.materials.TABLES`` (name → object names), when it exists, adds its tables.
+    ``hardware.sim.materials.TABLES`` (name → a table with ``objects``, or the object names),
+    when it exists, adds its tables.
     """
     from hardware.sim import materials
 
     tables: dict[str, tuple[str, ...]] = {"default": tuple(materials.DEFAULT_TABLE)}
     extra = getattr(materials, "TABLES", None)
     if isinstance(extra, dict):
-        tables.update({str(k): tuple(v) for k, v in extra.items()})
+        for name, table in extra.items():
+            objects: Any = getattr(table, "objects", table)
+            tables[str(name)] = tuple(str(o) for o in objects)
     return tables
 
 
@@ -210,6 +213,6 @@ class TrialContext:
                     rig.close()
 
 
-def run_trial_task(context: TrialContext, key: TrialKey) -> TrialRecord:
-    """The task of one trial (runs on a worker; ``context`` is the worker's scattered copy)."""
-    return context.run(key)
+def run_trials_task(context: TrialContext, keys: list[TrialKey]) -> list[TrialRecord]:
+    """The task of a batch of trials (runs on a worker; ``context`` is its scattered copy)."""
+    return [context.run(key) for key in keys]

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal, get_args
+from typing import Literal, cast, get_args
 
 from app.errors import BadInputError
 from core.evaluation_trial import POLICIES, TrialSettings
@@ -39,7 +39,7 @@ class EvaluationSpec:
         prior_variance: Σ0 = prior_variance · I.
     """
 
-    world: str
+    world: WorldName
     trials_per_target: int
     steps: int
     policies: tuple[str, ...] = ("active", "passive")
@@ -121,3 +121,16 @@ class EvaluationSpec:
         from app.evaluation.worlds import check_world
 
         check_world(self, model, replay)
+
+
+def world_name(value: str) -> WorldName:
+    """``value`` as a world name.
+
+    Raises:
+        BadInputError: Not a world (the message lists them).
+    """
+    if value not in WORLDS:
+        raise BadInputError(
+            f"world: {value!r} is not a world; choose from {list(WORLDS)}.", field="world"
+        )
+    return cast(WorldName, value)

@@ -7,6 +7,7 @@ import pytest
 
 from app.documents import model_from_document
 from app.errors import BadInputError
+from app.evaluation.cluster import batches
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
 from core.types import ManifoldModel
@@ -60,9 +61,20 @@ def test_stopping_a_cluster_run_keeps_finished_trials(model, dask_cluster):
         should_stop=lambda: len(seen) >= 3,
     )
     assert stopped.stopped
-    assert len(stopped.records) == 3
+    # Stop is polled as each task (a batch of trials) finishes: no new task starts after it.
+    assert 3 <= len(stopped.records) < len(serial.records)
+    assert len(seen) == len(stopped.records)
     by_key = {r.key: r for r in serial.records}
     assert all(by_key[r.key] == r for r in stopped.records)
+
+
+def test_trials_are_batched_with_at_least_four_tasks_per_worker():
+    keys = [("active", "O1", i) for i in range(100)]
+    tasks = batches(keys, 2)
+    assert [k for task in tasks for k in task] == keys
+    assert {len(t) for t in tasks[:-1]} == {12}  # 100 // (4 · 2)
+    assert len(batches(keys[:5], 2)) == 5
+    assert max(len(t) for t in batches(keys * 10, 1)) == 16
 
 
 def test_an_unreachable_scheduler_is_named(model):

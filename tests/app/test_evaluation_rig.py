@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from app.errors import BadInputError
+from app.evaluation.context import rig_tables
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
-from app.evaluation.worlds import rig_tables
 from app.rig_factory import SimulationMode, TouchActions, iter_collect, open_rig
 from core.manifold import FitOptions, fit_manifold
 from core.types import ManifoldModel, TrainingData
@@ -72,3 +72,24 @@ def test_rig_targets_must_be_model_objects(rig_model):
 def test_an_unknown_table_lists_the_tables(rig_model):
     with pytest.raises(BadInputError, match=r"table: 'kitchen'.*'default'"):
         run_evaluation(rig_model, spec(table="kitchen"))
+
+
+def test_tables_come_by_name_from_the_simulator(monkeypatch):
+    from dataclasses import dataclass
+
+    from hardware.sim import materials
+
+    @dataclass(frozen=True)
+    class Table:
+        objects: tuple[str, ...]
+
+    monkeypatch.setattr(
+        materials,
+        "TABLES",
+        {"cups": Table(("paper_cup", "pet_cup")), "plain": ("wooden_block", "cork_board")},
+        raising=False,
+    )
+    tables = rig_tables()
+    assert tables["cups"] == ("paper_cup", "pet_cup")
+    assert tables["plain"] == ("wooden_block", "cork_board")
+    assert tables["default"] == tuple(materials.DEFAULT_TABLE)
