@@ -30,6 +30,8 @@ logger = logging.getLogger(__name__)
 MAX_PENDING = 10_000
 #: Entries written per transaction at most.
 BATCH_SIZE = 200
+#: Seconds the writer gathers entries before a transaction.
+GATHER_S = 0.25
 
 
 @dataclass(frozen=True)
@@ -80,10 +82,14 @@ class AuditRecorder:
     Args:
         write: Stores a batch of rows (:func:`database_writer`).
         max_pending: Queue bound.
+        gather_s: How long the writer gathers entries after the first before it writes.
     """
 
-    def __init__(self, write: Writer, max_pending: int = MAX_PENDING) -> None:
+    def __init__(
+        self, write: Writer, max_pending: int = MAX_PENDING, gather_s: float = GATHER_S
+    ) -> None:
         self._write = write
+        self._gather_s = gather_s
         self._queue: queue.Queue[AuditEntry | None] = queue.Queue(maxsize=max_pending)
         self._thread = threading.Thread(target=self._run, name="request-audit", daemon=True)
         self.dropped = 0
@@ -130,9 +136,12 @@ class AuditRecorder:
         while True:
             first = self._queue.get()
             batch = [first]
-            while len(batch) < BATCH_SIZE:
+            # Gather for a moment: fewer, larger transactions leave SQLite's write lock to the
+            # requests themselves (an e-stop's own event, say) most of the time.
+            deadline = time.monotonic() + self._gather_s
+            while len(batch) < BATCH_SIZE and batch[-1] is not None:
                 try:
-                    batch.append(self._queue.get_nowait())
+                    batch.append(self._queue.get(timeout=max(0.0, deadline - time.monotonic())))
                 except queue.Empty:
                     break
             entries = [entry for entry in batch if entry is not None]

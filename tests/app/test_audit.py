@@ -127,7 +127,7 @@ def test_estop_answers_while_the_audit_writer_is_stuck(tmp_path: Path) -> None:
 
     with TestClient(create_app(make_settings(tmp_path))) as client:
         client.app.state.audit.close()  # type: ignore[attr-defined]
-        recorder = AuditRecorder(stuck, max_pending=2).start()
+        recorder = AuditRecorder(stuck, max_pending=2, gather_s=0.0).start()
         client.app.state.audit = recorder  # type: ignore[attr-defined]
         statuses = [client.post("/api/v1/rig/estop").status_code for _ in range(5)]
         assert statuses == [200] * 5

@@ -130,11 +130,12 @@ def test_sign_in_follow_a_trial_live_and_sign_out(page: Any, demo: Demo) -> None
     page.get_by_test_id("nav-history").click()
     rows = page.get_by_test_id("audit-row")
     started = rows.filter(has_text="POST /api/v1/trials").filter(has_text="201")
-    expect(started).to_have_count(1)
+    # Rows are written a moment after each answer; the page re-reads them every 3 s.
+    expect(started).to_have_count(1, timeout=15_000)
     expect(started.get_by_test_id("audit-client")).to_have_text("127.0.0.1")
     expect(started.get_by_test_id("audit-auth")).to_have_text("yes (signed-in dashboard)")
     estop = rows.filter(has_text="POST /api/v1/rig/estop")
-    expect(estop).to_have_count(1)
+    expect(estop).to_have_count(1, timeout=15_000)
     expect(estop.get_by_test_id("audit-status")).to_have_text("200")
     save_screenshot(page, "dashboard-history-audit")
     assert demo.get(f"/trials/{trial_id}")["status"] == "completed"

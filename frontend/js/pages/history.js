@@ -196,6 +196,9 @@ async function refreshAudit() {
 }
 
 const refreshAuditSoon = throttle(() => refreshAudit().catch(() => {}), 1500);
+// The server writes audit rows a moment after each answer (off the request path): while the
+// page is open, the table is re-read every few seconds.
+const AUDIT_POLL_MS = 3000;
 
 export function init() {
   $("history-form").addEventListener("submit", (e) => {
@@ -209,6 +212,9 @@ export function init() {
     guarded(runBatch, e.submitter);
   });
   $("audit-refresh").addEventListener("click", (e) => guarded(refreshAudit, e.currentTarget));
+  setInterval(() => {
+    if (!$("page-history").hidden && !document.hidden) refreshAuditSoon();
+  }, AUDIT_POLL_MS);
 }
 
 export async function show() {
