@@ -116,6 +116,24 @@ def attach_transform(
     )
 
 
+def gram_inverse_diagonal(model: ManifoldModel) -> FloatArray | None:
+    """diag(K_a⁻¹) of every feature in data order (dy, N); ``None`` for a sparse posterior.
+
+    A Kronecker posterior gives it from its eigendecompositions without materialising K⁻¹:
+    diag(K⁻¹)[(l, m)] = Σ_jk U_s[l, j]² U_x[m, k]² / D[j, k]  (O(L² M + L M²) per feature).
+    """
+    posterior = model.posterior
+    factors = posterior.kronecker
+    if factors is not None:
+        latent_sq = factors.latent_eigenvectors**2  # (dy, L, L)
+        action_sq = factors.action_eigenvectors**2  # (dy, M, M)
+        grid = latent_sq @ (1.0 / factors.spectrum) @ np.swapaxes(action_sq, 1, 2)  # (dy, L, M)
+        return np.asarray(grid.reshape(grid.shape[0], -1)[:, factors.grid_index])
+    if posterior.structure == "sparse":
+        return None
+    return np.asarray(np.diagonal(posterior.gram_inverse, axis1=1, axis2=2))
+
+
 def standardised_residuals(model: ManifoldModel) -> FloatArray:
     """Residuals of the model-space training observations, each standardised. Shape (N, dy).
 
@@ -123,10 +141,9 @@ def standardised_residuals(model: ManifoldModel) -> FloatArray:
     (the left-out residual divided by its predictive standard deviation, Rasmussen & Williams
     §5.4.2); the posterior residuals y' - m' divided by sqrt(v') for a sparse model.
     """
-    posterior = model.posterior
-    if posterior.structure != "sparse":
-        diagonal = np.diagonal(posterior.gram_inverse, axis1=1, axis2=2)  # (dy, N)
-        return np.asarray((posterior.beta / np.sqrt(diagonal)).T, dtype=np.float64)
+    diagonal = gram_inverse_diagonal(model)  # (dy, N)
+    if diagonal is not None:
+        return np.asarray((model.posterior.beta / np.sqrt(diagonal)).T, dtype=np.float64)
     data = model.data
     mean, variance = predict_model_space(model, model.latents[data.object_index], data.actions)
     return np.asarray((data.observations - mean) / np.sqrt(variance), dtype=np.float64)
@@ -221,11 +238,10 @@ def loo_log_likelihoods(model: ManifoldModel) -> FloatArray | None:
     Returns:
         Shape (N,), or ``None``.
     """
-    posterior = model.posterior
-    if posterior.structure == "sparse":
+    diagonal = gram_inverse_diagonal(model)  # (dy, N)
+    if diagonal is None:
         return None
-    diagonal = np.diagonal(posterior.gram_inverse, axis1=1, axis2=2)  # (dy, N)
-    log_density = 0.5 * np.log(diagonal) - 0.5 * posterior.beta**2 / diagonal
+    log_density = 0.5 * np.log(diagonal) - 0.5 * model.posterior.beta**2 / diagonal
     log_density -= 0.5 * np.log(2.0 * np.pi)
     jacobian = 0.0 if model.transform is None else model.transform.log_jacobian
     return np.asarray(log_density.sum(axis=0) + jacobian, dtype=np.float64)
