@@ -69,6 +69,7 @@ import scipy.optimize
 from core.errors import ConvergenceError, InvalidInputError, NotPositiveDefiniteError
 from core.fit_options import FitOptions, FitProgress
 from core.hyperparameter_fit import (
+    DEFAULT_LBFGS_MEMORY,
     FAILED_VALUE,
     SeparableProgress,
     SeparableResult,
@@ -432,7 +433,7 @@ class FitRun:
                 options.stall_nats,
                 options.stall_iterations,
                 options.stall_relative,
-                options.lbfgs_memory,
+                options.joint_lbfgs_memory if problem is self.full else DEFAULT_LBFGS_MEMORY,
             )
 
         stream = stream_optimiser(run, options.progress_every)

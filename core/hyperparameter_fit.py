@@ -36,6 +36,9 @@ from core.validation import FloatArray
 #: A value returned to the optimiser where the Gram matrix stays singular even with jitter.
 FAILED_VALUE = 1e30
 
+#: L-BFGS-B correction pairs unless told otherwise (scipy's default ``maxcor``).
+DEFAULT_LBFGS_MEMORY = 10
+
 BoolArray = np.ndarray[Any, np.dtype[np.bool_]]
 
 
@@ -52,7 +55,7 @@ def minimize_free(
     stall_nats: float = 0.0,
     stall_iterations: int = 20,
     stall_relative: float = 0.0,
-    memory: int = 10,
+    memory: int = DEFAULT_LBFGS_MEMORY,
 ) -> scipy.optimize.OptimizeResult:
     """L-BFGS-B with the analytic gradient over ``base[free]`` (the rest held fixed).
 
@@ -193,7 +196,7 @@ def iter_fit_separately(
     stall_nats: float = 0.0,
     stall_iterations: int = 20,
     stall_relative: float = 0.0,
-    memory: int = 10,
+    memory: int = DEFAULT_LBFGS_MEMORY,
 ) -> Generator[SeparableProgress, None, SeparableResult]:
     """Optimise every feature's hyperparameters separately, S fixed (see the module docstring).
 

@@ -156,19 +156,22 @@ def upper_triangular_inverse(upper: FloatArray) -> FloatArray:
     return out
 
 
-def inverse_from_cholesky(upper: FloatArray) -> FloatArray:
+def inverse_from_cholesky(upper: FloatArray, overwrite: bool = False) -> FloatArray:
     """A⁻¹ = U⁻¹ U⁻ᵀ from the upper Cholesky factor of A = UᵀU (``dpotri`` by
     :func:`upper_triangular_inverse` and LAPACK ``dlauum``).
 
     Args:
         upper: U, Fortran-ordered for speed; strictly lower triangle zero. Shape (n, n).
+        overwrite: Let LAPACK ``dpotri`` work in ``upper``'s memory (no copy of the
+            factor); ``upper`` is then lost. Only orders above :data:`RECURSIVE_INVERSE_MAX`
+            reach ``dpotri``.
 
     Returns:
         Fortran-ordered (n, n): the upper triangle (diagonal included) holds A⁻¹, the strictly
         lower triangle is zero. Its C-ordered transpose has A⁻¹ in the lower triangle.
     """
     if upper.shape[0] > RECURSIVE_INVERSE_MAX:
-        product, info = scipy.linalg.lapack.dpotri(upper, lower=0)
+        product, info = scipy.linalg.lapack.dpotri(upper, lower=0, overwrite_c=int(overwrite))
         if info != 0:  # pragma: no cover - the factor came from a successful Cholesky
             raise NotPositiveDefiniteError(f"dpotri failed (info {info}).")
         return np.asarray(product, dtype=np.float64)

@@ -13,7 +13,7 @@ from core.types import TrainingData
 from core.worlds import random_experiment2_world, sample_dataset
 
 
-def test_more_lbfgs_memory_reaches_the_optimum_in_fewer_iterations() -> None:
+def test_more_joint_lbfgs_memory_reaches_the_optimum_in_fewer_iterations() -> None:
     # A badly scaled quadratic (condition 1e4): with more correction pairs L-BFGS-B models
     # more of the curvature. Both runs must reach the optimum; the longer memory must be used.
     scales = np.logspace(0, 4, 30)
@@ -61,8 +61,8 @@ def test_a_cap_above_the_data_leaves_screening_off() -> None:
 @pytest.mark.parametrize(
     ("field", "value", "message"),
     [
-        ("lbfgs_memory", 0, "lbfgs_memory: must be ≥ 1"),
-        ("lbfgs_memory", 2.5, "lbfgs_memory: expected an integer"),
+        ("joint_lbfgs_memory", 0, "joint_lbfgs_memory: must be ≥ 1"),
+        ("joint_lbfgs_memory", 2.5, "joint_lbfgs_memory: expected an integer"),
         ("screen_max_touches", -1, "screen_max_touches: must be ≥ 0"),
         ("screen_max_touches", True, "screen_max_touches: expected an integer"),
     ],

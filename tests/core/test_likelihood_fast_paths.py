@@ -121,6 +121,15 @@ def test_inverse_from_cholesky_matches_numpy(n: int) -> None:
     assert _relative(np.triu(result), np.triu(expected)) < 1e-11
 
 
+def test_inverse_in_the_factors_memory_matches_the_copy() -> None:
+    matrix = _spd(500, seed=3)  # above RECURSIVE_INVERSE_MAX: the dpotri branch
+    upper = np.asfortranarray(scipy.linalg.cholesky(matrix, lower=False))
+    copied = inverse_from_cholesky(upper)
+    in_place = inverse_from_cholesky(upper.copy(order="F"), overwrite=True)
+    np.testing.assert_array_equal(in_place, copied)
+    assert _relative(np.triu(in_place), np.triu(np.linalg.inv(matrix))) < 1e-11
+
+
 def test_recursive_and_lapack_inverse_branches_agree(monkeypatch: pytest.MonkeyPatch) -> None:
     matrix = _spd(90, seed=1)
     upper = np.asfortranarray(scipy.linalg.cholesky(matrix, lower=False))
