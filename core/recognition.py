@@ -254,13 +254,14 @@ class RecognitionSession:
         return self._belief
 
     def suggest(self, rng: np.random.Generator) -> PlannedAction:
-        """The planner's choice for the next touch.
+        """The planner's choice for the next touch (given the Gaussian belief to plan under and
+        the current object probabilities, which the discriminative policy plans for).
 
         Raises:
             RecognitionFinishedError: The session has stopped.
         """
         self._check_running()
-        return self.planner.plan(self.planning_belief(), rng)
+        return self.planner.plan(self.planning_belief(), rng, self.probabilities)
 
     def observe(self, action: FloatArray, observation: FloatArray) -> RecognitionStep:
         """Update both beliefs with a touch and decide whether to stop.

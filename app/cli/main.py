@@ -25,6 +25,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from app.cli.collect import collect_command
+from app.cli.evaluate import evaluate_command
 from app.cli.export import export_app
 from app.cli.output import messages as stderr
 from app.cli.output import results as stdout
@@ -64,6 +65,7 @@ class Policy(StrEnum):
     """Action policies of a recognition trial."""
 
     active = "active"
+    discriminative = "discriminative"
     passive = "passive"
     fixed = "fixed"
 
@@ -334,7 +336,13 @@ def recognize(
     world: Annotated[WorldName, typer.Option(help="World that produces the observations.")] = (
         WorldName.exp1
     ),
-    policy: Annotated[Policy, typer.Option(help="active, passive or fixed")] = Policy.active,
+    policy: Annotated[
+        Policy,
+        typer.Option(
+            help="active (information about the latent), discriminative (about which object), "
+            "passive or fixed"
+        ),
+    ] = Policy.active,
     steps: Annotated[int, typer.Option(min=1, help="T, the largest number of touches.")] = 10,
     seed: Annotated[int, typer.Option(help="Seed of the noise and passive actions.")] = 0,
     action: Annotated[
@@ -354,20 +362,14 @@ def recognize(
 
     from core.errors import CoreError
     from core.evaluation import iter_simulated_trial
-    from core.planning import ActivePolicy, FixedPolicy, PassivePolicy, Planner
+    from core.planning import Planner, make_policy
     from core.recognition import RecognitionSettings, default_prior
 
     model = load_model(model_path)
     if target not in model.object_names:
         raise fail(f"--target {target!r} is not an object of the model {list(model.object_names)}")
     try:
-        chosen = (
-            ActivePolicy()
-            if policy is Policy.active
-            else PassivePolicy()
-            if policy is Policy.passive
-            else FixedPolicy(np.asarray(action if action else [], dtype=np.float64))
-        )
+        chosen = make_policy(policy.value, np.asarray(action, dtype=np.float64) if action else None)
         planner = Planner(model, chosen)
         settings = RecognitionSettings(
             max_steps=steps, tolerance=tolerance, confidence_threshold=confidence
@@ -468,6 +470,7 @@ def paper_exp1(
 # Sub-commands that live with the code they drive (modules that import only typer and rich).
 app.add_typer(rig_app, name="rig", help="Check and drive the rig (real ports or --sim).")
 app.command("collect")(collect_command)
+app.command("evaluate")(evaluate_command)
 app.add_typer(export_app, name="export")
 
 #: Context of a command that hands every argument (``--help`` included) to another command.
