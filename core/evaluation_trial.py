@@ -21,7 +21,9 @@ import numpy as np
 
 from core.errors import InvalidInputError
 from core.evaluation_records import TrialRecord, trial_generators
-from core.planning import ActivePolicy, PassivePolicy, Planner, Policy
+from core.moments import action_statistics
+from core.object_information import label_information_mc, object_predictives
+from core.planning import ActivePolicy, DiscriminativePolicy, PassivePolicy, Planner, Policy
 from core.posterior import predict
 from core.recognition import (
     RecognitionSession,
@@ -49,6 +51,22 @@ def information_score(
     return planner.mutual_information(belief, actions)
 
 
+def object_score(
+    planner: Planner, belief: GaussianBelief, probabilities: FloatArray, actions: FloatArray
+) -> FloatArray:
+    """I(l; y | x) of each recorded action under the object posterior (the discriminative score).
+
+    The same estimate as :meth:`core.planning.Planner.object_information` (common random
+    numbers from the planner's candidate seed), at the recorded actions instead of the
+    candidates. Shape (C,).
+    """
+    mean, variance = object_predictives(planner.model, action_statistics(planner.model, actions))
+    draws = np.random.default_rng(planner.candidate_seed).standard_normal(
+        (DiscriminativePolicy().n_draws, planner.model.hyperparameters.observation_dim)
+    )
+    return label_information_mc(probabilities, mean, variance, draws)
+
+
 @dataclass(frozen=True)
 class PolicyEntry:
     """How an evaluation runs a policy.
@@ -67,6 +85,7 @@ class PolicyEntry:
 POLICIES: dict[str, PolicyEntry] = {
     "active": PolicyEntry(ActivePolicy, information_score),
     "passive": PolicyEntry(PassivePolicy, None),
+    "discriminative": PolicyEntry(DiscriminativePolicy, object_score),
 }
 
 

@@ -467,6 +467,81 @@ def paper_exp1(
         stdout.print(figures.table())
 
 
+@paper_app.command("exp2")
+def paper_exp2(
+    table: Annotated[str, typer.Option(help="Simulated table (the paper's four cups: paper).")] = (
+        "paper"
+    ),
+    touches: Annotated[int, typer.Option(min=2, help="Random-design touches per object.")] = 100,
+    trials: Annotated[
+        int, typer.Option(min=1, help="Trials per object, policy and observation source.")
+    ] = 25,
+    steps: Annotated[int, typer.Option(min=1, help="T")] = 15,
+    restarts: Annotated[int, typer.Option(min=0, help="Random restarts of the fit.")] = 2,
+    optimizer: Annotated[str, typer.Option(help="Fit optimiser: de (the paper's) or lbfgs.")] = (
+        "de"
+    ),
+    sources: Annotated[
+        str, typer.Option(help="Observation sources, comma-separated: model (the paper's), rig.")
+    ] = "model,rig",
+    seed: Annotated[int, typer.Option(min=0, help="Seed of design, world, fit and trials.")] = 0,
+    workers: Annotated[
+        int | None, typer.Option(min=1, help="Dask worker processes for the trials.")
+    ] = None,
+    figures: Annotated[
+        Path | None, typer.Option(help="Write the PNG figures into this directory.")
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the evaluation reports.")] = False,
+) -> None:
+    """Experiment 2 on the simulated rig: collect, fit (ds = 2), active vs passive; vs the paper."""
+    from app.errors import BadInputError
+    from app.evaluation.worlds import table_objects
+    from app.paper.exp2 import SOURCES, Experiment2Settings, run_experiment2, write_figures
+    from core.errors import CoreError
+
+    chosen = tuple(s.strip() for s in sources.split(",") if s.strip())
+    unknown = [s for s in chosen if s not in SOURCES]
+    if unknown or not chosen:
+        raise fail(f"--sources: {unknown or chosen} not sources; choose from {list(SOURCES)}.")
+    if optimizer not in ("de", "lbfgs"):
+        raise fail(f"--optimizer: {optimizer!r} is not one of [de, lbfgs].")
+    try:
+        table_objects(table)
+    except BadInputError as exc:
+        raise fail(str(exc)) from None
+    settings = Experiment2Settings(
+        table=table,
+        touches_per_object=touches,
+        trials_per_target=trials,
+        steps=steps,
+        restarts=restarts,
+        optimizer=optimizer,
+        sources=chosen,
+        seed=seed,
+        workers=workers,
+    )
+    try:
+        with progress_bar() as bar:
+            task = bar.add_task("experiment 2", total=1000, status="")
+
+            def report(message: str, fraction: float) -> None:
+                bar.update(task, completed=int(1000 * fraction), status=escape(message))
+
+            result = run_experiment2(settings, progress=report)
+        written = [] if figures is None else write_figures(result, figures)
+    except (CoreError, BadInputError) as exc:
+        raise fail(str(exc)) from None
+    for path in written:
+        stderr.print(f"wrote {escape(str(path))}")
+    stderr.print(f"experiment 2: {result.seconds:.1f} s wall time")
+    if as_json:
+        document = result.to_dict()
+        document["figures"] = [str(p) for p in written]
+        sys.stdout.write(json.dumps(document) + "\n")
+    else:
+        stdout.print(result.table())
+
+
 # Sub-commands that live with the code they drive (modules that import only typer and rich).
 app.add_typer(rig_app, name="rig", help="Check and drive the rig (real ports or --sim).")
 app.command("collect")(collect_command)

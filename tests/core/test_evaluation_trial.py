@@ -102,7 +102,9 @@ def test_model_world_samples_the_predictive_distribution(model):
 
 
 def test_unknown_policy_and_target_are_named(model):
-    with pytest.raises(InvalidInputError, match=r"'greedy'.*\['active', 'passive'\]"):
+    with pytest.raises(
+        InvalidInputError, match=r"'greedy'.*\['active', 'discriminative', 'passive'\]"
+    ):
         policy_entry("greedy")
     with pytest.raises(InvalidInputError, match="'O9'"):
         world_observer(Experiment1World(), "O9")
@@ -172,3 +174,17 @@ def test_replay_cap_and_dimensions_are_checked(model, held_out):
             pool=wrong,
             settings=TrialSettings(steps=2),
         )
+
+
+def test_discriminative_replay_score_equals_the_planner_estimate_at_the_candidates(model):
+    # object_score at arbitrary actions is Planner.object_information when those actions are
+    # the planner's own candidates (the same predictives and common random numbers).
+    from core.evaluation_trial import object_score
+
+    planner = Planner(model, policy_entry("discriminative").make())
+    candidates = planner.candidate_statistics.actions[:16]
+    p = np.array([0.5, 0.3, 0.15, 0.05])[: model.data.n_objects]
+    p = p / p.sum()
+    expected = planner.object_information(p)[:16]
+    got = object_score(planner, default_prior(model, 5.0), p, candidates)
+    assert np.allclose(got, expected, rtol=1e-9, atol=1e-12)

@@ -1,0 +1,126 @@
+"""``activetouch paper exp2``, small and fast: collect on the simulated rig, fit, trials from the
+learned GP and from the rig, figures and a valid report."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from app.cli.main import app
+from app.paper.exp2 import Experiment2Settings, run_experiment2, write_figures
+from core.evaluation_summary import wilson_interval
+
+runner = CliRunner()
+
+SMALL = Experiment2Settings(
+    touches_per_object=5,
+    optimizer="lbfgs",
+    restarts=0,
+    steps=3,
+    trials_per_target=2,
+    policies=("active", "passive"),
+)
+
+
+@pytest.fixture(scope="module")
+def result():  # type: ignore[no-untyped-def]
+    return run_experiment2(SMALL)
+
+
+def test_training_touches_come_from_the_paper_table(result) -> None:  # type: ignore[no-untyped-def]
+    data = result.data
+    assert data.object_names == ("paper_cup", "bumpy_glass", "clear_plastic_cup", "stainless_cup")
+    assert data.n_touches == 4 * 5
+    assert data.actions.shape == (20, 6)
+    assert data.observations.shape == (20, 5)
+    # A random design: a fresh action per touch, not one shared design.
+    assert len({tuple(np.round(x, 9)) for x in data.actions}) == 20
+    assert result.model.latent_dim == 2
+
+
+def test_reports_for_both_sources_summarise_their_trials(result) -> None:  # type: ignore[no-untyped-def]
+    assert set(result.reports) == {"model", "rig"}
+    for source, report in result.reports.items():
+        assert report.spec.world == source
+        assert report.spec.prior_variance == 5.0
+        assert len(report.records) == 2 * 4 * 2
+        summary = report.summary()
+        for policy in ("active", "passive"):
+            mine = [r for r in report.records if r.policy == policy]
+            final_correct = sum(r.correct for r in mine)
+            figures = summary[policy]
+            assert len(figures["accuracy_by_touch"]) == 3
+            # Accuracy at T and its interval, recomputed from the records.
+            assert figures["accuracy_by_touch"][-1] == pytest.approx(final_correct / len(mine))
+            lo, hi = wilson_interval(final_correct, len(mine))
+            assert figures["accuracy_interval"][-1] == pytest.approx([lo, hi])
+    document = json.loads(json.dumps(result.to_dict()))
+    assert document["format"] == "activetouch-paper-exp2/1"
+    assert document["reports"]["rig"]["format"] == "activetouch-evaluation/1"
+    assert document["seconds"] >= document["collect_seconds"] + document["fit_seconds"]
+
+
+def test_figures_are_pngs(result, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    paths = write_figures(result, tmp_path)
+    names = sorted(p.name for p in paths)
+    assert names == [
+        "exp2-accuracy-model.png",
+        "exp2-accuracy-rig.png",
+        "exp2-manifold.png",
+        "exp2-trajectories.png",
+    ]
+    for path in paths:
+        with Image.open(path) as image:
+            assert image.format == "PNG"
+            assert image.size[0] > 300
+
+
+def test_cli_runs_end_to_end(tmp_path: Path) -> None:
+    out = runner.invoke(
+        app,
+        [
+            "paper",
+            "exp2",
+            "--touches",
+            "4",
+            "--trials",
+            "1",
+            "--steps",
+            "2",
+            "--restarts",
+            "0",
+            "--optimizer",
+            "lbfgs",
+            "--sources",
+            "model",
+            "--figures",
+            str(tmp_path),
+            "--json",
+        ],
+    )
+    assert out.exit_code == 0, out.output
+    document = json.loads(out.stdout)
+    assert list(document["reports"]) == ["model"]
+    policies = document["reports"]["model"]["policies"]
+    assert {"active", "passive"} <= set(policies)
+    assert len(document["figures"]) == 3
+    assert all(Path(p).exists() for p in document["figures"])
+
+
+@pytest.mark.parametrize(
+    ("args", "named"),
+    [
+        (["--table", "no_such_table"], "no_such_table"),
+        (["--sources", "model,camera"], "camera"),
+        (["--optimizer", "sgd"], "sgd"),
+    ],
+)
+def test_bad_input_exits_2_naming_it(args: list[str], named: str) -> None:
+    out = runner.invoke(app, ["paper", "exp2", *args])
+    assert out.exit_code == 2
+    assert named in out.output
