@@ -37,8 +37,9 @@ RUN useradd --create-home --shell /usr/sbin/nologin --groups dialout activetouch
 USER activetouch
 VOLUME ["/data"]
 ENV ACTIVETOUCH_DATABASE_URL=sqlite:////data/activetouch.db
-# 8000: dashboard + REST API; 8081: the 3D view (viser).
-EXPOSE 8000 8081
+# 8000: dashboard + REST API + the 3D view at /viser/ (viser itself listens on the container's
+# loopback, port 8081, and is reached only through the app).
+EXPOSE 8000
 HEALTHCHECK --interval=15s --timeout=5s --start-period=120s --retries=3 \
     CMD ["python", "-c", "import urllib.request; urllib.request.urlopen('http://127.0.0.1:8000/api/v1/health', timeout=4)"]
 CMD ["activetouch", "demo", "--host", "0.0.0.0", "--port", "8000", "--viz-port", "8081", "--no-browser"]

@@ -30,6 +30,8 @@ class Settings(BaseSettings):
         database_url: SQLAlchemy URL of the SQLite database.
         api_token: Bearer token for mutating endpoints; required off loopback.
         hardware: ``mock`` (simulated rig) or ``serial`` (real devices on the ports below).
+        sim_table: The simulated rig's table of objects by name (``mock`` hardware;
+            :data:`hardware.sim.materials.TABLES`).
         turntable_port: Serial port of the GRBL turntable controller (serial hardware).
         finger_port: Serial port of the Dynamixel bus (serial hardware).
         tactile_port: Serial port of the tactile sensor stream (serial hardware).
@@ -62,6 +64,7 @@ class Settings(BaseSettings):
     database_url: str = "sqlite:///activetouch.db"
     api_token: SecretStr | None = None
     hardware: Literal["mock", "serial"] = "mock"
+    sim_table: str = "default"
     turntable_port: str | None = None
     finger_port: str | None = None
     tactile_port: str | None = None

@@ -47,6 +47,11 @@ from core.worlds import sample_experiment1
 
 #: Name of the dataset the demo collects (and finds again on the next start).
 DEMO_DATASET_NAME = "demo: simulated rig"
+
+#: The simulated table of the demo: objects that one touch does not tell apart with every
+#: action, so the active policy needs visibly fewer touches than the passive one (measured:
+#: README, "What choosing the touch buys").
+DEMO_TABLE = "default"
 EXPERIMENT1_DATASET_NAME = "demo: paper Experiment 1"
 FINISHED = ("completed", "stopped", "aborted", "failed")
 
@@ -72,6 +77,7 @@ class DemoOptions:
         world: ``rig``: the simulated rig (collection + trials on mock hardware);
             ``experiment1``: the paper's Experiment 1 synthetic world, no rig.
         objects: Objects to collect on the simulated rig; ``None``: the rig's own catalogue.
+        table: The simulated rig's table (:data:`DEMO_TABLE`: look-alike cups).
         touches_per_object: Touches per object of the training set.
         latent_dim: ds of the fitted manifold.
         restarts: Random restarts of the fit.
@@ -88,6 +94,7 @@ class DemoOptions:
     database_url: str = "sqlite:///data/demo.db"
     world: Literal["rig", "experiment1"] = "rig"
     objects: tuple[DemoObject, ...] | None = None
+    table: str = DEMO_TABLE
     touches_per_object: int = 12
     latent_dim: int = 2
     restarts: int = 1
@@ -157,6 +164,7 @@ class DemoServer:
             port=options.port,
             database_url=options.database_url,
             hardware="mock",
+            sim_table=options.table,
             api_token=token,
             **(settings_overrides or {}),
         )
@@ -324,6 +332,13 @@ class DemoServer:
         )
 
     @property
+    def dataset_name(self) -> str:
+        """The demo dataset's name: the default table's keeps the old name, others name theirs."""
+        if self.options.table == "default":
+            return DEMO_DATASET_NAME
+        return f"{DEMO_DATASET_NAME} ({self.options.table})"
+
+    @property
     def viz_url(self) -> str:
         """The viser view as seen from this machine."""
         if self.live is None:
@@ -365,7 +380,7 @@ class DemoServer:
 
     def _rig_dataset(self) -> dict[str, Any]:
         for dataset in self._list("/datasets", "list datasets"):
-            if dataset["name"] == DEMO_DATASET_NAME and dataset["status"] == "ready":
+            if dataset["name"] == self.dataset_name and dataset["status"] == "ready":
                 return dataset
         rig = self._call("GET", "/rig", "read the rig")
         if not rig.get("connected"):
@@ -382,7 +397,7 @@ class DemoServer:
             "/collections",
             "start the collection",
             json={
-                "name": DEMO_DATASET_NAME,
+                "name": self.dataset_name,
                 "objects": [{"name": o.name, "slot": o.slot} for o in objects],
                 "samples_per_object": self.options.touches_per_object,
                 "action_design": "random",
@@ -533,6 +548,9 @@ def demo_command(
     world: Annotated[
         str, typer.Option(help="rig (simulated rig) or experiment1 (the paper's world).")
     ] = "rig",
+    table: Annotated[
+        str, typer.Option(help="Simulated table (activetouch rig status --sim --table NAME).")
+    ] = DEMO_TABLE,
     touches_per_object: Annotated[int, typer.Option(min=2, help="Training touches.")] = 12,
     latent_dim: Annotated[int, typer.Option(min=1, max=8, help="ds of the model.")] = 2,
     restarts: Annotated[int, typer.Option(min=0, help="Random restarts of the fit.")] = 1,
@@ -547,12 +565,20 @@ def demo_command(
         raise typer.BadParameter(
             f"expected rig or experiment1, received {world!r}", param_hint="--world"
         )
+    from hardware.sim.materials import TABLES
+
+    if table not in TABLES:
+        raise typer.BadParameter(
+            f"{table!r} is not a simulated table; choose from {sorted(TABLES)}",
+            param_hint="--table",
+        )
     options = DemoOptions(
         host=host,
         port=port,
         viz_port=viz_port,
         database_url=database_url,
         world="rig" if world == "rig" else "experiment1",
+        table=table,
         touches_per_object=touches_per_object,
         latent_dim=latent_dim,
         restarts=restarts,

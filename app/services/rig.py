@@ -119,7 +119,7 @@ class RigService:
     def _open(self) -> RigHandle:
         s = self._settings
         if s.hardware == "mock":
-            return open_rig(simulate=SimulationMode.in_process, seed=0)
+            return open_rig(simulate=SimulationMode.in_process, table=s.sim_table, seed=0)
         missing = [
             name
             for name, port in (

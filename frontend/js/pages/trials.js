@@ -77,7 +77,8 @@ async function startTrial() {
     prior_cov: isotropicCov(model.latent_dim, Number($("trial-prior").value)),
   };
   if ($("trial-target").value) body.target = $("trial-target").value;
-  if ($("trial-seed").value !== "") body.seed = Number($("trial-seed").value);
+  // A seed is always recorded, so the same trial can be run again with the other policy.
+  body.seed = $("trial-seed").value !== "" ? Number($("trial-seed").value) : Math.floor(Math.random() * 2 ** 31);
   if (body.mode === "simulated") {
     body.simulation = { world: $("trial-world").value, step_interval_s: Number($("trial-interval").value || 0) };
   }
@@ -85,6 +86,53 @@ async function startTrial() {
   plannedTrajectory = null;
   toast(`Trial #${created.id} started.`, "ok");
   await load(created.id);
+}
+
+/** The policy to compare a finished trial with: passive for a planned one, active for passive. */
+export function otherPolicy(policy) {
+  if (policy === "passive") return "active";
+  if (policy === "active" || policy === "discriminative") return "passive";
+  return null;
+}
+
+/** The request that runs `record` again (same model, target, seed, settings) with `policy`. */
+export function siblingTrial(record, policy) {
+  const body = {
+    model_id: record.model_id,
+    mode: record.mode,
+    policy,
+    max_steps: record.max_steps,
+    tolerance: record.tolerance,
+    prior_mean: record.prior_mean,
+    prior_cov: record.prior_cov,
+  };
+  if (record.confidence_threshold !== null && record.confidence_threshold !== undefined) body.confidence_threshold = record.confidence_threshold;
+  if (record.action_bounds) body.action_bounds = record.action_bounds;
+  if (record.target) body.target = record.target;
+  if (record.seed !== null && record.seed !== undefined) body.seed = record.seed;
+  const options = record.options || {};
+  if (options.target_slot !== undefined) body.target_slot = options.target_slot;
+  if (options.simulation) body.simulation = options.simulation;
+  return body;
+}
+
+async function runOtherPolicy(policy) {
+  const created = await api("/trials", { method: "POST", body: siblingTrial(trial, policy) });
+  plannedTrajectory = null;
+  toast(`Trial #${created.id} started: ${policy} on the same object and seed as #${trial.id}.`, "ok");
+  await load(created.id);
+}
+
+function otherPolicyButton() {
+  const policy = otherPolicy(trial.policy);
+  if (!policy || !["simulated", "rig"].includes(trial.mode)) return null;
+  const button = el(
+    "button",
+    { type: "button", class: "secondary", "data-testid": "trial-run-other", title: `A new trial: the same model, target, seed and settings, policy ${policy}` },
+    `Run with ${policy}`,
+  );
+  button.addEventListener("click", () => guarded(() => runOtherPolicy(policy), button));
+  return el("div", { class: "small" }, button);
 }
 
 export async function load(id) {
@@ -163,6 +211,7 @@ function render() {
         el("strong", { "data-testid": "trial-result-object" }, trial.result.object),
         correct === true ? " ✓ correct" : correct === false ? ` ✗ wrong (target ${trial.target})` : "",
         el("div", { class: "small muted" }, `after ${steps.length} touch${steps.length === 1 ? "" : "es"} · ${trial.status}${trial.reason ? ` — ${trial.reason}` : ""}`),
+        otherPolicyButton(),
       );
     } else {
       result.className = "result wrong";
