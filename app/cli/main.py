@@ -473,6 +473,9 @@ def paper_exp2(
         "paper"
     ),
     touches: Annotated[int, typer.Option(min=2, help="Random-design touches per object.")] = 100,
+    action_scale: Annotated[
+        float, typer.Option(min=0.01, help="Standard deviation of each action component.")
+    ] = 1.0,
     trials: Annotated[
         int, typer.Option(min=1, help="Trials per object, policy and observation source.")
     ] = 25,
@@ -498,6 +501,7 @@ def paper_exp2(
     from app.evaluation.worlds import table_objects
     from app.paper.exp2 import SOURCES, Experiment2Settings, run_experiment2, write_figures
     from core.errors import CoreError
+    from hardware.errors import HardwareError
 
     chosen = tuple(s.strip() for s in sources.split(",") if s.strip())
     unknown = [s for s in chosen if s not in SOURCES]
@@ -512,6 +516,7 @@ def paper_exp2(
     settings = Experiment2Settings(
         table=table,
         touches_per_object=touches,
+        action_scale=action_scale,
         trials_per_target=trials,
         steps=steps,
         restarts=restarts,
@@ -531,6 +536,12 @@ def paper_exp2(
         written = [] if figures is None else write_figures(result, figures)
     except (CoreError, BadInputError) as exc:
         raise fail(str(exc)) from None
+    except HardwareError as exc:  # the simulated rig refused a touch (e.g. a servo overload)
+        stderr.print(
+            f"[red]error:[/red] the simulated rig stopped: {escape(type(exc).__name__)}: "
+            f"{escape(str(exc))} (a smaller --action-scale keeps the touches shallower)"
+        )
+        raise typer.Exit(code=1) from None
     for path in written:
         stderr.print(f"wrote {escape(str(path))}")
     stderr.print(f"experiment 2: {result.seconds:.1f} s wall time")
