@@ -3,9 +3,13 @@
 The active planner scores a fixed, scrambled Sobol set of candidate actions spread over the box
 (their action statistics are computed once per model and reused at every touch, METHOD.md
 "Structure that makes it fast"), then refines the best few with L-BFGS-B inside the box using the
-analytic gradient of the mutual information. The passive policy draws from the action prior and
-the fixed policy repeats one action; every policy reports the mutual information of its action
-under the belief it was given.
+analytic gradient of the mutual information. The discriminative policy scores the same
+candidates (and the same cached statistics) by the information the touch would give about *which
+object* it is, under the current object probabilities (:mod:`core.object_information`). The
+passive policy draws from the action prior and the fixed policy repeats one action; every policy
+reports the mutual information of its action under the belief it was given.
+
+:func:`make_policy` is the one place a policy is built from its name (CLI, API, evaluation).
 """
 
 from __future__ import annotations
@@ -27,10 +31,14 @@ from core.moments import (
     mutual_information,
     predictive_moments,
 )
+from core.object_information import label_information_mc, object_predictives
 from core.types import GaussianBelief, ManifoldModel
 from core.validation import FloatArray, as_float_array
 
-PolicyName = Literal["active", "passive", "fixed"]
+PolicyName = Literal["active", "passive", "fixed", "discriminative"]
+
+#: Every policy name, in the order user interfaces list them.
+POLICY_NAMES: tuple[PolicyName, ...] = ("active", "discriminative", "passive", "fixed")
 
 
 @dataclass(frozen=True)
@@ -147,7 +155,58 @@ class FixedPolicy:
         object.__setattr__(self, "action", action)
 
 
-Policy = ActivePolicy | PassivePolicy | FixedPolicy
+@dataclass(frozen=True)
+class DiscriminativePolicy:
+    """Maximise the information of the next observation about which object it is.
+
+    The score of an action x is I(l; y | x) under the current object probabilities p_l, each
+    object's observation predicted by the GP at its learned latent s_l
+    (:mod:`core.object_information`), estimated by Monte Carlo with ``n_draws`` common
+    random numbers (fixed per planner, so the choice is deterministic).
+
+    Attributes:
+        n_draws: Monte Carlo draws per object and candidate.
+    """
+
+    n_draws: int = 128
+    name: PolicyName = field(default="discriminative", init=False)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.n_draws, bool) or not isinstance(self.n_draws, int):
+            raise InvalidInputError(f"n_draws: expected an integer, received {self.n_draws!r}.")
+        if self.n_draws < 2:
+            raise InvalidInputError(f"n_draws: must be ≥ 2, received {self.n_draws}.")
+
+
+Policy = ActivePolicy | PassivePolicy | FixedPolicy | DiscriminativePolicy
+
+
+def make_policy(name: str, fixed_action: FloatArray | None = None) -> Policy:
+    """The policy called ``name`` (one of :data:`POLICY_NAMES`).
+
+    Args:
+        name: ``"active"``, ``"discriminative"``, ``"passive"`` or ``"fixed"``.
+        fixed_action: The action of ``"fixed"``. Shape (dx,).
+
+    Raises:
+        InvalidInputError: Unknown name, or ``"fixed"`` without an action.
+    """
+    if name == "active":
+        return ActivePolicy()
+    if name == "discriminative":
+        return DiscriminativePolicy()
+    if name == "passive":
+        return PassivePolicy()
+    if name == "fixed":
+        if fixed_action is None or np.asarray(fixed_action).size == 0:
+            raise InvalidInputError(
+                "policy 'fixed': needs the action to repeat, dx numbers "
+                "(--action on the command line, fixed_action in the API)."
+            )
+        return FixedPolicy(np.asarray(fixed_action, dtype=np.float64))
+    raise InvalidInputError(
+        f"policy: expected one of {', '.join(POLICY_NAMES)}, received {name!r}."
+    )
 
 
 @dataclass(frozen=True)
@@ -159,11 +218,14 @@ class PlannedAction:
         mutual_information: U1 of ``action`` under the belief it was planned for, in nats
             (reported for every policy).
         policy: Name of the policy that chose it.
+        object_information: The estimated information about the object's identity, in nats
+            (discriminative policy only).
     """
 
     action: FloatArray
     mutual_information: float
     policy: PolicyName
+    object_information: float | None = None
 
 
 def sobol_candidates(box: ActionBox, n_candidates: int, seed: int) -> FloatArray:
@@ -236,9 +298,11 @@ class Planner:
         self.candidate_seed = int(candidate_seed)
         self._statistics: ActionStatistics | None = None
         self._gradient_cache: GradientCache | None = None
+        self._predictives: tuple[FloatArray, FloatArray] | None = None
+        self._draws: FloatArray | None = None
         if self.n_candidates < 1:
             raise InvalidInputError(f"n_candidates: must be ≥ 1, received {n_candidates}.")
-        if isinstance(policy, ActivePolicy):
+        if isinstance(policy, ActivePolicy | DiscriminativePolicy):
             self._statistics = self.candidate_statistics
 
     @property
@@ -254,22 +318,74 @@ class Planner:
         stats = action_statistics(self.model, actions)
         return mutual_information(predictive_moments(self.model, belief, stats), belief)
 
-    def plan(self, belief: GaussianBelief, rng: np.random.Generator) -> PlannedAction:
+    def plan(
+        self,
+        belief: GaussianBelief,
+        rng: np.random.Generator,
+        probabilities: FloatArray | None = None,
+    ) -> PlannedAction:
         """Choose the next action under ``belief``.
 
         Args:
             belief: s ~ N(μ, Σ) to plan for.
             rng: Source of randomness (passive draws).
+            probabilities: The current object posterior p_l (discriminative policy; uniform when
+                ``None``). Shape (L,).
         """
         policy = self.policy
         if isinstance(policy, ActivePolicy):
             return self._plan_active(belief)
+        if isinstance(policy, DiscriminativePolicy):
+            return self._plan_discriminative(belief, policy, probabilities)
         if isinstance(policy, PassivePolicy):
             action = self.box.clip(self.prior.sample(rng))
         else:
             action = np.array(policy.action, dtype=np.float64)
         value = float(self.mutual_information(belief, action[None, :])[0])
         return PlannedAction(action=action, mutual_information=value, policy=policy.name)
+
+    def object_information(self, probabilities: FloatArray | None = None) -> FloatArray:
+        """Estimated I(l; y | x) of every candidate under ``probabilities``. Shape (C,).
+
+        Uses the candidate statistics and the objects' predictives (both computed once per
+        planner) and the planner's fixed standard-normal draws (common random numbers).
+        """
+        n_objects = self.model.data.n_objects
+        if probabilities is None:
+            p = np.full(n_objects, 1.0 / n_objects)
+        else:
+            p = as_float_array(probabilities, "probabilities", (n_objects,))
+        if self._predictives is None:
+            self._predictives = object_predictives(self.model, self.candidate_statistics)
+        if self._draws is None:
+            n_draws = (
+                self.policy.n_draws
+                if isinstance(self.policy, DiscriminativePolicy)
+                else DiscriminativePolicy().n_draws
+            )
+            draws_rng = np.random.default_rng(self.candidate_seed)
+            self._draws = draws_rng.standard_normal(
+                (n_draws, self.model.hyperparameters.observation_dim)
+            )
+        mean, variance = self._predictives
+        return label_information_mc(p, mean, variance, self._draws)
+
+    def _plan_discriminative(
+        self,
+        belief: GaussianBelief,
+        policy: DiscriminativePolicy,
+        probabilities: FloatArray | None,
+    ) -> PlannedAction:
+        scores = self.object_information(probabilities)
+        best = int(np.argmax(scores))
+        action = self.candidate_statistics.actions[best].copy()
+        value = float(self.mutual_information(belief, action[None, :])[0])
+        return PlannedAction(
+            action=action,
+            mutual_information=value,
+            policy=policy.name,
+            object_information=float(scores[best]),
+        )
 
     def _plan_active(self, belief: GaussianBelief) -> PlannedAction:
         stats = self.candidate_statistics

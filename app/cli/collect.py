@@ -43,6 +43,7 @@ from app.cli.rig import (
     RigOptions,
     SimTransport,
     Simulate,
+    TableName,
     TactilePort,
     TurntablePort,
     connected_rig,
@@ -238,10 +239,11 @@ def collect_command(
     tactile_port: TactilePort = None,
     sim: Simulate = False,
     sim_transport: SimTransport = "in-process",
+    table: TableName = "default",
     as_json: AsJson = False,
 ) -> None:
     """Collect a training set on the rig: touch each object, write the training CSV."""
-    options = RigOptions(turntable_port, finger_port, tactile_port, sim, sim_transport, seed)
+    options = RigOptions(turntable_port, finger_port, tactile_port, sim, sim_transport, seed, table)
     options.check()
     if not action_scale > 0:
         raise fail(f"--action-scale: must be > 0, received {action_scale}.", 2)

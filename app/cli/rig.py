@@ -83,6 +83,14 @@ SimTransport = Annotated[
     ),
 ]
 Seed = Annotated[int, typer.Option("--seed", help="Seed of the simulated world.")]
+TableName = Annotated[
+    str,
+    typer.Option(
+        "--table",
+        help="With --sim: the named table of objects (default, paper, lookalike_cups, "
+        "textures; see docs/simulation.md).",
+    ),
+]
 AsJson = Annotated[bool, typer.Option("--json", help="Print a JSON document on stdout.")]
 
 
@@ -103,6 +111,7 @@ class RigOptions:
         sim: Simulate the rig instead.
         sim_transport: ``in-process`` or ``pty``.
         seed: Seed of the simulated world.
+        table: Named table of the simulated rig.
     """
 
     turntable_port: str | None = None
@@ -111,10 +120,15 @@ class RigOptions:
     sim: bool = False
     sim_transport: SimulationName = "in-process"
     seed: int = 0
+    table: str = "default"
 
     def check(self) -> None:
-        """Exit 2 when a real rig lacks a port."""
+        """Exit 2 when a real rig lacks a port, or the simulated table is unknown."""
         if self.sim:
+            from hardware.sim.materials import TABLES
+
+            if self.table not in TABLES:
+                raise fail(f"--table {self.table!r}: unknown; tables: {', '.join(TABLES)}.", 2)
             return
         missing = [
             name
@@ -136,7 +150,10 @@ class RigOptions:
         self.check()
         if self.sim:
             return open_rig(
-                simulate=SimulationMode(self.sim_transport), seed=self.seed, rig_config=RigConfig()
+                simulate=SimulationMode(self.sim_transport),
+                table=self.table,
+                seed=self.seed,
+                rig_config=RigConfig(),
             )
         assert self.turntable_port is not None
         assert self.finger_port is not None
@@ -199,7 +216,12 @@ def _status_document(lease: RigLease, handle: RigHandle) -> dict[str, Any]:
             zip(rig.tactile.config.channel_names, last.channels, strict=True)
         )
     if handle.object_names is not None:
+        document["simulated_table"] = handle.table
         document["simulated_objects"] = handle.object_names
+        document["simulated_materials"] = {
+            name: str(record["material"])
+            for name, record in (handle.object_properties() or {}).items()
+        }
     return document
 
 
@@ -225,10 +247,11 @@ def status(
     sim: Simulate = False,
     sim_transport: SimTransport = "in-process",
     seed: Seed = 0,
+    table: TableName = "default",
     as_json: AsJson = False,
 ) -> None:
     """Connect the three devices and report what they say (GRBL version, servo models,...)."""
-    options = RigOptions(turntable_port, finger_port, tactile_port, sim, sim_transport, seed)
+    options = RigOptions(turntable_port, finger_port, tactile_port, sim, sim_transport, seed, table)
     _on_rig(options, "status", _status_document, as_json)
 
 
@@ -240,6 +263,7 @@ def home(
     sim: Simulate = False,
     sim_transport: SimTransport = "in-process",
     seed: Seed = 0,
+    table: TableName = "default",
     as_json: AsJson = False,
 ) -> None:
     """Retract the finger and run the turntable's homing cycle ($H)."""
@@ -248,7 +272,7 @@ def home(
         lease.home()
         return _status_document(lease, handle)
 
-    options = RigOptions(turntable_port, finger_port, tactile_port, sim, sim_transport, seed)
+    options = RigOptions(turntable_port, finger_port, tactile_port, sim, sim_transport, seed, table)
     _on_rig(options, "home", operation, as_json)
 
 
@@ -261,6 +285,7 @@ def slot(
     sim: Simulate = False,
     sim_transport: SimTransport = "in-process",
     seed: Seed = 0,
+    table: TableName = "default",
     as_json: AsJson = False,
 ) -> None:
     """Turn slot K under the finger (the finger is retracted first)."""
@@ -269,7 +294,7 @@ def slot(
         lease.move_to_slot(k)
         return _status_document(lease, handle)
 
-    options = RigOptions(turntable_port, finger_port, tactile_port, sim, sim_transport, seed)
+    options = RigOptions(turntable_port, finger_port, tactile_port, sim, sim_transport, seed, table)
     _on_rig(options, "slot", operation, as_json)
 
 
@@ -340,6 +365,7 @@ def touch(
     sim: Simulate = False,
     sim_transport: SimTransport = "in-process",
     seed: Seed = 0,
+    table: TableName = "default",
     as_json: AsJson = False,
 ) -> None:
     """Execute one touch (action → DMP → trajectory) and print its observation y."""
@@ -349,7 +375,7 @@ def touch(
     def operation(lease: RigLease, handle: RigHandle) -> dict[str, Any]:
         return _touch_document(actions.touch(lease, x, slot=slot_k), x)
 
-    options = RigOptions(turntable_port, finger_port, tactile_port, sim, sim_transport, seed)
+    options = RigOptions(turntable_port, finger_port, tactile_port, sim, sim_transport, seed, table)
     _on_rig(options, "touch", operation, as_json)
 
 

@@ -40,7 +40,7 @@ from app.services.runs import RunCancelled, RunHandle, RunManager
 from app.services.trial_views import require, step_public, to_public, trial_result
 from app.services.worlds import Touch, TouchSource, WorldFactory
 from core.errors import CoreError, InvalidInputError
-from core.planning import ActionBox, ActivePolicy, FixedPolicy, PassivePolicy, Planner, Policy
+from core.planning import ActionBox, Planner, Policy, make_policy
 from core.recognition import (
     RecognitionSession,
     RecognitionSettings,
@@ -60,11 +60,8 @@ MAX_LIVE_SCRIPTED = 256
 
 
 def _policy(trial: Trial) -> Policy:
-    if trial.policy == "fixed":
-        return FixedPolicy(np.asarray(trial.options["fixed_action"], dtype=np.float64))
-    if trial.policy == "passive":
-        return PassivePolicy()
-    return ActivePolicy()
+    fixed = trial.options.get("fixed_action") if trial.policy == "fixed" else None
+    return make_policy(trial.policy, None if fixed is None else np.asarray(fixed, dtype=float))
 
 
 @dataclass

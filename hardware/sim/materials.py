@@ -10,6 +10,7 @@ the stainless cup stands apart by its heat flux, the paper and clear plastic cup
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 from hardware.errors import ConfigurationError
@@ -28,7 +29,12 @@ class Material:
         texture_period_mm: Spatial period of the texture (sets the vibration frequency
             v / period when sliding at speed v).
         effusivity: Thermal effusivity sqrt(k ρ c) in W s^0.5 m^-2 K^-1 (how fast the surface
-            draws heat from a warm fingertip).
+            draws heat from a warm fingertip). For a coated body, the effusivity of the body
+            under the coating.
+        coating_effusivity: Effusivity of a thin surface layer (lacquer, paint), or ``None``.
+        coating_time_s: Thermal time of that layer, d² / α (thickness d, diffusivity α): the
+            fingertip feels the coating for contacts much shorter than it and the body under it
+            for contacts much longer (see :meth:`effusivity_at`).
     """
 
     name: str
@@ -38,6 +44,34 @@ class Material:
     roughness_um: float
     texture_period_mm: float
     effusivity: float
+    coating_effusivity: float | None = None
+    coating_time_s: float = 0.0
+
+    def effusivity_at(self, contact_time_s: float) -> float:
+        """Effusivity felt after ``contact_time_s`` of contact.
+
+        A coated body: the surface heat flux of a layer (effusivity e_c, thermal time
+        τ = d²/α) on a semi-infinite body (e_b) brought to a step in surface temperature is,
+        by the method of images, that of a half-space of effusivity
+
+            e(t) = e_c [1 + 2 Σ_{n≥1} (−Γ)ⁿ exp(−n² τ / t)],  Γ = (e_c − e_b) / (e_c + e_b),
+
+        which is e_c for t ≪ τ and e_b for t ≫ τ (30 terms; the series converges
+        geometrically, |Γ| < 1).
+        """
+        if self.coating_effusivity is None or self.coating_time_s <= 0:
+            return self.effusivity
+        if contact_time_s <= 0:
+            return self.coating_effusivity
+        coat, body = self.coating_effusivity, self.effusivity
+        reflection = (coat - body) / (coat + body)
+        ratio = self.coating_time_s / contact_time_s
+        series = sum(
+            (-reflection) ** n * math.exp(-n * n * ratio)
+            for n in range(1, 31)
+            if n * n * ratio < 700
+        )
+        return coat * (1.0 + 2.0 * series)
 
     def __post_init__(self) -> None:
         for field_name in (
@@ -52,6 +86,13 @@ class Material:
                 raise ConfigurationError(
                     f"Material {self.name!r}: {field_name} must be positive, received {value}."
                 )
+        if self.coating_effusivity is not None and not (
+            self.coating_effusivity > 0 and self.coating_time_s > 0
+        ):
+            raise ConfigurationError(
+                f"Material {self.name!r}: a coating needs a positive effusivity and time, "
+                f"received {self.coating_effusivity} and {self.coating_time_s}."
+            )
         if self.stick_slip < 0:
             raise ConfigurationError(
                 f"Material {self.name!r}: stick_slip must be >= 0, received {self.stick_slip}."
@@ -80,9 +121,18 @@ class TactileObject:
 
         Keys: ``material``, ``stiffness_n_per_mm``, ``friction``, ``stick_slip``,
         ``roughness_um``, ``texture_period_mm``, ``thermal_effusivity_w_s05_per_m2_k``,
-        ``temperature_c``, ``contact_angle_deg``.
+        ``temperature_c``, ``contact_angle_deg``; for a coated surface also
+        ``coating_effusivity_w_s05_per_m2_k`` and ``coating_time_s``.
         """
         m = self.material
+        coating: dict[str, float | str] = (
+            {}
+            if m.coating_effusivity is None
+            else {
+                "coating_effusivity_w_s05_per_m2_k": m.coating_effusivity,
+                "coating_time_s": m.coating_time_s,
+            }
+        )
         return {
             "material": m.name,
             "stiffness_n_per_mm": m.stiffness_n_per_mm,
@@ -93,6 +143,7 @@ class TactileObject:
             "thermal_effusivity_w_s05_per_m2_k": m.effusivity,
             "temperature_c": self.temperature_c,
             "contact_angle_deg": self.contact_angle_deg,
+            **coating,
         }
 
 
@@ -106,6 +157,16 @@ FOAM = Material("polyurethane foam", 0.08, 0.90, 0.30, 150.0, 1.5, 60.0)
 RUBBER = Material("natural rubber", 0.50, 1.10, 0.40, 3.0, 0.5, 600.0)
 ALUMINIUM = Material("aluminium (thin can)", 1.5, 0.35, 0.08, 0.6, 0.5, 24000.0)
 CORK = Material("cork", 2.0, 0.60, 0.15, 30.0, 0.6, 140.0)
+
+# Look-alikes (docs/simulation.md, "Tables"): one cup, changed in one property each.
+PET_STIFF = replace(PET, name="PET, thicker wall", stiffness_n_per_mm=0.68)
+PET_WAXED = replace(PET, name="PET, wax film", friction=0.40, stick_slip=0.16)
+# A 1.4 mm PET wall (α ≈ 1.2e-7 m²/s: d²/α ≈ 16 s) with water (e ≈ 1580) behind it.
+PET_ON_WATER = replace(
+    PET, name="PET wall on water", effusivity=1580.0, coating_effusivity=560.0, coating_time_s=16.0
+)
+# Micro-textured steel plates: one relief depth, four pitches (sliding at v excites v / pitch).
+MICRO_TEXTURE = Material("micro-textured steel", 80.0, 0.35, 0.10, 20.0, 0.03, 7600.0)
 
 OBJECTS: dict[str, TactileObject] = {
     "paper_cup": TactileObject("paper_cup", PAPER, contact_angle_deg=19.5),
@@ -121,6 +182,22 @@ OBJECTS: dict[str, TactileObject] = {
     "rubber_ball": TactileObject("rubber_ball", RUBBER, contact_angle_deg=19.0),
     "aluminium_can": TactileObject("aluminium_can", ALUMINIUM, contact_angle_deg=19.5),
     "cork_board": TactileObject("cork_board", CORK, contact_angle_deg=20.0),
+    "pet_cup": TactileObject("pet_cup", PET, contact_angle_deg=20.0),
+    "pet_cup_stiff": TactileObject("pet_cup_stiff", PET_STIFF, contact_angle_deg=20.0),
+    "pet_cup_waxed": TactileObject("pet_cup_waxed", PET_WAXED, contact_angle_deg=20.0),
+    "pet_cup_water": TactileObject("pet_cup_water", PET_ON_WATER, contact_angle_deg=20.0),
+    **{
+        f"texture_{round(1000 * pitch):d}um": TactileObject(
+            f"texture_{round(1000 * pitch):d}um",
+            replace(
+                MICRO_TEXTURE,
+                name=f"micro-texture, {1000 * pitch:.0f} µm pitch",
+                texture_period_mm=pitch,
+            ),
+            contact_angle_deg=20.0,
+        )
+        for pitch in (0.02, 0.03, 0.045, 0.07)
+    },
 }
 """Preset objects; the first four are the paper's (Fig. 6a: O1..O4)."""
 
@@ -131,6 +208,63 @@ DEFAULT_TABLE: tuple[str, ...] = (*PAPER_CUPS, "ceramic_mug", "wooden_block", "f
 """What stands on a simulated turntable by default (slot 0 first): the paper's four cups in
 slots 0-3, then three objects that differ from them in kind (a rigid glazed mug, a rough wooden
 block, a soft open-cell foam sponge)."""
+
+
+@dataclass(frozen=True)
+class Table:
+    """A named set of objects for the simulated turntable.
+
+    Attributes:
+        name: Table name (``--table NAME``).
+        objects: Preset object names, slot 0 first.
+        description: What the table is for.
+    """
+
+    name: str
+    objects: tuple[str, ...]
+    description: str
+
+
+TABLES: dict[str, Table] = {
+    table.name: table
+    for table in (
+        Table(
+            "default",
+            DEFAULT_TABLE,
+            "The paper's four cups, a glazed mug, a wooden block and a foam sponge: objects that "
+            "differ in kind (any touch tells them apart).",
+        ),
+        Table("paper", PAPER_CUPS, "The paper's four cups (Fig. 6a: O1..O4)."),
+        Table(
+            "lookalike_cups",
+            ("pet_cup", "pet_cup_stiff", "pet_cup_waxed", "pet_cup_water"),
+            "One clear plastic cup and three look-alikes, each changed in one property: a "
+            "thicker wall (stiffness), a wax film (friction, not heat), water behind the wall "
+            "(heat, felt after ~3 s of contact).",
+        ),
+        Table(
+            "textures",
+            ("texture_20um", "texture_30um", "texture_45um", "texture_70um"),
+            "One micro-textured steel plate at four pitches: the same material, relief and "
+            "heat; only the vibration's frequency (sliding speed / pitch) differs.",
+        ),
+    )
+}
+"""Named tables of the simulated rig (``activetouch rig status --sim --table NAME``)."""
+
+DEFAULT_TABLE_NAME = "default"
+
+
+def get_table(name: str) -> Table:
+    """A named table.
+
+    Raises:
+        ConfigurationError: Unknown name (the message lists the tables).
+    """
+    try:
+        return TABLES[name]
+    except KeyError:
+        raise ConfigurationError(f"unknown table {name!r}; tables: {', '.join(TABLES)}.") from None
 
 
 def get_object(

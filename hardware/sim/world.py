@@ -20,8 +20,12 @@ with physically motivated forms:
   e_eff = e_skin e_obj / (e_skin + e_obj) (contact time t, contact area A growing with F).
 - temperature: the heated sensor (core 33 °C) cools by that flux with a first-order recovery.
 
-Per-frame Gaussian noise is added, and each placement of an object (the table arriving at its
-slot) and each lift-off shifts the object slightly, so repeated touches with one action differ.
+Noise (:mod:`hardware.sim.noise`, documented in docs/simulation.md): per-frame noise correlated
+across channels and in time, an offset per contact, the vibration noise growing with the normal
+force, and slow drift — the heater's set point and the room temperature wander (both enter the
+heat exchange, so heat flux and temperature drift together) and so does the pressure baseline.
+Each placement of an object (the table arriving at its slot) and each lift-off also shifts the
+object slightly, so repeated touches with one action differ.
 """
 
 from __future__ import annotations
@@ -36,6 +40,15 @@ import numpy as np
 from hardware.clock import Clock
 from hardware.errors import ConfigurationError, ServoHardwareErrorFlags
 from hardware.sim.materials import TactileObject
+from hardware.sim.noise import (
+    DRIFT_AMBIENT_C,
+    DRIFT_CORE_C,
+    DRIFT_PRESSURE,
+    NoiseModel,
+    NoiseProcess,
+)
+
+__all__ = ["Contact", "FingerModel", "NoiseModel", "Plant", "PlantEvents"]
 
 TableState = Callable[[float], tuple[float, float]]
 """Table angle (deg) and angular velocity (deg/s) at a time."""
@@ -75,23 +88,6 @@ class FingerModel:
     servo_time_constant_s: float = 0.03
     current_limit_ma: float = 1500.0
     overload_time_s: float = 0.5
-
-
-@dataclass(frozen=True)
-class NoiseModel:
-    """Randomness of the simulated world.
-
-    Attributes:
-        channel_std: Per-frame noise of each channel (same order as the channels).
-        placement_std_deg: Spread of an object's contact angle each time the table brings it.
-        slip_std_deg: Extra shift after each lift-off.
-        object_temperature_std_c: Spread of the object's temperature per placement.
-    """
-
-    channel_std: tuple[float, ...] = (0.05, 0.05, 0.03, 2.0, 0.01)
-    placement_std_deg: float = 0.25
-    slip_std_deg: float = 0.1
-    object_temperature_std_c: float = 0.15
 
 
 @dataclass(frozen=True)
@@ -182,7 +178,7 @@ def heat_flow_w(
     if target is None or touch.force_n <= 0.0:
         return 0.0
     area_m2 = finger.max_contact_area_mm2 * 1e-6 * touch.force_n / (touch.force_n + 1.5)
-    skin, body = finger.skin_effusivity, target.material.effusivity
+    skin, body = finger.skin_effusivity, target.material.effusivity_at(contact_time_s)
     effective = skin * body / (skin + body)
     return (
         area_m2
@@ -275,8 +271,10 @@ class Plant:
         self._offset_deg = 0.0
         self._object_temperature_shift = 0.0
         self._contact = NO_CONTACT
-        self._noise_batch: list[list[float]] = []
-        self._noise_index = 0
+        # The noise processes draw from their own stream, spawned from the world's.
+        self._noise_rng = rng.spawn(1)[0]
+        self._noise: NoiseProcess | None = None
+        self._contact_offset: list[float] | None = None
 
     # -- wiring -------------------------------------------------------------------------------
 
@@ -292,6 +290,7 @@ class Plant:
         with self.lock:
             self._sampler = sampler
             self._sample_period = float(period_s)
+            self._noise = NoiseProcess(self.noise, self._noise_rng, float(period_s))
             self._sample_origin = self._time
             self._sample_index = 1
             self._next_sample = self._time + period_s
@@ -371,6 +370,9 @@ class Plant:
             self.events.touched[target.name] = self.events.touched.get(target.name, 0) + 1
         if self._in_contact and not touching:
             self._offset_deg += float(self.rng.normal(0.0, self.noise.slip_std_deg))
+            self._contact_offset = None
+        if touching and not self._in_contact and self._noise is not None:
+            self._contact_offset = self._noise.contact_offset()
         self._in_contact = touching
         if touching:
             self._contact_time += period
@@ -379,7 +381,9 @@ class Plant:
         if touching and abs(table_speed) > 1e-6:
             self.events.collisions += 1
             self._overload(1)
-        object_temperature = (
+        frame_noise, drift = self._noise.next_row() if self._noise is not None else (None, None)
+        ambient_drift = 0.0 if drift is None else drift[DRIFT_AMBIENT_C]
+        object_temperature = ambient_drift + (
             22.0 if target is None else target.temperature_c + self._object_temperature_shift
         )
         heat = heat_flow_w(
@@ -390,27 +394,23 @@ class Plant:
             object_temperature,
             self._contact_time,
         )
-        recovery = (
-            self.finger.core_temperature_c - self._skin_temperature
-        ) / self.finger.recovery_time_s
+        core = self.finger.core_temperature_c + (0.0 if drift is None else drift[DRIFT_CORE_C])
+        recovery = (core - self._skin_temperature) / self.finger.recovery_time_s
         self._skin_temperature += (recovery - heat / self.finger.heat_capacity_j_per_k) * period
         self._update_currents(touch, target, period)
-        if self._sampler is None:
+        if self._sampler is None or frame_noise is None or drift is None:
             return
         low, high = vibration(target, touch)
-        clean = (low, high, 0.9 * touch.force_n, 1000.0 * heat, self._skin_temperature)
-        noise = self._noise_row()
+        pressure = 0.9 * touch.force_n + drift[DRIFT_PRESSURE]
+        clean = (low, high, pressure, 1000.0 * heat, self._skin_temperature)
+        noise = list(frame_noise)
+        if self._contact_offset is not None:
+            noise = [n + o for n, o in zip(noise, self._contact_offset, strict=True)]
+        # Pressure scales the vibration: its noise grows with the normal force.
+        gain = 1.0 + self.noise.vibration_gain_per_n * touch.force_n
+        noise[0] *= gain
+        noise[1] *= gain
         self._sampler(moment, tuple(c + n for c, n in zip(clean, noise, strict=True)))
-
-    def _noise_row(self) -> list[float]:
-        """One row of per-channel noise (drawn in batches: the sampler is a hot path)."""
-        if self._noise_index >= len(self._noise_batch):
-            std = np.asarray(self.noise.channel_std, dtype=np.float64)
-            self._noise_batch = (self.rng.normal(0.0, 1.0, size=(512, std.size)) * std).tolist()
-            self._noise_index = 0
-        row: list[float] = self._noise_batch[self._noise_index]
-        self._noise_index += 1
-        return row
 
     def _update_currents(self, touch: Contact, target: TactileObject | None, period: float) -> None:
         finger = self.finger
