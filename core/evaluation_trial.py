@@ -21,7 +21,9 @@ import numpy as np
 
 from core.errors import InvalidInputError
 from core.evaluation_records import TrialRecord, trial_generators
-from core.planning import ActivePolicy, PassivePolicy, Planner, Policy
+from core.moments import action_statistics
+from core.object_information import label_information_mc, object_predictives
+from core.planning import ActivePolicy, DiscriminativePolicy, PassivePolicy, Planner, Policy
 from core.posterior import predict
 from core.recognition import (
     RecognitionSession,
@@ -49,6 +51,24 @@ def information_score(
     return planner.mutual_information(belief, actions)
 
 
+def label_information_score(
+    planner: Planner, belief: GaussianBelief, probabilities: FloatArray, actions: FloatArray
+) -> FloatArray:
+    """Estimated I(l; y | x) of each recorded action under the object posterior.
+
+    The discriminative policy's score (:mod:`core.object_information`), evaluated at the
+    recorded actions instead of the planner's candidates, with fixed standard-normal draws
+    seeded by the planner's candidate seed (common random numbers: deterministic).
+    """
+    policy = planner.policy
+    n_draws = policy.n_draws if isinstance(policy, DiscriminativePolicy) else 128
+    mean, variance = object_predictives(planner.model, action_statistics(planner.model, actions))
+    draws = np.random.default_rng(planner.candidate_seed).standard_normal(
+        (n_draws, planner.model.hyperparameters.observation_dim)
+    )
+    return label_information_mc(probabilities, mean, variance, draws)
+
+
 @dataclass(frozen=True)
 class PolicyEntry:
     """How an evaluation runs a policy.
@@ -66,6 +86,7 @@ class PolicyEntry:
 #: The policies an evaluation may name. Add a policy here, in one line.
 POLICIES: dict[str, PolicyEntry] = {
     "active": PolicyEntry(ActivePolicy, information_score),
+    "discriminative": PolicyEntry(DiscriminativePolicy, label_information_score),
     "passive": PolicyEntry(PassivePolicy, None),
 }
 
