@@ -19,11 +19,13 @@ touches 41–50, 20 trials per object and policy, T = 10, seed 0):
 
 * default table (7 objects that differ in kind), random design: active and passive 100 % from
   touch 1 (every touch tells these objects apart).
-* ``--table lookalike_cups --design shared`` (four PET cups, each changed in one property; needs
-  the simulator's named tables, not yet on this branch: measured on a local merge with them),
-  accuracy % by touch 1..10: active 50 50 50 75 75 75 75 75 50 75, passive 48.8 56.2 61.3 62.5
-  57.5 61.3 61.3 63.7 61.3 73.8; the water-backed cup is never recognised by either.
-* the same table with the random design (object by object): both below chance (active 0 % until
+* ``--table lookalike_cups --design shared --policies active,discriminative,passive`` (four PET
+  cups, each changed in one property), accuracy % by touch 1..10: active 50 50 50 75 75 75 75 75
+  50 75; discriminative 50 50 50 75 50 75 75 75 75 75; passive 48.8 56.2 61.3 62.5 57.5 61.3 61.3
+  63.7 61.3 72.5; the water-backed cup is never recognised by any of them (median touches to
+  p ≥ 0.95: 7.5, 7, 8).
+* the same table with the random design (object by object; measured before the merge of the
+  simulator's latest changes): active and passive below chance (active 0 % until
   touch 10, passive 7.5–28.7 %), median touches to p ≥ 0.95 of 3: confidently wrong. The held-out
   touches of each object come last in its block, and the simulator's drift (heater, room
   temperature, pressure baseline) moves them away from the touches the model was fitted on.
@@ -91,6 +93,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         help="collect --design: random (object by object) or shared (action by action, so the "
         "held-out touches of every object come last in time).",
     )
+    parser.add_argument(
+        "--policies", default="active,passive", help="Policies to compare (evaluate --policies)."
+    )
     parser.add_argument("--json", action="store_true", help="Print the figures as JSON only.")
     args = parser.parse_args(argv)
     folder = Path(tempfile.mkdtemp(prefix="eval_replay."))
@@ -125,7 +130,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     command = [executable, "evaluate", "--model", str(model_path), "--world", "replay"]
     command += ["--data", str(held_path), "--trials", str(args.trials)]
     command += ["--steps", str(args.touches - args.fit), "--seed", str(args.seed)]
-    command += ["--json", "--out", str(report_path)]
+    command += ["--policies", args.policies, "--json", "--out", str(report_path)]
     if args.workers:
         command += ["--workers", str(args.workers)]
     done = subprocess.run(command, capture_output=True, text=True)

@@ -51,18 +51,20 @@ def information_score(
     return planner.mutual_information(belief, actions)
 
 
-def object_score(
+def label_information_score(
     planner: Planner, belief: GaussianBelief, probabilities: FloatArray, actions: FloatArray
 ) -> FloatArray:
-    """I(l; y | x) of each recorded action under the object posterior (the discriminative score).
+    """Estimated I(l; y | x) of each recorded action under the object posterior.
 
-    The same estimate as :meth:`core.planning.Planner.object_information` (common random
-    numbers from the planner's candidate seed), at the recorded actions instead of the
-    candidates. Shape (C,).
+    The discriminative policy's score (:mod:`core.object_information`), evaluated at the
+    recorded actions instead of the planner's candidates, with fixed standard-normal draws
+    seeded by the planner's candidate seed (common random numbers: deterministic).
     """
+    policy = planner.policy
+    n_draws = policy.n_draws if isinstance(policy, DiscriminativePolicy) else 128
     mean, variance = object_predictives(planner.model, action_statistics(planner.model, actions))
     draws = np.random.default_rng(planner.candidate_seed).standard_normal(
-        (DiscriminativePolicy().n_draws, planner.model.hyperparameters.observation_dim)
+        (n_draws, planner.model.hyperparameters.observation_dim)
     )
     return label_information_mc(probabilities, mean, variance, draws)
 
@@ -84,8 +86,8 @@ class PolicyEntry:
 #: The policies an evaluation may name. Add a policy here, in one line.
 POLICIES: dict[str, PolicyEntry] = {
     "active": PolicyEntry(ActivePolicy, information_score),
+    "discriminative": PolicyEntry(DiscriminativePolicy, label_information_score),
     "passive": PolicyEntry(PassivePolicy, None),
-    "discriminative": PolicyEntry(DiscriminativePolicy, object_score),
 }
 
 

@@ -129,7 +129,10 @@ def test_replay_world_caps_t_at_the_pool_and_says_so(exp1_model):
     ("changes", "message"),
     [
         ({"world": "moon"}, r"world: 'moon'.*'exp1', 'exp2', 'rig', 'model', 'replay'"),
-        ({"policies": ("active", "greedy")}, r"\['greedy'\] unknown.*\['active', 'passive'\]"),
+        (
+            {"policies": ("active", "greedy")},
+            r"\['greedy'\] unknown.*\['active', 'discriminative', 'passive'\]",
+        ),
         ({"policies": ()}, "policies"),
         ({"trials_per_target": 0}, "trials_per_target"),
         ({"steps": 0}, "steps"),

@@ -102,9 +102,8 @@ def test_model_world_samples_the_predictive_distribution(model):
 
 
 def test_unknown_policy_and_target_are_named(model):
-    with pytest.raises(
-        InvalidInputError, match=r"'greedy'.*\['active', 'discriminative', 'passive'\]"
-    ):
+    allowed = r"\['active', 'discriminative', 'passive'\]"
+    with pytest.raises(InvalidInputError, match=rf"'greedy'.*{allowed}"):
         policy_entry("greedy")
     with pytest.raises(InvalidInputError, match="'O9'"):
         world_observer(Experiment1World(), "O9")
@@ -176,15 +175,19 @@ def test_replay_cap_and_dimensions_are_checked(model, held_out):
         )
 
 
-def test_discriminative_replay_score_equals_the_planner_estimate_at_the_candidates(model):
-    # object_score at arbitrary actions is Planner.object_information when those actions are
-    # the planner's own candidates (the same predictives and common random numbers).
-    from core.evaluation_trial import object_score
+def test_discriminative_replay_picks_the_most_label_informative_touch_first(model, held_out):
+    from core.evaluation_trial import label_information_score
 
+    pool, record = replay(model, held_out, "discriminative")
     planner = Planner(model, policy_entry("discriminative").make())
-    candidates = planner.candidate_statistics.actions[:16]
-    p = np.array([0.5, 0.3, 0.15, 0.05])[: model.data.n_objects]
-    p = p / p.sum()
-    expected = planner.object_information(p)[:16]
-    got = object_score(planner, default_prior(model, 5.0), p, candidates)
-    assert np.allclose(got, expected, rtol=1e-9, atol=1e-12)
+    uniform = np.full(4, 0.25)
+    scores = label_information_score(planner, default_prior(model, 5.0), uniform, pool.actions)
+    assert record.actions[0] == tuple(pool.actions[int(np.argmax(scores))])
+    assert np.all((scores >= 0) & (scores <= np.log(4) + 1e-12))  # 0 ≤ I(l; y) ≤ H(p)
+
+
+def test_discriminative_trials_run_in_a_world(model):
+    planner = Planner(model, policy_entry("discriminative").make())
+    record = trial(model, planner, "discriminative", "O2", 0)
+    assert record.policy == "discriminative"
+    assert trial(model, planner, "discriminative", "O2", 0) == record
