@@ -42,7 +42,15 @@ class Settings(BaseSettings):
         frontend_dir: Folder of the static dashboard served at ``/`` (if it exists).
         migrations_dir: Folder of the Alembic environment.
         viz: Whether ``activetouch serve`` runs the live 3D view (viser) beside the app.
-        viz_port: Its port (0: a free one). It binds ``host``, as the app does.
+        viz_port: Its port (0: a free one). It binds loopback; off loopback the app proxies it
+            at ``/viser/`` behind the sign-in (see :mod:`app.security`).
+        require_auth_for_reads: Lock reads on loopback too: every ``/api/v1`` request (reads
+            and the event stream too) and the 3D view then need the token or a signed-in
+            session, as they always do off loopback. Set it behind a reverse proxy on the same
+            machine, where every client appears as loopback.
+        session_ttl_s: How long a dashboard sign-in lasts without use (each request renews it).
+        dask_scheduler: Address of a Dask scheduler (``tcp://host:8786``) that evaluations
+            run their trials on; none: in-process, or a local cluster of the request's workers.
     """
 
     model_config = SettingsConfigDict(
@@ -65,6 +73,9 @@ class Settings(BaseSettings):
     migrations_dir: Path = PROJECT_ROOT / "migrations"
     viz: bool = True
     viz_port: int = Field(default=8081, ge=0, le=65535)
+    dask_scheduler: str | None = None
+    require_auth_for_reads: bool = False
+    session_ttl_s: float = Field(default=12 * 3600.0, gt=0.0, le=30 * 24 * 3600.0)
 
     @property
     def token(self) -> str | None:
@@ -74,12 +85,19 @@ class Settings(BaseSettings):
         value = self.api_token.get_secret_value()
         return value or None
 
+    @property
+    def reads_need_auth(self) -> bool:
+        """Whether reads need authentication too: off loopback (decided by the bind address, not
+        the client's: behind a local proxy or tunnel every client looks like loopback) or when
+        ``require_auth_for_reads`` asks for it."""
+        return self.require_auth_for_reads or not is_loopback(self.host)
+
     def check_safe_to_serve(self) -> None:
         """Refuse to bind a non-loopback address without an API token.
 
         Raises:
-            ConfigurationError: ``host`` is not a loopback address and no token is set, or
-                the database URL is not SQLite.
+            ConfigurationError: ``host`` is not a loopback address (or reads need auth) and no
+                token is set, or the database URL is not SQLite.
         """
         if not self.database_url.startswith("sqlite"):
             raise ConfigurationError(
@@ -89,6 +107,10 @@ class Settings(BaseSettings):
             raise ConfigurationError(
                 f"Refusing to bind {self.host!r} without an API token: set "
                 "ACTIVETOUCH_API_TOKEN (or --api-token), or bind 127.0.0.1."
+            )
+        if self.reads_need_auth and self.token is None:
+            raise ConfigurationError(
+                "require_auth_for_reads is set without an API token: set ACTIVETOUCH_API_TOKEN."
             )
 
 

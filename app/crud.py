@@ -15,10 +15,13 @@ from sqlalchemy.orm import Session
 
 from app.models import (
     Dataset,
+    Evaluation,
+    EvaluationTrial,
     EventRecord,
     FloatArray,
     ModelRecord,
     ObjectRecord,
+    RequestAudit,
     Run,
     Sample,
     Trial,
@@ -379,3 +382,171 @@ def list_objects(session: Session, limit: int, offset: int) -> tuple[list[Object
         select(ObjectRecord).order_by(ObjectRecord.name).limit(limit).offset(offset)
     ).all()
     return list(rows), session.scalar(select(func.count()).select_from(ObjectRecord)) or 0
+
+
+# --- evaluations ------------------------------------------------------------------------------
+
+
+def create_evaluation(session: Session, **fields: Any) -> Evaluation:
+    """Add an evaluation row (flushed, so it has an id)."""
+    evaluation = Evaluation(**fields)
+    session.add(evaluation)
+    session.flush()
+    return evaluation
+
+
+def get_evaluation(session: Session, evaluation_id: int) -> Evaluation | None:
+    """The evaluation with this id, if any."""
+    return session.get(Evaluation, evaluation_id)
+
+
+def list_evaluations(
+    session: Session, model_id: int | None, status: str | None, limit: int, offset: int
+) -> tuple[list[Evaluation], int]:
+    """Evaluations, newest first, filtered by model and status, and the count."""
+    query = select(Evaluation)
+    count_query = select(func.count()).select_from(Evaluation)
+    if model_id is not None:
+        query = query.where(Evaluation.model_id == model_id)
+        count_query = count_query.where(Evaluation.model_id == model_id)
+    if status is not None:
+        query = query.where(Evaluation.status == status)
+        count_query = count_query.where(Evaluation.status == status)
+    rows = session.scalars(query.order_by(Evaluation.id.desc()).limit(limit).offset(offset))
+    return list(rows.all()), session.scalar(count_query) or 0
+
+
+def set_evaluation_status(
+    session: Session, evaluation: Evaluation, status: str, reason: str | None = None
+) -> None:
+    """Change an evaluation's status (timestamps follow); the caller checked the transition."""
+    evaluation.status = status
+    if reason is not None:
+        evaluation.reason = reason
+    now = utc_now()
+    evaluation.updated_at = now
+    if status == "running" and evaluation.started_at is None:
+        evaluation.started_at = now
+    if status not in ACTIVE_STATES:
+        evaluation.finished_at = now
+
+
+def add_evaluation_trial(
+    session: Session, evaluation: Evaluation, record: dict[str, Any]
+) -> EvaluationTrial:
+    """Add a finished trial (a ``TrialRecord.to_dict()``) as number ``done + 1``; bump ``done``.
+
+    Raises:
+        KeyError: ``record`` lacks ``policy``, ``target``, ``trial``, ``correct`` or ``touches``.
+    """
+    row = EvaluationTrial(
+        evaluation_id=evaluation.id,
+        number=evaluation.done + 1,
+        policy=str(record["policy"]),
+        target=str(record["target"]),
+        trial=int(record["trial"]),
+        correct=bool(record["correct"]),
+        touches=int(record["touches"]),
+        record=record,
+    )
+    session.add(row)
+    evaluation.done = row.number
+    evaluation.updated_at = utc_now()
+    return row
+
+
+def evaluation_trials(session: Session, evaluation_id: int) -> list[EvaluationTrial]:
+    """The finished trials of an evaluation, in the order they finished."""
+    return list(
+        session.scalars(
+            select(EvaluationTrial)
+            .where(EvaluationTrial.evaluation_id == evaluation_id)
+            .order_by(EvaluationTrial.number)
+        ).all()
+    )
+
+
+def evaluation_trial_page(
+    session: Session, evaluation_id: int, limit: int, offset: int
+) -> tuple[list[EvaluationTrial], int]:
+    """Finished trials ``offset+1 .. offset+limit`` (in finishing order), and the count."""
+    rows = session.scalars(
+        select(EvaluationTrial)
+        .where(EvaluationTrial.evaluation_id == evaluation_id)
+        .order_by(EvaluationTrial.number)
+        .limit(limit)
+        .offset(offset)
+    ).all()
+    count = session.scalar(
+        select(func.count())
+        .select_from(EvaluationTrial)
+        .where(EvaluationTrial.evaluation_id == evaluation_id)
+    )
+    return list(rows), count or 0
+
+
+def get_evaluation_trial(
+    session: Session, evaluation_id: int, number: int
+) -> EvaluationTrial | None:
+    """Finished trial ``number`` (1-based, in finishing order) of an evaluation, if any."""
+    return session.scalars(
+        select(EvaluationTrial).where(
+            EvaluationTrial.evaluation_id == evaluation_id, EvaluationTrial.number == number
+        )
+    ).first()
+
+
+def fail_interrupted_evaluations(session: Session, reason: str) -> list[int]:
+    """Mark evaluations left queued/running/paused by a previous process as failed.
+
+    Their finished trials are kept. Commits.
+
+    Returns:
+        The ids that were changed.
+    """
+    ids = list(
+        session.scalars(select(Evaluation.id).where(Evaluation.status.in_(ACTIVE_STATES))).all()
+    )
+    if ids:
+        now = utc_now()
+        session.execute(
+            update(Evaluation)
+            .where(Evaluation.id.in_(ids))
+            .values(status="failed", reason=reason, finished_at=now, updated_at=now)
+        )
+    session.commit()
+    return ids
+
+
+def add_request_audits(session: Session, rows: Iterable[dict[str, Any]]) -> int:
+    """Insert request-audit rows (``RequestAudit`` columns as keys). Commits; returns how many."""
+    records = [RequestAudit(**row) for row in rows]
+    session.add_all(records)
+    session.commit()
+    return len(records)
+
+
+def prune_request_audits(session: Session, keep: int) -> int:
+    """Delete all but the newest ``keep`` request-audit rows. Commits; returns how many went."""
+    newest = session.scalar(select(func.max(RequestAudit.id))) or 0
+    result = session.execute(delete(RequestAudit).where(RequestAudit.id <= newest - keep))
+    session.commit()
+    return int(getattr(result, "rowcount", 0) or 0)
+
+
+def list_request_audits(
+    session: Session,
+    limit: int,
+    offset: int,
+    method: str | None = None,
+    path_prefix: str | None = None,
+) -> tuple[list[RequestAudit], int]:
+    """Recorded mutating requests, newest first, and the count (filtered by method and path)."""
+    query = select(RequestAudit)
+    if method is not None:
+        query = query.where(RequestAudit.method == method)
+    if path_prefix is not None:
+        query = query.where(RequestAudit.path.startswith(path_prefix, autoescape=True))
+    rows = session.scalars(query.order_by(RequestAudit.id.desc()).limit(limit).offset(offset)).all()
+    count = session.scalar(select(func.count()).select_from(query.subquery())) or 0
+    return list(rows), count

@@ -1,18 +1,18 @@
-"""FastAPI dependencies as ``Annotated`` aliases: the app context, a DB session, the token check."""
+"""FastAPI dependencies as ``Annotated`` aliases: the app context, a DB session, the caller's
+identity, the session store, and the auth check (a backstop of the gate's middleware)."""
 
 from __future__ import annotations
 
-import secrets
 from collections.abc import Iterator
 from typing import Annotated
 
 from fastapi import Depends, Path, Query, Request
 from sqlalchemy.orm import Session
 
-from app.errors import AppError
+from app.security.errors import ForbiddenError, UnauthorizedError
+from app.security.gate import Identity, identify, refusal
+from app.security.sessions import SessionStore
 from app.services.context import AppContext
-
-MUTATING_METHODS = frozenset({"POST", "PUT", "PATCH", "DELETE"})
 
 #: Largest id accepted in a path (SQLite integers are 64-bit signed).
 MAX_ID = 2**63 - 1
@@ -23,12 +23,6 @@ IdPath = Annotated[int, Path(ge=1, le=MAX_ID)]
 #: Paging of list endpoints.
 Limit = Annotated[int, Query(ge=1, le=1000)]
 Offset = Annotated[int, Query(ge=0, le=MAX_ID)]
-
-
-class UnauthorizedError(AppError):
-    """A mutating request without the right bearer token."""
-
-    status_code = 401
 
 
 async def get_context(request: Request) -> AppContext:
@@ -49,16 +43,44 @@ def get_session(context: ContextDep) -> Iterator[Session]:
 SessionDep = Annotated[Session, Depends(get_session)]
 
 
-async def require_token(request: Request) -> None:
-    """When an API token is configured, mutating requests need ``Authorization: Bearer <token>``."""
-    token = request.app.state.settings.token
-    if token is None or request.method not in MUTATING_METHODS:
+async def get_identity(request: Request) -> Identity:
+    """How the request authenticated (found by the gate; worked out here if it did not run)."""
+    identity = request.scope.get("state", {}).get("identity")
+    if isinstance(identity, Identity):
+        return identity
+    return identify(request.headers, request.app.state.settings.token, request.app.state.sessions)
+
+
+IdentityDep = Annotated[Identity, Depends(get_identity)]
+
+
+async def get_sessions(request: Request) -> SessionStore:
+    """The app's dashboard sessions."""
+    sessions: SessionStore = request.app.state.sessions
+    return sessions
+
+
+SessionsDep = Annotated[SessionStore, Depends(get_sessions)]
+
+
+async def require_token(request: Request, identity: IdentityDep) -> None:
+    """The gate's policy again, per API route (defence in depth if the middleware were missing).
+
+    Off loopback every request needs the token or a session; on loopback only changes do (when
+    a token is configured). See :func:`app.security.gate.refusal`.
+    """
+    from app.main import API_PREFIX  # here: app.main imports this module
+
+    refused = refusal(
+        request.app.state.settings,
+        request.method,
+        request.scope["path"],
+        identity,
+        request.headers,
+        API_PREFIX,
+    )
+    if refused is None:
         return
-    header = request.headers.get("authorization", "")
-    scheme, _, presented = header.partition(" ")
-    if scheme.lower() != "bearer" or not secrets.compare_digest(
-        presented.strip().encode(), token.encode()
-    ):
-        raise UnauthorizedError(
-            "This server requires 'Authorization: Bearer <token>' for changes.",
-        )
+    if refused.status_code == 401:
+        raise UnauthorizedError(refused.detail)
+    raise ForbiddenError(refused.detail)

@@ -12,6 +12,14 @@ reloaded model predicts exactly as the original. Documents written before that f
 still load: their posterior is chosen as :func:`core.posterior.condition` does by default
 (``structure="auto"``). The same field is stored on a model row: :func:`posterior_field` writes
 it, :func:`read_posterior_field` parses it and :func:`condition_as_recorded` rebuilds the GP.
+
+The ``noise_model`` field records the observation transform y' = W ((y - offset) / scale) the GPs
+were fitted in (:mod:`core.observation_transform`, docs/noise-model.md): ``{"kind":
+"independent" | "correlated", "offset": [...], "scale": [...], "whitening": [[...]],
+"correlation": [[...]], "note": "..."}``. The training data stay in raw units. A document
+without the field (written before it existed) loads with the identity transform, as it was
+fitted. On a model row the same dict is kept inside the ``posterior`` record (key
+``noise_model``). ``latent_selection`` (optional) reports how ``--latent-dim auto`` chose ds.
 """
 
 from __future__ import annotations
@@ -28,6 +36,9 @@ import numpy as np
 import numpy.typing as npt
 
 from core.errors import InvalidInputError
+from core.latent_selection import LatentSelection
+from core.noise_model import attach_transform, transform_data
+from core.observation_transform import TRANSFORM_KINDS, ObservationTransform
 from core.posterior import Structure, condition
 from core.sparse import condition_sparse
 from core.types import (
@@ -249,10 +260,112 @@ def posterior_field(posterior: GPPosterior) -> dict[str, Any]:
     return field
 
 
-def model_to_document(model: ManifoldModel, fit_seconds: float | None = None) -> dict[str, Any]:
-    """The model document (format ``activetouch-model/1``) as a JSON-ready dict."""
+def noise_model_field(transform: ObservationTransform | None) -> dict[str, Any] | None:
+    """The model document's ``noise_model`` field (``None`` for no transform)."""
+    if transform is None or transform.kind == "identity":
+        return None
+    return {
+        "kind": transform.kind,
+        "offset": [float(v) for v in transform.offset],
+        "scale": [float(v) for v in transform.scale],
+        "whitening": transform.whitening.tolist(),
+        "correlation": transform.correlation.tolist(),
+        "note": transform.note,
+    }
+
+
+def read_noise_model_field(
+    field: Any, observation_dim: int, where: str = "model document"
+) -> ObservationTransform | None:
+    """Parse a ``noise_model`` field (:func:`noise_model_field`); ``None`` when absent.
+
+    Raises:
+        DocumentError: Not an object, an unknown kind, or arrays of the wrong shape or not
+            finite / not invertible (``column`` names ``noise_model.<field>``).
+    """
+    if field is None:
+        return None
+    if not isinstance(field, Mapping):
+        raise DocumentError(
+            f"{where}: 'noise_model' must be an object, found {type(field).__name__}.",
+            column="noise_model",
+        )
+    kind = field.get("kind")
+    if kind not in TRANSFORM_KINDS:
+        raise DocumentError(
+            f"{where}: noise_model.kind must be one of {', '.join(TRANSFORM_KINDS)}, found "
+            f"{kind!r}.",
+            column="noise_model.kind",
+        )
+    if kind == "identity":
+        return None
+    arrays = {}
+    for name, shape in (
+        ("offset", (observation_dim,)),
+        ("scale", (observation_dim,)),
+        ("whitening", (observation_dim, observation_dim)),
+        ("correlation", (observation_dim, observation_dim)),
+    ):
+        try:
+            value = np.asarray(field.get(name), dtype=np.float64)
+        except (TypeError, ValueError):
+            value = np.zeros(0)
+        if value.shape != shape or not np.all(np.isfinite(value)):
+            raise DocumentError(
+                f"{where}: noise_model.{name} must be a finite array of shape {shape} "
+                f"(dy = {observation_dim}).",
+                column=f"noise_model.{name}",
+            )
+        arrays[name] = value
+    try:
+        return ObservationTransform(
+            kind,
+            arrays["offset"],
+            arrays["scale"],
+            arrays["whitening"],
+            arrays["correlation"],
+            str(field.get("note", "")),
+        )
+    except InvalidInputError as exc:
+        raise DocumentError(f"{where}: noise_model: {exc}", column="noise_model") from exc
+
+
+def latent_selection_dict(selection: LatentSelection) -> dict[str, Any]:
+    """A latent-dimension selection as JSON (the model document's ``latent_selection``)."""
+    return {
+        "chosen": selection.chosen,
+        "best": selection.best,
+        "n_folds": selection.n_folds,
+        "candidates": [
+            {
+                "latent_dim": c.latent_dim,
+                "mean": c.mean,
+                "standard_error": c.standard_error,
+                "difference": c.difference,
+                "difference_standard_error": c.difference_standard_error,
+                "fold_scores": list(c.fold_scores),
+            }
+            for c in selection.candidates
+        ],
+        "explanation": selection.explanation,
+    }
+
+
+def model_to_document(
+    model: ManifoldModel,
+    fit_seconds: float | None = None,
+    latent_selection: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """The model document (format ``activetouch-model/1``) as a JSON-ready dict.
+
+    Args:
+        model: The model; its raw training data are written, and its observation transform
+            as ``noise_model``.
+        fit_seconds: How long the fit took.
+        latent_selection: How ``latent_dim="auto"`` chose ds, if it did (written as is).
+    """
     h = model.hyperparameters
-    data = model.data
+    data = model.raw_data
     document: dict[str, Any] = {
         "format": MODEL_FORMAT,
         "latent_dim": model.latent_dim,
@@ -280,6 +393,11 @@ def model_to_document(model: ManifoldModel, fit_seconds: float | None = None) ->
             "observations": data.observations.tolist(),
         },
     }
+    noise = noise_model_field(model.transform)
+    if noise is not None:
+        document["noise_model"] = noise
+    if latent_selection is not None:
+        document["latent_selection"] = dict(latent_selection)
     if model.diagnostics is not None:
         d = model.diagnostics
         document["diagnostics"] = {
@@ -379,8 +497,9 @@ def model_from_document(document: Any) -> ManifoldModel:
             raise DocumentError(
                 f"model document: malformed field 'diagnostics' ({exc}).", column="diagnostics"
             ) from exc
+    transform = read_noise_model_field(document.get("noise_model"), data.observation_dim)
     return condition_as_recorded(
-        data, latents, hyperparameters, diagnostics, document.get("posterior")
+        data, latents, hyperparameters, diagnostics, document.get("posterior"), transform=transform
     )
 
 
@@ -475,6 +594,7 @@ def condition_as_recorded(
     diagnostics: FitDiagnostics | None,
     field: Any,
     where: str = "model document",
+    transform: ObservationTransform | None = None,
 ) -> ManifoldModel:
     """Condition the GP exactly as a ``posterior`` field recorded (:func:`posterior_field`).
 
@@ -489,6 +609,8 @@ def condition_as_recorded(
         field: The ``posterior`` field; ``None`` (written before the field existed) conditions
             as :func:`core.posterior.condition` chooses by default (``structure="auto"``).
         where: What holds the field, to start error messages (``"model document"``).
+        transform: The observation transform the model was fitted with (``None``: identity);
+            the GP is conditioned on the transformed observations and keeps the transform.
 
     Returns:
         The conditioned model.
@@ -503,20 +625,23 @@ def condition_as_recorded(
     """
     recorded = read_posterior_field(field, data, where)
     try:
+        model_data = data if transform is None else transform_data(data, transform)
         if recorded is None:
-            return condition(data, latents, hyperparameters, diagnostics)
-        if recorded.inducing is not None:
-            return condition_sparse(
-                data, latents, hyperparameters, diagnostics, inducing=recorded.inducing
+            model = condition(model_data, latents, hyperparameters, diagnostics)
+        elif recorded.inducing is not None:
+            model = condition_sparse(
+                model_data, latents, hyperparameters, diagnostics, inducing=recorded.inducing
             )
-        return condition(
-            data,
-            latents,
-            hyperparameters,
-            diagnostics,
-            structure=recorded.structure,
-            n_inducing=recorded.n_inducing,
-        )
+        else:
+            model = condition(
+                model_data,
+                latents,
+                hyperparameters,
+                diagnostics,
+                structure=recorded.structure,
+                n_inducing=recorded.n_inducing,
+            )
+        return model if transform is None else attach_transform(model, transform, data)
     except DocumentError:
         raise
     except InvalidInputError as exc:

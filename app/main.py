@@ -14,7 +14,13 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from app.config import Settings
 from app.deps import require_token
 from app.errors import PayloadTooLargeError, install_error_handlers
+from app.routes import audit as audit_routes
 from app.routes import collections, datasets, events, health, models, objects, rig, trials
+from app.routes import session as session_routes
+from app.routes.evaluations import router as evaluations_router
+from app.security.audit import AuditMiddleware, AuditRecorder, database_writer
+from app.security.gate import AuthGate
+from app.security.sessions import SessionStore
 from app.services.context import start_context
 from app.services.health import version
 
@@ -23,12 +29,15 @@ API_PREFIX = "/api/v1"
 
 @asynccontextmanager
 async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-    """Build the app context (migrations, recovery of interrupted runs); close it at exit."""
+    """Build the app context (migrations, recovery of interrupted runs) and the request audit's
+    writer; close them at exit."""
     context = start_context(app.state.settings)
     app.state.context = context
+    app.state.audit = AuditRecorder(database_writer(context.database)).start()
     try:
         yield
     finally:
+        app.state.audit.close()
         context.close()
 
 
@@ -95,10 +104,19 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.settings = settings
     app.add_middleware(BodySizeLimit, max_body_size=settings.max_upload_bytes)
+    # Security (app.security): the gate inside the audit, so refusals are recorded too.
+    app.state.sessions = SessionStore(settings.session_ttl_s)
+    app.add_middleware(
+        AuthGate, settings=settings, sessions=app.state.sessions, api_prefix=API_PREFIX
+    )
+    app.add_middleware(AuditMiddleware, api_prefix=API_PREFIX)
     install_error_handlers(app)
     api = APIRouter(prefix=API_PREFIX, dependencies=[Depends(require_token)])
     for module in (health, objects, datasets, models, trials, rig, collections, events):
         api.include_router(module.router)
+    api.include_router(evaluations_router)
+    api.include_router(session_routes.router)
+    api.include_router(audit_routes.router)
     app.include_router(api)
     if settings.frontend_dir.is_dir():
         app.mount("/", StaticFiles(directory=settings.frontend_dir, html=True), name="frontend")

@@ -253,3 +253,76 @@ class EventRecord(Base):
     type: Mapped[str] = mapped_column(String(50))
     data: Mapped[dict[str, Any]] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utc_now)
+
+
+class Evaluation(Base):
+    """A policy evaluation job (issue 12): its request, state, progress and final summary.
+
+    ``spec`` is the request as the API received it (``EvaluationCreate``); ``steps`` the T
+    actually run (fewer than asked when a replay pool caps it); ``summary`` is the
+    ``activetouch-evaluation/1`` document of the finished report without its ``trials`` (those
+    are :class:`EvaluationTrial` rows, written as each trial finishes); ``workers`` is the
+    number asked for until the report says how many ran trials.
+    """
+
+    __tablename__ = "evaluations"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    model_id: Mapped[int] = mapped_column(ForeignKey("models.id"), index=True)
+    dataset_id: Mapped[int | None] = mapped_column(ForeignKey("datasets.id"), default=None)
+    spec: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    status: Mapped[str] = mapped_column(String(20), default="queued", index=True)
+    reason: Mapped[str | None] = mapped_column(Text, default=None)
+    done: Mapped[int] = mapped_column(Integer, default=0)
+    total: Mapped[int] = mapped_column(Integer, default=0)
+    steps: Mapped[int] = mapped_column(Integer)  # T run: the request's, or a replay pool's cap
+    workers: Mapped[int | None] = mapped_column(Integer, default=None)
+    seconds: Mapped[float | None] = mapped_column(Float, default=None)
+    summary: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utc_now)
+    updated_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utc_now, onupdate=utc_now)
+    started_at: Mapped[datetime | None] = mapped_column(UTCDateTime, default=None)
+    finished_at: Mapped[datetime | None] = mapped_column(UTCDateTime, default=None)
+
+
+class EvaluationTrial(Base):
+    """One finished trial of an evaluation: its ``TrialRecord`` as JSON (``record``).
+
+    ``number`` counts the trials in the order they finished (1, 2, ...); (policy, target,
+    trial) names the trial as the engine does.
+    """
+
+    __tablename__ = "evaluation_trials"
+    __table_args__ = (
+        UniqueConstraint("evaluation_id", "number"),
+        UniqueConstraint("evaluation_id", "policy", "target", "trial"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    evaluation_id: Mapped[int] = mapped_column(ForeignKey("evaluations.id", ondelete="CASCADE"))
+    number: Mapped[int] = mapped_column(Integer)
+    policy: Mapped[str] = mapped_column(String(50))
+    target: Mapped[str] = mapped_column(String(200))
+    trial: Mapped[int] = mapped_column(Integer)
+    correct: Mapped[bool] = mapped_column(Boolean)
+    touches: Mapped[int] = mapped_column(Integer)
+    record: Mapped[dict[str, Any]] = mapped_column(JSON)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utc_now)
+
+
+class RequestAudit(Base):
+    """A mutating API request (``POST``/``PUT``/``PATCH``/``DELETE``), refused ones included:
+    when, from which address, what, the outcome, and whether (and how) it authenticated."""
+
+    __tablename__ = "request_audit"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    time: Mapped[datetime] = mapped_column(UTCDateTime, default=utc_now, index=True)
+    client: Mapped[str | None] = mapped_column(String(100), default=None)
+    method: Mapped[str] = mapped_column(String(10))
+    path: Mapped[str] = mapped_column(String(500))
+    route: Mapped[str | None] = mapped_column(String(200), default=None)
+    status_code: Mapped[int] = mapped_column(Integer)
+    authenticated: Mapped[bool] = mapped_column(Boolean)
+    auth_method: Mapped[str | None] = mapped_column(String(20), default=None)
+    duration_ms: Mapped[float] = mapped_column(Float)

@@ -83,7 +83,22 @@ class ModelCreate(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     dataset_id: Id
-    latent_dim: Annotated[int, Field(ge=1, le=8)] = 2
+    latent_dim: Annotated[int, Field(ge=1, le=8)] | Literal["auto"] = Field(
+        default=2,
+        description=(
+            "ds, or 'auto': choose it by cross-validated held-out predictive likelihood "
+            "(candidates 1..min(5, L-1); the scores are reported in latent_selection)."
+        ),
+    )
+    noise_model: Literal["auto", "independent", "correlated"] = Field(
+        default="auto",
+        description=(
+            "independent: standardise every feature, independent noise per feature. "
+            "correlated: also whiten the noise covariance across features estimated from the "
+            "residuals of a first fit, then refit. auto: both, keep the correlated model when "
+            "it wins on leave-one-out predictive likelihood (docs/noise-model.md)."
+        ),
+    )
     optimizer: Literal["lbfgs", "de"] = "lbfgs"
     restarts: Annotated[int, Field(ge=0, le=50)] = 2
     seed: Seed | None = None
@@ -139,6 +154,44 @@ class ModelPosterior(BaseModel):
     )
 
 
+class NoiseModelPublic(BaseModel):
+    """The observation noise model a ready model applies (docs/noise-model.md)."""
+
+    kind: Literal["identity", "independent", "correlated"] = Field(
+        description=(
+            "identity: observations used as recorded (models fitted before noise models "
+            "existed); independent: each feature standardised, noise independent per feature; "
+            "correlated: standardised and the noise whitened by the estimated correlation."
+        )
+    )
+    correlation: list[list[float]] = Field(
+        description="Noise correlation across features that the model whitens (dy x dy)."
+    )
+    scale: list[float] = Field(description="Per-feature scale the features are divided by.")
+    note: str = Field(default="", description="How the noise model was chosen.")
+
+
+class LatentCandidatePublic(BaseModel):
+    """Cross-validated held-out score of one candidate latent dimension."""
+
+    latent_dim: int
+    mean: float = Field(description="Mean held-out log-likelihood per touch over folds (nats).")
+    standard_error: float
+    difference: float = Field(description="Mean paired difference to the best candidate.")
+    difference_standard_error: float
+    fold_scores: list[float]
+
+
+class LatentSelectionPublic(BaseModel):
+    """How ``latent_dim: "auto"`` chose ds."""
+
+    chosen: int
+    best: int
+    n_folds: int
+    candidates: list[LatentCandidatePublic]
+    explanation: str
+
+
 class ModelPublic(BaseModel):
     """``GET /models/{id}``."""
 
@@ -165,6 +218,17 @@ class ModelPublic(BaseModel):
             "fitting, for a failed model, and for a model stored before this was recorded (such "
             "a model is conditioned as the default structure 'auto' chooses)."
         ),
+    )
+    noise_model: NoiseModelPublic | None = Field(
+        default=None,
+        description=(
+            "The observation noise model applied (null while fitting or failed). Models stored "
+            "before noise models existed report kind 'identity'."
+        ),
+    )
+    latent_selection: LatentSelectionPublic | None = Field(
+        default=None,
+        description="For latent_dim 'auto': every candidate's score and why ds was chosen.",
     )
     created_at: datetime
     finished_at: datetime | None
@@ -387,3 +451,131 @@ class ObjectPublic(BaseModel):
     notes: str
     properties: dict[str, Any]
     created_at: datetime
+
+
+# --- evaluations ------------------------------------------------------------------------------
+
+EvaluationWorld = Literal["exp1", "exp2", "rig", "model", "replay"]
+
+
+class EvaluationCreate(BaseModel):
+    """``POST /evaluations``: many recognition trials of one model, summarised per policy.
+
+    The parameters of ``activetouch evaluate``; ``replay`` names a dataset of recorded
+    held-out touches (``dataset_id``). Trials run in the server; on a Dask cluster when the
+    server is configured with one (``ACTIVETOUCH_DASK_SCHEDULER``), else on ``workers``
+    local processes (in-process when not given).
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    model_id: Id
+    world: EvaluationWorld = Field(description="exp1, exp2, rig, model or replay.")
+    dataset_id: Id | None = Field(
+        default=None, description="replay only: the dataset of held-out touches to replay."
+    )
+    targets: Annotated[list[Name], Field(min_length=1, max_length=1000)] | None = Field(
+        default=None, description="Objects to recognise (all of the model's when not given)."
+    )
+    policies: Annotated[list[Name], Field(min_length=1, max_length=10)] = Field(
+        default_factory=lambda: ["active", "passive"]
+    )
+    trials_per_target: Annotated[int, Field(ge=1, le=100_000)] = 10
+    steps: Annotated[int, Field(ge=1, le=1000)] = 10
+    confidence: Annotated[float, Field(gt=0.0, le=1.0)] = 0.95
+    seed: Seed = 0
+    table: Name | None = Field(default=None, description="rig only: the simulated rig table.")
+    workers: Annotated[int, Field(ge=1, le=256)] | None = None
+
+
+class EvaluationPublic(BaseModel):
+    """``GET /evaluations/{id}``: the request, state, progress and summary.
+
+    ``summary`` is the ``activetouch-evaluation/1`` document without its trials: the final
+    report's once the job has ended with one; while it runs (or after it failed) the summary
+    of the trials finished so far, marked ``"partial": true``; null before the first trial.
+    """
+
+    id: int
+    model_id: int
+    dataset_id: int | None
+    spec: dict[str, Any]
+    status: RunStatus
+    reason: str | None
+    done: int
+    total: int
+    workers: int | None
+    seconds: float | None
+    summary: dict[str, Any] | None
+    created_at: datetime
+    updated_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+
+
+class EvaluationTrialSummary(BaseModel):
+    """A finished trial of an evaluation, without its touches (list view)."""
+
+    number: int
+    policy: str
+    target: str
+    trial: int
+    correct: bool
+    touches: int
+    answer: str | None
+    stop_reason: str | None
+
+
+class EvaluationTrialPublic(EvaluationTrialSummary):
+    """``GET /evaluations/{id}/trials/{n}``: one finished trial with its touches.
+
+    ``record`` is the engine's ``TrialRecord`` as JSON (answers, probabilities, actions and
+    mutual information after each touch, seed); ``objects`` the model's object order of its
+    probabilities.
+    """
+
+    evaluation_id: int
+    model_id: int
+    objects: list[str]
+    record: dict[str, Any]
+
+
+class HealthLocked(BaseModel):
+    """``GET /health`` off loopback without the token: that auth is required, nothing more."""
+
+    auth_required: Literal[True] = True
+
+
+class SignIn(BaseModel):
+    """The dashboard's sign-in: the server's API token (kept by no one but the server)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    token: Annotated[str, Field(min_length=1, max_length=1000)]
+
+
+class SessionStatus(BaseModel):
+    """How this request is authenticated, and what the server asks for."""
+
+    authenticated: bool
+    method: Literal["token", "session"] | None
+    auth_required: bool = Field(description="A token is configured: changes need it.")
+    reads_need_auth: bool = Field(
+        description="Off loopback: every request (reads, events, the 3D view) needs it."
+    )
+    expires_at: datetime | None = None
+
+
+class RequestAuditPublic(BaseModel):
+    """A recorded mutating request."""
+
+    id: int
+    time: datetime
+    client: str | None = Field(description="Client address as the server saw it.")
+    method: str
+    path: str
+    route: str | None = Field(description="The matched route template, if any.")
+    status_code: int
+    authenticated: bool
+    auth_method: Literal["token", "session"] | None
+    duration_ms: float

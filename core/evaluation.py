@@ -2,6 +2,12 @@
 
 A world (``core.worlds.World``) produces the observations; the model only knows object names,
 so targets and answers are matched by name.
+
+Evaluations (``activetouch evaluate``, ``paper exp1``, the server's jobs) run on
+:mod:`core.evaluation_trial` (one ``SeedSequence`` per trial, records by name) and
+:mod:`core.evaluation_summary`. Here remain :func:`iter_simulated_trial` (``activetouch
+recognize``) and the older sequential loop :func:`evaluate` (one generator shared by every
+trial, so a trial cannot be re-run alone), which only ``tests/e2e/test_experiment1.py`` still uses.
 """
 
 from __future__ import annotations

@@ -69,6 +69,7 @@ import scipy.optimize
 from core.errors import ConvergenceError, InvalidInputError, NotPositiveDefiniteError
 from core.fit_options import FitOptions, FitProgress
 from core.hyperparameter_fit import (
+    DEFAULT_LBFGS_MEMORY,
     FAILED_VALUE,
     SeparableProgress,
     SeparableResult,
@@ -218,6 +219,8 @@ class FitRun:
         self.screen: FitProblem | None = None
         counts = data.touches_per_object()
         k = options.screen_touches_per_object
+        if k and options.screen_max_touches:
+            k = min(k, max(2, options.screen_max_touches // data.n_objects))
         if k and np.any(counts > k):
             subset = self._subsample(k)
             # The screening subsample of a shared design is a shared design (see _subsample).
@@ -430,6 +433,7 @@ class FitRun:
                 options.stall_nats,
                 options.stall_iterations,
                 options.stall_relative,
+                options.joint_lbfgs_memory if problem is self.full else DEFAULT_LBFGS_MEMORY,
             )
 
         stream = stream_optimiser(run, options.progress_every)

@@ -36,6 +36,9 @@ from core.validation import FloatArray
 #: A value returned to the optimiser where the Gram matrix stays singular even with jitter.
 FAILED_VALUE = 1e30
 
+#: L-BFGS-B correction pairs unless told otherwise (scipy's default ``maxcor``).
+DEFAULT_LBFGS_MEMORY = 10
+
 BoolArray = np.ndarray[Any, np.dtype[np.bool_]]
 
 
@@ -52,6 +55,7 @@ def minimize_free(
     stall_nats: float = 0.0,
     stall_iterations: int = 20,
     stall_relative: float = 0.0,
+    memory: int = DEFAULT_LBFGS_MEMORY,
 ) -> scipy.optimize.OptimizeResult:
     """L-BFGS-B with the analytic gradient over ``base[free]`` (the rest held fixed).
 
@@ -73,6 +77,7 @@ def minimize_free(
         stall_relative: Also stop once the improvement over the window is below
             ``stall_relative · stall_iterations · |value|`` (0 = never): a mean relative
             reduction per iteration, the windowed analogue of L-BFGS-B's ``ftol``.
+        memory: Correction pairs L-BFGS-B keeps (scipy's ``maxcor``, ≥ 1).
     """
     vector = base.copy()
     history: list[float] = []
@@ -108,7 +113,7 @@ def minimize_free(
         method="L-BFGS-B",
         bounds=scipy.optimize.Bounds(lower[free], upper[free]),
         callback=watch,
-        options={"maxiter": max_iterations, "ftol": ftol, "gtol": gtol},
+        options={"maxiter": max_iterations, "ftol": ftol, "gtol": gtol, "maxcor": memory},
     )
     if stalled:
         result.success = True
@@ -191,6 +196,7 @@ def iter_fit_separately(
     stall_nats: float = 0.0,
     stall_iterations: int = 20,
     stall_relative: float = 0.0,
+    memory: int = DEFAULT_LBFGS_MEMORY,
 ) -> Generator[SeparableProgress, None, SeparableResult]:
     """Optimise every feature's hyperparameters separately, S fixed (see the module docstring).
 
@@ -207,6 +213,7 @@ def iter_fit_separately(
             The starting vector itself is always the first start; the best optimum is kept.
         stall_nats, stall_iterations, stall_relative: Early stop of each L-BFGS-B run
             (:func:`minimize_free`).
+        memory: L-BFGS-B correction pairs (:func:`minimize_free`).
 
     Yields:
         :class:`SeparableProgress` after each feature.
@@ -247,6 +254,7 @@ def iter_fit_separately(
                 stall_nats=stall_nats,
                 stall_iterations=stall_iterations,
                 stall_relative=stall_relative,
+                memory=memory,
             )
             total_iterations += int(result.nit)
             if float(result.fun) < best_value:

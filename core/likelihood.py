@@ -200,7 +200,7 @@ class ManifoldLikelihood:
             total += 0.5 * float(y @ beta) + 0.5 * log_det + 0.5 * n * _LOG_2PI
             # Upper triangle (Fortran) of W = K⁻¹ - ββᵀ: ∂(-log p)/∂K = ½ W. Its C-ordered
             # transpose holds W in the lower triangle and zeros above.
-            inverse = inverse_from_cholesky(upper)
+            inverse = inverse_from_cholesky(upper, overwrite=True)  # the factor is done
             inverse = scipy.linalg.blas.dsyr(-1.0, beta, lower=0, a=inverse, overwrite_a=1)
             half = inverse.T
             g_sn[a] = 0.5 * noise[a] * float(half.ravel()[self._diag].sum())

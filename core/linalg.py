@@ -118,10 +118,11 @@ def weighted_gram_difference(
 #: halves, with the off-diagonal block by two GEMMs (``dtrtri`` of OpenBLAS runs at a fraction
 #: of the GEMM rate: at order 400 the recursion is ~2x faster).
 TRIANGULAR_BLOCK = 64
-#: Above this order :func:`inverse_from_cholesky` calls LAPACK ``dpotri`` (measured on
-#: OpenBLAS 0.3, one thread: the recursion wins 1.6-1.7x at orders 200-400, 1.2x at 800, and
-#: breaks even at 1200-2400, where its GEMMs on full triangles waste flops).
-RECURSIVE_INVERSE_MAX = 1024
+#: Above this order :func:`inverse_from_cholesky` calls LAPACK ``dpotri``. Measured with the
+#: scipy-openblas 0.3.31 wheel (AMD EPYC, one thread, interleaved medians): the recursion wins
+#: 1.1-1.2x at orders 100-300; ``dpotri`` wins from ~400 on (1.05x at 500, 1.2-1.3x at 800-1000).
+#: (An older OpenBLAS measured the recursion 1.2x faster at 800; the crossover is BLAS-specific.)
+RECURSIVE_INVERSE_MAX = 384
 
 
 def upper_triangular_inverse(upper: FloatArray) -> FloatArray:
@@ -155,19 +156,22 @@ def upper_triangular_inverse(upper: FloatArray) -> FloatArray:
     return out
 
 
-def inverse_from_cholesky(upper: FloatArray) -> FloatArray:
+def inverse_from_cholesky(upper: FloatArray, overwrite: bool = False) -> FloatArray:
     """A⁻¹ = U⁻¹ U⁻ᵀ from the upper Cholesky factor of A = UᵀU (``dpotri`` by
     :func:`upper_triangular_inverse` and LAPACK ``dlauum``).
 
     Args:
         upper: U, Fortran-ordered for speed; strictly lower triangle zero. Shape (n, n).
+        overwrite: Let LAPACK ``dpotri`` work in ``upper``'s memory (no copy of the
+            factor); ``upper`` is then lost. Only orders above :data:`RECURSIVE_INVERSE_MAX`
+            reach ``dpotri``.
 
     Returns:
         Fortran-ordered (n, n): the upper triangle (diagonal included) holds A⁻¹, the strictly
         lower triangle is zero. Its C-ordered transpose has A⁻¹ in the lower triangle.
     """
     if upper.shape[0] > RECURSIVE_INVERSE_MAX:
-        product, info = scipy.linalg.lapack.dpotri(upper, lower=0)
+        product, info = scipy.linalg.lapack.dpotri(upper, lower=0, overwrite_c=int(overwrite))
         if info != 0:  # pragma: no cover - the factor came from a successful Cholesky
             raise NotPositiveDefiniteError(f"dpotri failed (info {info}).")
         return np.asarray(product, dtype=np.float64)

@@ -9,7 +9,7 @@ the normalisation of its latents — is described and implemented in :mod:`core.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator
 
 import numpy as np
 
@@ -17,6 +17,7 @@ from core.errors import ConvergenceError, CoreError, InvalidInputError
 from core.fit_options import OPTIMIZERS, FitOptions, FitProgress, Optimizer
 from core.fit_run import FitProblem, FitRun, at_bounds, normalise_latents
 from core.initialisation import normalise_spread
+from core.noise_model import NOISE_MODEL_CHOICES, NoiseModelChoice, iter_fit_noise_model
 from core.optimiser_stream import run_to_end
 from core.parameters import initial_hyperparameters, parameter_bounds
 from core.posterior import condition, make_likelihood, resolve_structure
@@ -24,10 +25,12 @@ from core.types import FitDiagnostics, ManifoldModel, TrainingData
 from core.validation import FloatArray, as_float_array
 
 __all__ = [
+    "NOISE_MODEL_CHOICES",
     "OPTIMIZERS",
     "FitCancelledError",
     "FitOptions",
     "FitProgress",
+    "NoiseModelChoice",
     "Optimizer",
     "fit_hyperparameters",
     "fit_manifold",
@@ -54,7 +57,8 @@ def iter_fit(
     latent_dim: int,
     rng: np.random.Generator,
     options: FitOptions = FitOptions(),
-) -> Iterator[FitProgress]:
+    noise_model: NoiseModelChoice | None = None,
+) -> Generator[FitProgress, None, None]:
     """Fit the object manifold, yielding progress (a generator; see the module docstring).
 
     Events come every ``options.progress_every`` optimiser iterations and at the end of each
@@ -66,15 +70,30 @@ def iter_fit(
         latent_dim: ds ≥ 1.
         rng: Random generator (random starts, screening subsample, DE).
         options: Fit settings.
+        noise_model: ``None`` (default): the GPs are fitted to the observations as given, no
+            transform. ``"independent"``, ``"correlated"`` or ``"auto"``: standardise the
+            features, and whiten their correlated noise (:mod:`core.noise_model`); the model
+            keeps the transform. Those run one fit (independent) or two (a first fit gives the
+            residual noise covariance, then a refit), with the stage named in ``phase``.
 
     Yields:
         :class:`FitProgress` events.
 
     Raises:
-        InvalidInputError: Bad ``latent_dim``, ``rng`` or ``options``.
+        InvalidInputError: Bad ``latent_dim``, ``rng``, ``options`` or ``noise_model``, or a
+            constant feature (with a noise model).
         ConvergenceError: Every start failed.
     """
-    return FitRun(data, latent_dim, rng, options).events()
+    if noise_model is None:
+        return FitRun(data, latent_dim, rng, options).events()
+    if noise_model not in NOISE_MODEL_CHOICES:
+        raise InvalidInputError(
+            f"noise_model: expected one of {', '.join(NOISE_MODEL_CHOICES)} or None, received "
+            f"{noise_model!r}."
+        )
+    return iter_fit_noise_model(
+        data, lambda model_data: FitRun(model_data, latent_dim, rng, options).events(), noise_model
+    )
 
 
 def fit_manifold(
@@ -83,6 +102,7 @@ def fit_manifold(
     rng: np.random.Generator,
     options: FitOptions = FitOptions(),
     callback: Callable[[FitProgress], bool | None] | None = None,
+    noise_model: NoiseModelChoice | None = None,
 ) -> ManifoldModel:
     """Fit the object manifold (METHOD.md M2) and return the normalised model.
 
@@ -93,18 +113,21 @@ def fit_manifold(
         options: Fit settings.
         callback: Receives every :class:`FitProgress`; returning ``False`` (not ``None``)
             cancels the fit.
+        noise_model: See :func:`iter_fit` (``None``: no observation transform).
 
     Returns:
         The fitted model (latents normalised; ``diagnostics`` filled in).
 
     Raises:
         FitCancelledError: The callback returned ``False``; its ``best_so_far`` holds the best
-            model reached.
+            model reached (``None`` with a noise model: its stages are not comparable).
         InvalidInputError: Bad arguments.
         ConvergenceError: Every start failed.
     """
-    run = FitRun(data, latent_dim, rng, options)
-    events = run.events()
+    run = FitRun(data, latent_dim, rng, options) if noise_model is None else None
+    events = (
+        run.events() if run is not None else iter_fit(data, latent_dim, rng, options, noise_model)
+    )
     model: ManifoldModel | None = None
     try:
         for event in events:
@@ -113,7 +136,7 @@ def fit_manifold(
                 raise FitCancelledError(
                     f"manifold fit cancelled by the callback at start {event.start} of "
                     f"{event.n_starts}, iteration {event.iteration}.",
-                    run.best_model_so_far(),
+                    run.best_model_so_far() if run is not None else None,
                 )
             if event.model is not None:
                 model = event.model

@@ -12,42 +12,97 @@ import numpy as np
 import scipy.special
 
 from core.errors import InvalidInputError
-from core.posterior import predict
+from core.posterior import predict_model_space
 from core.types import ManifoldModel
-from core.validation import FloatArray, as_float_array
+from core.validation import FloatArray, IntArray, as_float_array
 
 
 def object_log_likelihoods(
     model: ManifoldModel, actions: FloatArray, observations: FloatArray
 ) -> FloatArray:
-    """log p(D_t | l) = Σ_t Σ_a log N(y_ta; m_a(s_l, x_t), v_a(s_l, x_t) + σ_n,a²) for every l.
+    """log p(D_t | l) = Σ_t [Σ_a log N(y'_ta; m_a(s_l, x_t), v_a(s_l, x_t) + σ_n,a²) + log|det M|].
 
-    m_a and v_a are the GP predictive mean and variance of f_a at the learned latent s_l and
-    action x_t (:func:`core.posterior.predict`, which adds the noise variance). The features are
-    independent given (s, x), and the touches are treated as independent given the object.
+    The observations come in raw units and are mapped to the model space y' = M (y - c) of the
+    model's observation transform (the identity for a model without one); m_a and v_a are the
+    GP predictive mean and variance of f_a at the learned latent s_l and action x_t
+    (:func:`core.posterior.predict_model_space`, which adds the noise variance). The features of
+    y' are independent given (s, x); the Jacobian log|det M| (= -½ log det Σ_ε, METHOD.md "Real
+    tactile data") makes the value a log-density of the raw observations. The touches are
+    treated as independent given the object.
 
     Args:
         model: A conditioned model.
         actions: Actions x_t of the touches. Shape (t, dx).
-        observations: Observations y_t. Shape (t, dy).
+        observations: Raw observations y_t. Shape (t, dy).
 
     Returns:
         Log-likelihood of the touches under each object. Shape (L,).
     """
-    h = model.hyperparameters
-    x = as_float_array(actions, "actions", (None, h.action_dim))
-    y = as_float_array(observations, "observations", (x.shape[0], h.observation_dim))
+    x, y = _check_touches(model, actions, observations)
     n_objects = model.latents.shape[0]
     if x.shape[0] == 0:
         return np.zeros(n_objects)
     # Queries ordered (touch, object): every touch under every learned latent.
     latents = np.tile(model.latents, (x.shape[0], 1))
     queries = np.repeat(x, n_objects, axis=0)
-    mean, variance = predict(model, latents, queries)
-    residual = np.repeat(y, n_objects, axis=0) - mean
+    per_touch = _log_densities(model, latents, queries, np.repeat(y, n_objects, axis=0))
+    return np.asarray(per_touch.reshape(x.shape[0], n_objects).sum(axis=0), dtype=np.float64)
+
+
+def touch_log_likelihoods(
+    model: ManifoldModel, object_index: IntArray, actions: FloatArray, observations: FloatArray
+) -> FloatArray:
+    """log p(y_t | s_{l_t}, x_t) of every touch under its own (known) object, in raw units.
+
+    The held-out predictive log-density used to compare models (noise models, latent
+    dimensions): touch t is scored under the learned latent of object ``object_index[t]``, with
+    the same density as :func:`object_log_likelihoods` (Jacobian included).
+
+    Args:
+        model: A conditioned model.
+        object_index: Object of every touch, in 0..L-1. Shape (t,).
+        actions: Actions. Shape (t, dx).
+        observations: Raw observations. Shape (t, dy).
+
+    Returns:
+        Log-density of each touch. Shape (t,).
+    """
+    x, y = _check_touches(model, actions, observations)
+    index = np.asarray(object_index)
+    n_objects = model.latents.shape[0]
+    if index.shape != (x.shape[0],) or not np.issubdtype(index.dtype, np.integer):
+        raise InvalidInputError(
+            f"object_index: expected {x.shape[0]} integers, received dtype {index.dtype} with "
+            f"shape {index.shape}."
+        )
+    if x.shape[0] and (index.min() < 0 or index.max() >= n_objects):
+        raise InvalidInputError(
+            f"object_index: values must lie in 0..{n_objects - 1}, received {index.min()}.."
+            f"{index.max()}."
+        )
+    if x.shape[0] == 0:
+        return np.zeros(0)
+    return _log_densities(model, model.latents[index], x, y)
+
+
+def _check_touches(
+    model: ManifoldModel, actions: FloatArray, observations: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    h = model.hyperparameters
+    x = as_float_array(actions, "actions", (None, h.action_dim))
+    y = as_float_array(observations, "observations", (x.shape[0], h.observation_dim))
+    return x, y
+
+
+def _log_densities(
+    model: ManifoldModel, latents: FloatArray, actions: FloatArray, raw: FloatArray
+) -> FloatArray:
+    """Σ_a log N(y'_a; m_a, v_a) + log|det M| per query row. Shape (Q,)."""
+    mean, variance = predict_model_space(model, latents, actions)
+    residual = model.to_model_space(raw) - mean
     log_density = -0.5 * (np.log(2.0 * np.pi * variance) + residual**2 / variance)
-    per_touch = log_density.sum(axis=1).reshape(x.shape[0], n_objects)
-    return np.asarray(per_touch.sum(axis=0), dtype=np.float64)
+    jacobian = 0.0 if model.transform is None else model.transform.log_jacobian
+    return np.asarray(log_density.sum(axis=1) + jacobian, dtype=np.float64)
 
 
 def normalise_log_probabilities(log_weights: FloatArray) -> FloatArray:
@@ -65,17 +120,19 @@ def object_posterior(
 
     With a uniform prior over the L objects,
 
-        p(l | D_t) ∝ Π_t Π_a N(y_ta; m_a(s_l, x_t), v_a(s_l, x_t) + σ_n,a²),
+        p(l | D_t) ∝ Π_t Π_a N(y'_ta; m_a(s_l, x_t), v_a(s_l, x_t) + σ_n,a²),
 
-    where m_a(s_l, x_t) and v_a(s_l, x_t) are the GP predictive mean and variance of feature a at
-    the learned latent s_l of object l and the action x_t (:func:`core.posterior.predict`), and
-    σ_n,a² is the feature's noise variance. It is computed in log space and normalised with
-    log-sum-exp. With no touches it is uniform.
+    where y' = M (y - c) is the observation in the model's space (its observation transform;
+    raw y without one), m_a(s_l, x_t) and v_a(s_l, x_t) are the GP predictive mean and variance
+    of feature a at the learned latent s_l of object l and the action x_t
+    (:func:`core.posterior.predict_model_space`), and σ_n,a² is the feature's noise variance.
+    In raw units this is a Gaussian with the full covariance M⁻¹ diag(v + σ_n²) M⁻ᵀ.
+    It is computed in log space and normalised with log-sum-exp. With no touches it is uniform.
 
     Args:
         model: A conditioned model.
         actions: Actions of the touches so far. Shape (t, dx), t ≥ 0.
-        observations: Their observations. Shape (t, dy).
+        observations: Their raw observations. Shape (t, dy).
 
     Returns:
         Probabilities summing to 1, in the model's object order. Shape (L,).

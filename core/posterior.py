@@ -232,9 +232,13 @@ def condition(
 def predict(
     model: ManifoldModel, latents: FloatArray, actions: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
-    """GP predictive mean and variance of the observation at deterministic inputs (s, x).
+    """Predictive mean and variance of the raw observation at deterministic inputs (s, x).
 
-    Works on every posterior structure (dense, Kronecker, sparse).
+    In raw units: with an observation transform y' = M (y - c) (``model.transform``) the
+    model-space prediction (:func:`predict_model_space`) is mapped back, mean M⁻¹ m' + c and the
+    marginal variances diag(M⁻¹ diag(v') M⁻ᵀ) (the features are correlated in raw units; the
+    full covariance is ``model.observation_transform.restore_covariance``). Without a transform
+    the two functions agree exactly. Works on every posterior structure.
 
     Args:
         model: A conditioned model.
@@ -242,7 +246,31 @@ def predict(
         actions: Query actions. Shape (Q, dx).
 
     Returns:
-        Mean (Q, dy) and variance of y including the noise variance (Q, dy).
+        Mean (Q, dy) and variance of y including the noise (Q, dy), in raw units.
+    """
+    mean, variance = predict_model_space(model, latents, actions)
+    transform = model.transform
+    if transform is None or transform.is_identity:
+        return mean, variance
+    return transform.restore_mean(mean), transform.restore_variance(variance)
+
+
+def predict_model_space(
+    model: ManifoldModel, latents: FloatArray, actions: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """GP predictive mean and variance of the model-space observation y' at inputs (s, x).
+
+    The per-feature GPs' own predictive (independent across features); equal to
+    :func:`predict` for a model without an observation transform. Works on every posterior
+    structure (dense, Kronecker, sparse).
+
+    Args:
+        model: A conditioned model.
+        latents: Query latents. Shape (Q, ds).
+        actions: Query actions. Shape (Q, dx).
+
+    Returns:
+        Mean (Q, dy) and variance of y' including the noise variance (Q, dy).
     """
     if model.posterior.kronecker is not None:
         return predict_kronecker(model, latents, actions)

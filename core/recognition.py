@@ -268,7 +268,7 @@ class RecognitionSession:
 
         Args:
             action: The action actually performed. Shape (dx,).
-            observation: What was observed. Shape (dy,).
+            observation: What was observed, in raw units. Shape (dy,).
 
         Raises:
             InvalidInputError: Wrong shape or non-finite action/observation.
@@ -282,7 +282,10 @@ class RecognitionSession:
         stats = action_statistics(self.model, x[None, :])
         moments = predictive_moments(self.model, before, stats)
         information = float(mutual_information(moments, before)[0])
-        after = update_belief(before, moments, 0, y)  # METHOD.md eq. (M5)
+        # The moments are in the model's space y' = M (y - c): map the raw observation there
+        # (the object posterior below takes it raw and maps it itself).
+        y_model = self.model.to_model_space(y[None, :])[0]
+        after = update_belief(before, moments, 0, y_model)  # METHOD.md eq. (M5)
         self._belief = after
         self._log_likelihoods = self._log_likelihoods + object_log_likelihoods(
             self.model, x[None, :], y[None, :]

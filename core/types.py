@@ -12,6 +12,7 @@ from typing import Literal
 import numpy as np
 
 from core.errors import CoreError, InvalidInputError
+from core.observation_transform import ObservationTransform
 from core.validation import FloatArray, IntArray, as_float_array, require_positive
 
 
@@ -387,8 +388,16 @@ class ManifoldModel:
             Shape (L, ds).
         hyperparameters: Per-feature GP hyperparameters.
         posterior: β and K⁻¹ (or its structured form) of every feature.
-        log_likelihood: Σ_a log p(y_a | S, X, γ_a) (METHOD.md eq. (M2)).
+        log_likelihood: Σ_a log p(y_a | S, X, γ_a) (METHOD.md eq. (M2)); with an observation
+            transform, the log-likelihood of the raw observations: the model-space value plus
+            N · log|det M| (the Jacobian, -½ log det Σ_ε per touch), so that models with
+            different noise models are comparable.
         diagnostics: Fit diagnostics, ``None`` for a model that was not fitted here.
+        transform: The map y' = M (y - c) from raw observations to the space the GPs model
+            (:mod:`core.observation_transform`); ``None`` means the identity. ``data`` holds the
+            transformed observations, :attr:`raw_data` the raw ones.
+        source_data: The raw training touches when ``transform`` is not ``None`` (``None``
+            otherwise: ``data`` is raw).
     """
 
     data: TrainingData
@@ -397,6 +406,26 @@ class ManifoldModel:
     posterior: GPPosterior
     log_likelihood: float
     diagnostics: FitDiagnostics | None = None
+    transform: ObservationTransform | None = None
+    source_data: TrainingData | None = None
+
+    @property
+    def raw_data(self) -> TrainingData:
+        """The training touches in raw units (what was recorded)."""
+        return self.source_data if self.source_data is not None else self.data
+
+    @property
+    def observation_transform(self) -> ObservationTransform:
+        """The observation transform (the identity when none was applied)."""
+        if self.transform is not None:
+            return self.transform
+        return ObservationTransform.identity(self.data.observation_dim)
+
+    def to_model_space(self, observations: FloatArray) -> FloatArray:
+        """Raw observations (n, dy) → the space the GPs model, y' = M (y - c). Shape (n, dy)."""
+        if self.transform is None:
+            return as_float_array(observations, "observations", (None, self.data.observation_dim))
+        return self.transform.apply(observations)
 
     @property
     def latent_dim(self) -> int:

@@ -25,13 +25,15 @@ from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from app.cli.collect import collect_command
+from app.cli.evaluate import evaluate_command
 from app.cli.export import export_app
 from app.cli.output import messages as stderr
 from app.cli.output import results as stdout
 from app.cli.rig import rig_app
 
 if TYPE_CHECKING:
-    from core.manifold import FitOptions
+    from core.latent_selection import LatentSelection
+    from core.manifold import FitOptions, NoiseModelChoice
     from core.types import ManifoldModel, TrainingData
     from core.worlds import World
 
@@ -89,7 +91,12 @@ def fail(message: str) -> typer.Exit:
 
 
 def fit_with_progress(
-    data: TrainingData, latent_dim: int, options: FitOptions, seed: int, quiet: bool = False
+    data: TrainingData,
+    latent_dim: int,
+    options: FitOptions,
+    seed: int,
+    quiet: bool = False,
+    noise_model: NoiseModelChoice | None = None,
 ) -> tuple[ManifoldModel, float]:
     """Run :func:`core.manifold.iter_fit` with a progress bar; return the model and seconds."""
     import numpy as np
@@ -101,7 +108,7 @@ def fit_with_progress(
     model: ManifoldModel | None = None
     with progress_bar(disable=quiet) as bar:
         task = bar.add_task("fit", total=None, status="")
-        for event in iter_fit(data, latent_dim, rng, options):
+        for event in iter_fit(data, latent_dim, rng, options, noise_model):
             # Starts are screened, then the best is polished: the start index is not monotone,
             # so the bar pulses and the status says which stage runs.
             best = event.best_log_likelihood
@@ -119,10 +126,81 @@ def fit_with_progress(
     return model, time.perf_counter() - started
 
 
+def select_latent_dim_with_progress(
+    data: TrainingData, options: FitOptions, seed: int, noise_model: NoiseModelChoice
+) -> LatentSelection:
+    """Cross-validate ds (:func:`core.latent_selection.select_latent_dim`) with a progress bar.
+
+    The folds use the requested noise model ("independent" for "auto", which the final fit
+    decides).
+    """
+    import numpy as np
+
+    from core.latent_selection import DEFAULT_FOLDS, candidate_dims, select_latent_dim
+    from core.manifold import fit_manifold
+
+    fewest = int(data.touches_per_object().min())
+    if fewest < 4:
+        raise fail(
+            f"--latent-dim auto cross-validates over touches within objects and needs at least "
+            f"4 touches of every object; an object here has {fewest:d}."
+        )
+    n_folds = min(DEFAULT_FOLDS, fewest - 2)
+    n_fits = n_folds * len(candidate_dims(data.n_objects))
+    rng = np.random.default_rng(seed)
+    fold_noise: NoiseModelChoice = "independent" if noise_model == "auto" else noise_model
+    with progress_bar() as bar:
+        task = bar.add_task("latent dim", total=n_fits, status="")
+
+        def report(ds: int, fold: int, score: float) -> None:
+            bar.update(
+                task,
+                advance=1,
+                status=f"ds={ds:d}, fold {fold + 1:d}/{n_folds:d}: {score:.3f} nats/touch",
+            )
+
+        return select_latent_dim(
+            data,
+            lambda train, ds: fit_manifold(train, ds, rng, options, noise_model=fold_noise),
+            rng,
+            n_folds=n_folds,
+            callback=report,
+        )
+
+
+def _parse_latent_dim(value: str) -> int | None:
+    """``--latent-dim``: an integer ≥ 1, or ``auto`` (→ ``None``)."""
+    if value.strip().lower() == "auto":
+        return None
+    try:
+        number = int(value)
+    except ValueError:
+        raise typer.BadParameter(f"expected an integer ≥ 1 or 'auto', got {value!r}") from None
+    if number < 1:
+        raise typer.BadParameter(f"expected an integer ≥ 1 or 'auto', got {number:d}")
+    return number
+
+
 @app.command()
 def fit(
     data_csv: Annotated[Path, typer.Argument(help="Training CSV: object,x_1..x_dx,y_1..y_dy.")],
-    latent_dim: Annotated[int, typer.Option("--latent-dim", min=1, help="ds")] = ...,  # type: ignore[assignment]
+    latent_dim: Annotated[
+        str,
+        typer.Option(
+            "--latent-dim",
+            help="ds, or 'auto': choose it by cross-validated held-out likelihood "
+            "(candidates 1..min(5, L-1)).",
+        ),
+    ] = ...,  # type: ignore[assignment]
+    noise_model: Annotated[
+        Literal["auto", "independent", "correlated"],
+        typer.Option(
+            "--noise-model",
+            help="independent: standardise each feature; correlated: also whiten the noise "
+            "correlation across features from a first fit's residuals, then refit; auto: both, "
+            "keep correlated if it wins on leave-one-out likelihood.",
+        ),
+    ] = "auto",
     optimizer: Annotated[Optimizer, typer.Option(help="lbfgs or de")] = Optimizer.lbfgs,
     restarts: Annotated[int, typer.Option(min=0, help="Random restarts after the PCA start.")] = 4,
     seed: Annotated[int, typer.Option(help="Seed of the random restarts.")] = 0,
@@ -142,37 +220,59 @@ def fit(
     """Learn the object manifold from a training CSV."""
     import numpy as np
 
-    from app.documents import model_to_document, read_training_csv
+    from app.documents import latent_selection_dict, model_to_document, read_training_csv
     from core.errors import CoreError
     from core.manifold import FitOptions
 
+    requested_dim = _parse_latent_dim(latent_dim)
     try:
         text = data_csv.read_text()
     except OSError as exc:
         raise fail(f"cannot read {data_csv}: {exc.strerror}") from None
+    selection = None
     try:
         data = read_training_csv(text)
         options = FitOptions(
             optimizer=optimizer.value, restarts=restarts, structure=structure, n_inducing=inducing
         )
-        model, seconds = fit_with_progress(data, latent_dim, options, seed, quiet=False)
+        if requested_dim is None:
+            selection = select_latent_dim_with_progress(data, options, seed, noise_model)
+            requested_dim = selection.chosen
+        model, seconds = fit_with_progress(
+            data, requested_dim, options, seed, quiet=False, noise_model=noise_model
+        )
     except CoreError as exc:
         raise fail(str(exc)) from None
-    document = model_to_document(model, fit_seconds=seconds)
+    document = model_to_document(
+        model,
+        fit_seconds=seconds,
+        latent_selection=None if selection is None else latent_selection_dict(selection),
+    )
     if out is not None:
         out.write_text(json.dumps(document, indent=1))
     if as_json:
         sys.stdout.write(json.dumps(document) + "\n")
-    else:
-        stdout.print(
-            f"fitted {len(model.object_names):d} objects, ds={latent_dim:d}, "
-            f"log-likelihood {model.log_likelihood:.3f} in {seconds:.2f} s"
-            + (f"; written to {escape(str(out))}" if out else "")
-        )
-        for name, latent in zip(model.object_names, model.latents, strict=True):
+        return
+    if selection is not None:
+        stdout.print("latent dimension by cross-validation (held-out log-likelihood per touch):")
+        for c in selection.candidates:
+            mark = " <- chosen" if c.latent_dim == selection.chosen else ""
             stdout.print(
-                f"  {escape(f'{name:>12s}')}  s = {escape(np.array2string(latent, precision=4))}"
+                f"  ds={c.latent_dim:d}  {c.mean:.3f} ± {c.standard_error:.3f}  "
+                f"vs best {c.difference:+.3f} ± {c.difference_standard_error:.3f}{escape(mark)}"
             )
+        stdout.print(escape(selection.explanation))
+    noise_note = model.transform.note if model.transform is not None else "none"
+    stdout.print(f"noise model: {escape(noise_note)}")
+    stdout.print(
+        f"fitted {len(model.object_names):d} objects, ds={model.latent_dim:d}, "
+        f"log-likelihood {model.log_likelihood:.3f} in {seconds:.2f} s"
+        + (f"; written to {escape(str(out))}" if out else "")
+    )
+    for name, latent in zip(model.object_names, model.latents, strict=True):
+        stdout.print(
+            f"  {escape(f'{name:>12s}')}  s = {escape(np.array2string(latent, precision=4))}"
+        )
 
 
 def load_model(path: Path) -> ManifoldModel:
@@ -370,6 +470,7 @@ def paper_exp1(
 # Sub-commands that live with the code they drive (modules that import only typer and rich).
 app.add_typer(rig_app, name="rig", help="Check and drive the rig (real ports or --sim).")
 app.command("collect")(collect_command)
+app.command("evaluate")(evaluate_command)
 app.add_typer(export_app, name="export")
 
 #: Context of a command that hands every argument (``--help`` included) to another command.

@@ -72,7 +72,8 @@ def serve(
 
     Arguments left ``None`` come from the environment (``ACTIVETOUCH_*``), ``.env`` or the
     defaults (127.0.0.1:8000, ``sqlite:///activetouch.db``, mock hardware, the 3D view on port
-    8081 of the same address). The view draws every trial as it runs; the dashboard embeds it.
+    8081 of loopback). The view draws every trial as it runs; the dashboard embeds it (off
+    loopback through the app at ``/viser/``, behind the sign-in: :mod:`app.viz.proxy`).
 
     Raises:
         ConfigurationError: A non-loopback host without an API token, or other unsafe settings.
@@ -203,7 +204,9 @@ def serve_command(
     ] = None,
     viz_port: Annotated[
         int | None,
-        typer.Option(min=0, max=65535, help="3D view port (default 8081; 0: a free one)."),
+        typer.Option(
+            min=0, max=65535, help="3D view port on loopback (default 8081; 0: a free one)."
+        ),
     ] = None,
 ) -> None:
     """Run the REST API, the live event stream, the dashboard and the live 3D view."""

@@ -1,7 +1,8 @@
 """The paper's Experiment 1, end to end, with our figures beside the paper's.
 
-Composition only: data, fits and trials come from :mod:`core`; this module times them, collects
-the figures and renders them.
+Composition only: data and fits come from :mod:`core`, the recognition trials from the evaluation
+engine (:func:`app.evaluation.runner.run_evaluation`, world ``exp1``, per-trial seeds from the data
+seed); this module times them, collects the figures and renders them.
 """
 
 from __future__ import annotations
@@ -15,11 +16,12 @@ import numpy as np
 from rich.markup import escape
 from rich.table import Table
 
-from core.evaluation import accuracy_by_touch, accuracy_per_object, evaluate
+from app.evaluation.runner import run_evaluation
+from app.evaluation.spec import EvaluationSpec
+from core.evaluation_records import TrialRecord
+from core.evaluation_summary import summarise, wilson_interval
 from core.manifold import FitOptions, fit_hyperparameters, fit_manifold
 from core.metrics import abs_correlation
-from core.planning import ActivePolicy, PassivePolicy, Planner, Policy
-from core.recognition import RecognitionSettings, default_prior
 from core.types import ManifoldModel
 from core.worlds import Experiment1World, sample_dataset
 
@@ -35,6 +37,7 @@ class PolicyFigures:
     accuracy_by_touch: list[float] = field(default_factory=list)
     nearest_accuracy_by_touch: list[float] = field(default_factory=list)
     per_object: list[float] = field(default_factory=list)
+    final_interval: list[float] = field(default_factory=list)
     trials: int = 0
     seconds_per_step: float = 0.0
 
@@ -102,6 +105,8 @@ class Experiment1Figures:
                 f"accuracy at T, {escape(name)} (nearest-latent rule)",
                 "—",
                 f"{100 * figures.accuracy_by_touch[-1]:.1f}% "
+                f"(95 % interval {100 * figures.final_interval[0]:.1f}–"
+                f"{100 * figures.final_interval[1]:.1f}) "
                 f"({100 * figures.nearest_accuracy_by_touch[-1]:.1f}%), "
                 f"{figures.trials:d} trials",
             )
@@ -123,14 +128,19 @@ def run_experiment1(
     |corr(θ, s)|; fit the random-latent baseline (latents drawn from N(0, 1) and held fixed,
     hyperparameters optimised); run ``trials_per_object`` trials per object with the active and
     passive policies on the learned model and the active policy on the baseline, observations
-    from the true h, μ0 = mean of S, Σ0 = ``prior_variance``.
+    from the true h, μ0 = mean of S, Σ0 = ``prior_variance``. The trials are an ``exp1``
+    evaluation whose seed is the data seed (each trial has its own ``SeedSequence``; the two
+    policies see the same noise streams).
     """
     world = Experiment1World(noise_std=noise_std)
     truth = world.truth[:, 0]
-    settings = RecognitionSettings(max_steps=max_steps)
     correlations, fit_seconds, random_correlations = [], [], []
-    outcomes: dict[str, list[Any]] = {"active": [], "passive": [], "random-latent active": []}
-    step_seconds: dict[str, list[float]] = {name: [] for name in outcomes}
+    records: dict[str, list[TrialRecord]] = {
+        "active": [],
+        "passive": [],
+        "random-latent active": [],
+    }
+    step_seconds: dict[str, list[float]] = {name: [] for name in records}
 
     def note(message: str, done: int) -> None:
         if progress is not None:
@@ -148,35 +158,39 @@ def run_experiment1(
         random_latents = rng.standard_normal((data.n_objects, 1))
         baseline = fit_hyperparameters(data, random_latents)
         random_correlations.append(abs_correlation(truth, baseline.latents))
-        runs: list[tuple[str, ManifoldModel, Policy]] = [
-            ("active", model, ActivePolicy()),
-            ("passive", model, PassivePolicy()),
-            ("random-latent active", baseline, ActivePolicy()),
+        runs: list[tuple[str, ManifoldModel, str]] = [
+            ("active", model, "active"),
+            ("passive", model, "passive"),
+            ("random-latent active", baseline, "active"),
         ]
         for name, used, policy in runs:
             note(f"seed {seed}: {name} trials", seed)
-            planner = Planner(used, policy)
-            started = time.perf_counter()
-            result = evaluate(
-                used,
-                world,
-                planner,
-                settings,
-                trials_per_object,
-                rng,
-                prior=default_prior(used, prior_variance),
+            spec = EvaluationSpec(
+                world="exp1",
+                policies=(policy,),
+                trials_per_target=trials_per_object,
+                steps=max_steps,
+                seed=seed,
+                noise_std=noise_std,
+                prior_variance=prior_variance,
             )
-            steps = sum(o.steps for o in result)
-            step_seconds[name].append((time.perf_counter() - started) / max(steps, 1))
-            outcomes[name].extend(result)
+            report = run_evaluation(used, spec)
+            steps = sum(r.touches for r in report.records)
+            step_seconds[name].append(report.seconds / max(steps, 1))
+            records[name].extend(report.records)
         note(f"seed {seed} done", seed + 1)
+    objects = world.object_names
     policies = {}
-    for name, result in outcomes.items():
+    for name, mine in records.items():
+        [summary] = summarise(mine, objects, max_steps, 0.95).values()
+        nearest = [[n == r.target for n in r.nearest_by_touch(max_steps)] for r in mine]
+        final = sum(r.correct for r in mine)
         policies[name] = PolicyFigures(
-            accuracy_by_touch=accuracy_by_touch(result).tolist(),
-            nearest_accuracy_by_touch=accuracy_by_touch(result, "nearest").tolist(),
-            per_object=accuracy_per_object(result, len(truth)).tolist(),
-            trials=len(result),
+            accuracy_by_touch=summary["accuracy_by_touch"],
+            nearest_accuracy_by_touch=np.mean(nearest, axis=0).tolist(),
+            per_object=[summary["per_object"][o]["accuracy"] for o in objects],
+            final_interval=list(wilson_interval(final, len(mine))),
+            trials=len(mine),
             seconds_per_step=float(np.median(step_seconds[name])),
         )
     return Experiment1Figures(

@@ -9,6 +9,7 @@ from app import crud
 from app.config import Settings
 from app.db import Database, upgrade_to_head
 from app.services.collections import CollectionService
+from app.services.evaluations import EvaluationService
 from app.services.events import EventBus
 from app.services.models import ModelStore
 from app.services.rig import RigService
@@ -35,9 +36,11 @@ class AppContext:
     trial_views: TrialViews
     rig: RigService
     collections: CollectionService
+    evaluations: EvaluationService
 
     def close(self) -> None:
         """Stop background work, close the rig and the database."""
+        self.evaluations.close()
         self.runs.close()
         self.models.close()
         self.rig.close()
@@ -50,6 +53,7 @@ def start_context(settings: Settings) -> AppContext:
     upgrade_to_head(database.engine, settings.migrations_dir)
     with database.session() as session:
         changed = crud.fail_interrupted(session, INTERRUPTED)
+        changed["evaluations"] = crud.fail_interrupted_evaluations(session, INTERRUPTED)
     events = EventBus(database, keep=settings.event_log_size)
     for kind, ids in changed.items():
         for item_id in ids:
@@ -72,4 +76,5 @@ def start_context(settings: Settings) -> AppContext:
         trial_views=TrialViews(),
         rig=rig,
         collections=CollectionService(database, events, runs, rig),
+        evaluations=EvaluationService(settings, database, events, models),
     )

@@ -5,7 +5,9 @@ from __future__ import annotations
 from importlib import metadata
 
 from app import crud
+from app.config import Settings
 from app.schemas import Health
+from app.security.gate import Identity
 from app.services.context import AppContext
 
 
@@ -15,6 +17,11 @@ def version() -> str:
         return metadata.version("activetouch")
     except metadata.PackageNotFoundError:  # pragma: no cover - running from a bare checkout
         return "0+unknown"
+
+
+def locked(settings: Settings, identity: Identity) -> bool:
+    """Whether the caller may see only that auth is required (off loopback, unauthenticated)."""
+    return settings.reads_need_auth and settings.token is not None and not identity.authenticated
 
 
 def check(context: AppContext) -> Health:

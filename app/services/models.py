@@ -26,31 +26,42 @@ from app.db import Database
 from app.documents import (
     DocumentError,
     condition_as_recorded,
+    latent_selection_dict,
     model_from_document,
     model_to_document,
+    noise_model_field,
     posterior_field,
+    read_noise_model_field,
 )
 from app.errors import AppError, BadInputError, ConflictError, NotFoundError
 from app.models import ModelRecord, utc_now
 from app.schemas import (
     FeatureHyperparameters,
+    LatentSelectionPublic,
     ModelAccepted,
     ModelCreate,
     ModelPosterior,
     ModelPublic,
+    NoiseModelPublic,
     ObjectLatent,
     Page,
 )
 from app.services import datasets
 from app.services.events import EventBus
 from core.errors import CoreError
-from core.manifold import FitOptions, iter_fit
+from core.fit_options import FitProgress
+from core.latent_selection import DEFAULT_FOLDS, LatentSelection, select_latent_dim
+from core.manifold import FitOptions, NoiseModelChoice, fit_manifold, iter_fit
 from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
 
 logger = logging.getLogger(__name__)
 
 #: Seconds between two progress events (and progress writes) of one fit.
 PROGRESS_INTERVAL_S = 0.25
+
+
+class _ClosingError(Exception):
+    """The server is shutting down during a latent-dimension selection."""
 
 
 class StoredModelError(AppError):
@@ -88,21 +99,73 @@ def _diagnostics_from_dict(values: dict[str, Any] | None) -> FitDiagnostics | No
     )
 
 
-def store_fitted(row: ModelRecord, model: ManifoldModel, fit_seconds: float | None) -> None:
+def store_fitted(
+    row: ModelRecord,
+    model: ManifoldModel,
+    fit_seconds: float | None,
+    latent_selection: dict[str, Any] | None = None,
+) -> None:
     """Copy a fitted model's latents, hyperparameters, posterior record
-    (:func:`app.documents.posterior_field`) and diagnostics into its row; mark ready."""
+    (:func:`app.documents.posterior_field`, with the observation transform under
+    ``noise_model``), diagnostics (with ``latent_selection`` when ds was chosen) into its row;
+    mark ready."""
     h = model.hyperparameters
+    row.latent_dim = model.latent_dim
     row.latents = model.latents
-    row.posterior = posterior_field(model.posterior)
+    record = posterior_field(model.posterior)
+    noise = noise_model_field(model.transform)
+    if noise is not None:
+        record["noise_model"] = noise
+    row.posterior = record
     row.signal_variance = h.signal_variance
     row.noise_variance = h.noise_variance
     row.latent_lengthscales = h.latent_lengthscales
     row.action_lengthscales = h.action_lengthscales
     row.log_likelihood = float(model.log_likelihood)
-    row.diagnostics = _diagnostics_dict(model.diagnostics)
+    diagnostics = _diagnostics_dict(model.diagnostics)
+    if latent_selection is not None:
+        diagnostics = {**(diagnostics or {}), "latent_selection": latent_selection}
+    row.diagnostics = diagnostics
     row.fit_seconds = fit_seconds
     row.status = "ready"
     row.finished_at = utc_now()
+
+
+def _noise_model_public(row: ModelRecord) -> NoiseModelPublic | None:
+    if row.status != "ready":
+        return None
+    field = row.posterior.get("noise_model") if isinstance(row.posterior, dict) else None
+    dy = row.dataset.observation_dim
+    try:
+        transform = read_noise_model_field(field, dy, where="model row")
+    except DocumentError:  # changed behind the server's back; load() says so (500)
+        logger.warning("model %d: malformed noise_model record %r", row.id, field)
+        return None
+    if transform is None:
+        eye = np.eye(dy)
+        return NoiseModelPublic(
+            kind="identity",
+            correlation=eye.tolist(),
+            scale=[1.0] * dy,
+            note="observations used as recorded (fitted before noise models existed)",
+        )
+    return NoiseModelPublic(
+        kind=transform.kind,
+        correlation=transform.correlation.tolist(),
+        scale=transform.scale.tolist(),
+        note=transform.note,
+    )
+
+
+def _latent_selection_public(row: ModelRecord) -> LatentSelectionPublic | None:
+    values = row.diagnostics.get("latent_selection") if row.diagnostics else None
+    if values is None:
+        return None
+    try:
+        return LatentSelectionPublic.model_validate(values)
+    except ValidationError:
+        logger.warning("model %d: malformed latent_selection %r", row.id, values)
+        return None
 
 
 def to_public(row: ModelRecord) -> ModelPublic:
@@ -155,6 +218,8 @@ def to_public(row: ModelRecord) -> ModelPublic:
         diagnostics=row.diagnostics,
         progress=row.progress,
         posterior=posterior,
+        noise_model=_noise_model_public(row),
+        latent_selection=_latent_selection_public(row),
         created_at=row.created_at,
         finished_at=row.finished_at,
     )
@@ -211,11 +276,18 @@ class ModelStore:
         """Check the request, add a ``fitting`` model and queue the fit."""
         data = datasets.load_training_data(session, body.dataset_id)
         self._check_size(data.n_touches, "dataset_id")
+        fewest = int(data.touches_per_object().min())
+        if body.latent_dim == "auto" and fewest < 4:
+            raise BadInputError(
+                f"latent_dim: 'auto' cross-validates over touches within objects and needs at "
+                f"least 4 touches of every object; this dataset has an object with {fewest}.",
+                field="latent_dim",
+            )
         row = crud.create_model(
             session,
             dataset_id=body.dataset_id,
             status="fitting",
-            latent_dim=body.latent_dim,
+            latent_dim=0 if body.latent_dim == "auto" else body.latent_dim,
             optimizer=body.optimizer,
             restarts=body.restarts,
             seed=body.seed,
@@ -246,12 +318,22 @@ class ModelStore:
         options_kwargs: dict[str, Any] = {"optimizer": body.optimizer, "restarts": body.restarts}
         if body.max_iterations is not None:
             options_kwargs["max_iterations"] = body.max_iterations
+        options = FitOptions(**options_kwargs)
         rng = np.random.default_rng(body.seed)
         started = time.perf_counter()
         last_report = 0.0
         fitted: ManifoldModel | None = None
+        selection: dict[str, Any] | None = None
         try:
-            for progress in iter_fit(data, body.latent_dim, rng, FitOptions(**options_kwargs)):
+            latent_dim = body.latent_dim
+            if latent_dim == "auto":
+                chosen = self._select_latent_dim(model_id, data, body, options, rng, started)
+                if chosen is None:
+                    self._finish_failed(model_id, "server shut down during the fit")
+                    return
+                selection = latent_selection_dict(chosen)
+                latent_dim = chosen.chosen
+            for progress in iter_fit(data, latent_dim, rng, options, body.noise_model):
                 if self._closing.is_set():
                     self._finish_failed(model_id, "server shut down during the fit")
                     return
@@ -270,7 +352,7 @@ class ModelStore:
         fit_seconds = time.perf_counter() - started
         with self._database.session() as session:
             row = require(session, model_id)
-            store_fitted(row, fitted, fit_seconds)
+            store_fitted(row, fitted, fit_seconds, selection)
             session.commit()
         with self._lock:
             self._remember(model_id, fitted)
@@ -283,6 +365,46 @@ class ModelStore:
                 "fit_seconds": fit_seconds,
             },
         )
+
+    def _select_latent_dim(
+        self,
+        model_id: int,
+        data: TrainingData,
+        body: ModelCreate,
+        options: FitOptions,
+        rng: np.random.Generator,
+        started: float,
+    ) -> LatentSelection | None:
+        """Cross-validate ds (``None`` if the server is closing). The folds use the requested
+        noise model, "independent" for "auto" (it is decided by the final fit)."""
+        fold_noise: NoiseModelChoice = (
+            "independent" if body.noise_model == "auto" else body.noise_model
+        )
+        n_folds = min(DEFAULT_FOLDS, int(data.touches_per_object().min()) - 2)
+        n_candidates = min(5, data.n_objects - 1)
+        done = [0]
+
+        def fit_fold(train: TrainingData, ds: int) -> ManifoldModel:
+            if self._closing.is_set():
+                raise _ClosingError()
+            return fit_manifold(train, ds, rng, options, noise_model=fold_noise)
+
+        def report(ds: int, fold: int, score: float) -> None:
+            done[0] += 1
+            progress = FitProgress(
+                start=done[0],
+                n_starts=n_folds * n_candidates,
+                iteration=0,
+                log_likelihood=score,
+                best_log_likelihood=float("-inf"),
+                phase=f"latent selection: ds={ds}, fold {fold + 1}/{n_folds}",
+            )
+            self._report(model_id, progress, time.perf_counter() - started)
+
+        try:
+            return select_latent_dim(data, fit_fold, rng, n_folds=n_folds, callback=report)
+        except _ClosingError:
+            return None
 
     def _report(self, model_id: int, progress: Any, elapsed_s: float) -> None:
         values = {
@@ -354,6 +476,7 @@ class ModelStore:
             action_lengthscales=row.action_lengthscales,
         )
         try:
+            noise = row.posterior.get("noise_model") if isinstance(row.posterior, dict) else None
             model = condition_as_recorded(
                 data,
                 row.latents,
@@ -361,6 +484,7 @@ class ModelStore:
                 _diagnostics_from_dict(row.diagnostics),
                 row.posterior,
                 where="model row",
+                transform=read_noise_model_field(noise, data.observation_dim, where="model row"),
             )
         except (CoreError, ValueError, KeyError, TypeError) as exc:
             raise StoredModelError(
@@ -375,7 +499,9 @@ class ModelStore:
     def export_document(self, session: Session, model_id: int) -> dict[str, Any]:
         """The model document (``activetouch-model/1``) of a ready model."""
         model = self.load(session, model_id)
-        return model_to_document(model, fit_seconds=require(session, model_id).fit_seconds)
+        row = require(session, model_id)
+        selection = row.diagnostics.get("latent_selection") if row.diagnostics else None
+        return model_to_document(model, fit_seconds=row.fit_seconds, latent_selection=selection)
 
     def import_document(self, session: Session, document: dict[str, Any]) -> ModelPublic:
         """Store a model document as a new dataset (source ``import``) and a ready model.
@@ -395,7 +521,7 @@ class ModelStore:
         fit_seconds = document.get("fit_seconds")
         dataset = datasets.store_training_data(
             session,
-            model.data,
+            model.raw_data,
             name=str(document.get("name", "imported model"))[:200],
             source="import",
         )
@@ -408,8 +534,12 @@ class ModelStore:
             restarts=0,
             seed=None,
         )
+        selection = document.get("latent_selection")
         store_fitted(
-            row, model, float(fit_seconds) if isinstance(fit_seconds, int | float) else None
+            row,
+            model,
+            float(fit_seconds) if isinstance(fit_seconds, int | float) else None,
+            selection if isinstance(selection, dict) else None,
         )
         session.commit()
         with self._lock:

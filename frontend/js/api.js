@@ -1,17 +1,19 @@
 // The dashboard's only way to the server: /api/v1 (REST, JSON) and /api/v1/events (SSE).
+//
+// Authentication is a server-side session in an HttpOnly, SameSite=Strict cookie set by
+// POST /api/v1/session (the sign-in): the page never keeps the token, and no URL carries it.
+// Every call sends `X-Requested-With: activetouch`, the server's CSRF check for changes made
+// with the cookie.
 
 export const API = "api/v1";
 
-const TOKEN_KEY = "activetouch.token";
+const CSRF_HEADER = { "X-Requested-With": "activetouch" };
+const unauthorizedListeners = new Set();
 
-/** The API token kept for this tab (needed only when the server binds a non-loopback address). */
-export function getToken() {
-  return sessionStorage.getItem(TOKEN_KEY) || "";
-}
-
-export function setToken(token) {
-  if (token) sessionStorage.setItem(TOKEN_KEY, token);
-  else sessionStorage.removeItem(TOKEN_KEY);
+/** Call `fn(error)` when the server answers 401 (not signed in, or the session expired). */
+export function onUnauthorized(fn) {
+  unauthorizedListeners.add(fn);
+  return () => unauthorizedListeners.delete(fn);
 }
 
 /** An HTTP error with the server's `detail` (and extra keys such as `current_state`). */
@@ -40,9 +42,12 @@ export class ApiError extends Error {
  * @returns the parsed JSON (or text for non-JSON answers)
  */
 export async function api(path, { method = "GET", body, headers = {}, signal } = {}) {
-  const init = { method, headers: { Accept: "application/json", ...headers }, signal };
-  const token = getToken();
-  if (token) init.headers.Authorization = `Bearer ${token}`;
+  const init = {
+    method,
+    headers: { Accept: "application/json", ...CSRF_HEADER, ...headers },
+    credentials: "same-origin",
+    signal,
+  };
   if (body !== undefined) {
     if (body instanceof FormData || body instanceof Blob || typeof body === "string") {
       init.body = body;
@@ -55,8 +60,35 @@ export async function api(path, { method = "GET", body, headers = {}, signal } =
   const response = await fetch(url, init);
   const type = response.headers.get("content-type") || "";
   const payload = type.includes("json") ? await response.json().catch(() => null) : await response.text();
-  if (!response.ok) throw new ApiError(response.status, payload, `${method} ${path}`);
+  if (!response.ok) {
+    const error = new ApiError(response.status, payload, `${method} ${path}`);
+    if (response.status === 401 && path !== "/session") {
+      for (const fn of unauthorizedListeners) fn(error);
+    }
+    throw error;
+  }
   return payload;
+}
+
+/** How this page is authenticated: {authenticated, method, auth_required, reads_need_auth};
+ * null when the server wants a sign-in before it says anything (off loopback). */
+export async function sessionStatus() {
+  try {
+    return await api("/session");
+  } catch (error) {
+    if (error instanceof ApiError && error.status === 401) return null;
+    throw error;
+  }
+}
+
+/** Sign in with the API token: the server sets the session cookie (the token is not kept). */
+export function signIn(token) {
+  return api("/session", { method: "POST", body: { token } });
+}
+
+/** Sign out: the server ends the session and deletes the cookie. */
+export function signOut() {
+  return api("/session", { method: "DELETE" });
 }
 
 /** GET that answers null on 404 (an endpoint or record that does not exist). */

@@ -13,7 +13,8 @@ export function onEvent(fn) {
   return () => listeners.delete(fn);
 }
 
-/** Call `fn("open" | "error")` when the stream connects or drops. */
+/** Call `fn("open" | "error" | "closed")` when the stream connects, drops (the browser
+ * reconnects by itself) or is closed for good (refused, e.g. 401 after a sign-out). */
 export function onStreamStatus(fn) {
   statusListeners.add(fn);
 }
@@ -36,17 +37,30 @@ function dispatch(raw, fallbackType) {
   }
 }
 
-/** Open the stream (once). */
+/** Open the stream (once; again after `disconnectEvents` or a refusal). The session cookie
+ * authenticates it: no token in the URL. */
 export function connectEvents() {
-  if (source) return;
-  source = new EventSource(`${API}/events`);
+  if (source && source.readyState !== EventSource.CLOSED) return;
+  source = new EventSource(`${API}/events`, { withCredentials: true });
+  const opened = source;
   source.onopen = () => statusListeners.forEach((fn) => fn("open"));
-  source.onerror = () => statusListeners.forEach((fn) => fn("error"));
+  source.onerror = () => {
+    const state = opened.readyState === EventSource.CLOSED ? "closed" : "error";
+    statusListeners.forEach((fn) => fn(state));
+  };
   source.onmessage = (raw) => dispatch(raw, "message");
   // Named events (if the server sets `event:`) are delivered too.
   for (const type of ["trial", "model", "collection", "rig", "dataset", "run"]) {
     source.addEventListener(type, (raw) => dispatch(raw, type));
   }
+}
+
+/** Close the stream (at sign-out). */
+export function disconnectEvents() {
+  if (!source) return;
+  source.close();
+  source = null;
+  statusListeners.forEach((fn) => fn("closed"));
 }
 
 /** Whether an event concerns a kind of record: "trial", "model", "collection", "rig", ... */

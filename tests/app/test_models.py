@@ -58,9 +58,15 @@ def test_fit_in_background_with_progress(client: TestClient) -> None:
     with context.database.session() as session:
         row = session.get(ModelRecord, model["id"])
         assert row is not None
-        assert row.posterior == {"structure": "dense"}  # random actions, N = 40
+        assert row.posterior is not None
+        assert row.posterior["structure"] == "dense"  # random actions, N = 40
+        # The default noise model "auto" standardised the features (and chose a kind).
+        assert row.posterior["noise_model"]["kind"] in ("independent", "correlated")
     exported = client.get(f"{API}/models/{model['id']}/export").json()
     assert exported["posterior"] == {"structure": "dense"}
+    assert exported["noise_model"]["kind"] == model["noise_model"]["kind"]
+    assert model["noise_model"]["note"].startswith("auto: ")
+    assert model["latent_selection"] is None
 
 
 def test_fit_requests_are_checked(client: TestClient) -> None:
@@ -68,7 +74,7 @@ def test_fit_requests_are_checked(client: TestClient) -> None:
     assert missing.status_code == 404
     bad = client.post(f"{API}/models", json={"dataset_id": 1, "latent_dim": 0})
     assert bad.status_code == 422
-    assert bad.json()["detail"][0]["loc"] == ["body", "latent_dim"]
+    assert bad.json()["detail"][0]["loc"][:2] == ["body", "latent_dim"]
     optimizer = client.post(f"{API}/models", json={"dataset_id": 1, "optimizer": "sgd"})
     assert optimizer.status_code == 422
     assert client.get(f"{API}/models/7").status_code == 404

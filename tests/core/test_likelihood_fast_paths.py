@@ -110,7 +110,7 @@ def _spd(n: int, seed: int) -> np.ndarray:
     return np.exp(-0.5 * sq) + 1e-2 * np.eye(n)
 
 
-@pytest.mark.parametrize("n", [1, 7, 64, 65, 150, 300])
+@pytest.mark.parametrize("n", [1, 7, 64, 65, 150, 300, 500])  # 500: the dpotri branch
 def test_inverse_from_cholesky_matches_numpy(n: int) -> None:
     matrix = _spd(n, seed=n)
     upper = scipy.linalg.cholesky(matrix, lower=False)
@@ -119,6 +119,15 @@ def test_inverse_from_cholesky_matches_numpy(n: int) -> None:
     assert np.all(np.tril(result, -1) == 0.0)
     # The inverse's error is ~cond(K)·eps: cond ≈ 1e3-1e4 here.
     assert _relative(np.triu(result), np.triu(expected)) < 1e-11
+
+
+def test_inverse_in_the_factors_memory_matches_the_copy() -> None:
+    matrix = _spd(500, seed=3)  # above RECURSIVE_INVERSE_MAX: the dpotri branch
+    upper = np.asfortranarray(scipy.linalg.cholesky(matrix, lower=False))
+    copied = inverse_from_cholesky(upper)
+    in_place = inverse_from_cholesky(upper.copy(order="F"), overwrite=True)
+    np.testing.assert_array_equal(in_place, copied)
+    assert _relative(np.triu(in_place), np.triu(np.linalg.inv(matrix))) < 1e-11
 
 
 def test_recursive_and_lapack_inverse_branches_agree(monkeypatch: pytest.MonkeyPatch) -> None:

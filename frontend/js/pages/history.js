@@ -1,5 +1,6 @@
 // History: filter trials, compare policies (accuracy against touches, active vs passive),
-// export CSV/JSON; run a batch of simulated trials per policy to compare on one model.
+// export CSV/JSON; run a batch of simulated trials per policy to compare on one model; the
+// request audit (GET /audit): who started, stopped or e-stopped what, and the outcome.
 
 import { api, apiList, download } from "../api.js";
 import { lineChart } from "../charts.js";
@@ -167,6 +168,38 @@ async function runBatch() {
 
 const refreshSoon = throttle(refresh, 1500);
 
+const AUDIT_ROWS = 200;
+
+function auditAuth(row) {
+  if (!row.authenticated) return "no";
+  return row.auth_method === "session" ? "yes (signed-in dashboard)" : "yes (API token)";
+}
+
+async function refreshAudit() {
+  const page = await api(`/audit?limit=${AUDIT_ROWS}`);
+  fill(
+    $("audit-body"),
+    page.data.map((row) =>
+      el(
+        "tr",
+        { "data-testid": "audit-row", class: row.status_code >= 400 ? "audit-refused" : "" },
+        el("td", {}, timeOf(row.time)),
+        el("td", { "data-testid": "audit-client" }, row.client || "—"),
+        el("td", { "data-testid": "audit-request" }, `${row.method} ${row.path}`),
+        el("td", { "data-testid": "audit-status" }, String(row.status_code)),
+        el("td", { "data-testid": "audit-auth" }, auditAuth(row)),
+      ),
+    ),
+  );
+  $("audit-count").textContent =
+    page.count > page.data.length ? `Newest ${page.data.length} of ${page.count}.` : `${page.count} recorded.`;
+}
+
+const refreshAuditSoon = throttle(() => refreshAudit().catch(() => {}), 1500);
+// The server writes audit rows a moment after each answer (off the request path): while the
+// page is open, the table is re-read every few seconds.
+const AUDIT_POLL_MS = 3000;
+
 export function init() {
   $("history-form").addEventListener("submit", (e) => {
     e.preventDefault();
@@ -178,13 +211,19 @@ export function init() {
     e.preventDefault();
     guarded(runBatch, e.submitter);
   });
+  $("audit-refresh").addEventListener("click", (e) => guarded(refreshAudit, e.currentTarget));
+  setInterval(() => {
+    if (!$("page-history").hidden && !document.hidden) refreshAuditSoon();
+  }, AUDIT_POLL_MS);
 }
 
 export async function show() {
   await refreshModels();
-  await refresh();
+  await Promise.all([refresh(), refreshAudit()]);
 }
 
 export function onEvent(event, kind) {
   if (kind === "trial" && !$("page-history").hidden && !batchRunning && /status|finished|completed/.test(event.type)) refreshSoon();
+  // A change was made (by anyone): its audit row is there by now or shortly.
+  if (!$("page-history").hidden && /status|estop|created/.test(event.type || "")) refreshAuditSoon();
 }

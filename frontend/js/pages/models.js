@@ -1,4 +1,4 @@
-// Models: fit a manifold (latent dim, optimizer, restarts), its progress, the manifold plot with
+// Models: fit a manifold (latent dim or auto, noise model, optimizer, restarts), its progress, the manifold plot with
 // object labels, the hyperparameters, export and import of the model document.
 
 import { api } from "../api.js";
@@ -44,7 +44,7 @@ async function refreshList() {
         },
         el("td", {}, m.id),
         el("td", {}, `#${m.dataset_id}`),
-        el("td", {}, m.latent_dim),
+        el("td", {}, m.status === "fitting" && m.latent_dim === 0 ? "auto" : m.latent_dim),
         el("td", {}, badge(m.status)),
         el("td", {}, num(m.log_likelihood, 6)),
         el("td", {}, m.fit_seconds !== null && m.fit_seconds !== undefined ? formatDuration(m.fit_seconds) : "—"),
@@ -116,6 +116,8 @@ export async function select(id) {
       ["objects", model.objects.map((o) => o.name).join(", ")],
       ["optimizer", `${model.optimizer}, ${model.restarts} restarts, seed ${model.seed ?? "—"}`],
       ["log-likelihood", num(model.log_likelihood, 8)],
+      ["noise model", noiseText(model.noise_model)],
+      ["latent dim", latentText(model)],
       ["fit time", formatDuration(model.fit_seconds)],
       ["converged", diag.converged === undefined ? "—" : String(diag.converged)],
       ["at bounds", (diag.hyperparameters_at_bounds || []).join(", ") || "none"],
@@ -124,10 +126,35 @@ export async function select(id) {
   );
 }
 
+function noiseText(noise) {
+  if (!noise) return "—";
+  if (noise.kind !== "correlated") return `${noise.kind}${noise.note ? ` — ${noise.note}` : ""}`;
+  const n = noise.correlation.length;
+  let largest = 0;
+  let pair = "";
+  for (let a = 0; a < n; a++) {
+    for (let b = a + 1; b < n; b++) {
+      if (Math.abs(noise.correlation[a][b]) > Math.abs(largest)) {
+        largest = noise.correlation[a][b];
+        pair = `y_${a + 1}/y_${b + 1}`;
+      }
+    }
+  }
+  return `correlated (largest ${pair}: ${num(largest, 2)}) — ${noise.note}`;
+}
+
+function latentText(model) {
+  const sel = model.latent_selection;
+  if (!sel) return String(model.latent_dim);
+  const scores = sel.candidates.map((c) => `ds=${c.latent_dim}: ${num(c.mean, 4)} ± ${num(c.standard_error, 2)}`).join("; ");
+  return `${model.latent_dim} (auto) — ${sel.explanation} [${scores}]`;
+}
+
 async function fit() {
   const body = {
     dataset_id: Number($("fit-dataset").value),
-    latent_dim: Number($("fit-dim").value),
+    latent_dim: $("fit-dim").value.trim().toLowerCase() === "auto" ? "auto" : Number($("fit-dim").value),
+    noise_model: $("fit-noise").value,
     optimizer: $("fit-optimizer").value,
     restarts: Number($("fit-restarts").value),
   };

@@ -1,6 +1,8 @@
 // Trials: start one (model, target, policy, T, prior); follow it live: the belief on the manifold
 // (mean path and ellipse), mutual information per touch, the posterior over objects, the joint
 // trajectories, the steps; pause/resume/stop; the result. The 3D view (viser) is embedded.
+// A finished trial of an evaluation (#trials?evaluation=ID&trial=N) is shown read-only: its
+// touches' actions, mutual information, answers and object probabilities.
 
 import { api, apiList, apiOptional } from "../api.js";
 import { lineChart, manifoldChart, posteriorChart } from "../charts.js";
@@ -14,6 +16,8 @@ let trialModel = null; // GET /models/{id} of that trial
 let plannedTrajectory = null; // from a plan event, if the server sends one
 let pollTimer = null;
 let viserLoaded = false;
+let evaluationTrial = null; // GET /evaluations/{id}/trials/{n}, shown read-only
+let stepsHead = null; // the steps table's own header, restored after an evaluation trial
 
 function worldFor(model) {
   if (model.action_dim === 1 && model.observation_dim === 3) return "experiment1";
@@ -52,7 +56,7 @@ async function modelChosen() {
   $("trial-world").value = world;
   $("trial-mode").value = world === "experiment1" ? "simulated" : "rig";
   modeChanged();
-  if (!trial) drawManifold(model, null);
+  if (!trial && !evaluationTrial) drawManifold(model, null);
 }
 
 function modeChanged() {
@@ -85,6 +89,7 @@ async function startTrial() {
 
 export async function load(id) {
   const record = await api(`/trials/${id}`);
+  showTrialHeader();
   if (!trial || trial.id !== record.id) plannedTrajectory = null;
   trial = record;
   if (!trialModel || trialModel.id !== trial.model_id) trialModel = await store.model(trial.model_id);
@@ -225,6 +230,8 @@ async function loadViser() {
   }
   const params = new URLSearchParams(location.search);
   let url = params.get("viser");
+  // Off loopback the view is proxied by the app (`path`, behind the sign-in); else its port.
+  if (!url && info && info.path) url = new URL(info.path, location.href).href;
   if (!url && info && info.port) url = `${location.protocol}//${location.hostname}:${info.port}/`;
   if (!url) return;
   $("viser-open").href = url;
@@ -244,6 +251,78 @@ async function loadViser() {
 const reloadSoon = throttle(async () => {
   if (trial) await load(trial.id);
 }, 250);
+
+function showTrialHeader() {
+  evaluationTrial = null;
+  const head = $("steps-body").parentElement.tHead;
+  if (stepsHead !== null) head.innerHTML = stepsHead;
+}
+
+/** Show finished trial `number` of evaluation `evaluationId` (read-only). */
+export async function loadEvaluationTrial(evaluationId, number) {
+  const record = await api(`/evaluations/${evaluationId}/trials/${number}`);
+  clearTimeout(pollTimer);
+  trial = null;
+  evaluationTrial = record;
+  const model = await store.model(record.model_id);
+  const r = record.record;
+  const last = r.touches - 1;
+  const probabilities = (t) => Object.fromEntries(record.objects.map((name, i) => [name, r.probabilities[t][i]]));
+  $("trial-title").textContent = `Evaluation #${evaluationId}, trial ${number} — ${r.policy}, target ${r.target}`;
+  $("trial-status").textContent = "evaluation trial";
+  $("trial-status").className = "badge completed";
+  const result = $("trial-result");
+  result.hidden = false;
+  result.className = `result ${r.correct ? "correct" : "wrong"}`;
+  fill(
+    result,
+    "Answer: ",
+    el("strong", { "data-testid": "trial-result-object" }, r.answers[last]),
+    r.correct ? " ✓ correct" : ` ✗ wrong (target ${r.target})`,
+    el("div", { class: "small muted" }, `after ${r.touches} touch${r.touches === 1 ? "" : "es"} · ${r.stop_reason} · trial index ${r.trial} of its (policy, target) cell, seed [${r.seed.join(", ")}]`),
+  );
+  fill(
+    $("trial-facts"),
+    fact("touches", String(r.touches), "trial-touches"),
+    fact("answer", r.answers[last], "trial-nearest"),
+    fact("p(answer)", num(probabilities(last)[r.answers[last]], 3)),
+    fact("last MI (nats)", num(r.mutual_information[last], 3)),
+  );
+  for (const button of document.querySelectorAll("[data-trial-action]")) button.disabled = true;
+  manifoldChart("chart-belief", model.objects, { nearest: r.answers[last] });
+  posteriorChart("chart-posterior", record.objects, probabilities(last), r.answers[last]);
+  lineChart(
+    "chart-mi",
+    [{ label: "I(s; y | x) of the chosen action", x: r.mutual_information.map((_, t) => t + 1), y: r.mutual_information }],
+    { xTitle: "touch", yTitle: "mutual information (nats)", yMin: 0 },
+  );
+  $("plan-note").textContent = "An evaluation trial: its actions are listed below.";
+  const head = $("steps-body").parentElement.tHead;
+  if (stepsHead === null) stepsHead = head.innerHTML;
+  fill(
+    head,
+    el("tr", {}, ["Touch", "Action x", "MI (nats)", "Answer", "p(answer)", "Object probabilities"].map((h) => el("th", { scope: "col" }, h))),
+  );
+  fill(
+    $("steps-body"),
+    r.answers.map((answer, t) =>
+      el(
+        "tr",
+        { "data-testid": "step-row" },
+        el("td", {}, t + 1),
+        el("td", {}, vec(r.actions[t])),
+        el("td", {}, num(r.mutual_information[t], 3)),
+        el("td", {}, answer),
+        el("td", {}, num(probabilities(t)[answer], 3)),
+        el("td", {}, record.objects.map((name, i) => `${name} ${num(r.probabilities[t][i], 3)}`).join(", ")),
+      ),
+    ),
+  );
+}
+
+function hashParams() {
+  return new URLSearchParams(location.hash.split("?")[1] || "");
+}
 
 export function init() {
   $("trial-form").addEventListener("submit", (e) => {
@@ -269,6 +348,11 @@ export function init() {
 export async function show() {
   await refreshForm();
   loadViser();
+  const params = hashParams();
+  if (params.get("evaluation") && params.get("trial")) {
+    await loadEvaluationTrial(Number(params.get("evaluation")), Number(params.get("trial")));
+    return;
+  }
   if (trial) await load(trial.id);
   else {
     const recent = await apiList("/trials?status=running", { max: 1, pageSize: 1 }).catch(() => []);

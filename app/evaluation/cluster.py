@@ -1,0 +1,148 @@
+"""Trials as tasks on Dask distributed: a ``LocalCluster`` of single-threaded processes, or an
+existing scheduler.
+
+The :class:`~app.evaluation.context.TrialContext` (model, spec, replay pools) is scattered to
+every worker once (``broadcast=True``); a task carries only the keys (policy, target, index) of a
+batch of trials (up to :data:`MAX_BATCH`, at least :data:`TASKS_PER_WORKER` tasks per worker) and
+a reference to that context, and returns their :class:`~core.evaluation_records.TrialRecord`.
+Planners and their candidate statistics are built once per worker process, on its first trial.
+At most a few tasks per worker are queued at a time, so a stop cancels little and results come
+back as they finish.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from typing import Any
+
+from app.errors import BadInputError
+from app.evaluation.context import TrialContext, TrialKey, run_trials_task
+from core.evaluation_records import TrialRecord
+
+#: Environment of every worker process: BLAS on one thread (the worker's one core).
+WORKER_ENVIRONMENT = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+#: How long to wait for an existing scheduler (and for it to have a worker).
+CONNECT_TIMEOUT_S = 5.0
+
+#: Tasks queued per worker beyond the one it runs.
+QUEUE_PER_WORKER = 2
+
+#: Most trials in one task.
+MAX_BATCH = 16
+
+#: Fewest tasks per worker when the trials are split into batches.
+TASKS_PER_WORKER = 4
+
+
+def local_cluster(workers: int) -> Any:
+    """A ``LocalCluster`` of ``workers`` single-threaded worker processes, BLAS on one thread."""
+    from distributed import LocalCluster
+
+    return LocalCluster(
+        n_workers=workers,
+        threads_per_worker=1,
+        processes=True,
+        dashboard_address=None,
+        silence_logs=logging.ERROR,
+        env=WORKER_ENVIRONMENT,
+    )
+
+
+def connect(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> Any:
+    """A client of an existing scheduler that has at least one worker.
+
+    Raises:
+        BadInputError: The scheduler cannot be reached, or has no worker, within ``timeout_s``.
+    """
+    from distributed import Client
+
+    try:
+        client = Client(address, timeout=f"{timeout_s}s", set_as_default=False)
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise BadInputError(
+            f"scheduler: cannot reach the Dask scheduler at {address!r} within "
+            f"{timeout_s:g} s ({type(exc).__name__}: {exc}).",
+            field="scheduler",
+        ) from None
+    try:
+        client.wait_for_workers(1, timeout=timeout_s)
+    except (OSError, TimeoutError) as exc:
+        client.close()
+        raise BadInputError(
+            f"scheduler: the Dask scheduler at {address!r} has no worker "
+            f"(waited {timeout_s:g} s: {exc}); start one with `dask worker {address} "
+            "--nthreads 1`.",
+            field="scheduler",
+        ) from None
+    return client
+
+
+def batches(keys: list[TrialKey], n_workers: int) -> list[list[TrialKey]]:
+    """Split the trials into tasks of up to :data:`MAX_BATCH` trials, ≥ 4 tasks per worker.
+
+    A task of several trials pays the scheduler's round trip once for all of them; small runs
+    keep one trial per task so every worker gets work.
+    """
+    size = max(1, min(MAX_BATCH, len(keys) // (TASKS_PER_WORKER * n_workers)))
+    return [keys[i : i + size] for i in range(0, len(keys), size)]
+
+
+def run_on_cluster(
+    context: TrialContext,
+    keys: list[TrialKey],
+    collect: Callable[[TrialRecord], None],
+    stop: Callable[[], bool],
+    workers: int | None,
+    scheduler: str | None,
+) -> tuple[bool, int]:
+    """Run ``keys`` as tasks; ``collect`` each record in this thread as its task finishes.
+
+    Returns:
+        (stopped, number of workers).
+
+    Raises:
+        BadInputError: The scheduler cannot be reached or has no worker.
+    """
+    from distributed import Client, as_completed
+
+    cluster = None
+    if scheduler is not None:
+        client = connect(scheduler)
+    else:
+        assert workers is not None
+        cluster = local_cluster(workers)
+        client = Client(cluster, set_as_default=False)
+    try:
+        n_workers = max(1, len(client.scheduler_info(n_workers=-1)["workers"]))
+        [shared] = client.scatter([context], broadcast=True, hash=False)
+        pending = iter(batches(keys, n_workers))
+        window = n_workers * (1 + QUEUE_PER_WORKER)
+
+        def submit(batch: list[TrialKey]) -> Any:
+            policy, target, trial = batch[0]
+            name = f"trials-{policy}-{target}-{trial}-{len(batch)}"
+            return client.submit(run_trials_task, shared, batch, pure=False, key=name)
+
+        first = [submit(b) for _, b in zip(range(window), pending, strict=False)]
+        # Results are fetched in the background as tasks finish (with_results), not one round
+        # trip at a time from this thread.
+        futures = as_completed(first, with_results=True, loop=client.loop)
+        stopped = False
+        for _, records in futures:
+            for record in records:
+                collect(record)
+            if stop():
+                stopped = True
+                break
+            following = next(pending, None)
+            if following is not None:
+                futures.add(submit(following))
+        if stopped:
+            futures.clear()
+        return stopped, n_workers
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()

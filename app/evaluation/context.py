@@ -1,0 +1,218 @@
+"""The context that runs an evaluation's trials, in process or on a Dask worker.
+
+:class:`TrialContext` holds what every trial needs — the model, the spec, the replay pools — and
+builds per process what is costly and reusable (planners with their candidate statistics, the
+world, the rig's action map). It is what is sent to each Dask worker once; a task names only its
+trial (policy, target, index). This module imports no web stack, so a worker starts light.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from core.evaluation_records import TrialRecord, seed_sequence, trial_seed
+from core.evaluation_trial import (
+    Observe,
+    ReplayPool,
+    model_observer,
+    policy_entry,
+    replay_pools,
+    run_replay_trial,
+    run_trial,
+    world_observer,
+)
+from core.planning import Planner
+from core.types import ManifoldModel, TrainingData
+from core.validation import FloatArray
+from core.worlds import Experiment1World, World, random_experiment2_world
+
+if TYPE_CHECKING:
+    from app.evaluation.spec import EvaluationSpec
+    from app.rig_factory import TouchActions
+
+#: Key of one trial: (policy, target, trial index).
+TrialKey = tuple[str, str, int]
+
+
+def rig_tables() -> dict[str, tuple[str, ...]]:
+    """Simulated rig tables by name: ``default`` and any table ``hardware.sim.materials`` names.
+
+    ``hardware.sim.materials.TABLES`` (name → a table with ``objects``, or the object names),
+    when it exists, adds its tables.
+    """
+    from hardware.sim import materials
+
+    tables: dict[str, tuple[str, ...]] = {"default": tuple(materials.DEFAULT_TABLE)}
+    extra = getattr(materials, "TABLES", None)
+    if isinstance(extra, dict):
+        for name, table in extra.items():
+            objects: Any = getattr(table, "objects", table)
+            tables[str(name)] = tuple(str(o) for o in objects)
+    return tables
+
+
+def synthetic_world(spec: EvaluationSpec) -> World:
+    """The ``exp1`` or ``exp2`` world of a spec (as the server's simulated trials make them)."""
+    if spec.world == "exp1":
+        return Experiment1World(noise_std=0.1 if spec.noise_std is None else spec.noise_std)
+    noise = 0.05 if spec.noise_std is None else spec.noise_std
+    return random_experiment2_world(np.random.default_rng(spec.world_seed), noise_std=noise)
+
+
+@dataclass
+class _RigTrial:
+    """One trial's simulated rig: a fresh in-process rig seeded from the trial's seed."""
+
+    actions: TouchActions
+    objects: tuple[str, ...]
+    target: str
+    rig_seed: int
+
+    def __post_init__(self) -> None:
+        from app.rig_factory import SimulationMode, open_rig
+
+        self._handle = open_rig(
+            simulate=SimulationMode.in_process, objects=self.objects, seed=self.rig_seed
+        )
+        try:
+            self._lease = self._handle.rig.acquire("evaluation")
+            self._lease.connect()
+        except BaseException:
+            self._handle.close()
+            raise
+        self._slot: int | None = self.objects.index(self.target)
+
+    def observe(self, action: FloatArray, rng: np.random.Generator) -> FloatArray:
+        record = self.actions.touch(self._lease, action, slot=self._slot)
+        self._slot = None  # the table stays at the target after the first touch
+        return np.asarray(record.observation, dtype=np.float64)
+
+    def close(self) -> None:
+        try:
+            self._lease.release()
+        finally:
+            self._handle.close()
+
+
+class TrialContext:
+    """Runs trials of one evaluation; picklable (caches are rebuilt in each process).
+
+    Args:
+        model: The model.
+        spec: The evaluation (already checked).
+        replay: Held-out touches of a ``replay`` evaluation.
+    """
+
+    def __init__(
+        self, model: ManifoldModel, spec: EvaluationSpec, replay: TrainingData | None = None
+    ) -> None:
+        self.model = model
+        self.spec = spec
+        self.pools: dict[str, ReplayPool] = {} if replay is None else replay_pools(replay)
+        self.steps = spec.steps_used(model, replay)
+        self._reset_caches()
+
+    def _reset_caches(self) -> None:
+        self._local = threading.local()
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        del state["_local"]
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._reset_caches()
+
+    def trial_keys(self) -> list[TrialKey]:
+        """Every trial of the evaluation, policy-major, then target, then index."""
+        targets = self.spec.target_names(self.model)
+        return [
+            (policy, target, trial)
+            for policy in self.spec.policies
+            for target in targets
+            for trial in range(self.spec.trials_per_target)
+        ]
+
+    def planner(self, policy: str) -> Planner:
+        """This thread's planner of a policy (built once; its state is a pure cache)."""
+        planners: dict[str, Planner] = getattr(self._local, "planners", None) or {}
+        self._local.planners = planners
+        if policy not in planners:
+            planners[policy] = Planner(self.model, policy_entry(policy).make())
+        return planners[policy]
+
+    def _world(self) -> World:
+        world: World | None = getattr(self._local, "world", None)
+        if world is None:
+            world = synthetic_world(self.spec)
+            self._local.world = world
+        return world
+
+    def _rig_actions(self) -> TouchActions:
+        actions: TouchActions | None = getattr(self._local, "rig_actions", None)
+        if actions is None:
+            from app.rig_factory import TouchActions
+
+            actions = TouchActions.from_teaching()
+            self._local.rig_actions = actions
+        return actions
+
+    def run(self, key: TrialKey) -> TrialRecord:
+        """Run one trial (BLAS on one thread, so results do not depend on the process)."""
+        policy, target, trial = key
+        seed = trial_seed(self.spec.seed, target, trial)
+        planner = self.planner(policy)
+        settings = self.spec.trial_settings()
+        with threadpool_limits(limits=1):
+            if self.spec.world == "replay":
+                return run_replay_trial(
+                    self.model,
+                    planner,
+                    policy=policy,
+                    target=target,
+                    trial=trial,
+                    seed=seed,
+                    pool=self.pools[target],
+                    settings=settings,
+                    steps=self.steps,
+                )
+            rig: _RigTrial | None = None
+            observe: Observe
+            if self.spec.world == "model":
+                observe = model_observer(self.model, target)
+            elif self.spec.world == "rig":
+                rig_seed = int(seed_sequence(seed).generate_state(1)[0])
+                rig = _RigTrial(
+                    self._rig_actions(),
+                    rig_tables()[self.spec.table or "default"],
+                    target,
+                    rig_seed,
+                )
+                observe = rig.observe
+            else:
+                observe = world_observer(self._world(), target)
+            try:
+                return run_trial(
+                    self.model,
+                    planner,
+                    policy=policy,
+                    target=target,
+                    trial=trial,
+                    seed=seed,
+                    observe=observe,
+                    settings=settings,
+                )
+            finally:
+                if rig is not None:
+                    rig.close()
+
+
+def run_trials_task(context: TrialContext, keys: list[TrialKey]) -> list[TrialRecord]:
+    """The task of a batch of trials (runs on a worker; ``context`` is its scattered copy)."""
+    return [context.run(key) for key in keys]

@@ -1,0 +1,136 @@
+"""What an evaluation is asked to do, and the checks that name what is wrong before it starts."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal, cast, get_args
+
+from app.errors import BadInputError
+from core.evaluation_trial import POLICIES, TrialSettings
+from core.types import ManifoldModel, TrainingData
+
+WorldName = Literal["exp1", "exp2", "rig", "model", "replay"]
+
+#: Every world an evaluation can run against.
+WORLDS: tuple[str, ...] = get_args(WorldName)
+
+
+@dataclass(frozen=True)
+class EvaluationSpec:
+    """An evaluation: world, policies, targets, trials, T, stop rule and seed.
+
+    Attributes:
+        world: ``exp1`` (the paper's Experiment 1), ``exp2`` (a random Experiment-2-like world
+            drawn from ``world_seed``), ``rig`` (the simulated rig, in process, virtual time),
+            ``model`` (samples of the learned GP at the target's latent), ``replay`` (recorded
+            held-out touches, without replacement).
+        policies: Policy names (see :data:`core.evaluation_trial.POLICIES`).
+        trials_per_target: Trials per (policy, target).
+        steps: T, touches per trial at most (capped by the replay pool).
+        confidence: Threshold of "touches to confidence" and of the compared accuracy level.
+        seed: Entropy of every trial's ``SeedSequence``.
+        targets: Objects to recognise (model objects); every model object when ``None``.
+        table: Simulated rig table by name (``rig``; the default table when ``None``).
+        world_seed: Seed that draws the ``exp2`` world (as the server's simulated trials do).
+        noise_std: Observation noise of ``exp1``/``exp2`` (0.1 / 0.05 when ``None``).
+        tolerance: Stop when the belief mean moves less (normalised latent units; 0 disables).
+        stop_at_confidence: Also stop a trial when the answer's probability reaches
+            ``confidence`` (answers are carried forward to T).
+        prior_variance: Σ0 = prior_variance · I.
+    """
+
+    world: WorldName
+    trials_per_target: int
+    steps: int
+    policies: tuple[str, ...] = ("active", "passive")
+    confidence: float = 0.95
+    seed: int = 0
+    targets: tuple[str, ...] | None = None
+    table: str | None = None
+    world_seed: int = 0
+    noise_std: float | None = None
+    tolerance: float = 1e-3
+    stop_at_confidence: bool = False
+    prior_variance: float = 5.0
+
+    def target_names(self, model: ManifoldModel) -> tuple[str, ...]:
+        """The targets, in the model's object order."""
+        if self.targets is None:
+            return model.object_names
+        return tuple(n for n in model.object_names if n in self.targets)
+
+    def trial_settings(self) -> TrialSettings:
+        """Stop rule and prior of the trials."""
+        return TrialSettings(
+            steps=self.steps,
+            tolerance=self.tolerance,
+            stop_confidence=self.confidence if self.stop_at_confidence else None,
+            prior_variance=self.prior_variance,
+        )
+
+    def steps_used(self, model: ManifoldModel, replay: TrainingData | None) -> int:
+        """T actually run: ``steps``, or for a replay at most the smallest target pool."""
+        if self.world != "replay" or replay is None:
+            return self.steps
+        counts = replay.touches_per_object()
+        pools = [int(counts[replay.object_names.index(n)]) for n in self.target_names(model)]
+        return min([self.steps, *pools])
+
+    def check(self, model: ManifoldModel, replay: TrainingData | None = None) -> None:
+        """Raise :class:`BadInputError` naming the field if this evaluation cannot run.
+
+        Checks the world and policy names (listing the allowed ones), the counts, the targets,
+        the world's dimensions against the model's and, for a replay, that its objects and
+        dimensions match the model's.
+        """
+        if self.world not in WORLDS:
+            raise BadInputError(
+                f"world: {self.world!r} is not a world; choose from {list(WORLDS)}.",
+                field="world",
+            )
+        if not self.policies:
+            raise BadInputError(
+                f"policies: name at least one of {sorted(POLICIES)}.", field="policies"
+            )
+        unknown = [p for p in self.policies if p not in POLICIES]
+        if unknown or len(set(self.policies)) != len(self.policies):
+            raise BadInputError(
+                f"policies: {unknown or list(self.policies)} "
+                f"{'unknown' if unknown else 'repeated'}; choose from {sorted(POLICIES)}.",
+                field="policies",
+            )
+        for name, value in (("trials_per_target", self.trials_per_target), ("steps", self.steps)):
+            if isinstance(value, bool) or int(value) != value or value < 1:
+                raise BadInputError(
+                    f"{name}: must be an integer ≥ 1, received {value}.", field=name
+                )
+        if not 0.0 < self.confidence <= 1.0:
+            raise BadInputError(
+                f"confidence: must lie in (0, 1], received {self.confidence}.", field="confidence"
+            )
+        if self.seed < 0:
+            raise BadInputError(f"seed: must be ≥ 0, received {self.seed}.", field="seed")
+        if self.targets is not None:
+            missing = [t for t in self.targets if t not in model.object_names]
+            if missing or not self.targets:
+                raise BadInputError(
+                    f"targets: {missing} are not objects of the model; choose from "
+                    f"{list(model.object_names)}.",
+                    field="targets",
+                )
+        from app.evaluation.worlds import check_world
+
+        check_world(self, model, replay)
+
+
+def world_name(value: str) -> WorldName:
+    """``value`` as a world name.
+
+    Raises:
+        BadInputError: Not a world (the message lists them).
+    """
+    if value not in WORLDS:
+        raise BadInputError(
+            f"world: {value!r} is not a world; choose from {list(WORLDS)}.", field="world"
+        )
+    return cast(WorldName, value)

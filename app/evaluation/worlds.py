@@ -1,0 +1,102 @@
+"""The worlds of an evaluation: the checks that name what does not fit the model."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from app.errors import BadInputError
+from app.evaluation.context import rig_tables, synthetic_world
+from core.types import ManifoldModel, TrainingData
+
+if TYPE_CHECKING:
+    from app.evaluation.spec import EvaluationSpec
+
+
+def table_objects(name: str | None) -> tuple[str, ...]:
+    """The objects of a rig table by name (slot 0 first).
+
+    Raises:
+        BadInputError: Unknown table (the message lists them).
+    """
+    tables = rig_tables()
+    key = "default" if name is None else name
+    if key not in tables:
+        raise BadInputError(
+            f"table: {name!r} is not a simulated table; choose from {sorted(tables)}.",
+            field="table",
+        )
+    return tables[key]
+
+
+def _dims_error(field: str, what: str, dx: int, dy: int, model: ManifoldModel) -> BadInputError:
+    h = model.hyperparameters
+    return BadInputError(
+        f"{field}: {what} has dx={dx}, dy={dy} but the model has dx={h.action_dim}, "
+        f"dy={h.observation_dim}.",
+        field=field,
+    )
+
+
+def check_world(spec: EvaluationSpec, model: ManifoldModel, replay: TrainingData | None) -> None:
+    """World-specific checks of :meth:`EvaluationSpec.check`."""
+    h = model.hyperparameters
+    targets = spec.target_names(model)
+    if spec.world != "replay" and replay is not None:
+        raise BadInputError(
+            f"data: held-out touches are for the replay world, not {spec.world!r}.", field="data"
+        )
+    if spec.world in ("exp1", "exp2"):
+        world = synthetic_world(spec)
+        if (world.action_dim, world.observation_dim) != (h.action_dim, h.observation_dim):
+            raise _dims_error(
+                "world", f"{spec.world}", world.action_dim, world.observation_dim, model
+            )
+        missing = [t for t in targets if t not in world.object_names]
+        if missing:
+            raise BadInputError(
+                f"targets: {missing} are not objects of the {spec.world} world "
+                f"{list(world.object_names)}.",
+                field="targets",
+            )
+    elif spec.world == "rig":
+        objects = table_objects(spec.table)
+        from hardware.tactile import TactileConfig
+
+        dy = len(TactileConfig().channel_names)
+        if (h.action_dim, h.observation_dim) != (6, dy):
+            raise _dims_error("world", "the simulated rig", 6, dy, model)
+        missing = [t for t in targets if t not in objects]
+        if missing:
+            raise BadInputError(
+                f"targets: {missing} are not on the simulated table "
+                f"{spec.table or 'default'!r} ({list(objects)}).",
+                field="targets",
+            )
+    elif spec.world == "replay":
+        _check_replay(spec, model, replay)
+    elif spec.table is not None:
+        raise BadInputError("table: only the rig world has a table.", field="table")
+
+
+def _check_replay(spec: EvaluationSpec, model: ManifoldModel, replay: TrainingData | None) -> None:
+    if replay is None:
+        raise BadInputError("data: the replay world needs held-out touches.", field="data")
+    h = model.hyperparameters
+    if (replay.action_dim, replay.observation_dim) != (h.action_dim, h.observation_dim):
+        raise _dims_error(
+            "data", "the held-out data", replay.action_dim, replay.observation_dim, model
+        )
+    foreign = [n for n in replay.object_names if n not in model.object_names]
+    if foreign:
+        raise BadInputError(
+            f"data: objects {foreign} of the held-out data are not objects of the model "
+            f"{list(model.object_names)}.",
+            field="data",
+        )
+    missing = [t for t in spec.target_names(model) if t not in replay.object_names]
+    if missing:
+        raise BadInputError(
+            f"data: the held-out data has no touches of {missing} (it has "
+            f"{list(replay.object_names)}); choose targets among them.",
+            field="data",
+        )

@@ -1,0 +1,321 @@
+"""Evaluations as server jobs: many recognition trials of one model, summarised per policy.
+
+:class:`EvaluationService` checks a request (model, world, replay dataset, policies), stores the
+evaluation and runs :func:`app.evaluation.runner.run_evaluation` in a thread of its own. Each
+trial is committed as an :class:`app.models.EvaluationTrial` the moment the engine reports it
+(``on_trial``) and announced as ``evaluation.progress`` (at most every
+:data:`PROGRESS_INTERVAL_S`, and for the last trial); ``POST /evaluations/{id}/stop`` makes the
+engine start no further trial (``should_stop``), the finished ones are kept. Trials run on the
+server's Dask cluster when it has one (``ACTIVETOUCH_DASK_SCHEDULER``), else on the request's
+``workers`` local processes, else in-process.
+
+States follow DESIGN.md "Run states" (``queued → running → completed | stopped | failed``); an
+evaluation a previous process left running is ``failed`` with reason ``interrupted`` at start-up
+(:func:`app.crud.fail_interrupted_evaluations`), and so is one still running when the server shuts
+down. Reads (:mod:`app.services.evaluation_views`) give the summary of the trials finished so far
+while the job runs.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass
+
+from sqlalchemy.orm import Session
+
+from app import crud
+from app.config import Settings
+from app.db import Database
+from app.errors import AppError, BadInputError, ConflictError
+from app.evaluation.report import EvaluationReport
+from app.evaluation.runner import run_evaluation
+from app.evaluation.spec import EvaluationSpec
+from app.models import Evaluation
+from app.schemas import EvaluationCreate, EvaluationPublic
+from app.services import datasets, states
+from app.services.evaluation_views import build_spec, require, to_public
+from app.services.events import EventBus
+from app.services.models import ModelStore
+from core.errors import CoreError
+from core.evaluation_records import TrialRecord
+from core.types import ManifoldModel, TrainingData
+
+logger = logging.getLogger(__name__)
+
+#: Reason of an evaluation that a restart (or a shutdown) interrupted.
+INTERRUPTED = "interrupted"
+
+#: Seconds between two ``evaluation.progress`` events of one evaluation.
+PROGRESS_INTERVAL_S = 0.2
+
+#: Seconds :meth:`EvaluationService.close` waits for each job to end.
+CLOSE_TIMEOUT_S = 30.0
+
+
+@dataclass
+class _Job:
+    """A running evaluation: its thread and its stop flag."""
+
+    stop: threading.Event
+    thread: threading.Thread | None = None
+
+
+class EvaluationService:
+    """Starts, stores and stops evaluation jobs.
+
+    Args:
+        settings: The server's settings (``dask_scheduler``).
+        database: Where evaluations and their trials live.
+        events: Where progress is announced.
+        models: Loads the fitted models evaluated.
+    """
+
+    def __init__(
+        self, settings: Settings, database: Database, events: EventBus, models: ModelStore
+    ) -> None:
+        self._scheduler = settings.dask_scheduler or None
+        self._database = database
+        self._events = events
+        self._models = models
+        self._lock = threading.RLock()  # status changes and trial writes of every evaluation
+        self._jobs: dict[int, _Job] = {}
+        self._closing = threading.Event()
+
+    # --- starting -----------------------------------------------------------------------------
+
+    def create(self, session: Session, body: EvaluationCreate) -> EvaluationPublic:
+        """Check a request, store the evaluation (``queued``) and start its job.
+
+        Raises:
+            NotFoundError: (404) no such model or dataset.
+            ConflictError: (409) the model is still fitting (or failed), the dataset is still
+                being collected, or the server is shutting down.
+            BadInputError: (422) a replay without a dataset (or a dataset without replay); a
+                replay of the model's own training data; a replay dataset whose objects or
+                dimensions do not match the model; an unknown
+                policy or world (the message lists the allowed values).
+        """
+        model = self._models.load(session, body.model_id)
+        replay: TrainingData | None = None
+        if body.world == "replay":
+            if body.dataset_id is None:
+                raise BadInputError(
+                    "dataset_id: a replay evaluation needs the dataset of recorded held-out "
+                    "touches to replay.",
+                    field="dataset_id",
+                )
+            fitted_on = crud.get_model(session, body.model_id)
+            if fitted_on is not None and fitted_on.dataset_id == body.dataset_id:
+                raise BadInputError(
+                    f"dataset_id: dataset {body.dataset_id} is the one model {body.model_id} "
+                    "was fitted to; a replay evaluates on held-out touches, never used for "
+                    "fitting.",
+                    field="dataset_id",
+                )
+            replay = datasets.load_training_data(session, body.dataset_id)
+        elif body.dataset_id is not None:
+            raise BadInputError(
+                f"dataset_id: only a replay evaluation takes a dataset (world is {body.world!r}).",
+                field="dataset_id",
+            )
+        spec = build_spec(body)
+        spec.check(model, replay)
+        targets = spec.target_names(model)
+        total = len(spec.policies) * len(targets) * spec.trials_per_target
+        workers = None if self._scheduler else body.workers
+        if self._closing.is_set():
+            raise ConflictError("The server is shutting down.", current_state="shutdown")
+        row = crud.create_evaluation(
+            session,
+            model_id=body.model_id,
+            dataset_id=body.dataset_id,
+            spec=body.model_dump(mode="json"),
+            status="queued",
+            done=0,
+            total=total,
+            steps=spec.steps_used(model, replay),
+            workers=workers,
+        )
+        session.commit()
+        self._announce(row)
+        job = _Job(stop=threading.Event())
+        job.thread = threading.Thread(
+            target=self._run,
+            args=(row.id, model, spec, replay, workers, job),
+            name=f"evaluation {row.id}",
+            daemon=True,
+        )
+        with self._lock:
+            self._jobs[row.id] = job
+        job.thread.start()
+        return to_public(row)
+
+    # --- the job ------------------------------------------------------------------------------
+
+    def _run(
+        self,
+        evaluation_id: int,
+        model: ManifoldModel,
+        spec: EvaluationSpec,
+        replay: TrainingData | None,
+        workers: int | None,
+        job: _Job,
+    ) -> None:
+        try:
+            if not self._set_running(evaluation_id):
+                return
+            progress = _Progress(self, evaluation_id)
+            report = run_evaluation(
+                model,
+                spec,
+                replay=replay,
+                workers=workers,
+                scheduler=self._scheduler,
+                on_trial=progress.store,
+                should_stop=lambda: job.stop.is_set() or self._closing.is_set(),
+            )
+            progress.flush()
+            if self._closing.is_set() and not job.stop.is_set():
+                self._finish(evaluation_id, "failed", INTERRUPTED, report)
+            else:
+                status = "stopped" if report.stopped else "completed"
+                self._finish(evaluation_id, status, None, report)
+        except (AppError, CoreError, ValueError, OSError) as exc:
+            logger.warning("evaluation %d failed: %s", evaluation_id, exc)
+            self._finish(evaluation_id, "failed", f"{type(exc).__name__}: {exc}", None)
+        except Exception as exc:  # a bug must still leave the evaluation failed, not running
+            logger.exception("evaluation %d crashed", evaluation_id)
+            self._finish(
+                evaluation_id, "failed", f"internal error: {type(exc).__name__}: {exc}", None
+            )
+        finally:
+            with self._lock:
+                self._jobs.pop(evaluation_id, None)
+
+    def _set_running(self, evaluation_id: int) -> bool:
+        """``queued → running``; false when it was stopped before it started."""
+        with self._lock, self._database.session() as session:
+            row = require(session, evaluation_id)
+            if row.status != "queued":
+                return False
+            crud.set_evaluation_status(session, row, "running")
+            session.commit()
+        self._announce(row)
+        return True
+
+    def store_trial(self, evaluation_id: int, record: TrialRecord) -> tuple[Evaluation, int]:
+        """Commit one finished trial; return the row and the trial's number."""
+        with self._lock, self._database.session() as session:
+            row = require(session, evaluation_id)
+            trial = crud.add_evaluation_trial(session, row, record.to_dict())
+            session.commit()
+            return row, trial.number
+
+    def publish_progress(self, row: Evaluation, number: int, record: TrialRecord | None) -> None:
+        """Announce an evaluation's progress (``evaluation.progress``) after trial ``number``."""
+        data: dict[str, object] = {
+            "evaluation_id": row.id,
+            "status": row.status,
+            "done": row.done,
+            "total": row.total,
+            "number": number,
+        }
+        if record is not None:
+            data.update(
+                policy=record.policy,
+                target=record.target,
+                trial=record.trial,
+                correct=record.correct,
+                touches=record.touches,
+            )
+        self._events.publish("evaluation.progress", data)
+
+    def _finish(
+        self,
+        evaluation_id: int,
+        status: str,
+        reason: str | None,
+        report: EvaluationReport | None,
+    ) -> None:
+        """Store the report's summary and end the evaluation (a stop may have ended it already)."""
+        with self._lock, self._database.session() as session:
+            row = require(session, evaluation_id)
+            if report is not None:
+                document = report.to_dict(include_trials=False)
+                document.pop("trials", None)
+                row.summary = document
+                row.seconds = report.seconds
+                row.workers = report.workers
+                row.steps = report.steps
+                if status == "completed":
+                    row.total = row.done
+            if row.status in states.ACTIVE:
+                crud.set_evaluation_status(session, row, status, reason)
+            session.commit()
+        self._announce(row)
+
+    def _announce(self, row: Evaluation) -> None:
+        self._events.publish(
+            "evaluation.status",
+            {
+                "evaluation_id": row.id,
+                "status": row.status,
+                "reason": row.reason,
+                "done": row.done,
+                "total": row.total,
+                "model_id": row.model_id,
+            },
+        )
+
+    # --- control ------------------------------------------------------------------------------
+
+    def stop(self, session: Session, evaluation_id: int) -> EvaluationPublic:
+        """Start no further trial; the finished ones are kept (409 once it has ended)."""
+        with self._lock:
+            row = require(session, evaluation_id)
+            target = states.check_action(f"evaluation {evaluation_id}", row.status, "stop")
+            crud.set_evaluation_status(session, row, target, reason="stop requested")
+            session.commit()
+            job = self._jobs.get(evaluation_id)
+            if job is not None:
+                job.stop.set()
+        self._announce(row)
+        return to_public(row)
+
+    def close(self) -> None:
+        """Stop every job (each ends ``failed`` "interrupted", its trials kept) and wait."""
+        self._closing.set()
+        with self._lock:
+            jobs = list(self._jobs.values())
+        for job in jobs:
+            if job.thread is not None:
+                job.thread.join(timeout=CLOSE_TIMEOUT_S)
+
+
+class _Progress:
+    """The ``on_trial`` of one job: commit each trial, announce progress now and then."""
+
+    def __init__(self, service: EvaluationService, evaluation_id: int) -> None:
+        self._service = service
+        self._evaluation_id = evaluation_id
+        self._last_event = 0.0
+        self._pending: tuple[Evaluation, int, TrialRecord] | None = None
+
+    def store(self, record: TrialRecord) -> None:
+        row, number = self._service.store_trial(self._evaluation_id, record)
+        now = time.monotonic()
+        if now - self._last_event >= PROGRESS_INTERVAL_S:
+            self._last_event = now
+            self._pending = None
+            self._service.publish_progress(row, number, record)
+        else:
+            self._pending = (row, number, record)
+
+    def flush(self) -> None:
+        """Announce the last trial if its event was held back."""
+        if self._pending is not None:
+            row, number, record = self._pending
+            self._pending = None
+            self._service.publish_progress(row, number, record)

@@ -1,0 +1,191 @@
+"""Benchmark: the manifold fit on a real-sized random design (issue 15, item 4).
+
+20 objects × 40 touches (N = 800), a fresh action per touch (dx = 1), dy = 5, drawn from
+:func:`core.worlds.random_experiment2_world` (true ds = 3). For each fitted ds it runs the
+default fit (:class:`core.fit_run.FitRun`, default :class:`core.fit_options.FitOptions`) and
+prints the fit seconds (wall and CPU of the process), the log-likelihood reached, the
+likelihood evaluations and their seconds by problem size (all the data, the screening
+subsample, the one-feature problems of the hyperparameter stages), the L-BFGS-B iterations of
+the winning start, the seconds per stage, the time of one evaluation with gradient on all the
+data (median of repeats) and its leading FLOP count.
+
+BLAS threads are limited to one. The machine is shared: run under ``nice -n 5`` and compare
+ratios of figures taken by the same script in the same session.
+
+Run: ``.venv/bin/python -m bench.fit_n800 [--ds 2 5] [--repeats 1] [--seed 0] [--profile]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import io
+import json
+import pstats
+import statistics
+import time
+from collections import defaultdict
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from core.fit_options import FitOptions
+from core.fit_run import FitRun
+from core.likelihood import ManifoldLikelihood
+from core.parameters import initial_hyperparameters
+from core.types import TrainingData
+from core.worlds import random_experiment2_world, sample_dataset
+
+#: (N, dy) -> [evaluations, seconds] of every ManifoldLikelihood evaluation in the process.
+_COUNTS: dict[tuple[int, int, str], list[float]] = defaultdict(lambda: [0, 0.0])
+
+
+def _timed(name: str, method: Callable[..., Any]) -> Callable[..., Any]:
+    def wrapper(self: ManifoldLikelihood, vector: Any) -> Any:
+        start = time.perf_counter()
+        try:
+            return method(self, vector)
+        finally:
+            entry = _COUNTS[(self.data.n_touches, self.layout.observation_dim, name)]
+            entry[0] += 1
+            entry[1] += time.perf_counter() - start
+
+    return wrapper
+
+
+def instrument() -> None:
+    """Count and time every evaluation (bench only: wraps the methods in place)."""
+    ManifoldLikelihood.value_and_gradient = _timed(  # type: ignore[method-assign]
+        "grad", ManifoldLikelihood.value_and_gradient
+    )
+    ManifoldLikelihood.value = _timed("value", ManifoldLikelihood.value)  # type: ignore[method-assign]
+
+
+def make_data(seed: int) -> TrainingData:
+    rng = np.random.default_rng(seed)
+    world = random_experiment2_world(
+        rng, n_objects=20, latent_dim=3, action_dim=1, observation_dim=5
+    )
+    return sample_dataset(world, rng, touches_per_object=40)
+
+
+def flops_per_evaluation(n: int, dy: int, dx: int) -> float:
+    """Leading FLOP count of one dense evaluation with gradient (every feature): Cholesky
+    N³/3, inverse from the factor 2N³/3 (triangular inverse + U⁻¹U⁻ᵀ), the triangular solves
+    4N², the Gram matrix and the action-gradient contractions ~4·dx·N²."""
+    per_feature = n**3 / 3 + 2 * n**3 / 3 + 4 * n**2 + 4 * dx * n**2
+    return float(dy * per_feature)
+
+
+def time_evaluation(data: TrainingData, ds: int, repeats: int = 5) -> tuple[float, float]:
+    """Median seconds of one value_and_gradient and one value on all the data, at the
+    initial hyperparameters and random latents."""
+    likelihood = ManifoldLikelihood(data, ds)
+    rng = np.random.default_rng(1)
+    vector = likelihood.layout.pack(
+        rng.standard_normal((data.n_objects, ds)), initial_hyperparameters(data, ds, 10.0)
+    )
+    grads, values = [], []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        likelihood.value_and_gradient(vector)
+        grads.append(time.perf_counter() - start)
+        start = time.perf_counter()
+        likelihood.value(vector)
+        values.append(time.perf_counter() - start)
+    return statistics.median(grads), statistics.median(values)
+
+
+def run_fit(data: TrainingData, ds: int, seed: int, options: FitOptions) -> dict[str, Any]:
+    _COUNTS.clear()
+    phase_seconds: dict[str, float] = defaultdict(float)
+    run = FitRun(data, ds, np.random.default_rng(seed), options)
+    model = None
+    wall = time.perf_counter()
+    cpu = time.process_time()
+    last = wall
+    for event in run.events():
+        now = time.perf_counter()
+        phase = event.phase.removesuffix(" done")
+        phase_seconds[phase] += now - last
+        last = now
+        model = event.model if event.model is not None else model
+    assert model is not None
+    assert model.diagnostics is not None
+    return {
+        "seconds": time.perf_counter() - wall,
+        "cpu": time.process_time() - cpu,
+        "log_likelihood": model.log_likelihood,
+        "iterations": model.diagnostics.iterations,
+        "best_start": model.diagnostics.best_start,
+        "starts": model.diagnostics.starts_log_likelihood,
+        "counts": dict(_COUNTS),
+        "phases": dict(phase_seconds),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--ds", type=int, nargs="+", default=[2, 5])
+    parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--seed", type=int, default=0, help="data seed")
+    parser.add_argument("--fit-seed", type=int, default=100)
+    parser.add_argument("--profile", action="store_true", help="cProfile evaluations")
+    parser.add_argument(
+        "--options", default="{}", help='FitOptions overrides as JSON, e.g. {"restarts": 2}'
+    )
+    args = parser.parse_args()
+    options = FitOptions(**json.loads(args.options))
+    instrument()
+    data = make_data(args.seed)
+    n, dx, dy = data.n_touches, data.action_dim, data.observation_dim
+    print(
+        f"N={n} L={data.n_objects} dx={dx} dy={dy}, data seed {args.seed}, fit seed "
+        f"{args.fit_seed}, default FitOptions, 1 BLAS thread"
+    )
+    with threadpool_limits(limits=1):
+        for ds in args.ds:
+            grad_s, value_s = time_evaluation(data, ds)
+            flops = flops_per_evaluation(n, dy, dx)
+            print(
+                f"\nds={ds}: one evaluation on all the data: value+gradient {grad_s * 1e3:.1f} ms, "
+                f"value {value_s * 1e3:.1f} ms; leading FLOPs {flops / 1e9:.2f} G "
+                f"({flops / grad_s / 1e9:.1f} GFLOP/s)"
+            )
+            results = []
+            for repeat in range(args.repeats):
+                if args.profile and repeat == 0:
+                    profiler = cProfile.Profile()
+                    profiler.enable()
+                    result = run_fit(data, ds, args.fit_seed, options)
+                    profiler.disable()
+                    stream = io.StringIO()
+                    pstats.Stats(profiler, stream=stream).sort_stats("tottime").print_stats(18)
+                    print(stream.getvalue())
+                else:
+                    result = run_fit(data, ds, args.fit_seed, options)
+                results.append(result)
+                counts = ", ".join(
+                    f"N={k[0]} dy={k[1]} {k[2]}: {int(v[0])} evals {v[1]:.1f} s"
+                    for k, v in sorted(result["counts"].items())
+                )
+                phases = ", ".join(f"{k} {v:.1f} s" for k, v in result["phases"].items())
+                starts = " ".join(f"{v:.1f}" for v in result["starts"])
+                print(
+                    f"  fit {repeat}: {result['seconds']:.1f} s (cpu {result['cpu']:.1f} s), "
+                    f"log-lik {result['log_likelihood']:.3f}, winner start "
+                    f"{result['best_start']} with {result['iterations']} iterations\n"
+                    f"    evaluations: {counts}\n    stages: {phases}\n"
+                    f"    starts' log-lik: {starts}"
+                )
+            seconds = statistics.median(r["seconds"] for r in results)
+            print(
+                f"ds={ds} median fit {seconds:.1f} s over {len(results)}, log-lik "
+                f"{statistics.median(r['log_likelihood'] for r in results):.3f}"
+            )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,178 @@
+"""One evaluation trial as a record, and the seed that reproduces it alone.
+
+Every trial of an evaluation draws its randomness from one ``np.random.SeedSequence`` whose
+entropy is the evaluation's seed and whose spawn key names the trial: (target, trial). The target
+enters the key through a stable hash of its name (CRC-32), so a trial's stream does not depend on
+which other targets were asked for, nor on the order the trials are run in, nor on which process
+runs them. The policy is not part of the key: trial k of a target sees the same random streams under
+every policy, so policies are compared on the same targets and seeds (METHOD.md, "Evaluation
+protocols") and their difference is not blurred by different noise.
+"""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from core.errors import InvalidInputError
+
+
+def name_key(name: str) -> int:
+    """A stable non-negative integer for an object name (CRC-32 of its UTF-8)."""
+    return zlib.crc32(name.encode("utf-8"))
+
+
+def trial_seed(seed: int, target: str, trial: int) -> tuple[int, ...]:
+    """The seed tuple of one trial: (evaluation seed, target key, trial index).
+
+    Raises:
+        InvalidInputError: A negative seed or trial index.
+    """
+    if seed < 0 or trial < 0:
+        raise InvalidInputError(f"seed and trial: must be ≥ 0, received {seed} and {trial}.")
+    return (int(seed), name_key(target), int(trial))
+
+
+def seed_sequence(seed: tuple[int, ...]) -> np.random.SeedSequence:
+    """The ``SeedSequence`` of a trial's seed tuple (entropy first, then the spawn key)."""
+    if len(seed) < 1:
+        raise InvalidInputError("seed: expected (entropy, *spawn_key), received ().")
+    return np.random.SeedSequence(entropy=seed[0], spawn_key=tuple(seed[1:]))
+
+
+def trial_generators(seed: tuple[int, ...]) -> tuple[np.random.Generator, np.random.Generator]:
+    """Two independent generators of a trial: (policy's, world's).
+
+    The policy's stream draws passive actions and replay choices; the world's stream draws the
+    observation noise. Keeping them apart means a policy's choices do not shift the noise.
+    """
+    policy, world = seed_sequence(seed).spawn(2)
+    return np.random.default_rng(policy), np.random.default_rng(world)
+
+
+@dataclass(frozen=True)
+class TrialRecord:
+    """What one evaluation trial did, touch by touch.
+
+    Attributes:
+        policy: Name of the policy (``"active"``, ``"passive"``, …).
+        target: Name of the object touched.
+        trial: Index of this trial within its (policy, target) cell.
+        seed: The seed tuple that reproduces the trial alone (:func:`trial_seed`).
+        answers: The answer after each touch performed. Length ``touches``.
+        probabilities: Object posterior after each touch, in the model's object order.
+            ``touches`` tuples of length L.
+        actions: The action of each touch. ``touches`` tuples of length dx.
+        mutual_information: U1 of each action under the belief it was chosen for, in nats.
+        touches: Touches performed (≤ T; fewer after an early stop).
+        stop_reason: ``"max_steps"``, ``"converged"``, ``"confident"`` or ``"pool_exhausted"``.
+        correct: Whether the final answer is the target.
+        nearest: The object whose learned latent is nearest the Gaussian belief's mean after
+            each touch (the paper's decision rule), when recorded; empty otherwise.
+    """
+
+    policy: str
+    target: str
+    trial: int
+    seed: tuple[int, ...]
+    answers: tuple[str, ...]
+    probabilities: tuple[tuple[float, ...], ...]
+    actions: tuple[tuple[float, ...], ...]
+    mutual_information: tuple[float, ...]
+    touches: int
+    stop_reason: str
+    correct: bool
+    nearest: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        n = self.touches
+        lengths = {
+            "answers": len(self.answers),
+            "probabilities": len(self.probabilities),
+            "actions": len(self.actions),
+            "mutual_information": len(self.mutual_information),
+        }
+        if self.nearest:
+            lengths["nearest"] = len(self.nearest)
+        wrong = {name: length for name, length in lengths.items() if length != n}
+        if n < 1 or wrong:
+            raise InvalidInputError(
+                f"TrialRecord: touches={n} must be ≥ 1 and equal the length of every per-touch "
+                f"field; received lengths {lengths}."
+            )
+
+    @property
+    def key(self) -> tuple[str, str, int]:
+        """(policy, target, trial): the record's place in a report."""
+        return (self.policy, self.target, self.trial)
+
+    def answers_by_touch(self, steps: int) -> tuple[str, ...]:
+        """The answer after touch 1..``steps``; after an early stop the last one carries forward.
+
+        Raises:
+            InvalidInputError: ``steps`` is smaller than the touches performed.
+        """
+        if steps < self.touches:
+            raise InvalidInputError(
+                f"steps: {steps} is fewer than the {self.touches} touches of this trial."
+            )
+        return self.answers + (self.answers[-1],) * (steps - self.touches)
+
+    def nearest_by_touch(self, steps: int) -> tuple[str, ...]:
+        """:attr:`nearest` after touch 1..``steps``, carried forward like the answers.
+
+        Raises:
+            InvalidInputError: ``steps`` is smaller than the touches, or nothing was recorded.
+        """
+        if not self.nearest:
+            raise InvalidInputError("nearest: this record has no nearest-latent answers.")
+        if steps < self.touches:
+            raise InvalidInputError(
+                f"steps: {steps} is fewer than the {self.touches} touches of this trial."
+            )
+        return self.nearest + (self.nearest[-1],) * (steps - self.touches)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready; :meth:`from_dict` gives back an equal record (floats round-trip)."""
+        return {
+            "policy": self.policy,
+            "target": self.target,
+            "trial": self.trial,
+            "seed": list(self.seed),
+            "answers": list(self.answers),
+            "probabilities": [list(p) for p in self.probabilities],
+            "actions": [list(a) for a in self.actions],
+            "mutual_information": list(self.mutual_information),
+            "touches": self.touches,
+            "stop_reason": self.stop_reason,
+            "correct": self.correct,
+            "nearest": list(self.nearest),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> TrialRecord:
+        """The record of a :meth:`to_dict` document.
+
+        Raises:
+            InvalidInputError: A field is missing or of the wrong kind.
+        """
+        try:
+            return cls(
+                policy=str(d["policy"]),
+                target=str(d["target"]),
+                trial=int(d["trial"]),
+                seed=tuple(int(v) for v in d["seed"]),
+                answers=tuple(str(a) for a in d["answers"]),
+                probabilities=tuple(tuple(float(v) for v in p) for p in d["probabilities"]),
+                actions=tuple(tuple(float(v) for v in a) for a in d["actions"]),
+                mutual_information=tuple(float(v) for v in d["mutual_information"]),
+                touches=int(d["touches"]),
+                stop_reason=str(d["stop_reason"]),
+                correct=bool(d["correct"]),
+                nearest=tuple(str(n) for n in d.get("nearest", ())),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InvalidInputError(f"trial record: missing or malformed field ({exc}).") from None

@@ -1,0 +1,311 @@
+"""One evaluation trial: a policy recognises a target whose touches come from a world or a replay.
+
+The policies an evaluation may name are resolved here, in :data:`POLICIES`, and nowhere else: a
+new policy is one entry (how to build its planner policy, and how it picks among recorded touches
+in a replay).
+
+Observations come from an ``Observe`` function (action (dx,), the trial's world generator) →
+observation (dy,): :func:`world_observer` for a synthetic world, :func:`model_observer` for the
+learned GP's predictive distribution (the paper's Experiment 2 protocol), or any other source
+(the simulated rig, composed in ``app``). A replay trial (:func:`run_replay_trial`) instead picks
+among the target's recorded held-out touches without replacement (METHOD.md, "Evaluation
+protocols").
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from core.errors import InvalidInputError
+from core.evaluation_records import TrialRecord, trial_generators
+from core.planning import ActivePolicy, PassivePolicy, Planner, Policy
+from core.posterior import predict
+from core.recognition import (
+    RecognitionSession,
+    RecognitionSettings,
+    RecognitionStep,
+    default_prior,
+    iter_recognize,
+)
+from core.types import GaussianBelief, ManifoldModel, TrainingData
+from core.validation import FloatArray, as_float_array
+from core.worlds import World
+
+#: Observation source of a trial: (action (dx,), the trial's world generator) → observation (dy,).
+Observe = Callable[[FloatArray, np.random.Generator], FloatArray]
+
+#: How a policy scores the unused recorded actions (C, dx) of a replay under the planning belief;
+#: the largest score is touched next. Shape (C,).
+ReplayScore = Callable[[Planner, GaussianBelief, FloatArray], FloatArray]
+
+
+def information_score(planner: Planner, belief: GaussianBelief, actions: FloatArray) -> FloatArray:
+    """U1 of each recorded action under the belief (METHOD.md (M4))."""
+    return planner.mutual_information(belief, actions)
+
+
+@dataclass(frozen=True)
+class PolicyEntry:
+    """How an evaluation runs a policy.
+
+    Attributes:
+        make: Builds the planner's policy.
+        replay_score: Scores unused recorded touches in a replay (largest first); ``None``
+            picks one at random (from the trial's policy generator).
+    """
+
+    make: Callable[[], Policy]
+    replay_score: ReplayScore | None
+
+
+#: The policies an evaluation may name. Add a policy here, in one line.
+POLICIES: dict[str, PolicyEntry] = {
+    "active": PolicyEntry(ActivePolicy, information_score),
+    "passive": PolicyEntry(PassivePolicy, None),
+}
+
+
+def policy_entry(name: str) -> PolicyEntry:
+    """The entry of a policy name.
+
+    Raises:
+        InvalidInputError: Unknown name (the message lists the allowed ones).
+    """
+    try:
+        return POLICIES[name]
+    except KeyError:
+        raise InvalidInputError(
+            f"policy: {name!r} is not a policy; choose from {sorted(POLICIES)}."
+        ) from None
+
+
+@dataclass(frozen=True)
+class TrialSettings:
+    """Stop rule and prior of every trial of an evaluation.
+
+    Attributes:
+        steps: T, the largest number of touches.
+        tolerance: Stop when the Gaussian mean moves less (normalised latent units; 0 disables).
+        stop_confidence: Stop when the object posterior's largest probability reaches it
+            (``None``: never).
+        prior_variance: Σ0 = prior_variance · I around the mean of the learned latents.
+    """
+
+    steps: int
+    tolerance: float = 1e-3
+    stop_confidence: float | None = None
+    prior_variance: float = 5.0
+
+    def recognition(self, steps: int | None = None) -> RecognitionSettings:
+        """The recognition settings (``steps`` overrides T, e.g. capped by a replay pool)."""
+        return RecognitionSettings(
+            max_steps=self.steps if steps is None else steps,
+            tolerance=self.tolerance,
+            confidence_threshold=self.stop_confidence,
+        )
+
+    def prior(self, model: ManifoldModel) -> GaussianBelief:
+        """The initial belief of a trial."""
+        return default_prior(model, self.prior_variance)
+
+
+def world_observer(world: World, target: str) -> Observe:
+    """Observations of object ``target`` (by name) of a synthetic world: h(θ, x) + noise.
+
+    Raises:
+        InvalidInputError: ``target`` is not an object of the world.
+    """
+    if target not in world.object_names:
+        raise InvalidInputError(
+            f"target: {target!r} is not an object of the world {list(world.object_names)}."
+        )
+    index = world.object_names.index(target)
+
+    def observe(action: FloatArray, rng: np.random.Generator) -> FloatArray:
+        return np.asarray(world.observe(index, action[None, :], rng)[0], dtype=np.float64)
+
+    return observe
+
+
+def model_observer(model: ManifoldModel, target: str) -> Observe:
+    """Draws from the learned GP's predictive distribution at the target's latent.
+
+    y ~ N(m(s_k, x), diag v(s_k, x)), the predictive mean and variance (noise included) of
+    :func:`core.posterior.predict` — the paper's Experiment 2 protocol.
+
+    Raises:
+        InvalidInputError: ``target`` is not an object of the model.
+    """
+    if target not in model.object_names:
+        raise InvalidInputError(
+            f"target: {target!r} is not an object of the model {list(model.object_names)}."
+        )
+    latent = model.latents[model.object_names.index(target)][None, :]
+
+    def observe(action: FloatArray, rng: np.random.Generator) -> FloatArray:
+        mean, variance = predict(model, latent, action[None, :])
+        noise = rng.standard_normal(mean.shape[1])
+        return np.asarray(mean[0] + np.sqrt(variance[0]) * noise, dtype=np.float64)
+
+    return observe
+
+
+def _record(
+    model: ManifoldModel,
+    policy: str,
+    target: str,
+    trial: int,
+    seed: tuple[int, ...],
+    steps: Sequence[RecognitionStep],
+) -> TrialRecord:
+    names = model.object_names
+    answers = tuple(names[s.answer] for s in steps)
+    return TrialRecord(
+        policy=policy,
+        target=target,
+        trial=trial,
+        seed=tuple(seed),
+        answers=answers,
+        probabilities=tuple(tuple(float(p) for p in s.probabilities) for s in steps),
+        actions=tuple(tuple(float(v) for v in s.action) for s in steps),
+        mutual_information=tuple(float(s.mutual_information) for s in steps),
+        touches=len(steps),
+        stop_reason=str(steps[-1].stop_reason),
+        correct=answers[-1] == target,
+        nearest=tuple(names[s.nearest_object] for s in steps),
+    )
+
+
+def run_trial(
+    model: ManifoldModel,
+    planner: Planner,
+    *,
+    policy: str,
+    target: str,
+    trial: int,
+    seed: tuple[int, ...],
+    observe: Observe,
+    settings: TrialSettings,
+) -> TrialRecord:
+    """One trial: the planner chooses each action, ``observe`` answers it.
+
+    Args:
+        model: A conditioned model.
+        planner: A planner for ``model`` under ``policy``.
+        policy: The policy's name (recorded).
+        target: The object touched (a model object).
+        trial: Index of the trial within its (policy, target) cell (recorded).
+        seed: The trial's seed tuple (:func:`core.evaluation_records.trial_seed`); the
+            planner's and the world's generators are spawned from it.
+        observe: The observation source.
+        settings: Stop rule and prior.
+    """
+    if target not in model.object_names:
+        raise InvalidInputError(
+            f"target: {target!r} is not an object of the model {list(model.object_names)}."
+        )
+    policy_rng, world_rng = trial_generators(seed)
+    steps = list(
+        iter_recognize(
+            model,
+            lambda action: observe(action, world_rng),
+            planner,
+            settings.prior(model),
+            settings.recognition(),
+            policy_rng,
+        )
+    )
+    return _record(model, policy, target, trial, seed, steps)
+
+
+@dataclass(frozen=True)
+class ReplayPool:
+    """The recorded held-out touches of one object.
+
+    Attributes:
+        actions: Shape (n, dx).
+        observations: Shape (n, dy).
+    """
+
+    actions: FloatArray
+    observations: FloatArray
+
+    def __post_init__(self) -> None:
+        actions = as_float_array(self.actions, "replay actions", (None, None))
+        as_float_array(self.observations, "replay observations", (actions.shape[0], None))
+
+    @property
+    def size(self) -> int:
+        """n, the number of recorded touches."""
+        return int(self.actions.shape[0])
+
+
+def replay_pools(data: TrainingData) -> dict[str, ReplayPool]:
+    """The pool of every object of a held-out data set, by name."""
+    return {
+        name: ReplayPool(
+            actions=data.actions[data.object_index == k],
+            observations=data.observations[data.object_index == k],
+        )
+        for k, name in enumerate(data.object_names)
+    }
+
+
+def run_replay_trial(
+    model: ManifoldModel,
+    planner: Planner,
+    *,
+    policy: str,
+    target: str,
+    trial: int,
+    seed: tuple[int, ...],
+    pool: ReplayPool,
+    settings: TrialSettings,
+    steps: int | None = None,
+) -> TrialRecord:
+    """One replay trial: each touch is an unused recorded touch of the target.
+
+    The policy's :attr:`PolicyEntry.replay_score` picks the unused touch with the largest score
+    under the planning belief (active: the largest mutual information), or a random unused one
+    when it has none (passive); the observation is that touch's recorded y.
+
+    Args:
+        steps: Touches at most (≤ the pool size); ``settings.steps`` when ``None``.
+
+    Raises:
+        InvalidInputError: Unknown policy, a target not in the model, a pool of the wrong
+            dimensions, or more steps than recorded touches.
+    """
+    entry = policy_entry(policy)
+    if target not in model.object_names:
+        raise InvalidInputError(
+            f"target: {target!r} is not an object of the model {list(model.object_names)}."
+        )
+    h = model.hyperparameters
+    if (pool.actions.shape[1], pool.observations.shape[1]) != (h.action_dim, h.observation_dim):
+        raise InvalidInputError(
+            f"replay pool of {target!r}: has dx={pool.actions.shape[1]}, "
+            f"dy={pool.observations.shape[1]}; the model has dx={h.action_dim}, "
+            f"dy={h.observation_dim}."
+        )
+    limit = settings.steps if steps is None else steps
+    if limit > pool.size:
+        raise InvalidInputError(
+            f"steps: {limit} touches asked but {target!r} has only {pool.size} recorded touches."
+        )
+    policy_rng, _ = trial_generators(seed)
+    session = RecognitionSession(model, planner, settings.prior(model), settings.recognition(limit))
+    unused = list(range(pool.size))
+    while not session.done:
+        belief = session.planning_belief()
+        candidates = pool.actions[unused]
+        if entry.replay_score is None:
+            chosen = int(policy_rng.integers(len(unused)))
+        else:
+            chosen = int(np.argmax(entry.replay_score(planner, belief, candidates)))
+        index = unused.pop(chosen)
+        session.observe(pool.actions[index], pool.observations[index])
+    return _record(model, policy, target, trial, seed, session.steps)

@@ -1,0 +1,117 @@
+"""``activetouch evaluate``: the report on stdout, the files, and bad input exiting with 2."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from app.cli.main import app
+from core.worlds import random_experiment2_world, sample_dataset
+from tests.app.conftest import experiment1_csv, experiment1_document
+from tests.app.test_cli_lazy import probe
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def model_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("evaluate") / "exp1.json"
+    path.write_text(json.dumps(experiment1_document()))
+    return path
+
+
+def evaluate(model_path: Path, *args: str):
+    return runner.invoke(app, ["evaluate", "--model", str(model_path), *args])
+
+
+def test_json_prints_only_the_report_and_files_are_written(model_path, tmp_path):
+    out, plot = tmp_path / "report.json", tmp_path / "curves.png"
+    result = evaluate(
+        model_path,
+        *("--world", "exp1", "--trials", "2", "--steps", "3", "--targets", "O1,O4"),
+        *("--json", "--out", str(out), "--plot", str(plot)),
+    )
+    assert result.exit_code == 0, result.output
+    document = json.loads(result.stdout)
+    assert document["format"] == "activetouch-evaluation/1"
+    assert document["steps"] == 3
+    assert document["trials_per_target"] == 2
+    assert len(document["trials"]) == 2 * 2 * 2
+    assert set(document["policies"]["passive"]["per_object"]) == {"O1", "O4"}
+    assert json.loads(out.read_text()) == document
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["curves.png", "report.json"]
+
+
+def test_table_output_names_the_policies(model_path):
+    result = evaluate(model_path, "--world", "model", "--trials", "1", "--steps", "2")
+    assert result.exit_code == 0, result.output
+    assert "active" in result.stdout
+    assert "passive" in result.stdout
+    assert "median touches" in result.stdout
+
+
+def test_replay_from_a_csv_says_t_is_capped(model_path, tmp_path):
+    data = tmp_path / "held_out.csv"
+    data.write_text(experiment1_csv(seed=4, touches_per_object=3))
+    result = evaluate(
+        model_path,
+        *("--world", "replay", "--data", str(data), "--trials", "1", "--steps", "5", "--json"),
+    )
+    assert result.exit_code == 0, result.output
+    document = json.loads(result.stdout)
+    assert document["steps"] == 3
+    assert "capped at 3" in document["notes"][0]
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (("--world", "moon"), "'exp1', 'exp2', 'rig', 'model', 'replay'"),
+        (("--world", "exp1", "--policies", "active,greedy"), "greedy"),
+        (("--world", "exp1", "--targets", "O1,mug"), "mug"),
+        (("--world", "exp1", "--trials", "0"), "trials_per_target"),
+        (("--world", "replay"), "needs held-out touches"),
+        (("--world", "exp1", "--workers", "2", "--scheduler", "tcp://x:1"), "give one"),
+        (("--world", "exp1", "--out", "/nonexistent/dir/r.json"), "does not exist"),
+    ],
+)
+def test_bad_input_exits_2_naming_it(model_path, args, message):
+    result = evaluate(model_path, *args)
+    assert result.exit_code == 2
+    assert message in " ".join(result.stderr.split())
+
+
+def test_replay_data_of_another_world_is_named(model_path, tmp_path):
+    other = sample_dataset(
+        random_experiment2_world(np.random.default_rng(0)), np.random.default_rng(0), 3
+    )
+    lines = ["object,x_1,x_2,x_3,x_4,x_5,x_6,y_1,y_2,y_3,y_4,y_5"]
+    for obj, x, y in zip(other.object_index, other.actions, other.observations, strict=True):
+        lines.append(",".join([other.object_names[obj], *(repr(float(v)) for v in (*x, *y))]))
+    data = tmp_path / "exp2.csv"
+    data.write_text("\n".join(lines) + "\n")
+    result = evaluate(model_path, "--world", "replay", "--data", str(data))
+    assert result.exit_code == 2
+    assert "held-out data has dx=6, dy=5 but the model has dx=1, dy=3" in result.stderr
+
+
+def test_an_unreachable_scheduler_exits_2_and_writes_nothing(model_path, tmp_path):
+    out = tmp_path / "report.json"
+    result = evaluate(
+        model_path,
+        *("--world", "exp1", "--trials", "1", "--scheduler", "tcp://127.0.0.1:9"),
+        *("--out", str(out)),
+    )
+    assert result.exit_code == 2
+    assert "cannot reach the Dask scheduler" in " ".join(result.stderr.split())
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_evaluate_help_starts_light():
+    loaded = probe([["evaluate", "--help"]])
+    assert loaded["after"] == []

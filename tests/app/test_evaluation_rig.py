@@ -1,0 +1,95 @@
+"""The ``rig`` world: trials on the simulated rig in process (virtual time), seeded per trial."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.errors import BadInputError
+from app.evaluation.context import rig_tables
+from app.evaluation.runner import run_evaluation
+from app.evaluation.spec import EvaluationSpec
+from app.rig_factory import SimulationMode, TouchActions, iter_collect, open_rig
+from core.manifold import FitOptions, fit_manifold
+from core.types import ManifoldModel, TrainingData
+
+OBJECTS = ("paper_cup", "ceramic_mug", "foam_sponge")
+
+
+@pytest.fixture(scope="module")
+def rig_model() -> ManifoldModel:
+    """A ds=2 model fitted on 6 touches of three objects of the default simulated table."""
+    table = rig_tables()["default"]
+    handle = open_rig(simulate=SimulationMode.in_process, seed=3)
+    try:
+        lease = handle.rig.acquire("test")
+        lease.connect()
+        design = np.random.default_rng(0).standard_normal((6, 6))
+        slots = {name: table.index(name) for name in OBJECTS}
+        touches = list(iter_collect(lease, TouchActions.from_teaching(), slots, design))
+        lease.release()
+    finally:
+        handle.close()
+    data = TrainingData(
+        object_names=OBJECTS,
+        object_index=np.array([OBJECTS.index(t.object_name) for t in touches]),
+        actions=np.array([t.action for t in touches]),
+        observations=np.array([t.record.observation for t in touches]),
+    )
+    return fit_manifold(data, 2, np.random.default_rng(0), FitOptions(restarts=0))
+
+
+def spec(**changes: object) -> EvaluationSpec:
+    values: dict[str, object] = {
+        "world": "rig",
+        "trials_per_target": 1,
+        "steps": 2,
+        "targets": ("paper_cup", "foam_sponge"),
+        "table": "default",
+    }
+    values.update(changes)
+    return EvaluationSpec(**values)  # type: ignore[arg-type]
+
+
+def test_rig_trials_touch_the_simulated_table_and_are_reproducible(rig_model):
+    first = run_evaluation(rig_model, spec())
+    assert [r.key for r in first.records] == [
+        ("active", "foam_sponge", 0),
+        ("active", "paper_cup", 0),
+        ("passive", "foam_sponge", 0),
+        ("passive", "paper_cup", 0),
+    ]
+    assert all(len(r.actions[0]) == 6 and 1 <= r.touches <= 2 for r in first.records)
+    again = run_evaluation(rig_model, spec(policies=("passive",), targets=("paper_cup",)))
+    assert again.records == first.records[3:]
+
+
+def test_rig_targets_must_be_model_objects(rig_model):
+    with pytest.raises(BadInputError, match=r"targets: \['cork_board'\] are not objects"):
+        run_evaluation(rig_model, spec(targets=("cork_board",)))
+
+
+def test_an_unknown_table_lists_the_tables(rig_model):
+    with pytest.raises(BadInputError, match=r"table: 'kitchen'.*'default'"):
+        run_evaluation(rig_model, spec(table="kitchen"))
+
+
+def test_tables_come_by_name_from_the_simulator(monkeypatch):
+    from dataclasses import dataclass
+
+    from hardware.sim import materials
+
+    @dataclass(frozen=True)
+    class Table:
+        objects: tuple[str, ...]
+
+    monkeypatch.setattr(
+        materials,
+        "TABLES",
+        {"cups": Table(("paper_cup", "pet_cup")), "plain": ("wooden_block", "cork_board")},
+        raising=False,
+    )
+    tables = rig_tables()
+    assert tables["cups"] == ("paper_cup", "pet_cup")
+    assert tables["plain"] == ("wooden_block", "cork_board")
+    assert tables["default"] == tuple(materials.DEFAULT_TABLE)

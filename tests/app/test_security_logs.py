@@ -1,0 +1,67 @@
+"""No token in logs: the server's access log (uvicorn, level info) over a sign-in, reads, the
+event stream, a change and a sign-out shows the paths, never the token or the session id."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from pathlib import Path
+
+import httpx
+
+from app.cli.serve import ServedApp, listening_url
+from app.security.sessions import SESSION_COOKIE
+from tests.app.conftest import make_settings
+
+TOKEN = "log-probe-token-5d1e9a"
+
+
+class Collect(logging.Handler):
+    def __init__(self) -> None:
+        super().__init__(level=logging.DEBUG)
+        self.lines: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append(record.getMessage())
+
+
+def test_access_log_never_shows_the_token_or_the_session(tmp_path: Path) -> None:
+    settings = make_settings(
+        tmp_path, port=0, viz=False, api_token=TOKEN, require_auth_for_reads=True
+    )
+    served = ServedApp(settings, log_level="info")
+    collect = Collect()
+    loggers = [logging.getLogger(name) for name in ("uvicorn.access", "uvicorn.error", "app")]
+    for logger in loggers:
+        logger.addHandler(collect)
+    thread = threading.Thread(target=served.run, daemon=True)
+    thread.start()
+    try:
+        deadline = time.monotonic() + 60
+        while not served.server.started:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        base = listening_url(served.server, "127.0.0.1")
+        with httpx.Client(base_url=base, timeout=30) as client:
+            assert client.post("/api/v1/session", json={"token": "wrong"}).status_code == 401
+            assert client.post("/api/v1/session", json={"token": TOKEN}).status_code == 200
+            session_id = client.cookies[SESSION_COOKIE]
+            assert client.get("/api/v1/trials").status_code == 200
+            assert client.get("/api/v1/events", params={"follow": "false"}).status_code == 200
+            csrf = {"X-Requested-With": "activetouch"}
+            assert client.post("/api/v1/rig/estop", headers=csrf).status_code == 200
+            bearer = {"Authorization": f"Bearer {TOKEN}"}
+            assert client.get("/api/v1/models", headers=bearer).status_code == 200
+            assert client.delete("/api/v1/session", headers=csrf).status_code == 204
+    finally:
+        served.server.should_exit = True
+        thread.join(timeout=30)
+        for logger in loggers:
+            logger.removeHandler(collect)
+    access = [line for line in collect.lines if "HTTP/1.1" in line]
+    assert any("/api/v1/session" in line for line in access), collect.lines
+    assert any("/api/v1/rig/estop" in line for line in access)
+    for line in collect.lines:
+        assert TOKEN not in line
+        assert session_id not in line

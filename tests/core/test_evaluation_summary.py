@@ -1,0 +1,158 @@
+"""Evaluation summaries against hand-computed values, and trial records round-tripping."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from core.errors import InvalidInputError
+from core.evaluation_records import TrialRecord, trial_seed
+from core.evaluation_summary import (
+    comparison_sentence,
+    median_touches,
+    summarise,
+    touches_to_confidence,
+    wilson_interval,
+)
+
+NAMES = ("A", "B", "C")
+
+
+def record(
+    target: str,
+    answers: tuple[str, ...],
+    top: tuple[float, ...],
+    policy: str = "active",
+    trial: int = 0,
+) -> TrialRecord:
+    """A record whose answer after each touch has probability ``top`` (rest split evenly)."""
+    probabilities = []
+    for answer, p in zip(answers, top, strict=True):
+        rest = (1.0 - p) / 2
+        probabilities.append(tuple(p if n == answer else rest for n in NAMES))
+    n = len(answers)
+    return TrialRecord(
+        policy=policy,
+        target=target,
+        trial=trial,
+        seed=trial_seed(0, target, trial),
+        answers=answers,
+        probabilities=tuple(probabilities),
+        actions=tuple((0.1 * i,) for i in range(n)),
+        mutual_information=tuple(0.5 for _ in range(n)),
+        touches=n,
+        stop_reason="max_steps" if n == 3 else "confident",
+        correct=answers[-1] == target,
+    )
+
+
+@pytest.mark.parametrize(
+    ("k", "n", "expected"),
+    [
+        # By hand: p̂ = 0.8, z² = 3.84146; centre 0.99207/1.38415 = 0.71674,
+        # half-width 1.41600 · sqrt(0.016 + 0.0096037) = 0.22658.
+        (8, 10, (0.49016, 0.94332)),
+        # k = 0: [0, z²/(n + z²)] = [0, 3.84146/13.84146].
+        (0, 10, (0.0, 0.27753)),
+        (10, 10, (0.72247, 1.0)),
+        (1, 1, (0.20654, 1.0)),
+    ],
+)
+def test_wilson_interval_matches_hand_computed_values(k, n, expected):
+    lo, hi = wilson_interval(k, n)
+    assert lo == pytest.approx(expected[0], abs=5e-5)
+    assert hi == pytest.approx(expected[1], abs=5e-5)
+
+
+def test_wilson_interval_contains_the_proportion_and_rejects_bad_counts():
+    for k in range(0, 21):
+        lo, hi = wilson_interval(k, 20)
+        assert 0.0 <= lo <= k / 20 <= hi <= 1.0
+    with pytest.raises(InvalidInputError, match="successes=5, trials=4"):
+        wilson_interval(5, 4)
+    with pytest.raises(InvalidInputError):
+        wilson_interval(0, 0)
+
+
+def test_summary_carries_answers_forward_and_counts_confusion():
+    records = [
+        # Stops after 2 touches on the right answer: carried forward to touch 3.
+        record("A", ("B", "A"), (0.6, 0.97), trial=0),
+        record("A", ("A", "A", "A"), (0.5, 0.9, 0.96), trial=1),
+        # Wrong at the end.
+        record("B", ("B", "B", "C"), (0.7, 0.8, 0.6), trial=0),
+        record("C", ("C",), (0.99,), trial=0),
+    ]
+    summary = summarise(records, NAMES, steps=3, confidence=0.95)["active"]
+    # Touch 1: trial A1 wrong (B), A2 right, B right, C right → 3/4.
+    # Touch 2: A1 right, A2 right, B right, C right (carried) → 4/4.
+    # Touch 3: A1 right (carried), A2 right, B wrong, C right → 3/4.
+    assert summary["accuracy_by_touch"] == [0.75, 1.0, 0.75]
+    assert summary["accuracy_interval"][1] == pytest.approx(list(wilson_interval(4, 4)))
+    assert summary["per_object"] == {
+        "A": {"accuracy": 1.0, "trials": 2},
+        "B": {"accuracy": 0.0, "trials": 1},
+        "C": {"accuracy": 1.0, "trials": 1},
+    }
+    assert summary["confusion"] == {
+        "A": {"A": 2, "B": 0, "C": 0},
+        "B": {"A": 0, "B": 0, "C": 1},
+        "C": {"A": 0, "B": 0, "C": 1},
+    }
+    # Touches to 0.95: A1 → 2, A2 → 3, B → never, C → 1; sorted 1, 2, 3, ∞ → median 2.5.
+    assert summary["median_touches_to_confidence"] == 2.5
+    assert summary["touches_to_accuracy"] == 2
+    assert summary["trials"] == 4
+
+
+def test_touches_to_confidence_uses_the_answers_probability():
+    trial = record("A", ("B", "A", "A"), (0.96, 0.5, 0.97))
+    # The answer B already has 0.96 after touch 1 (a confident wrong answer counts).
+    assert touches_to_confidence(trial, NAMES, 0.95) == 1
+    assert touches_to_confidence(trial, NAMES, 0.965) == 3
+    assert touches_to_confidence(trial, NAMES, 0.99) is None
+
+
+def test_median_touches_is_none_when_half_never_reach():
+    assert median_touches([1, None]) is None
+    assert median_touches([1, 3, None]) == 3.0
+    assert median_touches([]) is None
+
+
+def test_policies_are_summarised_apart_and_compared():
+    records = [
+        record("A", ("A", "A", "A"), (0.9, 0.9, 0.9), policy="active"),
+        record("A", ("B", "B", "A"), (0.9, 0.9, 0.9), policy="passive"),
+    ]
+    summary = summarise(records, NAMES, steps=3, confidence=0.95)
+    assert list(summary) == ["active", "passive"]
+    assert summary["passive"]["accuracy_by_touch"] == [0.0, 0.0, 1.0]
+    assert comparison_sentence(summary, 0.95) == (
+        "active reaches 95 % accuracy after 1 touch, passive after 3 touches"
+    )
+    summary["passive"]["accuracy_by_touch"] = [0.0, 0.0, 0.5]
+    assert comparison_sentence(summary, 0.95).endswith("passive does not within 3 touches")
+
+
+def test_summary_rejects_foreign_objects_and_long_trials():
+    with pytest.raises(InvalidInputError, match=r"\['B'\] are not among"):
+        summarise([record("B", ("A",), (0.9,))], ("A", "Z", "C"), 3, 0.95)
+    with pytest.raises(InvalidInputError, match="fewer than the 3 touches"):
+        summarise([record("A", ("A", "A", "A"), (0.9, 0.9, 0.9))], NAMES, 2, 0.95)
+    with pytest.raises(InvalidInputError, match="at least one trial"):
+        summarise([], NAMES, 3, 0.95)
+
+
+def test_record_round_trips_through_json_exactly():
+    original = record("B", ("A", "B", "B"), (0.4, 0.6, 0.9999999999999999))
+    again = TrialRecord.from_dict(json.loads(json.dumps(original.to_dict())))
+    assert again == original
+    with pytest.raises(InvalidInputError, match="touches=2"):
+        TrialRecord(**{**original.__dict__, "touches": 2})
+
+
+def test_trial_seed_does_not_depend_on_the_policy_or_other_targets():
+    assert trial_seed(7, "A", 3) == trial_seed(7, "A", 3)
+    assert trial_seed(7, "A", 3) != trial_seed(7, "B", 3)
+    assert trial_seed(7, "A", 3)[0] == 7

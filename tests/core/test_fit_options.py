@@ -1,0 +1,72 @@
+"""The fit-cost settings: L-BFGS-B memory and the cap on the screening subsample."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core.errors import InvalidInputError
+from core.fit_options import FitOptions
+from core.fit_run import FitRun
+from core.hyperparameter_fit import minimize_free
+from core.types import TrainingData
+from core.worlds import random_experiment2_world, sample_dataset
+
+
+def test_more_joint_lbfgs_memory_reaches_the_optimum_in_fewer_iterations() -> None:
+    # A badly scaled quadratic (condition 1e4): with more correction pairs L-BFGS-B models
+    # more of the curvature. Both runs must reach the optimum; the longer memory must be used.
+    scales = np.logspace(0, 4, 30)
+
+    class Quadratic:
+        def value_and_gradient(self, x: np.ndarray) -> tuple[float, np.ndarray]:
+            return float(0.5 * np.sum(scales * x**2)), scales * x
+
+    x0 = np.ones(30)
+    free = np.ones(30, dtype=bool)
+    bounds = (np.full(30, -10.0), np.full(30, 10.0))
+    short = minimize_free(Quadratic(), x0, free, *bounds, 10_000, 1e-15, 1e-12, memory=10)
+    long = minimize_free(Quadratic(), x0, free, *bounds, 10_000, 1e-15, 1e-12, memory=30)
+    assert short.fun < 1e-10
+    assert long.fun < 1e-10
+    assert long.nit < 0.8 * short.nit
+
+
+def _data(n_objects: int, touches: int) -> TrainingData:
+    rng = np.random.default_rng(0)
+    world = random_experiment2_world(rng, n_objects=n_objects, action_dim=1, observation_dim=2)
+    return sample_dataset(world, rng, touches_per_object=touches)
+
+
+@pytest.mark.parametrize(
+    ("cap", "per_object"),
+    [(0, 25), (400, 25), (100, 10), (60, 6), (5, 2)],  # 0 = no cap; a cap never goes below 2
+)
+def test_screening_subsample_is_capped_in_total(cap: int, per_object: int) -> None:
+    data = _data(n_objects=10, touches=60)
+    options = FitOptions(screen_touches_per_object=25, screen_max_touches=cap)
+    run = FitRun(data, 1, np.random.default_rng(1), options)
+    assert run.screen is not None
+    assert run.screen is not run.full
+    counts = run.screen.likelihood.data.touches_per_object()
+    np.testing.assert_array_equal(counts, np.full(10, per_object))
+
+
+def test_a_cap_above_the_data_leaves_screening_off() -> None:
+    data = _data(n_objects=4, touches=20)  # 20 touches per object ≤ 25: no screening
+    run = FitRun(data, 1, np.random.default_rng(1), FitOptions(screen_max_touches=1000))
+    assert run.screen is None
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("joint_lbfgs_memory", 0, "joint_lbfgs_memory: must be ≥ 1"),
+        ("joint_lbfgs_memory", 2.5, "joint_lbfgs_memory: expected an integer"),
+        ("screen_max_touches", -1, "screen_max_touches: must be ≥ 0"),
+        ("screen_max_touches", True, "screen_max_touches: expected an integer"),
+    ],
+)
+def test_bad_cost_options_are_named(field: str, value: object, message: str) -> None:
+    with pytest.raises(InvalidInputError, match=message):
+        FitOptions(**{field: value})  # type: ignore[arg-type]

@@ -1,0 +1,173 @@
+"""The Evaluation page in headless Chromium against the real app (uvicorn, SQLite, the engine).
+
+Start an evaluation from the page, watch it fill in from the event stream, see it complete with
+the accuracy curves and their interval bands, the per-object bars and the confusion matrix drawn
+from the API's summary, then open a finished trial in the Trials view.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import httpx
+import pytest
+import uvicorn
+
+from app.cli.serve import GracefulServer
+from app.config import Settings
+from app.main import API_PREFIX, create_app
+from tests.app.conftest import experiment1_document
+from tests.e2e.conftest import PageErrors, save_screenshot
+
+pytestmark = pytest.mark.browser
+
+
+def expect(target: Any) -> Any:
+    from playwright.sync_api import expect as playwright_expect
+
+    return playwright_expect(target)
+
+
+@dataclass
+class Served:
+    """The app served on a free loopback port, with an imported Experiment 1 model."""
+
+    base_url: str
+    client: httpx.Client
+    model_id: int
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
+    database = tmp_path_factory.mktemp("evaluation-page") / "app.db"
+    settings = Settings(
+        _env_file=None,  # type: ignore[call-arg]
+        database_url=f"sqlite:///{database}",
+        hardware="mock",
+        port=0,
+    )
+    config = uvicorn.Config(create_app(settings), host="127.0.0.1", port=0, log_level="warning")
+    server = GracefulServer(config)
+    thread = threading.Thread(target=server.run, name="evaluation-page-uvicorn", daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 60
+    while not server.started:
+        assert thread.is_alive(), "the app did not start"
+        assert time.monotonic() < deadline, "the app did not start within 60 s"
+        time.sleep(0.05)
+    port = server.servers[0].sockets[0].getsockname()[1]
+    base_url = f"http://127.0.0.1:{port}"
+    client = httpx.Client(base_url=base_url + API_PREFIX, timeout=30)
+    try:
+        imported = client.post("/models/import", json=experiment1_document())
+        assert imported.status_code == 201, imported.text
+        yield Served(base_url=base_url, client=client, model_id=imported.json()["id"])
+    finally:
+        client.close()
+        server.should_exit = True
+        thread.join(timeout=15)
+
+
+def chart_datasets(page: Any, canvas_id: str) -> list[dict[str, Any]]:
+    """Label and data of every dataset of the Chart.js chart drawn on ``canvas_id``."""
+    result: list[dict[str, Any]] = page.evaluate(
+        """(id) => {
+          const chart = window.Chart.getChart(document.getElementById(id));
+          if (!chart) return [];
+          return chart.data.datasets.map((d) => ({
+            label: d.label,
+            data: d.data.map((p) => (p !== null && typeof p === "object" ? p.y : p)),
+            fill: d.fill ?? null,
+          }));
+        }""",
+        canvas_id,
+    )
+    return result
+
+
+def test_start_an_evaluation_watch_it_and_open_a_trial(
+    page: Any, served: Served, page_errors: PageErrors
+) -> None:
+    page.goto(f"{served.base_url}/?viz=off#evaluation")
+    expect(page.get_by_test_id("chip-events")).to_have_text("live")
+    expect(page.get_by_test_id("page-evaluation")).to_be_visible()
+    expect(page.get_by_test_id("eval-model")).to_have_value(str(served.model_id))
+    expect(page.get_by_test_id("eval-world")).to_have_value("exp1")  # chosen for the model
+    page.get_by_test_id("eval-trials").fill("25")
+    page.get_by_test_id("eval-steps").fill("6")
+    page.get_by_test_id("eval-seed").fill("5")
+    # Record every progress text the page shows, to see it fill in while the job runs.
+    page.evaluate(
+        """() => {
+          window.__progress = [];
+          new MutationObserver(() => {
+            window.__progress.push(document.getElementById("eval-progress").textContent);
+          }).observe(document.getElementById("eval-progress"), {
+            childList: true, subtree: true, characterData: true,
+          });
+        }"""
+    )
+    page.get_by_test_id("eval-start").click()
+    expect(page.get_by_test_id("eval-status")).to_have_text("completed", timeout=120_000)
+
+    evaluations = served.client.get("/evaluations").json()["data"]
+    assert len(evaluations) == 1
+    evaluation = served.client.get(f"/evaluations/{evaluations[0]['id']}").json()
+    total = 2 * 4 * 25
+    assert evaluation["status"] == "completed"
+    assert evaluation["done"] == evaluation["total"] == total
+    assert evaluation["spec"]["steps"] == 6
+    expect(page.get_by_test_id("eval-progress")).to_contain_text(f"{total} of {total} trials")
+    shown: list[str] = page.evaluate("window.__progress")
+    counts = {int(text.split(" of ")[0]) for text in shown if " of " in text}
+    assert any(0 < c < total for c in counts), f"no progress seen before the end: {shown}"
+
+    # The curves: per policy a lower bound, an upper bound filled down to it, and the accuracy.
+    summary = evaluation["summary"]["policies"]
+    datasets = {d["label"]: d for d in chart_datasets(page, "chart-eval-accuracy")}
+    for policy, values in summary.items():
+        curve = datasets[f"{policy} (n = {values['trials']})"]
+        assert curve["data"] == pytest.approx(values["accuracy_by_touch"])
+        low = datasets[f"{policy} 95 % interval (low)"]["data"]
+        high = datasets[f"{policy} 95 % interval"]
+        assert low == pytest.approx([lo for lo, _ in values["accuracy_interval"]])
+        assert high["data"] == pytest.approx([hi for _, hi in values["accuracy_interval"]])
+        assert high["fill"] == "-1"
+    bars = {d["label"]: d["data"] for d in chart_datasets(page, "chart-eval-objects")}
+    for policy, values in summary.items():
+        objects = list(values["per_object"])
+        assert bars[policy] == pytest.approx([values["per_object"][o]["accuracy"] for o in objects])
+    # The confusion matrix of the first policy: counts as in the summary.
+    table = page.get_by_test_id("eval-confusion-table")
+    expect(table).to_be_visible()
+    confusion = summary["active"]["confusion"]
+    rows = table.locator("tbody tr")
+    expect(rows).to_have_count(len(confusion))
+    first_object = next(iter(confusion))
+    cells = rows.first.locator("td")
+    assert [int(c) for c in cells.all_inner_texts()] == list(confusion[first_object].values())
+    expect(page.get_by_test_id("eval-comparison")).to_contain_text("active reaches 95")
+    expect(page.get_by_test_id("eval-trial-row")).to_have_count(total)
+    save_screenshot(page, "dashboard-evaluation", docs=True)
+
+    # A finished trial opens, read-only, in the Trials view.
+    row = page.get_by_test_id("eval-trial-row").first  # the newest: number == total
+    number = int(row.locator("td").first.inner_text())
+    row.click()
+    expect(page.get_by_test_id("page-trials")).to_be_visible()
+    trial = served.client.get(f"/evaluations/{evaluation['id']}/trials/{number}").json()
+    expect(page.locator("#trial-title")).to_contain_text(
+        f"Evaluation #{evaluation['id']}, trial {number}"
+    )
+    expect(page.get_by_test_id("step-row")).to_have_count(trial["touches"])
+    expect(page.get_by_test_id("trial-result-object")).to_have_text(trial["answer"])
+    last_row = page.get_by_test_id("step-row").last.locator("td")
+    assert last_row.nth(3).inner_text() == trial["record"]["answers"][-1]
+    for button in ("trial-pause", "trial-resume", "trial-stop"):
+        expect(page.get_by_test_id(button)).to_be_disabled()
+    save_screenshot(page, "dashboard-evaluation-trial")
+    assert page_errors.exceptions == []
