@@ -321,6 +321,8 @@ class RigWorld:
         slots: Object name → slot, in the world's object order.
         action_mean: Mean of the collection design's actions. Shape (dx,).
         action_cov: Covariance of the collection design's actions. Shape (dx, dx).
+        reseat_each_touch: Turn the object away and back before every touch (as an
+            interleaved collection does), not only between trials.
     """
 
     def __init__(
@@ -330,6 +332,7 @@ class RigWorld:
         slots: dict[str, int],
         action_mean: npt.ArrayLike,
         action_cov: npt.ArrayLike,
+        reseat_each_touch: bool = False,
     ) -> None:
         if not slots:
             raise ConfigurationError("slots: at least one object is needed.")
@@ -342,6 +345,7 @@ class RigWorld:
         self._cov = np.asarray(action_cov, dtype=np.float64).reshape(dx, dx)
         self.touches = 0
         self._last_slot: int | None = None
+        self.reseat_each_touch = bool(reseat_each_touch)
 
     @property
     def object_names(self) -> tuple[str, ...]:
@@ -402,9 +406,11 @@ class RigWorld:
                 f"actions: expected shape (M, {self.action_dim}), received {x.shape}."
             )
         slot = self.slots[self._names[object_index]]
-        self._last_slot = slot
         rows = []
         for action in x:
+            if self.reseat_each_touch:
+                self.reseat()
             rows.append(self.actions.touch(self.lease, action, slot=slot).observation)
+            self._last_slot = slot
             self.touches += 1
         return np.asarray(rows, dtype=np.float64)

@@ -213,6 +213,7 @@ def _rig_trials(
     n_trials: int,
     seed: int,
     noise: NoiseModel | None,
+    reseat_each_touch: bool = False,
 ) -> list[TrialOutcome]:
     """Trials whose observations are touches of a fresh simulated rig (world seed ``seed``)."""
     dx = actions.action_dim
@@ -226,6 +227,7 @@ def _rig_trials(
                 {n: i for i, n in enumerate(objects)},
                 data.actions.mean(axis=0),
                 np.cov(data.actions, rowvar=False).reshape(dx, dx),
+                reseat_each_touch=reseat_each_touch,
             )
             return evaluate(
                 model,
@@ -253,6 +255,7 @@ def trials(
     noise: NoiseModel | None = None,
     box_std: float = 0.0,
     source: str = "rig",
+    reseat_each_touch: bool = False,
 ) -> dict[str, Any]:
     """Fit ds = 2, then trials per policy (observations from the rig or the learned GP);
     accuracy by touch, overall and per object."""
@@ -278,7 +281,16 @@ def trials(
             )
         else:
             outcomes = _rig_trials(
-                model, objects, actions, data, planner, settings, n_trials, seed + 100 + k, noise
+                model,
+                objects,
+                actions,
+                data,
+                planner,
+                settings,
+                n_trials,
+                seed + 100 + k,
+                noise,
+                reseat_each_touch,
             )
         by_touch = accuracy_by_touch(outcomes)
         per_object = accuracy_per_object(outcomes, len(objects))
@@ -316,6 +328,17 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--repeats", type=int, default=12, help="Noisy touches for Σ.")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-drift", action="store_true", help="Switch the slow drift off.")
+    parser.add_argument(
+        "--reseat-each-touch",
+        action="store_true",
+        help="In rig trials, turn the object away and back before every touch.",
+    )
+    parser.add_argument(
+        "--no-session-effects",
+        action="store_true",
+        help="No drift and no placement/slip/object-temperature spread: only the per-touch "
+        "noise (frame noise and contact offsets) remains.",
+    )
     parser.add_argument(
         "--box-std",
         type=float,
@@ -360,6 +383,14 @@ def main(argv: list[str] | None = None) -> None:
         if args.part in ("trials", "both"):
             start = time.perf_counter()
             noise = replace(NoiseModel(), drift=NO_DRIFT) if args.no_drift else None
+            if args.no_session_effects:
+                noise = replace(
+                    NoiseModel(),
+                    drift=NO_DRIFT,
+                    placement_std_deg=0.0,
+                    slip_std_deg=0.0,
+                    object_temperature_std_c=0.0,
+                )
             if args.data and os.path.exists(args.data):
                 cached = np.load(args.data)
                 data = TrainingData(
@@ -397,6 +428,7 @@ def main(argv: list[str] | None = None) -> None:
                 noise,
                 args.box_std,
                 args.source,
+                args.reseat_each_touch,
             )
     if args.json:
         sys.stdout.write(json.dumps(report) + "\n")
