@@ -124,3 +124,20 @@ def test_bad_input_exits_2_naming_it(args: list[str], named: str) -> None:
     out = runner.invoke(app, ["paper", "exp2", *args])
     assert out.exit_code == 2
     assert named in out.output
+
+
+def test_a_rig_refusal_is_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    # The simulated rig refuses a touch (e.g. a servo overload on a deep press): exit 1, the
+    # error named, and the hint to make the touches shallower; no traceback.
+    import app.paper.exp2 as exp2
+    from hardware.errors import HardwareError
+
+    def refuse(*_args: object, **_kwargs: object) -> None:
+        raise HardwareError("servo FFJ3 (ID 1) reports a hardware error: OVERLOAD")
+
+    monkeypatch.setattr(exp2, "run_experiment2", refuse)
+    out = runner.invoke(app, ["paper", "exp2", "--touches", "4", "--trials", "1"])
+    assert out.exit_code == 1
+    assert "OVERLOAD" in out.output
+    assert "--action-scale" in out.output
+    assert "Traceback" not in out.output
