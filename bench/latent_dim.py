@@ -2,8 +2,8 @@
 
 For worlds of true ds = 1, 2, 3 (:func:`core.worlds.random_experiment2_world` with
 ``latent_dim``), sample training touches, run :func:`core.latent_selection.select_latent_dim`
-(K-fold cross-validation over touches within objects, candidates 1..4, the paired one-standard-
-error rule) with the independent noise model, and print every candidate's held-out score, the
+(K-fold cross-validation over touches within objects, candidates 1..4, the best mean held-out
+score) with the independent noise model, and print every candidate's held-out score, the
 best and the chosen ds, and whether it is the truth.
 
 Run: ``.venv/bin/python -m bench.latent_dim [--seeds 2] [--objects 10] [--touches 15]

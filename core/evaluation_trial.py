@@ -24,7 +24,7 @@ from core.evaluation_records import TrialRecord, trial_generators
 from core.moments import action_statistics
 from core.object_information import label_information_mc, object_predictives
 from core.planning import ActivePolicy, DiscriminativePolicy, PassivePolicy, Planner, Policy
-from core.posterior import predict
+from core.posterior import predict_model_space
 from core.recognition import (
     RecognitionSession,
     RecognitionSettings,
@@ -156,8 +156,9 @@ def world_observer(world: World, target: str) -> Observe:
 def model_observer(model: ManifoldModel, target: str) -> Observe:
     """Draws from the learned GP's predictive distribution at the target's latent.
 
-    y ~ N(m(s_k, x), diag v(s_k, x)), the predictive mean and variance (noise included) of
-    :func:`core.posterior.predict` — the paper's Experiment 2 protocol.
+    y' ~ N(m(s_k, x), diag v(s_k, x)), the predictive mean and variance (noise included) of
+    :func:`core.posterior.predict_model_space`, mapped to raw units by the model's observation
+    transform (if any) — the paper's Experiment 2 protocol.
 
     Raises:
         InvalidInputError: ``target`` is not an object of the model.
@@ -169,9 +170,14 @@ def model_observer(model: ManifoldModel, target: str) -> Observe:
     latent = model.latents[model.object_names.index(target)][None, :]
 
     def observe(action: FloatArray, rng: np.random.Generator) -> FloatArray:
-        mean, variance = predict(model, latent, action[None, :])
+        # Drawn where the GPs' features are independent (the model space y' of a noise model)
+        # and mapped to raw units: with correlated noise the raw predictive is not diagonal.
+        mean, variance = predict_model_space(model, latent, action[None, :])
         noise = rng.standard_normal(mean.shape[1])
-        return np.asarray(mean[0] + np.sqrt(variance[0]) * noise, dtype=np.float64)
+        draw = mean + np.sqrt(variance) * noise
+        if model.transform is not None:
+            draw = model.transform.restore_mean(draw)
+        return np.asarray(draw[0], dtype=np.float64)
 
     return observe
 
