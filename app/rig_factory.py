@@ -321,6 +321,8 @@ class RigWorld:
         slots: Object name → slot, in the world's object order.
         action_mean: Mean of the collection design's actions. Shape (dx,).
         action_cov: Covariance of the collection design's actions. Shape (dx, dx).
+        reseat_each_touch: Turn the object away and back before every touch (as an
+            interleaved collection does), not only between trials.
     """
 
     def __init__(
@@ -330,6 +332,7 @@ class RigWorld:
         slots: dict[str, int],
         action_mean: npt.ArrayLike,
         action_cov: npt.ArrayLike,
+        reseat_each_touch: bool = False,
     ) -> None:
         if not slots:
             raise ConfigurationError("slots: at least one object is needed.")
@@ -341,6 +344,8 @@ class RigWorld:
         self._mean = np.asarray(action_mean, dtype=np.float64).reshape(dx)
         self._cov = np.asarray(action_cov, dtype=np.float64).reshape(dx, dx)
         self.touches = 0
+        self._last_slot: int | None = None
+        self.reseat_each_touch = bool(reseat_each_touch)
 
     @property
     def object_names(self) -> tuple[str, ...]:
@@ -375,6 +380,19 @@ class RigWorld:
         """
         raise ConfigurationError("a rig has no known mean response; touch it (observe).")
 
+    def reseat(self) -> None:
+        """Turn the last touched object away and back, as between trials (a new placement).
+
+        Call it between trials (e.g. from :func:`core.evaluation.evaluate`'s callback): the
+        touches of one trial share the object's placement; separate trials should not.
+        """
+        if self._last_slot is None:
+            return
+        others = [s for s in self.slots.values() if s != self._last_slot]
+        if others:
+            self.lease.move_to_slot(others[0])
+        self._last_slot = None
+
     def observe(
         self, object_index: int, actions: FloatArray, rng: np.random.Generator
     ) -> FloatArray:
@@ -390,6 +408,9 @@ class RigWorld:
         slot = self.slots[self._names[object_index]]
         rows = []
         for action in x:
+            if self.reseat_each_touch:
+                self.reseat()
             rows.append(self.actions.touch(self.lease, action, slot=slot).observation)
+            self._last_slot = slot
             self.touches += 1
         return np.asarray(rows, dtype=np.float64)

@@ -37,11 +37,12 @@ from threadpoolctl import threadpool_limits
 
 from app.rig_factory import RigWorld, TouchActions
 from core.designs import random_design
-from core.evaluation import accuracy_by_touch, accuracy_per_object, evaluate
+from core.evaluation import TrialOutcome, accuracy_by_touch, accuracy_per_object, evaluate
 from core.manifold import FitOptions, fit_manifold
 from core.planning import ActionBox, Planner, make_policy
+from core.posterior import predict
 from core.recognition import RecognitionSettings, default_prior
-from core.types import TrainingData
+from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray
 from hardware.rig import RigConfig
 from hardware.sim.materials import get_table
@@ -175,6 +176,74 @@ def collect_training(
     return TrainingData(objects, design.object_index, design.actions, observations)
 
 
+class LearnedGPWorld:
+    """The paper's protocol: observations drawn from the learned GP at each object's latent,
+    y ~ N(m(s_l, x), v(s_l, x)) per feature (no model mismatch: isolates the policies)."""
+
+    def __init__(self, model: ManifoldModel) -> None:
+        self.model = model
+        actions = model.data.actions
+        self.object_names = model.object_names
+        self.action_dim = model.hyperparameters.action_dim
+        self.observation_dim = model.hyperparameters.observation_dim
+        self.action_mean = actions.mean(axis=0)
+        self.action_cov = np.cov(actions, rowvar=False)
+
+    def _at(self, object_index: int, actions: FloatArray) -> tuple[FloatArray, FloatArray]:
+        latents = np.repeat(self.model.latents[object_index : object_index + 1], len(actions), 0)
+        return predict(self.model, latents, actions)
+
+    def mean_response(self, object_index: int, actions: FloatArray) -> FloatArray:
+        return self._at(object_index, actions)[0]
+
+    def observe(
+        self, object_index: int, actions: FloatArray, rng: np.random.Generator
+    ) -> FloatArray:
+        mean, variance = self._at(object_index, actions)
+        return np.asarray(mean + np.sqrt(variance) * rng.standard_normal(mean.shape))
+
+
+def _rig_trials(
+    model: ManifoldModel,
+    objects: tuple[str, ...],
+    actions: TouchActions,
+    data: TrainingData,
+    planner: Planner,
+    settings: RecognitionSettings,
+    n_trials: int,
+    seed: int,
+    noise: NoiseModel | None,
+    reseat_each_touch: bool = False,
+) -> list[TrialOutcome]:
+    """Trials whose observations are touches of a fresh simulated rig (world seed ``seed``)."""
+    dx = actions.action_dim
+    sim = in_process_rig(objects, seed=seed, rig_config=RigConfig(), noise=noise)
+    try:
+        with sim.rig.acquire("bench.sim_tables") as lease:
+            lease.connect()
+            world = RigWorld(
+                lease,
+                actions,
+                {n: i for i, n in enumerate(objects)},
+                data.actions.mean(axis=0),
+                np.cov(data.actions, rowvar=False).reshape(dx, dx),
+                reseat_each_touch=reseat_each_touch,
+            )
+            return evaluate(
+                model,
+                world,
+                planner,
+                settings,
+                n_trials,
+                np.random.default_rng(seed),
+                prior=default_prior(model),
+                # Every trial places the object anew (its touches share that placement).
+                callback=lambda _outcome: world.reseat(),
+            )
+    finally:
+        sim.close()
+
+
 def trials(
     table: str,
     actions: TouchActions,
@@ -185,14 +254,16 @@ def trials(
     log: Any,
     noise: NoiseModel | None = None,
     box_std: float = 0.0,
+    source: str = "rig",
+    reseat_each_touch: bool = False,
 ) -> dict[str, Any]:
-    """Fit ds = 2, then simulated-rig trials per policy; accuracy by touch and per object."""
+    """Fit ds = 2, then trials per policy (observations from the rig or the learned GP);
+    accuracy by touch, overall and per object."""
     start = time.perf_counter()
     model = fit_manifold(data, 2, np.random.default_rng(seed), FitOptions())
     fit_s = time.perf_counter() - start
     log(f"fit: {fit_s:.1f} s, log-likelihood {model.log_likelihood:.1f}")
     settings = RecognitionSettings(max_steps=steps, tolerance=0.0)
-    dx = actions.action_dim
     results: dict[str, Any] = {"fit_s": fit_s, "log_likelihood": model.log_likelihood}
     objects = get_table(table).objects
     for k, name in enumerate(POLICIES):
@@ -201,32 +272,28 @@ def trials(
             centre, spread = data.actions.mean(axis=0), data.actions.std(axis=0)
             box = ActionBox(centre - box_std * spread, centre + box_std * spread)
         planner = Planner(model, make_policy(name), box=box)
-        sim = in_process_rig(objects, seed=seed + 100 + k, rig_config=RigConfig(), noise=noise)
         begin = time.perf_counter()
-        try:
-            with sim.rig.acquire("bench.sim_tables") as lease:
-                lease.connect()
-                world = RigWorld(
-                    lease,
-                    actions,
-                    {n: i for i, n in enumerate(objects)},
-                    data.actions.mean(axis=0),
-                    np.cov(data.actions, rowvar=False).reshape(dx, dx),
-                )
-                outcomes = evaluate(
-                    model,
-                    world,
-                    planner,
-                    settings,
-                    n_trials,
-                    np.random.default_rng(seed + 7),
-                    prior=default_prior(model),
-                )
-        finally:
-            sim.close()
+        if source == "gp":
+            world = LearnedGPWorld(model)
+            rng = np.random.default_rng(seed + 100 + k)
+            outcomes = evaluate(
+                model, world, planner, settings, n_trials, rng, prior=default_prior(model)
+            )
+        else:
+            outcomes = _rig_trials(
+                model,
+                objects,
+                actions,
+                data,
+                planner,
+                settings,
+                n_trials,
+                seed + 100 + k,
+                noise,
+                reseat_each_touch,
+            )
         by_touch = accuracy_by_touch(outcomes)
         per_object = accuracy_per_object(outcomes, len(objects))
-        # Per object, after each touch.
         object_by_touch = {
             n: accuracy_by_touch([o for o in outcomes if o.target == i]).tolist()
             for i, n in enumerate(model.object_names)
@@ -262,12 +329,29 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-drift", action="store_true", help="Switch the slow drift off.")
     parser.add_argument(
+        "--reseat-each-touch",
+        action="store_true",
+        help="In rig trials, turn the object away and back before every touch.",
+    )
+    parser.add_argument(
+        "--no-session-effects",
+        action="store_true",
+        help="No drift and no placement/slip/object-temperature spread: only the per-touch "
+        "noise (frame noise and contact offsets) remains.",
+    )
+    parser.add_argument(
         "--box-std",
         type=float,
         default=0.0,
         help="Plan within mean ± this many std of the training actions (0: their full range).",
     )
     parser.add_argument("--data", help="Training set cache (.npz): loaded if present, else saved.")
+    parser.add_argument(
+        "--source",
+        choices=("rig", "gp"),
+        default="rig",
+        help="Trial observations: touches of the simulated rig, or draws from the learned GP.",
+    )
     parser.add_argument(
         "--interleave", action="store_true", help="Collect round-robin over the objects."
     )
@@ -299,6 +383,14 @@ def main(argv: list[str] | None = None) -> None:
         if args.part in ("trials", "both"):
             start = time.perf_counter()
             noise = replace(NoiseModel(), drift=NO_DRIFT) if args.no_drift else None
+            if args.no_session_effects:
+                noise = replace(
+                    NoiseModel(),
+                    drift=NO_DRIFT,
+                    placement_std_deg=0.0,
+                    slip_std_deg=0.0,
+                    object_temperature_std_c=0.0,
+                )
             if args.data and os.path.exists(args.data):
                 cached = np.load(args.data)
                 data = TrainingData(
@@ -335,6 +427,8 @@ def main(argv: list[str] | None = None) -> None:
                 log,
                 noise,
                 args.box_std,
+                args.source,
+                args.reseat_each_touch,
             )
     if args.json:
         sys.stdout.write(json.dumps(report) + "\n")

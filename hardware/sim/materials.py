@@ -161,9 +161,9 @@ CORK = Material("cork", 2.0, 0.60, 0.15, 30.0, 0.6, 140.0)
 # Look-alikes (docs/simulation.md, "Tables"): one cup, changed in one property each.
 PET_STIFF = replace(PET, name="PET, thicker wall", stiffness_n_per_mm=0.68)
 PET_WAXED = replace(PET, name="PET, wax film", friction=0.40, stick_slip=0.16)
-# A 1.4 mm PET wall (α ≈ 1.2e-7 m²/s: d²/α ≈ 16 s) with water (e ≈ 1580) behind it.
+# A 1.1 mm PET wall (α ≈ 1.2e-7 m²/s: d²/α ≈ 10 s) with water (e ≈ 1580) behind it.
 PET_ON_WATER = replace(
-    PET, name="PET wall on water", effusivity=1580.0, coating_effusivity=560.0, coating_time_s=16.0
+    PET, name="PET wall on water", effusivity=1580.0, coating_effusivity=560.0, coating_time_s=10.0
 )
 # Micro-textured steel plates: one relief depth, four pitches (sliding at v excites v / pitch).
 MICRO_TEXTURE = Material("micro-textured steel", 80.0, 0.35, 0.10, 20.0, 0.03, 7600.0)

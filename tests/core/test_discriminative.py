@@ -186,7 +186,7 @@ def test_policies_are_made_in_one_place() -> None:
     assert isinstance(make_policy("passive"), PassivePolicy)
     fixed = make_policy("fixed", np.array([0.5, 1.0]))
     assert isinstance(fixed, FixedPolicy)
-    with pytest.raises(InvalidInputError, match="fixed action"):
+    with pytest.raises(InvalidInputError, match="action to repeat"):
         make_policy("fixed")
     with pytest.raises(InvalidInputError, match="discriminative"):
         make_policy("greedy")
