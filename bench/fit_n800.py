@@ -12,7 +12,46 @@ data (median of repeats) and its leading FLOP count.
 BLAS threads are limited to one. The machine is shared: run under ``nice -n 5`` and compare
 ratios of figures taken by the same script in the same session.
 
-Run: ``.venv/bin/python -m bench.fit_n800 [--ds 2 5] [--repeats 1] [--seed 0] [--profile]``
+Run: ``.venv/bin/python -m bench.fit_n800 [--ds 2 5] [--repeats 1] [--seed 0] [--profile]
+[--options '{"restarts": 0}']``
+
+Where the time goes (fit seed 100; before = main at 4b31b0f, after = this branch; the same
+script, on the shared 2-core machine at load 6-16, so wall seconds are inflated 2-3x and vary
+run to run; the CPU seconds of the process are the fairer figure, though contention inflates
+them too):
+
+* One evaluation with gradient on all the data costs dy·N³ = 2.56 GFLOP (Cholesky N³/3, the
+  inverse from the factor 2N³/3, per feature); the LAPACK calls alone run at ~35-45 GFLOP/s on
+  one thread here (``dpotrf`` 3.8 ms + ``dpotri`` 8.3 ms per feature at N = 800, quiet
+  machine), so ~60 ms is the floor of an exact dense evaluation; we measured ~70-76 ms quiet.
+  The exact gradient needs K⁻¹ entrywise (W ∘ K_f feeds every derivative: block sums for the
+  latents and ℓ^s, its sum for σ_f², Σ W∘K_f∘Δ for ℓ^x), so no evaluation avoids factor and
+  inverse; everything else (kernel, block sums over the L objects, the dx = 1 contraction) is
+  O(N²) and ~15 % of an evaluation.
+* Seed 0, ds=2. Before: 53.6 s CPU (121.7 s wall), log-lik 4757.354; 269 evaluations on all
+  the data (joint), 738 on the N = 500 screening subsample (6 starts × ≤ 100 iterations),
+  710 + 380 one-feature evaluations (hyperparameter stages, N = 500 and 800). In
+  full-evaluation equivalents (N³ scaling): joint 269, screening ~180, hyperparameters ~110.
+  After: 41.8 s CPU (95.2 s wall), log-lik 4757.389; joint 203 evaluations.
+* Seed 0, ds=5. Before: 72.3 s CPU (179.5 s wall), log-lik 4990.768; joint 519 evaluations
+  (its last ~400 iterations gain 35 nats along a valley of latent length-scales), screening
+  678. After: 51.5 s CPU (102.3 s wall), log-lik 4990.239 (0.53 lower); joint 346.
+* Seed 1, ds=2: before 62.6 s CPU, 4888.170, joint 383; after 50.9 s CPU, 4888.162, joint 289.
+* Seed 1, ds=5: before 52.8 s CPU, 5085.195, joint 315; after 46.5 s CPU, 5085.396, joint 266.
+* With ``restarts=0`` (a user option, not the default; measured at the intermediate commit
+  ea045cd): seed 0 ds=2 28.6 s CPU, ds=5 39.8 s CPU, the same log-likelihoods as the default
+  fit of that commit (the random starts never won at L = 20 here; on Experiment 1 they win
+  on half the seeds, so the default keeps them).
+
+What stops 20 s: the joint stage alone needs 200-350 evaluations on all the data
+(0.5-0.9 TFLOP, 13-25 s at the LAPACK rate) and the screening of six starts the equivalent of
+~150-180 more. A smaller screening subsample (``screen_max_touches=200``) cut screening ~10x
+but changed which start won: +31 and +34 nats at ds=2, −6 and −25 nats at ds=5 (with and
+without the longer memory), where more starts were then polished (687-948 joint
+evaluations); it stays off by default. The fit's choice among its starts is also sensitive to
+round-off: with ``dpotri`` instead of the recursive inverse at N = 500 (the two break even
+there) the screened starts moved and seed 1, ds=2 ended 17 nats lower (4871.2), with either
+L-BFGS-B memory; so ``dpotri`` is used only above order 512.
 """
 
 from __future__ import annotations

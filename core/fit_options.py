@@ -70,9 +70,9 @@ class FitOptions:
             runs on all the data (the screening and hyperparameter stages keep scipy's 10).
             The joint problem has L·ds + dy·(2 + ds + dx) unknowns (140 at L=20, ds=5, dy=5)
             and ends in a long curved valley of latent length-scales; 30 pairs instead of 10
-            took it to the same optimum in 178 instead of 269 evaluations (ds=2) and 434
-            instead of 519 (ds=5) on ``bench/fit_n800.py``'s data. In the screening stage
-            more pairs cost more evaluations (889 instead of 738 at ds=2).
+            reached the same optima (within 0.6 nats) in 203-346 instead of 269-519
+            evaluations on ``bench/fit_n800.py``'s data (two seeds, ds = 2 and 5). In the
+            screening stage more pairs cost more evaluations (889 instead of 738 at ds=2).
         screen_max_touches: Cap on the screening subsample's total size (0 = no cap): it takes
             at most ``max(2, screen_max_touches // L)`` touches per object, fewer than
             ``screen_touches_per_object`` when there are many objects. A dense evaluation

@@ -120,9 +120,11 @@ def weighted_gram_difference(
 TRIANGULAR_BLOCK = 64
 #: Above this order :func:`inverse_from_cholesky` calls LAPACK ``dpotri``. Measured with the
 #: scipy-openblas 0.3.31 wheel (AMD EPYC, one thread, interleaved medians): the recursion wins
-#: 1.1-1.2x at orders 100-300; ``dpotri`` wins from ~400 on (1.05x at 500, 1.2-1.3x at 800-1000).
-#: (An older OpenBLAS measured the recursion 1.2x faster at 800; the crossover is BLAS-specific.)
-RECURSIVE_INVERSE_MAX = 384
+#: 1.1-1.2x at orders 100-300, the two break even at 400-500 (±5-10 %), ``dpotri`` wins
+#: 1.2-1.6x at 600-1000. (An older OpenBLAS measured the recursion 1.2x faster at 800; the
+#: crossover is BLAS-specific.) Where they break even the recursion is kept: the two differ in
+#: round-off, and a fit's choice among its starts is sensitive to round-off (bench/fit_n800.py).
+RECURSIVE_INVERSE_MAX = 512
 
 
 def upper_triangular_inverse(upper: FloatArray) -> FloatArray:

@@ -200,7 +200,7 @@ def make_policy(name: str, fixed_action: FloatArray | None = None) -> Policy:
     if name == "fixed":
         if fixed_action is None or np.asarray(fixed_action).size == 0:
             raise InvalidInputError(
-                "policy 'fixed': needs the action to repeat, dx numbers "
+                "policy 'fixed': needs the fixed action to repeat, dx numbers "
                 "(--action on the command line, fixed_action in the API)."
             )
         return FixedPolicy(np.asarray(fixed_action, dtype=np.float64))

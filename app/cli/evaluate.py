@@ -149,6 +149,10 @@ def evaluate_command(
         float, typer.Option(help="Probability for 'touches to confidence' and the comparison.")
     ] = 0.95,
     seed: Annotated[int, typer.Option(help="Seed of every trial's SeedSequence.")] = 0,
+    table: Annotated[
+        str | None,
+        typer.Option(help="rig only: the simulated table (`activetouch rig status --sim`)."),
+    ] = None,
     workers: Annotated[
         int | None, typer.Option(help="Run on a LocalCluster of K single-threaded processes.")
     ] = None,
@@ -186,6 +190,7 @@ def evaluate_command(
         confidence=confidence,
         seed=seed,
         targets=split_names(targets, "--targets"),
+        table=table,
     )
     try:
         spec.check(model, replay)

@@ -41,6 +41,8 @@ def check_world(spec: EvaluationSpec, model: ManifoldModel, replay: TrainingData
     """World-specific checks of :meth:`EvaluationSpec.check`."""
     h = model.hyperparameters
     targets = spec.target_names(model)
+    if spec.world != "rig" and spec.table is not None:
+        raise BadInputError("table: only the rig world has a table.", field="table")
     if spec.world != "replay" and replay is not None:
         raise BadInputError(
             f"data: held-out touches are for the replay world, not {spec.world!r}.", field="data"
@@ -74,8 +76,6 @@ def check_world(spec: EvaluationSpec, model: ManifoldModel, replay: TrainingData
             )
     elif spec.world == "replay":
         _check_replay(spec, model, replay)
-    elif spec.table is not None:
-        raise BadInputError("table: only the rig world has a table.", field="table")
 
 
 def _check_replay(spec: EvaluationSpec, model: ManifoldModel, replay: TrainingData | None) -> None:

@@ -115,3 +115,13 @@ def test_an_unreachable_scheduler_exits_2_and_writes_nothing(model_path, tmp_pat
 def test_evaluate_help_starts_light():
     loaded = probe([["evaluate", "--help"]])
     assert loaded["after"] == []
+
+
+def test_table_is_checked_and_only_for_the_rig(model_path):
+    unknown = evaluate(model_path, "--world", "rig", "--table", "no_such_table")
+    assert unknown.exit_code == 2
+    assert "no_such_table" in unknown.output
+    assert "default" in unknown.output  # the message lists the tables
+    misplaced = evaluate(model_path, "--world", "exp1", "--table", "default")
+    assert misplaced.exit_code == 2
+    assert "only the rig world has a table" in misplaced.output

@@ -110,7 +110,7 @@ def _spd(n: int, seed: int) -> np.ndarray:
     return np.exp(-0.5 * sq) + 1e-2 * np.eye(n)
 
 
-@pytest.mark.parametrize("n", [1, 7, 64, 65, 150, 300, 500])  # 500: the dpotri branch
+@pytest.mark.parametrize("n", [1, 7, 64, 65, 150, 300, 600])  # 600: the dpotri branch
 def test_inverse_from_cholesky_matches_numpy(n: int) -> None:
     matrix = _spd(n, seed=n)
     upper = scipy.linalg.cholesky(matrix, lower=False)
@@ -122,7 +122,7 @@ def test_inverse_from_cholesky_matches_numpy(n: int) -> None:
 
 
 def test_inverse_in_the_factors_memory_matches_the_copy() -> None:
-    matrix = _spd(500, seed=3)  # above RECURSIVE_INVERSE_MAX: the dpotri branch
+    matrix = _spd(600, seed=3)  # above RECURSIVE_INVERSE_MAX: the dpotri branch
     upper = np.asfortranarray(scipy.linalg.cholesky(matrix, lower=False))
     copied = inverse_from_cholesky(upper)
     in_place = inverse_from_cholesky(upper.copy(order="F"), overwrite=True)
