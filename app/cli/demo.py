@@ -48,9 +48,9 @@ from core.worlds import sample_experiment1
 #: Name of the dataset the demo collects (and finds again on the next start).
 DEMO_DATASET_NAME = "demo: simulated rig"
 
-#: The simulated table of the demo: objects that one touch does not tell apart with every
-#: action, so the active policy needs visibly fewer touches than the passive one (measured:
-#: README, "What choosing the touch buys").
+#: The simulated table of the demo. No simulated table yet makes active recognition need visibly
+#: fewer touches than passive on the rig (measured: README, "What choosing the touch buys"), so
+#: the demo keeps the objects that differ in kind; ``--table`` picks another.
 DEMO_TABLE = "default"
 EXPERIMENT1_DATASET_NAME = "demo: paper Experiment 1"
 FINISHED = ("completed", "stopped", "aborted", "failed")
@@ -77,7 +77,7 @@ class DemoOptions:
         world: ``rig``: the simulated rig (collection + trials on mock hardware);
             ``experiment1``: the paper's Experiment 1 synthetic world, no rig.
         objects: Objects to collect on the simulated rig; ``None``: the rig's own catalogue.
-        table: The simulated rig's table (:data:`DEMO_TABLE`: look-alike cups).
+        table: The simulated rig's table (:data:`DEMO_TABLE` by default).
         touches_per_object: Touches per object of the training set.
         latent_dim: ds of the fitted manifold.
         restarts: Random restarts of the fit.
