@@ -474,8 +474,13 @@ def paper_exp2(
     ),
     touches: Annotated[int, typer.Option(min=2, help="Random-design touches per object.")] = 100,
     action_scale: Annotated[
-        float, typer.Option(min=0.01, help="Standard deviation of each action component.")
-    ] = 1.0,
+        float,
+        typer.Option(
+            min=0.01,
+            help="Standard deviation of each action component (0.75: active touches at the "
+            "corner of the action box stay within the simulated servos' load limit).",
+        ),
+    ] = 0.75,
     trials: Annotated[
         int, typer.Option(min=1, help="Trials per object, policy and observation source.")
     ] = 25,

@@ -54,7 +54,8 @@ class Experiment2Settings:
     Attributes:
         table: Simulated table (the paper's four cups: ``paper``).
         touches_per_object: Random-design training touches per object (the paper: 100).
-        action_scale: Standard deviation of each action component of the design.
+        action_scale: Standard deviation of each action component of the design (0.75: at 1,
+            an active touch at the corner of the action box can overload the simulated FFJ3).
         latent_dim: ds (the paper: 2).
         optimizer: Fit optimiser (the paper: differential evolution, ``de``).
         restarts: Random restarts of the fit on top of its data-driven starts.
@@ -69,7 +70,7 @@ class Experiment2Settings:
 
     table: str = "paper"
     touches_per_object: int = 100
-    action_scale: float = 1.0
+    action_scale: float = 0.75
     latent_dim: int = 2
     optimizer: str = "de"
     restarts: int = 2
