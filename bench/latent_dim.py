@@ -11,7 +11,7 @@ and prints the maximised log-likelihoods and the choice of a BIC-like penalty
 
 Run: ``.venv/bin/python -m bench.latent_dim [--seeds 2] [--first-seed 0] [--objects 10]
 [--touches 15] [--action-dim 2] [--folds 5] [--restarts 2] [--noise 0.05]
-[--criterion touches|objects] [--likelihoods]``
+[--criterion touches|objects] [--likelihoods | --likelihoods-only]``
 """
 
 from __future__ import annotations
@@ -42,6 +42,9 @@ def main() -> None:
     parser.add_argument("--max-dim", type=int, default=4)
     parser.add_argument("--criterion", choices=CRITERIA, default="touches")
     parser.add_argument("--likelihoods", action="store_true", help="also the BIC-like choice")
+    parser.add_argument(
+        "--likelihoods-only", action="store_true", help="only the BIC-like choice (no CV)"
+    )
     args = parser.parse_args()
     options = FitOptions(restarts=args.restarts)
     candidates = tuple(range(1, min(args.max_dim, args.objects - 1) + 1))
@@ -72,6 +75,11 @@ def main() -> None:
                     noise_std=args.noise,
                 )
                 data = sample_dataset(world, rng, args.touches)
+                total += 1
+                if args.likelihoods_only:
+                    print(f"{true_dim:4d} {seed:4d}", flush=True)
+                    bic_right += _print_bic(data, fit, candidates, true_dim)
+                    continue
                 started = time.perf_counter()
                 selection = select_latent_dim(
                     data,
@@ -86,7 +94,6 @@ def main() -> None:
                     f"({c.difference:+.3f}±{c.difference_standard_error:.3f})"
                     for c in selection.candidates
                 )
-                total += 1
                 right += selection.chosen == true_dim
                 print(
                     f"{true_dim:4d} {seed:4d} {selection.best:4d} {selection.chosen:6d}  {scores}"
@@ -95,8 +102,9 @@ def main() -> None:
                 )
                 if args.likelihoods:
                     bic_right += _print_bic(data, fit, candidates, true_dim)
-    print(f"chosen = true ds in {right:d} of {total:d} worlds")
-    if args.likelihoods:
+    if not args.likelihoods_only:
+        print(f"chosen = true ds in {right:d} of {total:d} worlds")
+    if args.likelihoods or args.likelihoods_only:
         print(f"BIC-like choice = true ds in {bic_right:d} of {total:d} worlds")
 
 
