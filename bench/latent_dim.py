@@ -11,7 +11,7 @@ and prints the maximised log-likelihoods and the choice of a BIC-like penalty
 
 Run: ``.venv/bin/python -m bench.latent_dim [--seeds 2] [--first-seed 0] [--objects 10]
 [--touches 15] [--action-dim 2] [--folds 5] [--restarts 2] [--noise 0.05]
-[--criterion touches|objects] [--likelihoods | --likelihoods-only]``
+[--true-dims 1 2 3] [--criterion touches|objects] [--likelihoods | --likelihoods-only]``
 """
 
 from __future__ import annotations
@@ -40,6 +40,7 @@ def main() -> None:
     parser.add_argument("--restarts", type=int, default=2)
     parser.add_argument("--noise", type=float, default=0.05)
     parser.add_argument("--max-dim", type=int, default=4)
+    parser.add_argument("--true-dims", type=int, nargs="+", default=[1, 2, 3])
     parser.add_argument("--criterion", choices=CRITERIA, default="touches")
     parser.add_argument("--likelihoods", action="store_true", help="also the BIC-like choice")
     parser.add_argument(
@@ -64,7 +65,7 @@ def main() -> None:
     bic_right = 0
     total = 0
     with threadpool_limits(1):
-        for true_dim in (1, 2, 3):
+        for true_dim in args.true_dims:
             for seed in range(args.first_seed, args.first_seed + args.seeds):
                 rng = np.random.default_rng(1000 * true_dim + seed)
                 world = random_experiment2_world(
