@@ -2,23 +2,28 @@
 
 For worlds of true ds = 1, 2, 3 (:func:`core.worlds.random_experiment2_world` with
 ``latent_dim``), sample training touches, run :func:`core.latent_selection.select_latent_dim`
-(K-fold cross-validation over touches within objects, candidates 1..4, the best mean held-out
-score) with the independent noise model, and print every candidate's held-out score, the
-best and the chosen ds, and whether it is the truth.
+(``--criterion touches``: cross-validation over touches within objects, the app's default;
+``objects``: leave-objects-out; candidates 1..4, the best mean held-out score) with the
+independent noise model, and print every candidate's held-out score, the best and the chosen
+ds, and whether it is the truth. ``--likelihoods`` also fits every candidate on all the data
+and prints the maximised log-likelihoods and the choice of a BIC-like penalty
+(½ (L + dy) log N per latent dimension: L latent coordinates and dy length-scales).
 
-Run: ``.venv/bin/python -m bench.latent_dim [--seeds 2] [--objects 10] [--touches 15]
-[--action-dim 2] [--folds 5] [--restarts 2] [--noise 0.05]``
+Run: ``.venv/bin/python -m bench.latent_dim [--seeds 2] [--first-seed 0] [--objects 10]
+[--touches 15] [--action-dim 2] [--folds 5] [--restarts 2] [--noise 0.05]
+[--true-dims 1 2 3] [--criterion touches|objects] [--likelihoods | --likelihoods-only]``
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
 
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from core.latent_selection import select_latent_dim
+from core.latent_selection import CRITERIA, select_latent_dim
 from core.manifold import FitOptions, fit_manifold
 from core.types import ManifoldModel, TrainingData
 from core.worlds import random_experiment2_world, sample_dataset
@@ -27,6 +32,7 @@ from core.worlds import random_experiment2_world, sample_dataset
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=2)
+    parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--objects", type=int, default=10)
     parser.add_argument("--touches", type=int, default=15, help="training touches per object")
     parser.add_argument("--action-dim", type=int, default=2)
@@ -34,6 +40,12 @@ def main() -> None:
     parser.add_argument("--restarts", type=int, default=2)
     parser.add_argument("--noise", type=float, default=0.05)
     parser.add_argument("--max-dim", type=int, default=4)
+    parser.add_argument("--true-dims", type=int, nargs="+", default=[1, 2, 3])
+    parser.add_argument("--criterion", choices=CRITERIA, default="touches")
+    parser.add_argument("--likelihoods", action="store_true", help="also the BIC-like choice")
+    parser.add_argument(
+        "--likelihoods-only", action="store_true", help="only the BIC-like choice (no CV)"
+    )
     args = parser.parse_args()
     options = FitOptions(restarts=args.restarts)
     candidates = tuple(range(1, min(args.max_dim, args.objects - 1) + 1))
@@ -44,16 +56,17 @@ def main() -> None:
     print(
         f"L={args.objects}, {args.touches} touches per object, dx={args.action_dim}, dy=5, "
         f"noise {args.noise}, {args.folds} folds, candidates {list(candidates)}, "
-        f"{args.restarts} restarts"
+        f"{args.restarts} restarts, criterion {args.criterion}"
     )
     print(
         f"{'true':>4s} {'seed':>4s} {'best':>4s} {'chosen':>6s}  scores (mean ± s.e.; paired diff)"
     )
     right = 0
+    bic_right = 0
     total = 0
     with threadpool_limits(1):
-        for true_dim in (1, 2, 3):
-            for seed in range(args.seeds):
+        for true_dim in args.true_dims:
+            for seed in range(args.first_seed, args.first_seed + args.seeds):
                 rng = np.random.default_rng(1000 * true_dim + seed)
                 world = random_experiment2_world(
                     rng,
@@ -63,23 +76,53 @@ def main() -> None:
                     noise_std=args.noise,
                 )
                 data = sample_dataset(world, rng, args.touches)
+                total += 1
+                if args.likelihoods_only:
+                    print(f"{true_dim:4d} {seed:4d}", flush=True)
+                    bic_right += _print_bic(data, fit, candidates, true_dim)
+                    continue
                 started = time.perf_counter()
                 selection = select_latent_dim(
-                    data, fit, np.random.default_rng(seed), candidates, n_folds=args.folds
+                    data,
+                    fit,
+                    np.random.default_rng(seed),
+                    candidates,
+                    n_folds=args.folds,
+                    criterion=args.criterion,
                 )
                 scores = "  ".join(
                     f"{c.latent_dim:d}: {c.mean:.3f}±{c.standard_error:.3f} "
                     f"({c.difference:+.3f}±{c.difference_standard_error:.3f})"
                     for c in selection.candidates
                 )
-                total += 1
                 right += selection.chosen == true_dim
                 print(
                     f"{true_dim:4d} {seed:4d} {selection.best:4d} {selection.chosen:6d}  {scores}"
                     f"  [{time.perf_counter() - started:.0f} s]",
                     flush=True,
                 )
-    print(f"chosen = true ds in {right:d} of {total:d} worlds")
+                if args.likelihoods:
+                    bic_right += _print_bic(data, fit, candidates, true_dim)
+    if not args.likelihoods_only:
+        print(f"chosen = true ds in {right:d} of {total:d} worlds")
+    if args.likelihoods or args.likelihoods_only:
+        print(f"BIC-like choice = true ds in {bic_right:d} of {total:d} worlds")
+
+
+def _print_bic(
+    data: TrainingData,
+    fit: Callable[[TrainingData, int], ManifoldModel],
+    candidates: tuple[int, ...],
+    true_dim: int,
+) -> bool:
+    """Fit every candidate on all the data; print log-likelihoods and the BIC-like choice."""
+    per_dim = 0.5 * (data.n_objects + data.observations.shape[1]) * np.log(data.n_touches)
+    values = [fit(data, ds).log_likelihood for ds in candidates]
+    penalised = [v - per_dim * ds for v, ds in zip(values, candidates, strict=True)]
+    chosen = candidates[int(np.argmax(penalised))]
+    text = "  ".join(f"{ds:d}: {v:.1f}" for ds, v in zip(candidates, values, strict=True))
+    print(f"     full-data log-lik {text}; penalty {per_dim:.1f}/dim -> {chosen:d}", flush=True)
+    return chosen == true_dim
 
 
 if __name__ == "__main__":

@@ -6,7 +6,16 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
-from core.latent_selection import candidate_dims, fold_assignment, select_latent_dim
+from core.latent_selection import (
+    candidate_dims,
+    fold_assignment,
+    held_out_scores,
+    log_densities_at,
+    object_folds,
+    place_latent,
+    select_latent_dim,
+    split_halves,
+)
 from core.manifold import FitOptions, fit_manifold
 from core.object_posterior import touch_log_likelihoods
 from core.posterior import condition
@@ -100,3 +109,123 @@ def test_bad_candidates_are_rejected() -> None:
     data = sample_experiment1(np.random.default_rng(7), touches_per_object=8)
     with pytest.raises(InvalidInputError, match="candidates"):
         select_latent_dim(data, lambda t, d: None, np.random.default_rng(0), (0, 1))  # type: ignore[arg-type,return-value]
+
+
+# Leave-objects-out (criterion="objects").
+
+SCRAMBLED = {"O1": 0.0, "O2": 0.0, "O3": 1.0, "O4": 1.0}  # ds = 1 cannot tell two pairs apart
+
+
+def true_latents(train: TrainingData, ds: int, scrambled: bool = False) -> np.ndarray:
+    """θ of the training objects (Experiment 1 names O1..O4), padded with zero columns."""
+    rows = [int(name[1:]) - 1 for name in train.object_names]
+    theta = THETA[rows]
+    if scrambled:
+        first = np.array([[SCRAMBLED[name]] for name in train.object_names])
+        theta = first if ds == 1 else np.hstack([first, theta, np.zeros((len(rows), ds - 2))])
+        return theta
+    return np.hstack([theta, np.zeros((len(rows), ds - 1))])
+
+
+def test_object_folds_and_halves_hold_everything_out_exactly_once() -> None:
+    folds = object_folds(10, 4, np.random.default_rng(0))
+    assert folds.shape == (10,)
+    assert sorted(np.bincount(folds, minlength=4).tolist()) == [2, 2, 3, 3]
+    with pytest.raises(InvalidInputError, match="2 ≤ K ≤ L"):
+        object_folds(3, 4, np.random.default_rng(0))
+    with pytest.raises(InvalidInputError, match="1 training object"):
+        object_folds(3, 2, np.random.default_rng(0))
+    index = np.repeat(np.arange(3), [2, 7, 10])
+    halves = split_halves(index, np.random.default_rng(1))
+    for obj in range(3):
+        counts = np.bincount(halves[index == obj], minlength=2)
+        assert abs(int(counts[0]) - int(counts[1])) <= 1
+        assert counts.min() >= 1
+    with pytest.raises(InvalidInputError, match="at least 2"):
+        split_halves(np.array([0, 0, 1]), np.random.default_rng(0))
+
+
+def test_log_densities_at_the_learned_latent_equal_touch_log_likelihoods() -> None:
+    data = sample_experiment1(np.random.default_rng(8), touches_per_object=6)
+    model = condition(data, true_latents(data, 2), hyper(2))
+    obj = 2
+    rows = data.object_index == obj
+    direct = touch_log_likelihoods(
+        model, data.object_index[rows], data.actions[rows], data.observations[rows]
+    )
+    at = log_densities_at(model, model.latents[obj], data.actions[rows], data.observations[rows])
+    np.testing.assert_allclose(at, direct, rtol=1e-12)
+
+
+def test_place_latent_maximises_the_likelihood_and_finds_a_known_object() -> None:
+    data = sample_experiment1(np.random.default_rng(9), touches_per_object=12)
+    model = condition(data, true_latents(data, 1), hyper(1))
+    rows = data.object_index == 1
+    s = place_latent(model, data.actions[rows], data.observations[rows])
+    assert s == pytest.approx(model.latents[1], abs=0.1)
+
+    def total(v: float) -> float:
+        return float(
+            log_densities_at(
+                model, np.array([v]), data.actions[rows], data.observations[rows]
+            ).sum()
+        )
+
+    for step in (-1e-3, 1e-3):  # a maximum: no better value nearby
+        assert total(float(s[0]) + step) <= total(float(s[0])) + 1e-9
+
+
+def test_objects_scores_are_the_direct_held_out_computation() -> None:
+    data = sample_experiment1(np.random.default_rng(10), touches_per_object=8)
+    models: list[tuple[TrainingData, ManifoldModel]] = []
+
+    def fit(train: TrainingData, ds: int) -> ManifoldModel:
+        model = condition(train, true_latents(train, ds), hyper(ds))
+        models.append((train, model))
+        return model
+
+    selection = select_latent_dim(
+        data, fit, np.random.default_rng(11), (1, 2), n_folds=4, criterion="objects"
+    )
+    rng = np.random.default_rng(11)
+    folds = object_folds(4, 4, rng)
+    halves = split_halves(data.object_index, rng)
+    assert selection.n_folds == 4
+    for k in range(4):
+        train, model = models[2 * k]  # ds = 1 of fold k
+        (held,) = np.flatnonzero(folds == k)
+        assert data.object_names[held] not in train.object_names  # the object is new to the fit
+        assert train.n_objects == 3
+        # Direct: place from each half, score the other; every touch scored once.
+        rows = np.flatnonzero(data.object_index == held)
+        values = []
+        for half in (0, 1):
+            place, score = rows[halves[rows] == half], rows[halves[rows] != half]
+            s = place_latent(model, data.actions[place], data.observations[place])
+            values.extend(log_densities_at(model, s, data.actions[score], data.observations[score]))
+        assert len(values) == rows.shape[0]
+        scores = held_out_scores(model, data, np.array([held]), halves)
+        assert scores.shape == (rows.shape[0],)
+        assert selection.candidates[0].fold_scores[k] == pytest.approx(np.mean(values), rel=1e-10)
+        assert float(scores.mean()) == pytest.approx(np.mean(values), rel=1e-10)
+
+
+def test_objects_criterion_picks_the_clearly_needed_dimension() -> None:
+    """A new object is placed well only when the manifold holds θ: ds = 2 here, not ds = 1."""
+    data = sample_experiment1(np.random.default_rng(12), touches_per_object=8)
+
+    def fit(train: TrainingData, ds: int) -> ManifoldModel:
+        return condition(train, true_latents(train, ds, scrambled=True), hyper(ds))
+
+    selection = select_latent_dim(
+        data, fit, np.random.default_rng(13), (1, 2), n_folds=4, criterion="objects"
+    )
+    assert selection.chosen == 2
+    assert selection.candidates[0].difference < -0.3  # nats per touch, 4 folds of one object
+    assert "held-out objects" in selection.explanation
+
+
+def test_bad_criterion_is_rejected() -> None:
+    data = sample_experiment1(np.random.default_rng(7), touches_per_object=8)
+    with pytest.raises(InvalidInputError, match="criterion"):
+        select_latent_dim(data, lambda t, d: None, np.random.default_rng(0), criterion="bic")  # type: ignore[arg-type,return-value]
