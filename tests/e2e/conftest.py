@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import shutil
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -87,34 +88,51 @@ def browser() -> Iterator[Any]:
         launched.close()
 
 
-@pytest.fixture(scope="module")
-def demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Demo]:
-    """The demo on free loopback ports with a fresh SQLite file, prepared (dataset + model)."""
-    database = tmp_path_factory.mktemp("demo") / "demo.db"
-    options = DemoOptions(
-        host="127.0.0.1",
-        port=0,
-        viz_port=0,
-        database_url=f"sqlite:///{database}",
-        world="rig",
-        touches_per_object=10,
-        latent_dim=2,
-        restarts=1,
-        max_iterations=150,
-        seed=0,
-        open_browser=False,
-    )
+@contextmanager
+def running_demo(
+    database_dir: Path,
+    settings_overrides: dict[str, Any] | None = None,
+    **options: Any,
+) -> Iterator[Demo]:
+    """The demo on free loopback ports with a fresh SQLite file in ``database_dir``, prepared.
+
+    Args:
+        database_dir: Folder of the demo's database.
+        settings_overrides: Server settings besides ``_env_file=None``.
+        options: :class:`DemoOptions` fields instead of the defaults here (the simulated rig,
+            10 touches per object, ds = 2, a short fit).
+    """
+    chosen: dict[str, Any] = {
+        "host": "127.0.0.1",
+        "port": 0,
+        "viz_port": 0,
+        "database_url": f"sqlite:///{database_dir / 'demo.db'}",
+        "world": "rig",
+        "touches_per_object": 10,
+        "latent_dim": 2,
+        "restarts": 1,
+        "max_iterations": 150,
+        "seed": 0,
+        "open_browser": False,
+        **options,
+    }
     server = DemoServer(
-        options,
+        DemoOptions(**chosen),
         console=Console(stderr=True, force_terminal=False),
-        settings_overrides={"_env_file": None},
+        settings_overrides={"_env_file": None, **(settings_overrides or {})},
     )
     server.start()
     try:
-        state = server.prepare()
-        yield Demo(server=server, state=state)
+        yield Demo(server=server, state=server.prepare())
     finally:
         server.stop()
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Demo]:
+    """The demo on free loopback ports with a fresh SQLite file, prepared (dataset + model)."""
+    with running_demo(tmp_path_factory.mktemp("demo")) as running:
+        yield running
 
 
 @pytest.fixture

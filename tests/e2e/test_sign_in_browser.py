@@ -14,12 +14,10 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
-from rich.console import Console
 
-from app.cli.demo import DemoOptions, DemoServer
 from app.security.sessions import SESSION_COOKIE
 from app.viz.follower import wait_for_clients
-from tests.e2e.conftest import Demo, save_screenshot
+from tests.e2e.conftest import Demo, running_demo, save_screenshot
 
 pytestmark = pytest.mark.browser
 
@@ -35,31 +33,14 @@ def expect(target: Any) -> Any:
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Demo]:
     """The demo (Experiment 1 world: no collection) with reads locked behind the token."""
-    database = tmp_path_factory.mktemp("signin") / "demo.db"
-    options = DemoOptions(
-        host="127.0.0.1",
-        port=0,
-        viz_port=0,
-        database_url=f"sqlite:///{database}",
+    with running_demo(
+        tmp_path_factory.mktemp("signin"),
+        settings_overrides={"require_auth_for_reads": True},
         world="experiment1",
-        touches_per_object=10,
         latent_dim=1,
-        restarts=1,
-        max_iterations=150,
-        seed=0,
         api_token=TOKEN,
-        open_browser=False,
-    )
-    server = DemoServer(
-        options,
-        console=Console(stderr=True, force_terminal=False),
-        settings_overrides={"_env_file": None, "require_auth_for_reads": True},
-    )
-    server.start()
-    try:
-        yield Demo(server=server, state=server.prepare())
-    finally:
-        server.stop()
+    ) as running:
+        yield running
 
 
 def sign_in(page: Any, token: str = TOKEN) -> None:
@@ -181,22 +162,10 @@ def test_the_demo_login_link_signs_in_once_and_leaves_the_address(page: Any, dem
 @pytest.fixture(scope="module")
 def local_demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Demo]:
     """On loopback with a token: reads open, changes need the sign-in (as before)."""
-    database = tmp_path_factory.mktemp("local") / "demo.db"
-    options = DemoOptions(
-        host="127.0.0.1", port=0, viz_port=0, database_url=f"sqlite:///{database}",
-        world="experiment1", touches_per_object=10, latent_dim=1, restarts=1,
-        max_iterations=150, seed=0, api_token=TOKEN, open_browser=False,
-    )  # fmt: skip
-    server = DemoServer(
-        options,
-        console=Console(stderr=True, force_terminal=False),
-        settings_overrides={"_env_file": None},
-    )
-    server.start()
-    try:
-        yield Demo(server=server, state=server.prepare())
-    finally:
-        server.stop()
+    with running_demo(
+        tmp_path_factory.mktemp("local"), world="experiment1", latent_dim=1, api_token=TOKEN
+    ) as running:
+        yield running
 
 
 def test_on_loopback_reads_are_open_and_a_change_asks_to_sign_in(
