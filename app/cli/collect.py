@@ -302,7 +302,7 @@ def _collect(
     force: bool,
 ) -> tuple[list[CollectedTouch], str | None, int, float]:
     """Run the collection into the files; return the touches, the error, exit code, seconds."""
-    from app.cli.main import progress_bar
+    from app.cli.output import progress_bar
     from app.documents import TrainingCsvWriter
     from app.services.collections import iter_collection
     from app.services.rig import raw_series

@@ -2,6 +2,7 @@
 
 * :data:`results` — stdout: what a command produces, when it is not ``--json``.
 * :data:`messages` — stderr: progress, status lines, warnings and errors.
+* :func:`progress_bar` and :func:`fail` — a progress bar and a one-line error, both on stderr.
 
 Both soft-wrap (a long path or action is never folded mid-word when redirected). Redirected,
 Rich would draw tables 80 columns wide and fold every row, so :data:`results` is 120 wide then.
@@ -15,7 +16,30 @@ from __future__ import annotations
 
 import sys
 
+import typer
 from rich.console import Console
+from rich.markup import escape
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 results = Console(soft_wrap=True, width=None if sys.stdout.isatty() else 120)
 messages = Console(stderr=True, soft_wrap=True)
+
+
+def progress_bar(disable: bool = False) -> Progress:
+    """A rich progress bar on stderr."""
+    return Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        TextColumn("{task.fields[status]}"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=messages,
+        disable=disable,
+        transient=False,
+    )
+
+
+def fail(message: str) -> typer.Exit:
+    """Print a one-line error to stderr and return the exit to raise."""
+    messages.print(f"[red]error:[/red] {escape(message)}")
+    return typer.Exit(code=2)
