@@ -157,3 +157,19 @@ def page(browser: Any, page_errors: PageErrors) -> Iterator[Any]:
     yield created
     context.close()
     assert page_errors.exceptions == [], f"JavaScript errors: {page_errors.exceptions}"
+
+
+def record_touch_counts(page: Any) -> None:
+    """Record every touch count the trial page shows (``window.__touchCounts``), to see it
+    update while a trial runs."""
+    page.evaluate(
+        """() => {
+          window.__touchCounts = [];
+          new MutationObserver(() => {
+            const node = document.querySelector('[data-testid="trial-touches"]');
+            if (node) window.__touchCounts.push(node.textContent);
+          }).observe(document.getElementById("trial-facts"), {
+            childList: true, subtree: true, characterData: true,
+          });
+        }"""
+    )

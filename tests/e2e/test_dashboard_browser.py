@@ -18,7 +18,7 @@ import pytest
 
 from app.viz.follower import wait_for_belief_mean, wait_for_clients
 from tests.app.trial_waits import wait_finished
-from tests.e2e.conftest import DOCS_FLAG, Demo, PageErrors, save_screenshot
+from tests.e2e.conftest import DOCS_FLAG, Demo, PageErrors, record_touch_counts, save_screenshot
 
 pytestmark = pytest.mark.browser
 
@@ -93,18 +93,7 @@ def test_demo_trial_through_the_ui(page: Any, demo: Demo) -> None:
     expect(page.get_by_test_id("trial-mode")).to_have_value(demo.state.mode)
 
     started = time.perf_counter()
-    # Record every touch count the page shows, to see it update while the trial runs.
-    page.evaluate(
-        """() => {
-          window.__touchCounts = [];
-          new MutationObserver(() => {
-            const node = document.querySelector('[data-testid="trial-touches"]');
-            if (node) window.__touchCounts.push(node.textContent);
-          }).observe(document.getElementById("trial-facts"), {
-            childList: true, subtree: true, characterData: true,
-          });
-        }"""
-    )
+    record_touch_counts(page)
     page.get_by_test_id("start-trial").click()
     expect(page.get_by_test_id("step-row").first).to_be_visible(timeout=30_000)
     save_screenshot(page, "dashboard-trial-live")

@@ -17,7 +17,7 @@ import pytest
 
 from app.security.sessions import SESSION_COOKIE
 from app.viz.follower import wait_for_clients
-from tests.e2e.conftest import Demo, running_demo, save_screenshot
+from tests.e2e.conftest import Demo, record_touch_counts, running_demo, save_screenshot
 
 pytestmark = pytest.mark.browser
 
@@ -86,17 +86,7 @@ def test_sign_in_follow_a_trial_live_and_sign_out(page: Any, demo: Demo) -> None
     page.get_by_test_id("trial-steps").fill("8")
     page.locator("#trial-seed").fill("5")
     page.locator("#trial-interval").fill("0.2")
-    page.evaluate(
-        """() => {
-          window.__touchCounts = [];
-          new MutationObserver(() => {
-            const node = document.querySelector('[data-testid="trial-touches"]');
-            if (node) window.__touchCounts.push(node.textContent);
-          }).observe(document.getElementById("trial-facts"), {
-            childList: true, subtree: true, characterData: true,
-          });
-        }"""
-    )
+    record_touch_counts(page)
     page.get_by_test_id("start-trial").click()
     expect(page.get_by_test_id("step-row").first).to_be_visible(timeout=30_000)
     expect(page.get_by_test_id("trial-result")).to_be_visible(timeout=60_000)
