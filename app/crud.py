@@ -295,18 +295,20 @@ def set_run_status(session: Session, run: Run, status: str, reason: str | None =
 
 
 def fail_interrupted(session: Session, reason: str) -> dict[str, list[int]]:
-    """Mark trials and runs left running/paused, and models left fitting, as failed.
+    """Mark trials, runs and evaluations left running/paused, and models left fitting, as failed.
 
-    Steps and samples already recorded are kept. Commits.
+    Steps, samples and finished evaluation trials already recorded are kept. Commits.
 
     Returns:
-        The ids that were changed, per kind (``trials``, ``runs``, ``models``).
+        The ids that were changed, per kind (``trials``, ``runs``, ``evaluations``, ``models``,
+        ``datasets``).
     """
     now = utc_now()
     changed: dict[str, list[int]] = {}
     for kind, table, states in (
-        ("trials", Trial, ("queued", "running", "paused")),
-        ("runs", Run, ("queued", "running", "paused")),
+        ("trials", Trial, ACTIVE_STATES),
+        ("runs", Run, ACTIVE_STATES),
+        ("evaluations", Evaluation, ACTIVE_STATES),
     ):
         ids = list(session.scalars(select(table.id).where(table.status.in_(states))).all())
         if ids:
@@ -494,28 +496,6 @@ def get_evaluation_trial(
             EvaluationTrial.evaluation_id == evaluation_id, EvaluationTrial.number == number
         )
     ).first()
-
-
-def fail_interrupted_evaluations(session: Session, reason: str) -> list[int]:
-    """Mark evaluations left queued/running/paused by a previous process as failed.
-
-    Their finished trials are kept. Commits.
-
-    Returns:
-        The ids that were changed.
-    """
-    ids = list(
-        session.scalars(select(Evaluation.id).where(Evaluation.status.in_(ACTIVE_STATES))).all()
-    )
-    if ids:
-        now = utc_now()
-        session.execute(
-            update(Evaluation)
-            .where(Evaluation.id.in_(ids))
-            .values(status="failed", reason=reason, finished_at=now, updated_at=now)
-        )
-    session.commit()
-    return ids
 
 
 def add_request_audits(session: Session, rows: Iterable[dict[str, Any]]) -> int:

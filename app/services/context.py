@@ -53,7 +53,6 @@ def start_context(settings: Settings) -> AppContext:
     upgrade_to_head(database.engine, settings.migrations_dir)
     with database.session() as session:
         changed = crud.fail_interrupted(session, INTERRUPTED)
-        changed["evaluations"] = crud.fail_interrupted_evaluations(session, INTERRUPTED)
     events = EventBus(database, keep=settings.event_log_size)
     for kind, ids in changed.items():
         for item_id in ids:

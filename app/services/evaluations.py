@@ -11,7 +11,7 @@ server's Dask cluster when it has one (``ACTIVETOUCH_DASK_SCHEDULER``), else on 
 
 States follow DESIGN.md "Run states" (``queued → running → completed | stopped | failed``); an
 evaluation a previous process left running is ``failed`` with reason ``interrupted`` at start-up
-(:func:`app.crud.fail_interrupted_evaluations`), and so is one still running when the server shuts
+(:func:`app.crud.fail_interrupted`), and so is one still running when the server shuts
 down. Reads (:mod:`app.services.evaluation_views`) give the summary of the trials finished so far
 while the job runs.
 """
