@@ -35,6 +35,11 @@ class Material:
         coating_time_s: Thermal time of that layer, d² / α (thickness d, diffusivity α): the
             fingertip feels the coating for contacts much shorter than it and the body under it
             for contacts much longer (see :meth:`effusivity_at`).
+        insert_depth_mm: Depth under the surface of a stiffer insert (a board or sheet inside a
+            soft cushion), or ``None``. Pressed less deep, the fingertip feels only the soft
+            surface material; pressed deeper, the insert's stiffness adds (see
+            :func:`hardware.sim.world.contact`).
+        insert_stiffness_n_per_mm: Extra stiffness once the insert is reached (≥ 0).
     """
 
     name: str
@@ -46,6 +51,8 @@ class Material:
     effusivity: float
     coating_effusivity: float | None = None
     coating_time_s: float = 0.0
+    insert_depth_mm: float | None = None
+    insert_stiffness_n_per_mm: float = 0.0
 
     def effusivity_at(self, contact_time_s: float) -> float:
         """Effusivity felt after ``contact_time_s`` of contact.
@@ -93,6 +100,13 @@ class Material:
                 f"Material {self.name!r}: a coating needs a positive effusivity and time, "
                 f"received {self.coating_effusivity} and {self.coating_time_s}."
             )
+        if self.insert_depth_mm is not None and not (
+            self.insert_depth_mm > 0 and self.insert_stiffness_n_per_mm > 0
+        ):
+            raise ConfigurationError(
+                f"Material {self.name!r}: an insert needs a positive depth and stiffness, "
+                f"received {self.insert_depth_mm} mm and {self.insert_stiffness_n_per_mm} N/mm."
+            )
         if self.stick_slip < 0:
             raise ConfigurationError(
                 f"Material {self.name!r}: stick_slip must be >= 0, received {self.stick_slip}."
@@ -122,7 +136,8 @@ class TactileObject:
         Keys: ``material``, ``stiffness_n_per_mm``, ``friction``, ``stick_slip``,
         ``roughness_um``, ``texture_period_mm``, ``thermal_effusivity_w_s05_per_m2_k``,
         ``temperature_c``, ``contact_angle_deg``; for a coated surface also
-        ``coating_effusivity_w_s05_per_m2_k`` and ``coating_time_s``.
+        ``coating_effusivity_w_s05_per_m2_k`` and ``coating_time_s``; with an insert
+        ``insert_depth_mm`` and ``insert_stiffness_n_per_mm``.
         """
         m = self.material
         coating: dict[str, float | str] = (
@@ -131,6 +146,14 @@ class TactileObject:
             else {
                 "coating_effusivity_w_s05_per_m2_k": m.coating_effusivity,
                 "coating_time_s": m.coating_time_s,
+            }
+        )
+        insert: dict[str, float | str] = (
+            {}
+            if m.insert_depth_mm is None
+            else {
+                "insert_depth_mm": m.insert_depth_mm,
+                "insert_stiffness_n_per_mm": m.insert_stiffness_n_per_mm,
             }
         )
         return {
@@ -144,6 +167,7 @@ class TactileObject:
             "temperature_c": self.temperature_c,
             "contact_angle_deg": self.contact_angle_deg,
             **coating,
+            **insert,
         }
 
 
@@ -168,6 +192,17 @@ PET_ON_WATER = replace(
 # Micro-textured steel plates: one relief depth, four pitches (sliding at v excites v / pitch).
 MICRO_TEXTURE = Material("micro-textured steel", 80.0, 0.35, 0.10, 20.0, 0.03, 7600.0)
 
+# Cushions (docs/simulation.md, "Tables"): one upholstery foam cover, with or without a stiffer
+# insert under 5.5 mm of foam. Only a press that compresses the foam down to the insert feels it.
+CUSHION_FOAM = Material("upholstery foam", 0.10, 0.80, 0.25, 40.0, 1.0, 80.0)
+CUSHION_INSERTS: dict[str, tuple[str, float]] = {
+    "cushion_rubber": ("a rubber sheet", 0.5),
+    "cushion_cork": ("a cork board", 2.0),
+    "cushion_wood": ("a wooden board", 20.0),
+}
+CUSHION_INSERT_DEPTH_MM = 6.0
+CUSHION_CONTACT_ANGLE_DEG = 21.5
+
 OBJECTS: dict[str, TactileObject] = {
     "paper_cup": TactileObject("paper_cup", PAPER, contact_angle_deg=19.5),
     "bumpy_glass": TactileObject("bumpy_glass", GLASS_BUMPY, contact_angle_deg=20.5),
@@ -186,6 +221,22 @@ OBJECTS: dict[str, TactileObject] = {
     "pet_cup_stiff": TactileObject("pet_cup_stiff", PET_STIFF, contact_angle_deg=20.0),
     "pet_cup_waxed": TactileObject("pet_cup_waxed", PET_WAXED, contact_angle_deg=20.0),
     "pet_cup_water": TactileObject("pet_cup_water", PET_ON_WATER, contact_angle_deg=20.0),
+    "cushion_plain": TactileObject(
+        "cushion_plain", CUSHION_FOAM, contact_angle_deg=CUSHION_CONTACT_ANGLE_DEG
+    ),
+    **{
+        name: TactileObject(
+            name,
+            replace(
+                CUSHION_FOAM,
+                name=f"upholstery foam over {insert}",
+                insert_depth_mm=CUSHION_INSERT_DEPTH_MM,
+                insert_stiffness_n_per_mm=stiffness,
+            ),
+            contact_angle_deg=CUSHION_CONTACT_ANGLE_DEG,
+        )
+        for name, (insert, stiffness) in CUSHION_INSERTS.items()
+    },
     **{
         f"texture_{round(1000 * pitch):d}um": TactileObject(
             f"texture_{round(1000 * pitch):d}um",
@@ -241,6 +292,13 @@ TABLES: dict[str, Table] = {
             "One clear plastic cup and three look-alikes, each changed in one property: a "
             "thicker wall (stiffness), a wax film (friction, not heat), water behind the wall "
             "(heat, felt after ~3 s of contact).",
+        ),
+        Table(
+            "cushions",
+            ("cushion_plain", "cushion_rubber", "cushion_cork", "cushion_wood"),
+            "Four cushions with one foam cover: plain, or with a rubber sheet, a cork board or "
+            "a wooden board 5.5 mm under the surface. Only a press deep enough to reach the "
+            "insert tells them apart.",
         ),
         Table(
             "textures",

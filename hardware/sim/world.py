@@ -39,7 +39,7 @@ import numpy as np
 
 from hardware.clock import Clock
 from hardware.errors import ConfigurationError, ServoHardwareErrorFlags
-from hardware.sim.materials import TactileObject
+from hardware.sim.materials import Material, TactileObject
 from hardware.sim.noise import (
     DRIFT_AMBIENT_C,
     DRIFT_CORE_C,
@@ -130,10 +130,8 @@ def contact(
     surface = math.radians(target.contact_angle_deg + offset_deg)
     penetration = reach * (math.sin(math.radians(flexion_deg)) - math.sin(surface))
     indentation = _softplus(penetration, 0.3)
-    stiffness = 1.0 / (
-        1.0 / finger.pad_stiffness_n_per_mm + 1.0 / target.material.stiffness_n_per_mm
-    )
-    force = stiffness * indentation * (1.0 + indentation / 10.0)
+    force = _series_force(target.material, finger.pad_stiffness_n_per_mm, indentation)
+    force *= 1.0 + indentation / 10.0
     engaged = force / (force + 0.2)
     speed = (
         reach
@@ -141,6 +139,41 @@ def contact(
         * engaged
     )
     return Contact(force, speed, indentation)
+
+
+INSERT_EDGE_MM = 0.3
+"""Width over which an insert's stiffness comes in (the softplus of the compression past it)."""
+
+
+def _series_force(material: Material, pad_n_per_mm: float, indentation_mm: float) -> float:
+    """Force of the fingertip pad and the surface in series, pressed ``indentation_mm`` together.
+
+    A plain surface is a linear spring: F = k_eff d with 1/k_eff = 1/k_pad + 1/k_surface. With an
+    insert at depth t under a soft surface, the surface's force at compression u is
+    k_s u + k_i [softplus(u − t) − softplus(−t)] (the insert's stiffness k_i adds once the soft layer is pressed
+    down to it); the pad carries the same force, k_pad (d − u). Solved for u by Newton's method
+    from the plain-surface solution: the residual is convex and increasing in u and the start
+    lies at or above the root, so the iterates decrease monotonically to it.
+    """
+    k_pad, k_surface = pad_n_per_mm, material.stiffness_n_per_mm
+    if material.insert_depth_mm is None or indentation_mm <= 0.0:
+        return indentation_mm / (1.0 / k_pad + 1.0 / k_surface)
+    depth, k_insert = material.insert_depth_mm, material.insert_stiffness_n_per_mm
+    at_rest = _softplus(-depth, INSERT_EDGE_MM)
+    compression = k_pad * indentation_mm / (k_pad + k_surface)
+    for _ in range(30):
+        past = (compression - depth) / INSERT_EDGE_MM
+        engaged = 1.0 / (1.0 + math.exp(-past)) if past > -30.0 else 0.0
+        residual = (
+            k_surface * compression
+            + k_insert * (_softplus(compression - depth, INSERT_EDGE_MM) - at_rest)
+            - k_pad * (indentation_mm - compression)
+        )
+        step = residual / (k_surface + k_insert * engaged + k_pad)
+        compression -= step
+        if abs(step) < 1e-12:
+            break
+    return k_pad * (indentation_mm - compression)
 
 
 def vibration(target: TactileObject | None, touch: Contact) -> tuple[float, float]:
