@@ -61,10 +61,15 @@ def test_random_design_writes_the_csv_the_raw_series_and_a_summary(tmp_path: Pat
     assert summary["channels"][3] == "heat_flux_mw"
     data = read_training_csv(out.read_text())
     assert data.object_names == NAMES
-    # The paper's design from core.designs, object by object, written exactly.
+    # The paper's design from core.designs, written exactly, touched in rounds (each object's
+    # next action in turn, so every touch meets a fresh placement).
     expected = random_design(3, 3, np.zeros(DX), np.eye(DX), np.random.default_rng(1))
-    np.testing.assert_array_equal(data.object_index, expected.object_index)
-    np.testing.assert_array_equal(data.actions, expected.actions)
+    np.testing.assert_array_equal(data.object_index, [0, 1, 2] * 3)
+    for obj in range(3):
+        np.testing.assert_array_equal(
+            data.actions[data.object_index == obj],
+            expected.actions[expected.object_index == obj],
+        )
     assert find_shared_design(data) is None
     # The steel cup drains heat from the warm fingertip; the paper cup barely does.
     heat = data.observations[:, 3]

@@ -65,13 +65,14 @@ def test_random_design_draws_every_touch_afresh(client: TestClient) -> None:
     for a in range(len(CUPS)):
         for b in range(a + 1, len(CUPS)):
             assert not np.allclose(actions[a], actions[b])
-    # The paper's design of core.designs, object by object.
+    # The paper's design of core.designs, touched in rounds (each object's next action in turn).
     cov = SCALE**2 * np.eye(data.action_dim)
     expected = random_design(
         len(CUPS), TOUCHES, np.zeros(data.action_dim), cov, np.random.default_rng(SEED)
     )
-    np.testing.assert_array_equal(data.object_index, expected.object_index)
-    np.testing.assert_array_equal(data.actions, expected.actions)
+    np.testing.assert_array_equal(data.object_index, np.tile(np.arange(len(CUPS)), TOUCHES))
+    for obj, mine in enumerate(actions):
+        np.testing.assert_array_equal(mine, expected.actions[expected.object_index == obj])
 
 
 @pytest.mark.parametrize("design", ["shared", "teaching"])
