@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, cast
 
 import typer
 from rich.markup import escape
@@ -86,6 +86,13 @@ def paper_exp2(
     workers: Annotated[
         int | None, typer.Option(min=1, help="Dask worker processes for the trials.")
     ] = None,
+    placement: Annotated[
+        str,
+        typer.Option(
+            help="Rig trials: place the object once per trial (trial) or anew before every "
+            "touch (touch), as the collection did."
+        ),
+    ] = "trial",
     figures: Annotated[
         Path | None, typer.Option(help="Write the PNG figures into this directory.")
     ] = None,
@@ -93,6 +100,7 @@ def paper_exp2(
 ) -> None:
     """Experiment 2 on the simulated rig: collect, fit (ds = 2), active vs passive; vs the paper."""
     from app.errors import BadInputError
+    from app.evaluation.spec import PLACEMENTS, Placement
     from app.evaluation.worlds import table_objects
     from app.paper.exp2 import SOURCES, Experiment2Settings, run_experiment2, write_figures
     from core.errors import CoreError
@@ -102,6 +110,8 @@ def paper_exp2(
     unknown = [s for s in chosen if s not in SOURCES]
     if unknown or not chosen:
         raise fail(f"--sources: {unknown or chosen} not sources; choose from {list(SOURCES)}.")
+    if placement not in PLACEMENTS:
+        raise fail(f"--placement: {placement!r} is not one of {list(PLACEMENTS)}.")
     if optimizer not in ("de", "lbfgs"):
         raise fail(f"--optimizer: {optimizer!r} is not one of [de, lbfgs].")
     try:
@@ -119,6 +129,7 @@ def paper_exp2(
         sources=chosen,
         seed=seed,
         workers=workers,
+        placement=cast(Placement, placement),
     )
     try:
         with progress_bar() as bar:

@@ -66,12 +66,17 @@ def synthetic_world(spec: EvaluationSpec) -> World:
 
 @dataclass
 class _RigTrial:
-    """One trial's simulated rig: a fresh in-process rig seeded from the trial's seed."""
+    """One trial's simulated rig: a fresh in-process rig seeded from the trial's seed.
+
+    With ``replace_each_touch`` the table turns to the next slot and back before every touch
+    after the first, so each touch meets a fresh placement of the object (as in a collection).
+    """
 
     actions: TouchActions
     objects: tuple[str, ...]
     target: str
     rig_seed: int
+    replace_each_touch: bool = False
 
     def __post_init__(self) -> None:
         from app.rig_factory import SimulationMode, open_rig
@@ -88,8 +93,12 @@ class _RigTrial:
         self._slot: int | None = self.objects.index(self.target)
 
     def observe(self, action: FloatArray, rng: np.random.Generator) -> FloatArray:
+        target = self.objects.index(self.target)
+        if self._slot is None and self.replace_each_touch and len(self.objects) > 1:
+            self._lease.move_to_slot((target + 1) % len(self.objects))
+            self._slot = target
         record = self.actions.touch(self._lease, action, slot=self._slot)
-        self._slot = None  # the table stays at the target after the first touch
+        self._slot = None  # the table stays at the target after the touch
         return np.asarray(record.observation, dtype=np.float64)
 
     def close(self) -> None:
@@ -202,6 +211,7 @@ class TrialContext:
                 rig_tables()[self.spec.table or "default"],
                 target,
                 rig_seed,
+                replace_each_touch=self.spec.placement == "touch",
             )
             observe = rig.observe
         else:

@@ -10,6 +10,10 @@ from core.evaluation_trial import POLICIES, TrialSettings
 from core.types import ManifoldModel, TrainingData
 
 WorldName = Literal["exp1", "exp2", "rig", "model", "replay"]
+Placement = Literal["trial", "touch"]
+
+#: How often a ``rig`` trial places its object anew.
+PLACEMENTS: tuple[str, ...] = get_args(Placement)
 
 #: Every world an evaluation can run against.
 WORLDS: tuple[str, ...] = get_args(WorldName)
@@ -37,6 +41,9 @@ class EvaluationSpec:
         stop_at_confidence: Also stop a trial when the answer's probability reaches
             ``confidence`` (answers are carried forward to T).
         prior_variance: Σ0 = prior_variance · I.
+        placement: ``rig`` only: ``"trial"`` places the object once per trial (the table stays
+            at it between touches); ``"touch"`` turns the table away and back before every
+            touch, as a collection does, so every touch meets a fresh placement.
     """
 
     world: WorldName
@@ -52,6 +59,7 @@ class EvaluationSpec:
     tolerance: float = 1e-3
     stop_at_confidence: bool = False
     prior_variance: float = 5.0
+    placement: Placement = "trial"
 
     def target_names(self, model: ManifoldModel) -> tuple[str, ...]:
         """The targets, in the model's object order."""
@@ -107,6 +115,12 @@ class EvaluationSpec:
         if not 0.0 < self.confidence <= 1.0:
             raise BadInputError(
                 f"confidence: must lie in (0, 1], received {self.confidence}.", field="confidence"
+            )
+        if self.placement not in PLACEMENTS:
+            raise BadInputError(
+                f"placement: {self.placement!r} is not a placement; choose from "
+                f"{list(PLACEMENTS)}.",
+                field="placement",
             )
         if self.seed < 0:
             raise BadInputError(f"seed: must be ≥ 0, received {self.seed}.", field="seed")

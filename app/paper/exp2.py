@@ -23,7 +23,7 @@ from rich.table import Table
 
 from app.evaluation.report import EvaluationReport
 from app.evaluation.runner import run_evaluation
-from app.evaluation.spec import EvaluationSpec
+from app.evaluation.spec import EvaluationSpec, Placement
 from app.rig_factory import SimulationMode, TouchActions, open_rig
 from core.designs import random_design
 from core.evaluation_trial import POLICIES
@@ -66,6 +66,8 @@ class Experiment2Settings:
         sources: Observation sources (:data:`SOURCES`).
         seed: Seed of the design, the simulated world, the fit and the trials.
         workers: Dask worker processes of the trials (``None``: in process).
+        placement: How often a rig trial places its object anew (``"trial"``/``"touch"``,
+            :class:`app.evaluation.spec.EvaluationSpec`).
     """
 
     table: str = "paper"
@@ -85,6 +87,7 @@ class Experiment2Settings:
     sources: tuple[str, ...] = SOURCES
     seed: int = 0
     workers: int | None = None
+    placement: Placement = "trial"
 
 
 @dataclass(frozen=True)
@@ -309,6 +312,7 @@ def run_experiment2(
             seed=settings.seed,
             table=settings.table if source == "rig" else None,
             prior_variance=settings.prior_variance,
+            placement=settings.placement,
         )
         done = [0]
 

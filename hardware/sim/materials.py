@@ -200,7 +200,7 @@ CUSHION_INSERTS: dict[str, tuple[str, float]] = {
     "cushion_cork": ("a cork board", 2.0),
     "cushion_wood": ("a wooden board", 20.0),
 }
-CUSHION_INSERT_DEPTH_MM = 6.0
+CUSHION_INSERT_DEPTH_MM = 5.5
 CUSHION_CONTACT_ANGLE_DEG = 21.5
 
 OBJECTS: dict[str, TactileObject] = {

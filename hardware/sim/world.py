@@ -150,10 +150,10 @@ def _series_force(material: Material, pad_n_per_mm: float, indentation_mm: float
 
     A plain surface is a linear spring: F = k_eff d with 1/k_eff = 1/k_pad + 1/k_surface. With an
     insert at depth t under a soft surface, the surface's force at compression u is
-    k_s u + k_i [softplus(u − t) − softplus(−t)] (the insert's stiffness k_i adds once the soft layer is pressed
-    down to it); the pad carries the same force, k_pad (d − u). Solved for u by Newton's method
-    from the plain-surface solution: the residual is convex and increasing in u and the start
-    lies at or above the root, so the iterates decrease monotonically to it.
+    k_s u + k_i [softplus(u − t) − softplus(−t)] (the insert's stiffness k_i adds once the soft
+    layer is pressed down to it); the pad carries the same force, k_pad (d − u). Solved for u by
+    Newton's method from the plain-surface solution: the residual is convex and increasing in u
+    and the start lies at or above the root, so the iterates decrease monotonically to it.
     """
     k_pad, k_surface = pad_n_per_mm, material.stiffness_n_per_mm
     if material.insert_depth_mm is None or indentation_mm <= 0.0:

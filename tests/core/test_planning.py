@@ -119,8 +119,24 @@ def test_fixed_policy_repeats_its_action(model: ManifoldModel) -> None:
 
 def test_defaults_come_from_the_training_actions(model: ManifoldModel) -> None:
     planner = Planner(model, PassivePolicy())
-    np.testing.assert_array_equal(planner.box.lower, model.data.actions.min(axis=0))
-    np.testing.assert_array_equal(planner.box.upper, model.data.actions.max(axis=0))
+    actions = model.data.actions
+    mean, std = actions.mean(axis=0), actions.std(axis=0)
+    # Mean ± 2 std, within the range of the training actions.
+    np.testing.assert_allclose(
+        planner.box.lower, np.maximum(actions.min(axis=0), mean - 2 * std), rtol=1e-12
+    )
+    np.testing.assert_allclose(
+        planner.box.upper, np.minimum(actions.max(axis=0), mean + 2 * std), rtol=1e-12
+    )
+    assert np.all(planner.box.lower >= actions.min(axis=0))
+    assert np.all(planner.box.upper <= actions.max(axis=0))
+    whole = ActionBox.from_model(model, spread_std=None)
+    np.testing.assert_array_equal(whole.lower, actions.min(axis=0))
+    np.testing.assert_array_equal(whole.upper, actions.max(axis=0))
+    narrow = ActionBox.from_model(model, spread_std=0.5)
+    np.testing.assert_allclose(narrow.upper - narrow.lower, std, rtol=1e-12)
+    with pytest.raises(InvalidInputError, match="spread_std"):
+        ActionBox.from_model(model, spread_std=0.0)
     np.testing.assert_allclose(planner.prior.mean, model.data.actions.mean(axis=0))
 
 
