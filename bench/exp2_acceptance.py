@@ -77,6 +77,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=None)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument(
+        "--placement", choices=("trial", "touch"), default="trial", help="Rig trials' placement."
+    )
     args = parser.parse_args(argv)
     model = load_model(args.model)
     policies = tuple(p for p in args.policies.split(",") if p)
@@ -87,6 +90,7 @@ def main(argv: list[str] | None = None) -> int:
         policies=policies,
         seed=args.seed,
         table=args.table,
+        placement=args.placement,
     )
     done = [0]
     total = args.trials * len(policies) * len(model.object_names)
@@ -100,6 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     summary = report.summary()
     document: dict[str, Any] = {
         "table": args.table,
+        "placement": args.placement,
         "seconds": report.seconds,
         "workers": report.workers,
         "trials_per_policy": args.trials * len(model.object_names),

@@ -29,6 +29,7 @@ from core.validation import FloatArray
 from hardware.errors import HardwareError
 from hardware.records import TouchRecord
 from hardware.rig import RigLease, RigState
+from hardware.sim.materials import get_table
 
 OPERATOR = "operator"
 
@@ -146,6 +147,11 @@ class RigService:
             if self._actions is None:
                 self._actions = TouchActions.from_teaching()
             return self._actions
+
+    @property
+    def sim_table(self) -> tuple[str, ...]:
+        """The objects of the simulated table (``mock`` hardware's, and simulated rig trials')."""
+        return get_table(self._settings.sim_table).objects
 
     @property
     def action_dim(self) -> int:

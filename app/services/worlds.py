@@ -19,7 +19,6 @@ from core.types import ManifoldModel
 from core.validation import FloatArray
 from core.worlds import Experiment1World, World, random_experiment2_world
 from hardware.rig import RigState
-from hardware.sim.materials import DEFAULT_TABLE
 
 __all__ = ["Touch", "TouchSource", "WorldFactory", "WorldTouchSource", "make_world"]
 
@@ -110,7 +109,7 @@ class WorldFactory:
             options = simulation or SimulationOptions()
             if options.world == "rig":
                 self._check_rig_dims(model, "simulation.world")
-                _target_index(tuple(DEFAULT_TABLE), target)
+                _target_index(self._rig.sim_table, target)
                 return
             world = make_world(options)
             _check_dims(world, model, "simulation.world")
@@ -140,11 +139,15 @@ class WorldFactory:
             if options.world != "rig":
                 world = make_world(options)
                 return WorldTouchSource(world, _target_index(world.object_names, target))
-            handle = open_rig(simulate=SimulationMode.in_process, seed=options.world_seed)
+            handle = open_rig(
+                simulate=SimulationMode.in_process,
+                objects=self._rig.sim_table,
+                seed=options.world_seed,
+            )
             try:
                 lease = handle.rig.acquire(owner)
                 lease.connect()
-                slot = _target_index(tuple(DEFAULT_TABLE), target)
+                slot = _target_index(self._rig.sim_table, target)
             except BaseException:
                 handle.close()
                 raise

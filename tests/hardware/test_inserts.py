@@ -76,7 +76,7 @@ def test_an_insert_needs_a_depth_and_a_stiffness() -> None:
 
 def test_only_a_deep_press_tells_the_cushions_apart() -> None:
     # Noise-free touches through the simulated rig: at the teaching touch the four cushions
-    # press alike (within 0.02 in pressure, a quarter of one touch's pressure offset noise),
+    # press alike (within 0.06 in pressure, less than one touch's pressure noise, 0.075),
     # pressed deeper (flexion weights x_0 = x_1 = +3.75) they are ordered by their insert's
     # stiffness and far apart.
     objects = get_table("cushions").objects
@@ -84,7 +84,7 @@ def test_only_a_deep_press_tells_the_cushions_apart() -> None:
     probes[1, :2] = 3.75
     clean = touch_all(objects, TouchActions.from_teaching(), probes, QUIET, seed=0)
     pressure = clean[:, :, 2]
-    assert np.ptp(pressure[:, 0]) < 0.02
+    assert np.ptp(pressure[:, 0]) < 0.06
     assert np.all(np.diff(pressure[:, 1]) > 0.3)
     heat = clean[:, :, 3]
     assert np.all(np.diff(heat[:, 1]) > 0.5)  # a larger contact area draws more heat
