@@ -93,3 +93,33 @@ def test_tables_come_by_name_from_the_simulator(monkeypatch):
     assert tables["cups"] == ("paper_cup", "pet_cup")
     assert tables["plain"] == ("wooden_block", "cork_board")
     assert tables["default"] == tuple(materials.DEFAULT_TABLE)
+
+
+# Placements count every object's arrivals under the finger: once per trial, or for touches 2
+# and 3 the neighbour's arrival and the target's return (1 + 2 · 2).
+@pytest.mark.parametrize(("replace_each_touch", "placements"), [(False, 1), (True, 5)])
+def test_a_rig_trial_places_its_object_once_or_before_every_touch(
+    replace_each_touch: bool, placements: int
+) -> None:
+    from app.evaluation.context import _RigTrial
+
+    trial = _RigTrial(
+        TouchActions.from_teaching(),
+        rig_tables()["default"],
+        "paper_cup",
+        rig_seed=5,
+        replace_each_touch=replace_each_touch,
+    )
+    try:
+        for _ in range(3):
+            trial.observe(np.zeros(6), np.random.default_rng(0))
+        devices = trial._handle.simulation.devices  # type: ignore[union-attr]
+        assert devices.plant.events.placements == placements
+        assert devices.plant.events.touched == {"paper_cup": 3}
+    finally:
+        trial.close()
+
+
+def test_placement_must_be_trial_or_touch(rig_model):
+    with pytest.raises(BadInputError, match=r"placement: 'shelf'.*\['trial', 'touch'\]"):
+        run_evaluation(rig_model, spec(placement="shelf"))
