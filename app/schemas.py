@@ -485,6 +485,11 @@ class EvaluationCreate(BaseModel):
     confidence: Annotated[float, Field(gt=0.0, le=1.0)] = 0.95
     seed: Seed = 0
     table: Name | None = Field(default=None, description="rig only: the simulated rig table.")
+    placement: Literal["trial", "touch"] = Field(
+        default="trial",
+        description="rig only: place the object once per trial, or anew before every touch "
+        "(the table turns away and back, as in a collection).",
+    )
     workers: Annotated[int, Field(ge=1, le=256)] | None = None
 
 

@@ -23,7 +23,7 @@ import sys
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, cast
 
 import typer
 from rich.markup import escape
@@ -153,6 +153,13 @@ def evaluate_command(
         str | None,
         typer.Option(help="rig only: the simulated table (`activetouch rig status --sim`)."),
     ] = None,
+    placement: Annotated[
+        str,
+        typer.Option(
+            help="rig only: place the object once per trial (trial) or anew before every touch "
+            "(touch)."
+        ),
+    ] = "trial",
     workers: Annotated[
         int | None, typer.Option(help="Run on a LocalCluster of K single-threaded processes.")
     ] = None,
@@ -169,7 +176,7 @@ def evaluate_command(
     from app.cli.main import load_model
     from app.errors import AppError
     from app.evaluation.runner import run_evaluation
-    from app.evaluation.spec import EvaluationSpec, world_name
+    from app.evaluation.spec import EvaluationSpec, Placement, world_name
     from core.errors import CoreError
 
     if workers is not None and scheduler is not None:
@@ -191,6 +198,7 @@ def evaluate_command(
         seed=seed,
         targets=split_names(targets, "--targets"),
         table=table,
+        placement=cast(Placement, placement),
     )
     try:
         spec.check(model, replay)

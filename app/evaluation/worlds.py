@@ -43,6 +43,11 @@ def check_world(spec: EvaluationSpec, model: ManifoldModel, replay: TrainingData
     targets = spec.target_names(model)
     if spec.world != "rig" and spec.table is not None:
         raise BadInputError("table: only the rig world has a table.", field="table")
+    if spec.world != "rig" and spec.placement != "trial":
+        raise BadInputError(
+            "placement: only the rig world places objects ('touch' is for world 'rig').",
+            field="placement",
+        )
     if spec.world != "replay" and replay is not None:
         raise BadInputError(
             f"data: held-out touches are for the replay world, not {spec.world!r}.", field="data"

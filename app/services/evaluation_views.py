@@ -47,6 +47,7 @@ def build_spec(body: EvaluationCreate) -> EvaluationSpec:
             seed=body.seed,
             targets=tuple(body.targets) if body.targets is not None else None,
             table=body.table,
+            placement=body.placement,
         )
     except (CoreError, ValueError, TypeError) as exc:
         raise BadInputError(f"evaluation: {exc}", field="body") from exc

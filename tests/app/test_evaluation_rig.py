@@ -123,3 +123,8 @@ def test_a_rig_trial_places_its_object_once_or_before_every_touch(
 def test_placement_must_be_trial_or_touch(rig_model):
     with pytest.raises(BadInputError, match=r"placement: 'shelf'.*\['trial', 'touch'\]"):
         run_evaluation(rig_model, spec(placement="shelf"))
+
+
+def test_only_the_rig_world_places_objects(rig_model):
+    with pytest.raises(BadInputError, match="placement: only the rig world"):
+        run_evaluation(rig_model, spec(world="model", table=None, placement="touch"))
