@@ -1,8 +1,8 @@
 """The Trials page runs the other policy on the same object and seed with one click.
 
-A finished active trial shows "Run with passive"; clicking it creates a new trial with the same
-model, target, seed and settings and the passive policy, and the page follows that one; the
-finished passive trial offers "Run with active" back.
+A finished trial of the default policy (discriminative) shows "Run with passive"; clicking it
+creates a new trial with the same model, target, seed and settings and the passive policy, and
+the page follows that one; the finished passive trial offers "Run with discriminative" back.
 """
 
 from __future__ import annotations
@@ -25,20 +25,22 @@ def test_run_with_the_other_policy(page: Any, demo: Demo, page_errors: PageError
     target = model["objects"][1]["name"]
     page.get_by_test_id("trial-model").select_option(str(demo.state.model_id))
     page.get_by_test_id("trial-target").select_option(target)
-    page.get_by_test_id("trial-policy").select_option("active")
+    expect(page.get_by_test_id("trial-policy")).to_have_value("discriminative")  # the default
     page.get_by_test_id("trial-steps").fill("4")
     page.locator("#trial-seed").fill("")  # no seed given: the page records one anyway
     page.get_by_test_id("start-trial").click()
     result = page.get_by_test_id("trial-result")
     expect(result).to_be_visible(timeout=90_000)
     first = newest_trial(demo)
-    assert first["policy"] == "active"
+    assert first["policy"] == "discriminative"
     assert first["seed"] is not None
 
     other = page.get_by_test_id("trial-run-other")
     expect(other).to_have_text("Run with passive")
     other.click()
-    expect(page.get_by_test_id("trial-run-other")).to_have_text("Run with active", timeout=90_000)
+    expect(page.get_by_test_id("trial-run-other")).to_have_text(
+        "Run with discriminative", timeout=90_000
+    )
     second = newest_trial(demo)
     assert second["id"] != first["id"]
     assert second["policy"] == "passive"

@@ -88,9 +88,10 @@ async function startTrial() {
   await load(created.id);
 }
 
-/** The policy to compare a finished trial with: passive for a planned one, active for passive. */
+/** The policy to compare a finished trial with: passive for a planned one, the default
+ * (discriminative) for passive. */
 export function otherPolicy(policy) {
-  if (policy === "passive") return "active";
+  if (policy === "passive") return "discriminative";
   if (policy === "active" || policy === "discriminative") return "passive";
   return null;
 }
