@@ -99,8 +99,10 @@ def running_demo(
     Args:
         database_dir: Folder of the demo's database.
         settings_overrides: Server settings besides ``_env_file=None``.
-        options: :class:`DemoOptions` fields instead of the defaults here (the simulated rig,
-            10 touches per object, ds = 2, a short fit).
+        options: :class:`DemoOptions` fields instead of the defaults here (the simulated rig's
+            ``default`` table, whose objects any touch tells apart, 10 touches per object at
+            action std 1, ds = 2, a short fit: the UI flows, fast; the demo's own table needs
+            100 touches per object, see ``bench/readme_screenshots.py``).
     """
     chosen: dict[str, Any] = {
         "host": "127.0.0.1",
@@ -108,7 +110,9 @@ def running_demo(
         "viz_port": 0,
         "database_url": f"sqlite:///{database_dir / 'demo.db'}",
         "world": "rig",
+        "table": "default",
         "touches_per_object": 10,
+        "action_scale": 1.0,
         "latent_dim": 2,
         "restarts": 1,
         "max_iterations": 150,
