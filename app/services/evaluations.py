@@ -66,7 +66,8 @@ class EvaluationService:
     """Starts, stores and stops evaluation jobs.
 
     Args:
-        settings: The server's settings (``dask_scheduler``).
+        settings: The server's settings (``dask_scheduler``; ``sim_table``: the table a rig
+            evaluation simulates when the request names none).
         database: Where evaluations and their trials live.
         events: Where progress is announced.
         models: Loads the fitted models evaluated.
@@ -76,6 +77,7 @@ class EvaluationService:
         self, settings: Settings, database: Database, events: EventBus, models: ModelStore
     ) -> None:
         self._scheduler = settings.dask_scheduler or None
+        self._sim_table = settings.sim_table
         self._database = database
         self._events = events
         self._models = models
@@ -120,6 +122,9 @@ class EvaluationService:
                 f"dataset_id: only a replay evaluation takes a dataset (world is {body.world!r}).",
                 field="dataset_id",
             )
+        if body.world == "rig" and body.table is None:
+            # The rig world simulates this server's table unless another is named.
+            body = body.model_copy(update={"table": self._sim_table})
         spec = build_spec(body)
         spec.check(model, replay)
         targets = spec.target_names(model)

@@ -128,3 +128,49 @@ def test_placement_must_be_trial_or_touch(rig_model):
 def test_only_the_rig_world_places_objects(rig_model):
     with pytest.raises(BadInputError, match="placement: only the rig world"):
         run_evaluation(rig_model, spec(world="model", table=None, placement="touch"))
+
+
+def test_a_rig_evaluation_simulates_the_servers_table_unless_told(tmp_path) -> None:
+    from fastapi.testclient import TestClient
+
+    from app.documents import model_to_document
+    from app.main import create_app
+    from tests.app.conftest import make_settings
+
+    cushions = rig_tables()["cushions"]
+    handle = open_rig(simulate=SimulationMode.in_process, table="cushions", seed=1)
+    try:
+        lease = handle.rig.acquire("test")
+        lease.connect()
+        design = np.random.default_rng(1).standard_normal((3, 6))
+        slots = {name: slot for slot, name in enumerate(cushions)}
+        touches = list(iter_collect(lease, TouchActions.from_teaching(), slots, design))
+        lease.release()
+    finally:
+        handle.close()
+    data = TrainingData(
+        object_names=cushions,
+        object_index=np.array([cushions.index(t.object_name) for t in touches]),
+        actions=np.array([t.action for t in touches]),
+        observations=np.array([t.record.observation for t in touches]),
+    )
+    model = fit_manifold(data, 1, np.random.default_rng(0), FitOptions(restarts=0))
+    settings = make_settings(tmp_path, sim_table="cushions")
+    with TestClient(create_app(settings)) as client:
+        imported = client.post("/api/v1/models/import", json=model_to_document(model))
+        assert imported.status_code == 201, imported.text
+        body = {
+            "model_id": imported.json()["id"],
+            "world": "rig",
+            "policies": ["passive"],
+            "trials_per_target": 1,
+            "steps": 1,
+            "targets": ["cushion_cork"],
+        }
+        created = client.post("/api/v1/evaluations", json=body)
+        assert created.status_code in (201, 202), created.text
+        assert created.json()["spec"]["table"] == "cushions"
+        # Naming another table still wins (and there the model's objects are not found).
+        other = client.post("/api/v1/evaluations", json={**body, "table": "default"})
+        assert other.status_code == 422
+        assert "cushion_cork" in other.json()["detail"]
