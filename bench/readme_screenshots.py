@@ -2,8 +2,8 @@
 
 Starts ``activetouch demo`` on free loopback ports with a fresh database in the background,
 waits until it is ready, drives headless Chromium (``/usr/bin/chromium``, through Playwright) to
-the Trials page (a finished active trial), the Evaluation page (a finished evaluation on the
-simulated rig) and the Models page, saves the screenshots and stops the demo. It prints what the
+the Trials page (a finished trial of the default policy), the Evaluation page (a finished
+evaluation on the simulated rig) and the Models page, saves the screenshots and stops the demo. It prints what the
 trial shows — the mutual information of each touch and how many distinct actions it chose — so a
 degenerate model (MI ≈ 0, one action repeated) is seen at once.
 
@@ -105,7 +105,7 @@ def shoot(base: str, args: argparse.Namespace) -> None:
         page.goto(f"{base}/?viz=off#trials")
         page.get_by_test_id("trial-model").select_option(str(model["id"]))
         page.get_by_test_id("trial-target").select_option(names[min(1, len(names) - 1)])
-        page.get_by_test_id("trial-policy").select_option("active")
+        # The page's default policy (discriminative).
         page.get_by_test_id("trial-steps").fill(str(args.steps))
         page.locator("#trial-seed").fill(str(args.seed))
         page.get_by_test_id("start-trial").click()
