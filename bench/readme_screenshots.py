@@ -3,9 +3,9 @@
 Starts ``activetouch demo`` on free loopback ports with a fresh database in the background,
 waits until it is ready, drives headless Chromium (``/usr/bin/chromium``, through Playwright) to
 the Trials page (a finished trial of the default policy), the Evaluation page (a finished
-evaluation on the simulated rig) and the Models page, saves the screenshots and stops the demo. It prints what the
-trial shows — the mutual information of each touch and how many distinct actions it chose — so a
-degenerate model (MI ≈ 0, one action repeated) is seen at once.
+evaluation on the simulated rig) and the Models page, saves the screenshots and stops the demo.
+It prints what the trial shows — the mutual information of each touch and how many distinct
+actions it chose — so a degenerate model (MI ≈ 0, one action repeated) is seen at once.
 
 Run: ``python -m bench.readme_screenshots [--out docs/screenshots] [--table NAME] [--seed 7]``
 """
