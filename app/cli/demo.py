@@ -57,9 +57,7 @@ DEMO_TABLE = "cushions"
 #: touches press deep (at the design's spread, about one in ten).
 DEMO_TOUCHES_PER_OBJECT = 100
 
-#: Spread of the demo collection's random actions (std per component): presses reach the
-#: cushions' inserts often enough for the model to learn them (docs/simulation.md).
-DEMO_ACTION_SCALE = 1.5
+
 EXPERIMENT1_DATASET_NAME = "demo: paper Experiment 1"
 FINISHED = ("completed", "stopped", "aborted", "failed")
 
@@ -87,7 +85,9 @@ class DemoOptions:
         objects: Objects to collect on the simulated rig; ``None``: the rig's own catalogue.
         table: The simulated rig's table (:data:`DEMO_TABLE` by default).
         touches_per_object: Touches per object of the training set.
-        action_scale: Standard deviation of each component of the collection's random actions.
+        action_scale: Standard deviation of each component of the collection's random actions
+            (``None``: the table's :attr:`~hardware.sim.materials.Table.action_std`; the
+            cushions' 1.5 lets about one random touch in ten press down to the inserts).
         latent_dim: ds of the fitted manifold.
         restarts: Random restarts of the fit.
         max_iterations: L-BFGS iteration limit of each start of the fit (the demo's data is
@@ -105,7 +105,7 @@ class DemoOptions:
     objects: tuple[DemoObject, ...] | None = None
     table: str = DEMO_TABLE
     touches_per_object: int = DEMO_TOUCHES_PER_OBJECT
-    action_scale: float = DEMO_ACTION_SCALE
+    action_scale: float | None = None
     latent_dim: int = 2
     restarts: int = 1
     max_iterations: int = 150
@@ -342,6 +342,15 @@ class DemoServer:
         )
 
     @property
+    def action_scale(self) -> float:
+        """The collection design's spread: the options', or the table's own."""
+        if self.options.action_scale is not None:
+            return self.options.action_scale
+        from hardware.sim.materials import get_table
+
+        return get_table(self.options.table).action_std
+
+    @property
     def dataset_name(self) -> str:
         """The demo dataset's name: the default table's keeps the old name, others name theirs."""
         if self.options.table == "default":
@@ -411,7 +420,7 @@ class DemoServer:
                 "objects": [{"name": o.name, "slot": o.slot} for o in objects],
                 "samples_per_object": self.options.touches_per_object,
                 "action_design": "random",
-                "action_scale": self.options.action_scale,
+                "action_scale": self.action_scale,
                 "seed": self.options.seed,
             },
         )
@@ -566,8 +575,9 @@ def demo_command(
         int, typer.Option(min=2, help="Training touches per object.")
     ] = DEMO_TOUCHES_PER_OBJECT,
     action_scale: Annotated[
-        float, typer.Option(min=0.01, help="Std of each component of the random actions.")
-    ] = DEMO_ACTION_SCALE,
+        float | None,
+        typer.Option(min=0.01, help="Std of each random action component (default: the table's)."),
+    ] = None,
     latent_dim: Annotated[int, typer.Option(min=1, max=8, help="ds of the model.")] = 2,
     restarts: Annotated[int, typer.Option(min=0, help="Random restarts of the fit.")] = 1,
     seed: Annotated[int, typer.Option(min=0, help="Seed of collection and fit.")] = 0,

@@ -64,13 +64,14 @@ def paper_exp2(
     ),
     touches: Annotated[int, typer.Option(min=2, help="Random-design touches per object.")] = 100,
     action_scale: Annotated[
-        float,
+        float | None,
         typer.Option(
             min=0.01,
-            help="Standard deviation of each action component (0.75: active touches at the "
+            help="Standard deviation of each action component (default: the table's own, "
+            "`rig status --sim --table NAME`; the paper's cups 0.75, so active touches at the "
             "corner of the action box stay within the simulated servos' load limit).",
         ),
-    ] = 0.75,
+    ] = None,
     trials: Annotated[
         int, typer.Option(min=1, help="Trials per object, policy and observation source.")
     ] = 25,

@@ -217,6 +217,10 @@ def _status_document(lease: RigLease, handle: RigHandle) -> dict[str, Any]:
         )
     if handle.object_names is not None:
         document["simulated_table"] = handle.table
+        if handle.table is not None:
+            from hardware.sim.materials import get_table
+
+            document["simulated_table_action_std"] = get_table(handle.table).action_std
         document["simulated_objects"] = handle.object_names
         document["simulated_materials"] = {
             name: str(record["material"])

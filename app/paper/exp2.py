@@ -54,8 +54,9 @@ class Experiment2Settings:
     Attributes:
         table: Simulated table (the paper's four cups: ``paper``).
         touches_per_object: Random-design training touches per object (the paper: 100).
-        action_scale: Standard deviation of each action component of the design (0.75: at 1,
-            an active touch at the corner of the action box can overload the simulated FFJ3).
+        action_scale: Standard deviation of each action component of the design (``None``: the
+            table's :attr:`~hardware.sim.materials.Table.action_std`; the paper's cups 0.75 — at
+            1 an active touch at the corner of the action box can overload the simulated FFJ3).
         latent_dim: ds (the paper: 2).
         optimizer: Fit optimiser (the paper: differential evolution, ``de``).
         restarts: Random restarts of the fit on top of its data-driven starts.
@@ -72,7 +73,7 @@ class Experiment2Settings:
 
     table: str = "paper"
     touches_per_object: int = 100
-    action_scale: float = 0.75
+    action_scale: float | None = None
     latent_dim: int = 2
     optimizer: str = "de"
     restarts: int = 2
@@ -88,6 +89,15 @@ class Experiment2Settings:
     seed: int = 0
     workers: int | None = None
     placement: Placement = "trial"
+
+    @property
+    def design_std(self) -> float:
+        """The design's spread: ``action_scale``, or the table's own."""
+        if self.action_scale is not None:
+            return self.action_scale
+        from hardware.sim.materials import get_table
+
+        return get_table(self.table).action_std
 
 
 @dataclass(frozen=True)
@@ -134,7 +144,7 @@ class Experiment2Result:
             "settings": {
                 "table": s.table,
                 "touches_per_object": s.touches_per_object,
-                "action_scale": s.action_scale,
+                "action_scale": s.design_std,
                 "latent_dim": s.latent_dim,
                 "optimizer": s.optimizer,
                 "restarts": s.restarts,
@@ -206,8 +216,9 @@ class Experiment2Result:
         h = self.model.hyperparameters
         return (
             f"L = {self.data.n_objects:d}, {s.touches_per_object:d} touches each, "
-            f"dx = {h.action_dim:d}, dy = {h.observation_dim:d}, ds = {s.latent_dim:d}, "
-            f"{escape(s.optimizer)} fit, T = {s.steps:d}, Σ0 = diag({s.prior_variance:g}, …)"
+            f"dx = {h.action_dim:d} (std {s.design_std:g}), dy = {h.observation_dim:d}, "
+            f"ds = {s.latent_dim:d}, {escape(s.optimizer)} fit, T = {s.steps:d}, "
+            f"Σ0 = diag({s.prior_variance:g}, …)"
         )
 
     def _manifold_text(self) -> str:
@@ -243,7 +254,7 @@ def collect_training(
             len(slots),
             settings.touches_per_object,
             np.zeros(dx),
-            settings.action_scale**2 * np.eye(dx),
+            settings.design_std**2 * np.eye(dx),
             rng,
         )
         object_index, xs, ys = [], [], []

@@ -269,11 +269,15 @@ class Table:
         name: Table name (``--table NAME``).
         objects: Preset object names, slot 0 first.
         description: What the table is for.
+        action_std: Spread (std per action component) of a random collection design suited to
+            the table: wide enough that random touches show what separates its objects, narrow
+            enough that the planner's deepest presses stay within the servos' load limit.
     """
 
     name: str
     objects: tuple[str, ...]
     description: str
+    action_std: float = 1.0
 
 
 TABLES: dict[str, Table] = {
@@ -285,7 +289,14 @@ TABLES: dict[str, Table] = {
             "The paper's four cups, a glazed mug, a wooden block and a foam sponge: objects that "
             "differ in kind (any touch tells them apart).",
         ),
-        Table("paper", PAPER_CUPS, "The paper's four cups (Fig. 6a: O1..O4)."),
+        Table(
+            "paper",
+            PAPER_CUPS,
+            "The paper's four cups (Fig. 6a: O1..O4).",
+            # At 1, an active touch at the corner of the action box pressed deep enough into
+            # the rigid cups to overload the simulated FFJ3 servo.
+            action_std=0.75,
+        ),
         Table(
             "lookalike_cups",
             ("pet_cup", "pet_cup_stiff", "pet_cup_waxed", "pet_cup_water"),
@@ -299,12 +310,15 @@ TABLES: dict[str, Table] = {
             "Four cushions with one foam cover: plain, or with a rubber sheet, a cork board or "
             "a wooden board 5.5 mm under the surface. Only a press deep enough to reach the "
             "insert tells them apart.",
+            # About one random touch in ten then presses down to the inserts (docs/simulation.md).
+            action_std=1.5,
         ),
         Table(
             "textures",
             ("texture_20um", "texture_30um", "texture_45um", "texture_70um"),
             "One micro-textured steel plate at four pitches: the same material, relief and "
             "heat; only the vibration's frequency (sliding speed / pitch) differs.",
+            action_std=0.75,  # rigid plates: deeper presses overload FFJ3 (docs/simulation.md)
         ),
     )
 }

@@ -88,3 +88,9 @@ def test_only_a_deep_press_tells_the_cushions_apart() -> None:
     assert np.all(np.diff(pressure[:, 1]) > 0.3)
     heat = clean[:, :, 3]
     assert np.all(np.diff(heat[:, 1]) > 0.5)  # a larger contact area draws more heat
+
+
+def test_each_table_says_how_widely_to_vary_its_touches() -> None:
+    assert get_table("cushions").action_std == 1.5
+    assert get_table("paper").action_std == 0.75
+    assert get_table("default").action_std == 1.0
