@@ -40,20 +40,10 @@ TrialKey = tuple[str, str, int]
 
 
 def rig_tables() -> dict[str, tuple[str, ...]]:
-    """Simulated rig tables by name: ``default`` and any table ``hardware.sim.materials`` names.
+    """The simulated rig's named tables (:data:`hardware.sim.materials.TABLES`): name → objects."""
+    from hardware.sim.materials import TABLES
 
-    ``hardware.sim.materials.TABLES`` (name → a table with ``objects``, or the object names),
-    when it exists, adds its tables.
-    """
-    from hardware.sim import materials
-
-    tables: dict[str, tuple[str, ...]] = {"default": tuple(materials.DEFAULT_TABLE)}
-    extra = getattr(materials, "TABLES", None)
-    if isinstance(extra, dict):
-        for name, table in extra.items():
-            objects: Any = getattr(table, "objects", table)
-            tables[str(name)] = tuple(str(o) for o in objects)
-    return tables
+    return {name: table.objects for name, table in TABLES.items()}
 
 
 def synthetic_world(spec: EvaluationSpec) -> World:
