@@ -137,6 +137,21 @@ def time_evaluation(data: TrainingData, ds: int, repeats: int = 5) -> tuple[floa
     return statistics.median(grads), statistics.median(values)
 
 
+def full_equivalents(
+    counts: dict[tuple[int, int, str], list[float]], n: int, dy: int
+) -> dict[str, float]:
+    """Evaluations in units of one value-and-gradient on all the data (cost ∝ dy·N³; a
+    value alone, a Cholesky factor without the inverse, counts 1/3), by problem: ``joint``
+    (all the data, every feature), ``screen`` (the subsample, every feature),
+    ``hyperparameters`` (one feature at a time, either size)."""
+    out: dict[str, float] = defaultdict(float)
+    for (size, features, kind), (evaluations, _) in counts.items():
+        weight = (size / n) ** 3 * features / dy * (1.0 if kind == "grad" else 1.0 / 3.0)
+        stage = "hyperparameters" if features < dy else "joint" if size == n else "screen"
+        out[stage] += evaluations * weight
+    return dict(out)
+
+
 def run_fit(data: TrainingData, ds: int, seed: int, options: FitOptions) -> dict[str, Any]:
     _COUNTS.clear()
     phase_seconds: dict[str, float] = defaultdict(float)
@@ -210,18 +225,28 @@ def main() -> None:
                     f"N={k[0]} dy={k[1]} {k[2]}: {int(v[0])} evals {v[1]:.1f} s"
                     for k, v in sorted(result["counts"].items())
                 )
+                equivalents = full_equivalents(result["counts"], n, dy)
+                total = sum(equivalents.values())
+                result["equivalents"] = total
+                shares = ", ".join(f"{k} {v:.0f}" for k, v in sorted(equivalents.items()))
                 phases = ", ".join(f"{k} {v:.1f} s" for k, v in result["phases"].items())
                 starts = " ".join(f"{v:.1f}" for v in result["starts"])
                 print(
                     f"  fit {repeat}: {result['seconds']:.1f} s (cpu {result['cpu']:.1f} s), "
                     f"log-lik {result['log_likelihood']:.3f}, winner start "
                     f"{result['best_start']} with {result['iterations']} iterations\n"
-                    f"    evaluations: {counts}\n    stages: {phases}\n"
+                    f"    evaluations: {counts}\n"
+                    f"    in full evaluations: {shares}; total {total:.0f} x "
+                    f"{flops / 1e9:.2f} GFLOP = {total * flops / 1e12:.2f} TFLOP\n"
+                    f"    stages: {phases}\n"
                     f"    starts' log-lik: {starts}"
                 )
             seconds = statistics.median(r["seconds"] for r in results)
+            cpu = statistics.median(r["cpu"] for r in results)
+            equivalent = statistics.median(r["equivalents"] for r in results)
             print(
-                f"ds={ds} median fit {seconds:.1f} s over {len(results)}, log-lik "
+                f"ds={ds} median fit {seconds:.1f} s (cpu {cpu:.1f} s, {equivalent:.0f} full "
+                f"evaluations) over {len(results)}, log-lik "
                 f"{statistics.median(r['log_likelihood'] for r in results):.3f}"
             )
 

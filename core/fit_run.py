@@ -418,6 +418,10 @@ class FitRun:
         options = self.options
         base = start.vector.copy()
         initial_iterations = start.iterations
+        # The runs that end the fit stop within about a nat (FitOptions.joint_stall_nats).
+        final = problem is self.full and phase == "joint"
+        stall_nats = options.joint_stall_nats if final else options.stall_nats
+        stall_iterations = options.joint_stall_iterations if final else options.stall_iterations
 
         def run(callback: Callable[[Any], None]) -> scipy.optimize.OptimizeResult:
             return minimize_free(
@@ -430,8 +434,8 @@ class FitRun:
                 options.ftol,
                 options.gtol,
                 callback,
-                options.stall_nats,
-                options.stall_iterations,
+                stall_nats,
+                stall_iterations,
                 options.stall_relative,
                 options.joint_lbfgs_memory if problem is self.full else DEFAULT_LBFGS_MEMORY,
             )

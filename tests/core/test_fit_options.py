@@ -1,10 +1,14 @@
-"""The fit-cost settings: L-BFGS-B memory and the cap on the screening subsample."""
+"""The fit-cost settings: L-BFGS-B memory, the cap on the screening subsample and the stall
+test of the final joint runs."""
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 import pytest
 
+from core import fit_run
 from core.errors import InvalidInputError
 from core.fit_options import FitOptions
 from core.fit_run import FitRun
@@ -65,8 +69,47 @@ def test_a_cap_above_the_data_leaves_screening_off() -> None:
         ("joint_lbfgs_memory", 2.5, "joint_lbfgs_memory: expected an integer"),
         ("screen_max_touches", -1, "screen_max_touches: must be ≥ 0"),
         ("screen_max_touches", True, "screen_max_touches: expected an integer"),
+        ("joint_stall_nats", -0.5, "joint_stall_nats: must be a finite number ≥ 0"),
+        ("joint_stall_nats", float("inf"), "joint_stall_nats: must be a finite number ≥ 0"),
+        ("joint_stall_nats", "1", "joint_stall_nats: expected a number"),
+        ("joint_stall_iterations", 0, "joint_stall_iterations: must be ≥ 1"),
+        ("joint_stall_iterations", 2.5, "joint_stall_iterations: expected an integer"),
     ],
 )
 def test_bad_cost_options_are_named(field: str, value: object, message: str) -> None:
     with pytest.raises(InvalidInputError, match=message):
         FitOptions(**{field: value})  # type: ignore[arg-type]
+
+
+def test_the_joint_stall_test_applies_to_the_runs_on_all_the_data_only(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # Every L-BFGS-B run of FitRun goes through fit_run.minimize_free (the hyperparameter
+    # stages call it from core.hyperparameter_fit, unaffected): screening runs must keep
+    # stall_nats / stall_iterations, the joint runs on all the data use the joint ones.
+    data = _data(n_objects=4, touches=30)
+    seen: list[tuple[int, float, int]] = []
+
+    def recording(objective: Any, *args: Any) -> Any:
+        # fit_run passes everything positionally: ..., callback, stall_nats, stall_iterations
+        seen.append((objective.data.n_touches, args[8], args[9]))
+        return minimize_free(objective, *args)
+
+    monkeypatch.setattr(fit_run, "minimize_free", recording)
+    options = FitOptions(
+        restarts=1,
+        screen_touches_per_object=10,
+        stall_nats=0.01,
+        stall_iterations=7,
+        joint_stall_nats=0.3,
+        joint_stall_iterations=11,
+    )
+    for _ in FitRun(data, 1, np.random.default_rng(2), options).events():
+        pass
+    screening = [(nats, window) for n, nats, window in seen if n == 40]
+    joint = [(nats, window) for n, nats, window in seen if n == data.n_touches]
+    assert len(screening) == 2  # the PCA start (below 8 objects, no Isomap) + 1 random
+    assert joint
+    assert len(screening) + len(joint) == len(seen)
+    assert set(screening) == {(0.01, 7)}
+    assert set(joint) == {(0.3, 11)}
