@@ -69,10 +69,16 @@ class FitOptions:
         joint_lbfgs_memory: Correction pairs (scipy's ``maxcor``, ≥ 1) of the joint L-BFGS-B
             runs on all the data (the screening and hyperparameter stages keep scipy's 10).
             The joint problem has L·ds + dy·(2 + ds + dx) unknowns (140 at L=20, ds=5, dy=5)
-            and ends in a long curved valley of latent length-scales; 30 pairs instead of 10
+            and ends in a long curved valley of latent length-scales. On
+            ``bench/fit_n800.py``'s data (two seeds, ds = 2 and 5) 30 pairs instead of 10
             reached the same optima (within 0.6 nats) in 203-346 instead of 269-519
-            evaluations on ``bench/fit_n800.py``'s data (two seeds, ds = 2 and 5). In the
-            screening stage more pairs cost more evaluations (889 instead of 738 at ds=2).
+            evaluations; with ``joint_stall_nats`` 0.5, 100 pairs instead of 30 took
+            121-215 instead of 120-284 (60: 144-239; 200: 122-214) and ended 0.2-0.9
+            nats higher, within 0.2 nats of the 30-pair, hundredth-of-a-nat fits. Pairs
+            cost L-BFGS-B's own arithmetic ~O(pairs² · unknowns) per iteration: 100 add ~0.3 ms
+            per iteration at 140 unknowns, ~1.2 ms at 2,000 (not measured on the large
+            Kronecker fits). In the screening stage more pairs cost more evaluations (889
+            instead of 738 at ds=2).
         screen_max_touches: Cap on the screening subsample's total size (0 = no cap): it takes
             at most ``max(2, screen_max_touches // L)`` touches per object, fewer than
             ``screen_touches_per_object`` when there are many objects. A dense evaluation
@@ -85,7 +91,9 @@ class FitOptions:
             a hundredth: on ``bench/fit_n800.py``'s data their last 10-40 % of evaluations
             gained under one nat (see :mod:`core.fit_run`). The screening and
             hyperparameter stages keep ``stall_nats``: they only choose and prepare starts,
-            and their paths are left as they were.
+            and their paths are left as they were. On Experiment 1 (``bench/fit_speed.py``,
+            ten seeds, joint runs of ~30 iterations) the same log-likelihoods, with 0-3
+            more evaluations (the window is 30 iterations, not 20).
         joint_stall_iterations: The window of ``joint_stall_nats`` (≥ 1).
     """
 
@@ -109,7 +117,7 @@ class FitOptions:
     stall_nats: float = 1e-2
     stall_iterations: int = 20
     stall_relative: float = 1e-6
-    joint_lbfgs_memory: int = 30
+    joint_lbfgs_memory: int = 100
     screen_max_touches: int = 0
     joint_stall_nats: float = 0.5
     joint_stall_iterations: int = 30
