@@ -88,7 +88,7 @@ class FitOptions:
             final optimisation of every polished start; of every start when nothing is
             screened), in place of ``stall_nats`` there (≥ 0; 0 = never). Those runs end
             the fit, so they stop once the remaining gain looks below about one nat, not
-            a hundredth: on ``bench/fit_n800.py``'s data their last 10-40 % of evaluations
+            a hundredth: on ``bench/fit_n800.py``'s data their last 19-45 % of evaluations
             gained under one nat (see :mod:`core.fit_run`). The screening and
             hyperparameter stages keep ``stall_nats``: they only choose and prepare starts,
             and their paths are left as they were. On Experiment 1 (``bench/fit_speed.py``,

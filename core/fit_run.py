@@ -55,7 +55,7 @@ Every L-BFGS-B run also stops once it stalls (``FitOptions.stall_nats`` /
 ridge cost most of the iterations otherwise. The joint runs on all the data, which end the
 fit, use ``joint_stall_nats`` / ``joint_stall_iterations`` instead (0.5 nats over 30
 iterations): on ``bench/fit_n800.py``'s data (N = 800, two seeds, ds = 2 and 5) the last
-10-40 % of their evaluations gained under one nat, and replaying the recorded runs, that
+19-45 % of their evaluations gained under one nat, and replaying the recorded runs, that
 rule stopped them 0.05-0.93 nats short of where the hundredth-of-a-nat rule stopped; shorter
 windows or larger thresholds stopped on temporary plateaus, 2-5 nats short. The screening
 and hyperparameter stages keep the tighter rule, so the starts and their choice are those
@@ -67,8 +67,8 @@ The likelihood is exactly invariant to scaling one latent dimension of S and eve
 feature's ℓ^s of that dimension by one factor (and to shifting S); its gradient is
 orthogonal to those directions (tests/core/test_likelihood.py), so L-BFGS-B never steps
 along them to first order. Fixing the spread (a penalty zero at the starting spread)
-reached the same optima but took 7-26 % more joint evaluations on the same data, so the
-fit leaves the symmetry alone and normalises at the end (5.).
+reached the same optima (within 0.4 nats) but took 5-26 % more joint evaluations on the
+same data, so the fit leaves the symmetry alone and normalises at the end (5.).
 
 Bounds (log space, relative to the data): see :func:`core.parameters.parameter_bounds`.
 """
