@@ -72,13 +72,9 @@ class FitOptions:
             and ends in a long curved valley of latent length-scales. On
             ``bench/fit_n800.py``'s data (two seeds, ds = 2 and 5) 30 pairs instead of 10
             reached the same optima (within 0.6 nats) in 203-346 instead of 269-519
-            evaluations; with ``joint_stall_nats`` 0.5, 100 pairs instead of 30 took
-            121-215 instead of 120-284 (60: 144-239; 200: 122-214) and ended 0.2-0.9
-            nats higher, within 0.2 nats of the 30-pair, hundredth-of-a-nat fits. Pairs
-            cost L-BFGS-B's own arithmetic ~O(pairs² · unknowns) per iteration: 100 add ~0.3 ms
-            per iteration at 140 unknowns, ~1.2 ms at 2,000 (not measured on the large
-            Kronecker fits). In the screening stage more pairs cost more evaluations (889
-            instead of 738 at ds=2).
+            evaluations. In the screening stage more pairs cost more evaluations (889
+            instead of 738 at ds=2). The polish after a subsample screening uses
+            ``polish_lbfgs_memory`` instead.
         screen_max_touches: Cap on the screening subsample's total size (0 = no cap): it takes
             at most ``max(2, screen_max_touches // L)`` touches per object, fewer than
             ``screen_touches_per_object`` when there are many objects. A dense evaluation
@@ -95,6 +91,18 @@ class FitOptions:
             ten seeds, joint runs of ~30 iterations) the same log-likelihoods, with 0-3
             more evaluations (the window is 30 iterations, not 20).
         joint_stall_iterations: The window of ``joint_stall_nats`` (≥ 1).
+        polish_lbfgs_memory: Correction pairs of the joint runs on all the data that polish
+            starts screened on a subsample (≥ 1); they start from fresh hyperparameters.
+            On ``bench/fit_n800.py``'s data, with ``joint_stall_nats`` 0.5, 100 pairs
+            instead of 30 took 121-215 joint evaluations instead of 120-284 (60: 144-239;
+            200: 122-214) and ended 0.2-0.9 nats higher, within 0.2 nats of the 30-pair,
+            hundredth-of-a-nat fits; on Experiment 1 nothing changed. Not used where
+            screening runs on all the data (a shared design with many objects: there the
+            polish continues from the screened parameters, and 100 pairs in every run on all
+            the data moved a L=100 × M=60 Kronecker fit's end point by −55 and +582 nats on
+            two seeds) nor without screening: ``joint_lbfgs_memory`` there. Pairs cost
+            L-BFGS-B's own arithmetic ~O(pairs² · unknowns) per iteration: 100 add ~0.3 ms
+            at 140 unknowns, ~1.2 ms at 2,000.
     """
 
     optimizer: Optimizer = "lbfgs"
@@ -117,10 +125,11 @@ class FitOptions:
     stall_nats: float = 1e-2
     stall_iterations: int = 20
     stall_relative: float = 1e-6
-    joint_lbfgs_memory: int = 100
+    joint_lbfgs_memory: int = 30
     screen_max_touches: int = 0
     joint_stall_nats: float = 0.5
     joint_stall_iterations: int = 30
+    polish_lbfgs_memory: int = 100
 
     def __post_init__(self) -> None:
         if self.optimizer not in OPTIMIZERS:
@@ -142,6 +151,7 @@ class FitOptions:
             "joint_lbfgs_memory": 1,
             "screen_max_touches": 0,
             "joint_stall_iterations": 1,
+            "polish_lbfgs_memory": 1,
         }
         for name, minimum in minimums.items():
             value = getattr(self, name)

@@ -438,6 +438,10 @@ class FitRun:
         final = problem is self.full and phase == "joint"
         stall_nats = options.joint_stall_nats if final else options.stall_nats
         stall_iterations = options.joint_stall_iterations if final else options.stall_iterations
+        memory = DEFAULT_LBFGS_MEMORY
+        if problem is self.full:
+            polish = final and self.screen is not None and self.screen is not self.full
+            memory = options.polish_lbfgs_memory if polish else options.joint_lbfgs_memory
 
         def run(callback: Callable[[Any], None]) -> scipy.optimize.OptimizeResult:
             return minimize_free(
@@ -453,7 +457,7 @@ class FitRun:
                 stall_nats,
                 stall_iterations,
                 options.stall_relative,
-                options.joint_lbfgs_memory if problem is self.full else DEFAULT_LBFGS_MEMORY,
+                memory,
             )
 
         stream = stream_optimiser(run, options.progress_every)
