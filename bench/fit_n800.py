@@ -15,43 +15,61 @@ ratios of figures taken by the same script in the same session.
 Run: ``.venv/bin/python -m bench.fit_n800 [--ds 2 5] [--repeats 1] [--seed 0] [--profile]
 [--options '{"restarts": 0}']``
 
-Where the time goes (fit seed 100; before = main at 4b31b0f, after = this branch; the same
-script, on the shared 2-core machine at load 6-16, so wall seconds are inflated 2-3x and vary
-run to run; the CPU seconds of the process are the fairer figure, though contention inflates
-them too):
+Where the time goes (fit seed 100, data seeds 0 and 1; "before" = main at d7bf187, run as
+``--options '{"joint_stall_nats": 0.01, "joint_stall_iterations": 20, "joint_lbfgs_memory":
+30}'``, which reproduces it exactly; "after" = the defaults; the two side by side on the
+shared 2-core machine at load 5-8, so CPU seconds are inflated by contention and the
+evaluation counts, which are deterministic, are the fairer figure):
 
 * One evaluation with gradient on all the data costs dy·N³ = 2.56 GFLOP (Cholesky N³/3, the
-  inverse from the factor 2N³/3, per feature); the LAPACK calls alone run at ~35-45 GFLOP/s on
-  one thread here (``dpotrf`` 3.8 ms + ``dpotri`` 8.3 ms per feature at N = 800, quiet
-  machine), so ~60 ms is the floor of an exact dense evaluation; we measured ~70-76 ms quiet.
-  The exact gradient needs K⁻¹ entrywise (W ∘ K_f feeds every derivative: block sums for the
-  latents and ℓ^s, its sum for σ_f², Σ W∘K_f∘Δ for ℓ^x), so no evaluation avoids factor and
-  inverse; everything else (kernel, block sums over the L objects, the dx = 1 contraction) is
-  O(N²) and ~15 % of an evaluation.
-* Seed 0, ds=2. Before: 53.6 s CPU (121.7 s wall), log-lik 4757.354; 269 evaluations on all
-  the data (joint), 738 on the N = 500 screening subsample (6 starts × ≤ 100 iterations),
-  710 + 380 one-feature evaluations (hyperparameter stages, N = 500 and 800). In
-  full-evaluation equivalents (N³ scaling): joint 269, screening ~180, hyperparameters ~110.
-  After: 41.8 s CPU (95.2 s wall), log-lik 4757.389; joint 203 evaluations.
-* Seed 0, ds=5. Before: 72.3 s CPU (179.5 s wall), log-lik 4990.768; joint 519 evaluations
-  (its last ~400 iterations gain 35 nats along a valley of latent length-scales), screening
-  678. After: 51.5 s CPU (102.3 s wall), log-lik 4990.239 (0.53 lower); joint 346.
-* Seed 1, ds=2: before 62.6 s CPU, 4888.170, joint 383; after 50.9 s CPU, 4888.162, joint 289.
-* Seed 1, ds=5: before 52.8 s CPU, 5085.195, joint 315; after 46.5 s CPU, 5085.396, joint 266.
-* With ``restarts=0`` (a user option, not the default; measured at the intermediate commit
-  ea045cd): seed 0 ds=2 28.6 s CPU, ds=5 39.8 s CPU, the same log-likelihoods as the default
-  fit of that commit (the random starts never won at L = 20 here; on Experiment 1 they win
-  on half the seeds, so the default keeps them).
+  inverse from the factor 2N³/3, per feature): ``dpotrf`` 3.8 ms + ``dpotri`` 7.9 ms per
+  feature at N = 800 on a quiet core (~44 GFLOP/s), 58 of the 65-68 ms of an evaluation;
+  the kernel (one exponential per entry, the action distances cached and shared by every
+  feature) 6.4 ms, block sums and the rest ~3 ms. The exact gradient needs K⁻¹ entrywise
+  (W ∘ K_f feeds every derivative: block sums for the latents and ℓ^s, its sum for σ_f²,
+  Σ W∘K_f∘Δ for ℓ^x, the trace for σ_n²), so no evaluation avoids factor and inverse, and
+  none needs a solve beyond β = K⁻¹y.
+* Full-evaluation equivalents (the ``in full evaluations`` line), before → after:
 
-What stops 20 s: the joint stage alone needs 200-350 evaluations on all the data
-(0.5-0.9 TFLOP, 13-25 s at the LAPACK rate) and the screening of six starts the equivalent of
-~150-180 more. A smaller screening subsample (``screen_max_touches=200``) cut screening ~10x
-but changed which start won: +31 and +34 nats at ds=2, −6 and −25 nats at ds=5 (with and
-without the longer memory), where more starts were then polished (687-948 joint
-evaluations); it stays off by default. The fit's choice among its starts is also sensitive to
-round-off: with ``dpotri`` instead of the recursive inverse at N = 500 (the two break even
-there) the screened starts moved and seed 1, ds=2 ended 17 nats lower (4871.2), with either
-L-BFGS-B memory; so ``dpotri`` is used only above order 512.
+  ====================  =========  =========  ===========  ==============================
+  data seed, ds         CPU s      joint      total        log-likelihood
+  ====================  =========  =========  ===========  ==============================
+  0, ds=2               41.7→36.2  205→123    494→412      4757.389→4757.404
+  0, ds=5               53.7→44.7  348→217    663→532      4990.239→4990.158
+  1, ds=2               51.0→45.3  291→207    607→523      4888.162→4888.328
+  1, ds=5               48.2→43.1  268→194    586→512      5085.396→5085.444
+  ====================  =========  =========  ===========  ==============================
+
+  The screening (156-209) and hyperparameter stages (107-161) are unchanged: only the joint
+  runs on all the data changed (``polish_lbfgs_memory`` 100 L-BFGS-B pairs instead of 30;
+  stop at < 0.5 nats over 30 iterations instead of 0.01 over 20). Pairs with the 0.5-nat
+  stall: 30 → 120-284 joint evaluations, 60 → 144-239, 100 → 121-215, 200 → 122-214; the
+  stall alone cost 0.04-0.92 nats, the 100 pairs won them back. On a shared-design
+  (Kronecker) fit at L=100 × M=60 (dy=3, ds=2, screened on all the data) 100 pairs in every
+  run on all the data moved the end point by −55 and +582 nats on two seeds, so the 100
+  pairs apply only to the polish after a subsample screening; there the stall alone ended
+  within 0.15 nats of main (24475.4, 24935.5).
+* ``--options '{"restarts": 0}'`` (after, same load): 22.1, 31.2, 28.4, 30.1 s CPU, 284,
+  419, 374, 407 full evaluations (screening 53-61), the same log-likelihoods as the default
+  (the random starts never win on these data; on Experiment 1 they win on half the seeds).
+* Tried and not kept: a gauge penalty fixing each latent dimension's spread and mean (the
+  likelihood is exactly invariant to scaling a dimension of S with its ℓ^s; the gradient is
+  orthogonal to it) — joint 228/436/356/280 instead of 203/346/289/266, the same optima
+  within 0.4 nats; the polish from the screened hyperparameters (instead of fresh ones and
+  the per-feature stage from them) — total 488/637/746/549 instead of 495/664/607/586,
+  4874.6 instead of 4888.2 on seed 1, ds=2; a 0.5-nat stall over 20 iterations in every
+  stage — 2.2 nats lower on seed 0, ds=2 (a temporary plateau after 53 joint evaluations).
+* The end point depends on the path: a 400-touch screening subsample
+  (``screen_max_touches=400``) gave 4774.1, 4982.1, 4871.7, 5113.3 (−16 to +28 nats), fit
+  seed 101 gave 4772.5, 4990.7, 4859.1, 5095.0 (−29 to +15). Earlier (main at 4b31b0f):
+  ``screen_max_touches=200`` cut screening ~10x but moved the winner by −25 to +34 nats, and
+  ``dpotri`` instead of the recursive inverse at N = 500 moved seed 1, ds=2 17 nats lower,
+  which is why ``dpotri`` is used only above order 512. Nor is the end point an optimum at
+  ds = 5: from seed 1's, 1,500 more iterations without a stall test reached 5093.1 (+7.7),
+  still creeping; from seed 0, ds=2's, +0.06 (converged).
+
+What stops 20 s: at ~40 GFLOP/s 20 s buys ~300 full evaluations (0.78 TFLOP); the screening
+and hyperparameter stages take 290-320 of them and the final joint stage 120-220 more.
 """
 
 from __future__ import annotations
@@ -137,6 +155,21 @@ def time_evaluation(data: TrainingData, ds: int, repeats: int = 5) -> tuple[floa
     return statistics.median(grads), statistics.median(values)
 
 
+def full_equivalents(
+    counts: dict[tuple[int, int, str], list[float]], n: int, dy: int
+) -> dict[str, float]:
+    """Evaluations in units of one value-and-gradient on all the data (cost ∝ dy·N³; a
+    value alone, a Cholesky factor without the inverse, counts 1/3), by problem: ``joint``
+    (all the data, every feature), ``screen`` (the subsample, every feature),
+    ``hyperparameters`` (one feature at a time, either size)."""
+    out: dict[str, float] = defaultdict(float)
+    for (size, features, kind), (evaluations, _) in counts.items():
+        weight = (size / n) ** 3 * features / dy * (1.0 if kind == "grad" else 1.0 / 3.0)
+        stage = "hyperparameters" if features < dy else "joint" if size == n else "screen"
+        out[stage] += evaluations * weight
+    return dict(out)
+
+
 def run_fit(data: TrainingData, ds: int, seed: int, options: FitOptions) -> dict[str, Any]:
     _COUNTS.clear()
     phase_seconds: dict[str, float] = defaultdict(float)
@@ -210,18 +243,28 @@ def main() -> None:
                     f"N={k[0]} dy={k[1]} {k[2]}: {int(v[0])} evals {v[1]:.1f} s"
                     for k, v in sorted(result["counts"].items())
                 )
+                equivalents = full_equivalents(result["counts"], n, dy)
+                total = sum(equivalents.values())
+                result["equivalents"] = total
+                shares = ", ".join(f"{k} {v:.0f}" for k, v in sorted(equivalents.items()))
                 phases = ", ".join(f"{k} {v:.1f} s" for k, v in result["phases"].items())
                 starts = " ".join(f"{v:.1f}" for v in result["starts"])
                 print(
                     f"  fit {repeat}: {result['seconds']:.1f} s (cpu {result['cpu']:.1f} s), "
                     f"log-lik {result['log_likelihood']:.3f}, winner start "
                     f"{result['best_start']} with {result['iterations']} iterations\n"
-                    f"    evaluations: {counts}\n    stages: {phases}\n"
+                    f"    evaluations: {counts}\n"
+                    f"    in full evaluations: {shares}; total {total:.0f} x "
+                    f"{flops / 1e9:.2f} GFLOP = {total * flops / 1e12:.2f} TFLOP\n"
+                    f"    stages: {phases}\n"
                     f"    starts' log-lik: {starts}"
                 )
             seconds = statistics.median(r["seconds"] for r in results)
+            cpu = statistics.median(r["cpu"] for r in results)
+            equivalent = statistics.median(r["equivalents"] for r in results)
             print(
-                f"ds={ds} median fit {seconds:.1f} s over {len(results)}, log-lik "
+                f"ds={ds} median fit {seconds:.1f} s (cpu {cpu:.1f} s, {equivalent:.0f} full "
+                f"evaluations) over {len(results)}, log-lik "
                 f"{statistics.median(r['log_likelihood'] for r in results):.3f}"
             )
 

@@ -69,15 +69,40 @@ class FitOptions:
         joint_lbfgs_memory: Correction pairs (scipy's ``maxcor``, ≥ 1) of the joint L-BFGS-B
             runs on all the data (the screening and hyperparameter stages keep scipy's 10).
             The joint problem has L·ds + dy·(2 + ds + dx) unknowns (140 at L=20, ds=5, dy=5)
-            and ends in a long curved valley of latent length-scales; 30 pairs instead of 10
+            and ends in a long curved valley of latent length-scales. On
+            ``bench/fit_n800.py``'s data (two seeds, ds = 2 and 5) 30 pairs instead of 10
             reached the same optima (within 0.6 nats) in 203-346 instead of 269-519
-            evaluations on ``bench/fit_n800.py``'s data (two seeds, ds = 2 and 5). In the
-            screening stage more pairs cost more evaluations (889 instead of 738 at ds=2).
+            evaluations. In the screening stage more pairs cost more evaluations (889
+            instead of 738 at ds=2). The polish after a subsample screening uses
+            ``polish_lbfgs_memory`` instead.
         screen_max_touches: Cap on the screening subsample's total size (0 = no cap): it takes
             at most ``max(2, screen_max_touches // L)`` touches per object, fewer than
             ``screen_touches_per_object`` when there are many objects. A dense evaluation
             costs ~N³, so 25 touches from each of 20 objects (N = 500) screen at a third of
             the cost of all N = 800 touches, not at the ~1/64 of a small subsample.
+        joint_stall_nats: The stall test of the joint L-BFGS-B runs on all the data (the
+            final optimisation of every polished start; of every start when nothing is
+            screened), in place of ``stall_nats`` there (≥ 0; 0 = never). Those runs end
+            the fit, so they stop once the remaining gain looks below about one nat, not
+            a hundredth: on ``bench/fit_n800.py``'s data their last 19-45 % of evaluations
+            gained under one nat (see :mod:`core.fit_run`). The screening and
+            hyperparameter stages keep ``stall_nats``: they only choose and prepare starts,
+            and their paths are left as they were. On Experiment 1 (``bench/fit_speed.py``,
+            ten seeds, joint runs of ~30 iterations) the same log-likelihoods, with 0-3
+            more evaluations (the window is 30 iterations, not 20).
+        joint_stall_iterations: The window of ``joint_stall_nats`` (≥ 1).
+        polish_lbfgs_memory: Correction pairs of the joint runs on all the data that polish
+            starts screened on a subsample (≥ 1); they start from fresh hyperparameters.
+            On ``bench/fit_n800.py``'s data, with ``joint_stall_nats`` 0.5, 100 pairs
+            instead of 30 took 121-215 joint evaluations instead of 120-284 (60: 144-239;
+            200: 122-214) and ended 0.2-0.9 nats higher, within 0.2 nats of the 30-pair,
+            hundredth-of-a-nat fits; on Experiment 1 nothing changed. Not used where
+            screening runs on all the data (a shared design with many objects: there the
+            polish continues from the screened parameters, and 100 pairs in every run on all
+            the data moved a L=100 × M=60 Kronecker fit's end point by −55 and +582 nats on
+            two seeds) nor without screening: ``joint_lbfgs_memory`` there. Pairs cost
+            L-BFGS-B's own arithmetic ~O(pairs² · unknowns) per iteration: 100 add ~0.3 ms
+            at 140 unknowns, ~1.2 ms at 2,000.
     """
 
     optimizer: Optimizer = "lbfgs"
@@ -102,6 +127,9 @@ class FitOptions:
     stall_relative: float = 1e-6
     joint_lbfgs_memory: int = 30
     screen_max_touches: int = 0
+    joint_stall_nats: float = 0.5
+    joint_stall_iterations: int = 30
+    polish_lbfgs_memory: int = 100
 
     def __post_init__(self) -> None:
         if self.optimizer not in OPTIMIZERS:
@@ -122,6 +150,8 @@ class FitOptions:
             "stall_iterations": 1,
             "joint_lbfgs_memory": 1,
             "screen_max_touches": 0,
+            "joint_stall_iterations": 1,
+            "polish_lbfgs_memory": 1,
         }
         for name, minimum in minimums.items():
             value = getattr(self, name)
@@ -133,7 +163,7 @@ class FitOptions:
             raise InvalidInputError(
                 f"structure: expected one of {', '.join(STRUCTURES)}, received {self.structure!r}."
             )
-        for name in ("stall_nats", "stall_relative"):
+        for name in ("stall_nats", "stall_relative", "joint_stall_nats"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float | np.floating):
                 raise InvalidInputError(f"{name}: expected a number, received {value!r}.")

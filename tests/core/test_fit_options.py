@@ -1,10 +1,14 @@
-"""The fit-cost settings: L-BFGS-B memory and the cap on the screening subsample."""
+"""The fit-cost settings: L-BFGS-B memory, the cap on the screening subsample and the stall
+test of the final joint runs."""
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 import pytest
 
+from core import fit_run
 from core.errors import InvalidInputError
 from core.fit_options import FitOptions
 from core.fit_run import FitRun
@@ -65,8 +69,53 @@ def test_a_cap_above_the_data_leaves_screening_off() -> None:
         ("joint_lbfgs_memory", 2.5, "joint_lbfgs_memory: expected an integer"),
         ("screen_max_touches", -1, "screen_max_touches: must be ≥ 0"),
         ("screen_max_touches", True, "screen_max_touches: expected an integer"),
+        ("joint_stall_nats", -0.5, "joint_stall_nats: must be a finite number ≥ 0"),
+        ("joint_stall_nats", float("inf"), "joint_stall_nats: must be a finite number ≥ 0"),
+        ("joint_stall_nats", "1", "joint_stall_nats: expected a number"),
+        ("joint_stall_iterations", 0, "joint_stall_iterations: must be ≥ 1"),
+        ("joint_stall_iterations", 2.5, "joint_stall_iterations: expected an integer"),
+        ("polish_lbfgs_memory", 0, "polish_lbfgs_memory: must be ≥ 1"),
     ],
 )
 def test_bad_cost_options_are_named(field: str, value: object, message: str) -> None:
     with pytest.raises(InvalidInputError, match=message):
         FitOptions(**{field: value})  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("screened", [True, False])
+def test_the_joint_stall_test_and_polish_memory_apply_to_the_final_runs_only(
+    monkeypatch: pytest.MonkeyPatch, screened: bool
+) -> None:
+    # Every L-BFGS-B run of FitRun goes through fit_run.minimize_free (the hyperparameter
+    # stages call it from core.hyperparameter_fit, unaffected). Screening runs must keep
+    # stall_nats / stall_iterations and scipy's 10 pairs; the joint runs on all the data use
+    # the joint stall test, with polish_lbfgs_memory after a subsample screening and
+    # joint_lbfgs_memory without screening.
+    data = _data(n_objects=4, touches=30)
+    seen: list[tuple[int, float, int, int]] = []
+
+    def recording(objective: Any, *args: Any) -> Any:
+        # fit_run passes everything positionally:
+        # ..., callback, stall_nats, stall_iterations, stall_relative, memory
+        seen.append((objective.data.n_touches, args[8], args[9], args[11]))
+        return minimize_free(objective, *args)
+
+    monkeypatch.setattr(fit_run, "minimize_free", recording)
+    options = FitOptions(
+        restarts=1,
+        screen_touches_per_object=10 if screened else 0,
+        stall_nats=0.01,
+        stall_iterations=7,
+        joint_stall_nats=0.3,
+        joint_stall_iterations=11,
+        joint_lbfgs_memory=23,
+        polish_lbfgs_memory=17,
+    )
+    for _ in FitRun(data, 1, np.random.default_rng(2), options).events():
+        pass
+    screening = {(nats, window, memory) for n, nats, window, memory in seen if n == 40}
+    joint = [(nats, window, memory) for n, nats, window, memory in seen if n == 120]
+    assert len(joint) >= 1
+    assert len(seen) == len(joint) + (2 if screened else 0)  # PCA (no Isomap below 8) + 1
+    assert screening == ({(0.01, 7, 10)} if screened else set())
+    assert set(joint) == {(0.3, 11, 17 if screened else 23)}
