@@ -29,7 +29,8 @@ Pure maths: the fit is a function argument, randomness comes in as a generator.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import dataclasses
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -37,6 +38,7 @@ import numpy as np
 import scipy.optimize
 
 from core.errors import InvalidInputError
+from core.nested_fits import StartedFit, iter_nested_fits
 from core.object_posterior import touch_log_likelihoods
 from core.posterior import predict_model_space
 from core.types import ManifoldModel, TrainingData
@@ -63,6 +65,10 @@ class CandidateScore:
         standard_error: Standard error of ``mean`` over the folds.
         difference: Mean over folds of this candidate's score minus the best candidate's.
         difference_standard_error: Standard error of ``difference`` (0 for the best).
+        fit_log_likelihoods: Log-likelihood of each fold's training fit (with nested fits
+            non-decreasing in ds fold by fold).
+        carried_over: Folds in which the ds fit ended below the ds - 1 optimum, which was
+            kept instead (:mod:`core.nested_fits`; 0 without nesting).
     """
 
     latent_dim: int
@@ -71,6 +77,8 @@ class CandidateScore:
     standard_error: float
     difference: float
     difference_standard_error: float
+    fit_log_likelihoods: tuple[float, ...] = ()
+    carried_over: int = 0
 
 
 @dataclass(frozen=True)
@@ -296,29 +304,36 @@ def held_out_scores(
 
 def select_latent_dim(
     data: TrainingData,
-    fit: Callable[[TrainingData, int], ManifoldModel],
+    fit: StartedFit,
     rng: np.random.Generator,
     candidates: Sequence[int] | None = None,
     n_folds: int = DEFAULT_FOLDS,
     callback: Callable[[int, int, float], None] | None = None,
     criterion: Criterion = "touches",
+    nested: bool = True,
 ) -> LatentSelection:
     """Choose ds by cross-validation (module docstring).
 
     Args:
         data: Raw training touches.
-        fit: Fits a model to training touches at a latent dimension (raw data in, a model that
-            maps raw observations itself out, e.g. with a noise model).
-        rng: Random generator (the folds, and the halves for ``"objects"``).
+        fit: Fits a model to training touches at a latent dimension, with extra starting
+            latents (each (L, ds), e.g. passed on as ``FitOptions.initial_latents``; raw data
+            in, a model that maps raw observations itself out, e.g. with a noise model).
+        rng: Random generator (the folds, the halves for ``"objects"``, the nested starts).
         candidates: The ds to try; default :func:`candidate_dims` (of the smallest training
             set for ``"objects"``).
         n_folds: K ≥ 2; for ``"objects"`` lowered to L when there are fewer objects.
-        callback: Called after every fold fit with (ds, fold, score).
+        callback: Called after every candidate's fold fit with (ds, fold, score).
         criterion: ``"touches"`` (within objects) or ``"objects"`` (leave-objects-out).
+        nested: Fit every fold's ds = 1..max(candidates) nested
+            (:func:`core.nested_fits.iter_nested_fits`: each from the one below, so the
+            training log-likelihood is non-decreasing in ds); ``False``: every candidate on
+            its own, with no extra starts.
 
     Returns:
-        The scores and the choice. Cost: K · len(candidates) fits (plus, for ``"objects"``,
-        two latent placements per held-out object and candidate).
+        The scores and the choice. Cost: K · len(candidates) fits (K · max(candidates) when
+        nested; plus, for ``"objects"``, two latent placements per held-out object and
+        candidate).
 
     Raises:
         InvalidInputError: Bad criterion, candidates or folds (too few touches or objects).
@@ -342,15 +357,15 @@ def select_latent_dim(
         )
     dims = tuple(sorted(int(d) for d in dims))
     scores = np.empty((len(dims), n_folds))
+    fitted = np.empty((len(dims), n_folds))
+    carried = np.zeros(len(dims), dtype=np.int64)
     for k in range(n_folds):
+        held = np.flatnonzero(folds == k)
         if criterion == "objects":
-            held = np.flatnonzero(folds == k)
             train = _objects_subset(data, np.flatnonzero(folds != k))
         else:
-            held = np.flatnonzero(folds == k)
             train = _subset(data, np.flatnonzero(folds != k))
-        for c, ds in enumerate(dims):
-            model = fit(train, ds)
+        for c, ds, model, was_carried in _fold_models(train, dims, fit, rng, nested):
             if criterion == "objects":
                 values = held_out_scores(model, data, held, halves)
             else:
@@ -358,9 +373,40 @@ def select_latent_dim(
                     model, data.object_index[held], data.actions[held], data.observations[held]
                 )
             scores[c, k] = float(values.mean())
+            fitted[c, k] = float(model.log_likelihood)
+            carried[c] += was_carried
             if callback is not None:
                 callback(ds, k, scores[c, k])
-    return _summarise(dims, scores, criterion)
+    selection = _summarise(dims, scores, criterion)
+    return dataclasses.replace(
+        selection,
+        candidates=tuple(
+            dataclasses.replace(
+                r,
+                fit_log_likelihoods=tuple(float(v) for v in fitted[c]),
+                carried_over=int(carried[c]),
+            )
+            for c, r in enumerate(selection.candidates)
+        ),
+    )
+
+
+def _fold_models(
+    train: TrainingData,
+    dims: tuple[int, ...],
+    fit: StartedFit,
+    rng: np.random.Generator,
+    nested: bool,
+) -> Iterator[tuple[int, int, ManifoldModel, bool]]:
+    """(row, ds, model, carried over) of every candidate fitted on ``train``, in order."""
+    if not nested:
+        for c, ds in enumerate(dims):
+            yield c, ds, fit(train, ds, ()), False
+        return
+    row = {ds: c for c, ds in enumerate(dims)}
+    for ds, rung in enumerate(iter_nested_fits(train, max(dims), fit, rng), start=1):
+        if ds in row:
+            yield row[ds], ds, rung.model, rung.carried_over
 
 
 def _summarise(dims: tuple[int, ...], scores: FloatArray, criterion: Criterion) -> LatentSelection:
