@@ -8,16 +8,14 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
-from core.latent_selection import (
-    candidate_dims,
-    fold_assignment,
+from core.held_out_objects import (
     held_out_scores,
     log_densities_at,
     object_folds,
     place_latent,
-    select_latent_dim,
     split_halves,
 )
+from core.latent_selection import candidate_dims, fold_assignment, select_latent_dim
 from core.manifold import FitOptions, fit_manifold
 from core.object_posterior import touch_log_likelihoods
 from core.posterior import condition
