@@ -47,7 +47,7 @@ from core.held_out_objects import (
     objects_subset,
     split_halves,
 )
-from core.nested_fits import StartedFit, iter_nested_fits
+from core.nested_fits import StartedFit, nested_fits
 from core.object_posterior import touch_log_likelihoods
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray, IntArray
@@ -181,13 +181,13 @@ def select_latent_dim(
         callback: Called after every candidate's fold fit with (ds, fold, score).
         criterion: ``"touches"`` (within objects) or ``"objects"`` (leave-objects-out).
         nested: Fit every fold's ds = 1..max(candidates) nested
-            (:func:`core.nested_fits.iter_nested_fits`: each from the one below, so the
-            training log-likelihood is non-decreasing in ds); ``False``: every candidate on
-            its own, with no extra starts.
+            (:func:`core.nested_fits.nested_fits`: each from the one below, then each smaller
+            one again from the one above, so the training log-likelihood is non-decreasing in
+            ds); ``False``: every candidate on its own, with no extra starts.
 
     Returns:
-        The scores and the choice. Cost: K · len(candidates) fits (K · max(candidates) when
-        nested; plus, for ``"objects"``, two latent placements per held-out object and
+        The scores and the choice. Cost: K · len(candidates) fits (K · (2 max(candidates) - 1)
+        when nested; plus, for ``"objects"``, two latent placements per held-out object and
         candidate).
 
     Raises:
@@ -258,10 +258,9 @@ def _fold_models(
         for c, ds in enumerate(dims):
             yield c, ds, fit(train, ds, ()), False
         return
-    row = {ds: c for c, ds in enumerate(dims)}
-    for ds, rung in enumerate(iter_nested_fits(train, max(dims), fit, rng), start=1):
-        if ds in row:
-            yield row[ds], ds, rung.model, rung.carried_over
+    rungs = nested_fits(train, max(dims), fit, rng)
+    for c, ds in enumerate(dims):
+        yield c, ds, rungs[ds - 1].model, rungs[ds - 1].carried_over
 
 
 def _summarise(dims: tuple[int, ...], scores: FloatArray, criterion: Criterion) -> LatentSelection:

@@ -9,7 +9,8 @@ fitted with the usual starts plus the ds = k - 1 optimum with one latent coordin
 k - 1 latents leave unexplained in the object profiles. If the ds = k fit still ends below the
 ds = k - 1 optimum, that optimum itself, embedded in ds = k with a constant new coordinate
 (:func:`embed_model`: the same predictions and likelihood), is kept instead. So the maximised
-log-likelihood is non-decreasing in ds by construction.
+log-likelihood is non-decreasing in ds by construction. A downward sweep then refits each
+smaller ds from the projection of the one above (:func:`nested_fits`).
 
 Pure maths: the fit is a function argument, randomness comes in as a generator.
 """
@@ -17,7 +18,7 @@ Pure maths: the fit is a function argument, randomness comes in as a generator.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,12 +44,15 @@ class NestedFit:
         model: The model kept at this ds.
         carried_over: ``True`` when the ds fit ended below the ds - 1 optimum and the latter,
             embedded (:func:`embed_model`), was kept instead.
-        fitted_log_likelihood: Log-likelihood the ds fit itself reached.
+        fitted_log_likelihood: Log-likelihood the ds fit itself reached (of the downward
+            refit when ``from_above``).
+        from_above: ``True`` when the downward refit from the ds + 1 model was kept.
     """
 
     model: ManifoldModel
     carried_over: bool
     fitted_log_likelihood: float
+    from_above: bool = False
 
 
 def appended_starts(model: ManifoldModel, rng: np.random.Generator) -> tuple[FloatArray, ...]:
@@ -126,37 +130,69 @@ def embed_model(model: ManifoldModel) -> ManifoldModel:
     )
 
 
-def iter_nested_fits(
-    data: TrainingData, top_dim: int, fit: StartedFit, rng: np.random.Generator
-) -> Iterator[NestedFit]:
-    """Fit ds = 1..top_dim, each from the ds - 1 optimum (module docstring), one at a time.
+def projected_start(model: ManifoldModel, latent_dim: int) -> FloatArray:
+    """A start for ds = ``latent_dim`` from a larger model: its latents projected onto their
+    leading ``latent_dim`` principal directions. Shape (L, latent_dim)."""
+    centred = model.latents - model.latents.mean(axis=0)
+    _, _, vt = np.linalg.svd(centred, full_matrices=False)
+    return np.asarray(centred @ vt[:latent_dim].T, dtype=np.float64)
+
+
+def nested_fits(
+    data: TrainingData,
+    top_dim: int,
+    fit: StartedFit,
+    rng: np.random.Generator,
+    downward: bool = True,
+) -> tuple[NestedFit, ...]:
+    """Fit ds = 1..top_dim, each from the ds - 1 optimum (module docstring).
+
+    Upward: ds = k is fitted with :func:`appended_starts` of the model kept at k - 1; if it
+    ends below that model, the embedded model (:func:`embed_model`) is kept. Downward (when
+    ``downward``): for k = top_dim - 1 .. 1, ds = k is fitted again from the kept k + 1
+    model's latents projected onto their leading k principal directions
+    (:func:`projected_start`), kept if it ends higher — the small fits stop in local optima
+    most (measured: a 1-D fit 163 nats below the 2-D one on a 1-D world, 1,591 from the 2-D
+    optimum's projection, 1,622 from the true latents); a final upward sweep embeds again
+    wherever a rung fell below the one beneath.
 
     Args:
         data: Training touches.
         top_dim: The largest ds (≥ 1).
         fit: Fits ``data`` at a ds with extra starting latents (the usual starts too).
         rng: Random generator (the appended coordinates).
+        downward: Also the downward sweep (top_dim - 1 more fits).
 
-    Yields:
-        One :class:`NestedFit` per ds = 1..top_dim, in order; their models' log-likelihoods
-        are non-decreasing.
+    Returns:
+        One :class:`NestedFit` per ds = 1..top_dim; their models' log-likelihoods are
+        non-decreasing.
     """
     if isinstance(top_dim, bool) or not isinstance(top_dim, int | np.integer) or top_dim < 1:
         raise InvalidInputError(f"top_dim: expected an integer ≥ 1, received {top_dim!r}.")
-    below: ManifoldModel | None = None
-    for ds in range(1, int(top_dim) + 1):
+    top = int(top_dim)
+    rungs: list[NestedFit] = []
+    for ds in range(1, top + 1):
+        below = rungs[-1].model if rungs else None
         starts = () if below is None else appended_starts(below, rng)
         model = fit(data, ds, starts)
-        fitted = float(model.log_likelihood)
-        carried = below is not None and fitted < below.log_likelihood
-        if below is not None and carried:
-            model = embed_model(below)
-        yield NestedFit(model, carried, fitted)
-        below = model
+        rungs.append(_kept(model, below))
+    if downward:
+        for ds in range(top - 1, 0, -1):
+            model = fit(data, ds, (projected_start(rungs[ds].model, ds),))
+            if model.log_likelihood > rungs[ds - 1].model.log_likelihood:
+                rungs[ds - 1] = NestedFit(model, False, float(model.log_likelihood), True)
+        for ds in range(2, top + 1):
+            rung, below = rungs[ds - 1], rungs[ds - 2].model
+            if rung.model.log_likelihood < below.log_likelihood:
+                rungs[ds - 1] = dataclasses.replace(
+                    rung, model=embed_model(below), carried_over=True
+                )
+    return tuple(rungs)
 
 
-def nested_fits(
-    data: TrainingData, top_dim: int, fit: StartedFit, rng: np.random.Generator
-) -> tuple[NestedFit, ...]:
-    """All of :func:`iter_nested_fits` (ds = 1..top_dim)."""
-    return tuple(iter_nested_fits(data, top_dim, fit, rng))
+def _kept(model: ManifoldModel, below: ManifoldModel | None) -> NestedFit:
+    """The fit, or the embedded model below when the fit ended lower."""
+    fitted = float(model.log_likelihood)
+    if below is not None and fitted < below.log_likelihood:
+        return NestedFit(embed_model(below), True, fitted)
+    return NestedFit(model, False, fitted)

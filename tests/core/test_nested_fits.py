@@ -12,7 +12,7 @@ import pytest
 from core.errors import InvalidInputError
 from core.latent_selection import select_latent_dim
 from core.manifold import FitOptions, fit_manifold
-from core.nested_fits import appended_starts, embed_model, nested_fits
+from core.nested_fits import appended_starts, embed_model, nested_fits, projected_start
 from core.object_posterior import touch_log_likelihoods
 from core.posterior import condition
 from core.types import Hyperparameters, ManifoldModel, TrainingData
@@ -30,28 +30,35 @@ def small_world(latent_dim: int = 2, seed: int = 3) -> TrainingData:
     return sample_dataset(world, rng, touches_per_object=8)
 
 
-def test_nested_fits_are_monotone_and_receive_the_appended_starts() -> None:
+@pytest.mark.parametrize("downward", [False, True])
+def test_nested_fits_are_monotone_and_receive_the_nested_starts(downward: bool) -> None:
     data = small_world()
-    received: list[tuple[int, Starts]] = []
+    received: list[tuple[int, Starts, float]] = []
 
     def fit(train: TrainingData, ds: int, starts: Starts) -> ManifoldModel:
-        received.append((ds, starts))
         options = dataclasses.replace(OPTIONS, initial_latents=starts)
-        return fit_manifold(train, ds, np.random.default_rng(ds), options)
+        model = fit_manifold(train, ds, np.random.default_rng(ds), options)
+        received.append((ds, starts, model.log_likelihood))
+        return model
 
-    rungs = nested_fits(data, 3, fit, np.random.default_rng(0))
+    rungs = nested_fits(data, 3, fit, np.random.default_rng(0), downward=downward)
     values = [r.model.log_likelihood for r in rungs]
     assert [r.model.latent_dim for r in rungs] == [1, 2, 3]
     assert all(b >= a - 1e-8 * abs(a) for a, b in itertools.pairwise(values))
-    assert received[0] == (1, ())
-    for (ds, starts), below in zip(received[1:], rungs, strict=False):
+    assert [ds for ds, _, _ in received] == ([1, 2, 3, 2, 1] if downward else [1, 2, 3])
+    assert received[0][1] == ()
+    for ds, starts, _ in received[1:3]:  # upward: one coordinate appended to the rung below
         assert len(starts) in (1, 2)
-        for start in starts:
-            assert start.shape == (6, ds)
-            np.testing.assert_array_equal(start[:, :-1], below.model.latents)
-    for rung, below in zip(rungs[1:], rungs, strict=False):
+        assert all(start.shape == (6, ds) for start in starts)
+        np.testing.assert_array_equal(starts[0][:, :-1], starts[-1][:, :-1])
+    for ds, starts, value in received[3:]:  # downward: one start, projected from above
+        assert len(starts) == 1
+        assert starts[0].shape == (6, ds)
+        kept = rungs[ds - 1]
+        assert kept.model.log_likelihood >= value - 1e-8 * abs(value)  # the better one kept
+    for rung in rungs:
         if rung.carried_over:
-            assert rung.fitted_log_likelihood < below.model.log_likelihood
+            assert not rung.from_above
         else:
             assert rung.model.log_likelihood == rung.fitted_log_likelihood
 
@@ -71,7 +78,7 @@ def test_a_fit_that_ends_lower_is_replaced_by_the_embedded_optimum_below() -> No
             return one
         return condition(train, np.random.default_rng(1).standard_normal((6, 2)), bad)
 
-    rungs = nested_fits(data, 2, fit, np.random.default_rng(0))
+    rungs = nested_fits(data, 2, fit, np.random.default_rng(0), downward=False)
     assert rungs[1].carried_over
     assert rungs[1].fitted_log_likelihood < one.log_likelihood
     assert rungs[1].model.latent_dim == 2
@@ -121,3 +128,17 @@ def test_cross_validation_fits_are_nested_in_every_fold() -> None:
     assert np.all(np.diff(fitted, axis=0) >= -1e-8 * np.abs(fitted[:-1]))
     assert all(c.carried_over >= 0 for c in selection.candidates)
     assert selection.candidates[0].carried_over == 0
+
+
+def test_projected_start_keeps_the_leading_directions() -> None:
+    data = small_world()
+    two = fit_manifold(data, 2, np.random.default_rng(0), OPTIONS)
+    start = projected_start(two, 1)
+    centred = two.latents - two.latents.mean(axis=0)
+    # The projection onto the leading direction keeps the largest share of the spread.
+    assert start.shape == (6, 1)
+    best = max(
+        float(np.sum((centred @ np.array([np.cos(a), np.sin(a)])) ** 2))
+        for a in np.linspace(0, np.pi, 721)
+    )
+    assert float(np.sum(start**2)) == pytest.approx(best, rel=1e-4)
