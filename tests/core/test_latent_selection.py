@@ -58,7 +58,10 @@ def test_scores_are_the_held_out_log_likelihoods_of_the_folds() -> None:
         models.append((train, model))
         return model
 
-    selection = select_latent_dim(data, fit, np.random.default_rng(2), (1, 2), n_folds=4)
+    # Fixed models, one call per candidate and fold (nesting adds refits: its own tests).
+    selection = select_latent_dim(
+        data, fit, np.random.default_rng(2), (1, 2), n_folds=4, nested=False
+    )
     folds = fold_assignment(data.object_index, 4, np.random.default_rng(2))
     for k in range(4):
         held = folds == k
@@ -190,7 +193,7 @@ def test_objects_scores_are_the_direct_held_out_computation() -> None:
         return model
 
     selection = select_latent_dim(
-        data, fit, np.random.default_rng(11), (1, 2), n_folds=4, criterion="objects"
+        data, fit, np.random.default_rng(11), (1, 2), n_folds=4, criterion="objects", nested=False
     )
     rng = np.random.default_rng(11)
     folds = object_folds(4, 4, rng)
