@@ -17,7 +17,9 @@ what recognition needs.
 
 Measured on Experiment-2-like worlds (docs/noise-model.md, ``bench/latent_dim.py``) neither
 criterion finds the true ds reliably; leave-objects-out was worse than within-object
-cross-validation on the worlds it was run on, so the default stays ``"touches"``.
+cross-validation on the worlds it was run on, so the default stays ``"touches"``. With nested
+fits at L = 8 × 40 touches, dx = 6 it was right on 6 of 6 worlds of ds = 1, 4 of 6 of ds = 2
+and 1 of 6 of ds = 3.
 
 The choice is the candidate with the best mean score over folds (exact ties go to the smaller
 ds). Every candidate also reports its paired difference to the best (fold by fold) with its
