@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -12,6 +12,7 @@ from core.errors import InvalidInputError
 from core.posterior import STRUCTURES, Structure
 from core.sparse import DEFAULT_INDUCING_POINTS
 from core.types import ManifoldModel
+from core.validation import FloatArray
 
 Optimizer = Literal["lbfgs", "de"]
 OPTIMIZERS: tuple[str, ...] = ("lbfgs", "de")
@@ -103,6 +104,13 @@ class FitOptions:
             two seeds) nor without screening: ``joint_lbfgs_memory`` there. Pairs cost
             L-BFGS-B's own arithmetic ~O(pairs² · unknowns) per iteration: 100 add ~0.3 ms
             at 140 unknowns, ~1.2 ms at 2,000.
+        initial_latents: Extra starting latents, each of shape (L, ds) for the data and ds of
+            the fit (checked when the fit starts; here: 2-D and finite). Each is normalised
+            (centred, unit RMS spread) and treated like the data-driven starts: the
+            hyperparameters are fitted with it frozen first, then it is screened and, if it
+            ranks best, polished (:mod:`core.fit_run`). Used e.g. to start ds = k from the
+            ds = k - 1 optimum (:mod:`core.latent_selection`). Stored as read-only float
+            copies; excluded from ``==`` and ``hash`` (arrays have neither).
     """
 
     optimizer: Optimizer = "lbfgs"
@@ -130,8 +138,10 @@ class FitOptions:
     joint_stall_nats: float = 0.5
     joint_stall_iterations: int = 30
     polish_lbfgs_memory: int = 100
+    initial_latents: tuple[FloatArray, ...] = field(default=(), compare=False)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "initial_latents", _checked_latents(self.initial_latents))
         if self.optimizer not in OPTIMIZERS:
             raise InvalidInputError(
                 f"optimizer: expected one of {', '.join(OPTIMIZERS)}, received {self.optimizer!r}."
@@ -191,6 +201,37 @@ class FitOptions:
                 raise InvalidInputError(f"{name}: expected a number, received {value!r}.")
             if not np.isfinite(value) or value <= 0:
                 raise InvalidInputError(f"{name}: must be a finite number > 0, received {value}.")
+
+
+def _checked_latents(starts: object) -> tuple[FloatArray, ...]:
+    """``initial_latents`` as read-only float copies; each must be a finite 2-D array."""
+    if not isinstance(starts, tuple | list):
+        raise InvalidInputError(
+            "initial_latents: expected a tuple of (L, ds) arrays, received "
+            f"{type(starts).__name__}."
+        )
+    checked = []
+    for i, start in enumerate(starts):
+        try:
+            array = np.array(start, dtype=np.float64)
+        except (TypeError, ValueError) as error:
+            raise InvalidInputError(
+                f"initial_latents[{i}]: expected an (L, ds) array of numbers, received "
+                f"{type(start).__name__} ({error})."
+            ) from None
+        if array.ndim != 2 or array.shape[0] < 1 or array.shape[1] < 1:
+            raise InvalidInputError(
+                f"initial_latents[{i}]: expected shape (L, ds) with L, ds ≥ 1, received shape "
+                f"{array.shape}."
+            )
+        if not np.all(np.isfinite(array)):
+            raise InvalidInputError(
+                f"initial_latents[{i}]: expected finite values, received "
+                f"{int(np.sum(~np.isfinite(array)))} non-finite of {array.size}."
+            )
+        array.setflags(write=False)
+        checked.append(array)
+    return tuple(checked)
 
 
 @dataclass(frozen=True)

@@ -4,6 +4,7 @@ The engine behind :func:`core.manifold.iter_fit` (:class:`FitRun`):
 
 1. **Starts.** The first starts are data-driven (:func:`core.initialisation.data_driven_starts`:
    the PCA of the object profiles below 8 objects; from 8 on their Isomap, then their PCA);
+   the caller's ``FitOptions.initial_latents`` (normalised) join them as data-driven starts;
    R more draw S ~ N(0, I) (``FitOptions.restarts``). Every start has unit latent spread, the
    data-relative initial hyperparameters of :func:`core.parameters.initial_hyperparameters`
    and latent length-scales ≈10× the spread. Data-driven starts first fit the hyperparameters
@@ -223,6 +224,12 @@ class FitRun:
             raise InvalidInputError(
                 f"options: expected FitOptions, received {type(options).__name__}."
             )
+        for i, given in enumerate(options.initial_latents):
+            if given.shape != (data.n_objects, int(latent_dim)):
+                raise InvalidInputError(
+                    f"options.initial_latents[{i}]: expected shape (L, ds) = "
+                    f"({data.n_objects}, {int(latent_dim)}), received {given.shape}."
+                )
         self.data = data
         self.latent_dim = int(latent_dim)
         self.rng = rng
@@ -303,6 +310,9 @@ class FitRun:
         layout = self.layout
         n_objects = self.data.n_objects
         for latents in data_driven_starts(self.data, layout.latent_dim, self.rng):
+            self.starts.append(Start(len(self.starts), "data", self._initial_vector(latents)))
+        for given in options.initial_latents:  # the caller's starts, treated as data-driven
+            latents, _, _ = normalise_spread(given)
             self.starts.append(Start(len(self.starts), "data", self._initial_vector(latents)))
         for _ in range(options.restarts):
             latents = random_latents(n_objects, layout.latent_dim, self.rng)

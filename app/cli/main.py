@@ -113,6 +113,8 @@ def select_latent_dim_with_progress(
     The folds use the requested noise model ("independent" for "auto", which the final fit
     decides).
     """
+    import dataclasses
+
     import numpy as np
 
     from core.latent_selection import DEFAULT_FOLDS, candidate_dims, select_latent_dim
@@ -140,7 +142,13 @@ def select_latent_dim_with_progress(
 
         return select_latent_dim(
             data,
-            lambda train, ds: fit_manifold(train, ds, rng, options, noise_model=fold_noise),
+            lambda train, ds, starts: fit_manifold(
+                train,
+                ds,
+                rng,
+                dataclasses.replace(options, initial_latents=starts),
+                noise_model=fold_noise,
+            ),
             rng,
             n_folds=n_folds,
             callback=report,

@@ -10,6 +10,7 @@ NULL) are rebuilt as :func:`core.posterior.condition` chooses by default, as the
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -53,6 +54,7 @@ from core.fit_options import FitProgress
 from core.latent_selection import DEFAULT_FOLDS, LatentSelection, select_latent_dim
 from core.manifold import FitOptions, NoiseModelChoice, fit_manifold, iter_fit
 from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
+from core.validation import FloatArray
 
 logger = logging.getLogger(__name__)
 
@@ -384,10 +386,11 @@ class ModelStore:
         n_candidates = min(5, data.n_objects - 1)
         done = [0]
 
-        def fit_fold(train: TrainingData, ds: int) -> ManifoldModel:
+        def fit_fold(train: TrainingData, ds: int, starts: tuple[FloatArray, ...]) -> ManifoldModel:
             if self._closing.is_set():
                 raise _ClosingError()
-            return fit_manifold(train, ds, rng, options, noise_model=fold_noise)
+            started_from = dataclasses.replace(options, initial_latents=starts)
+            return fit_manifold(train, ds, rng, started_from, noise_model=fold_noise)
 
         def report(ds: int, fold: int, score: float) -> None:
             done[0] += 1

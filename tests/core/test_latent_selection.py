@@ -2,20 +2,20 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
-from core.latent_selection import (
-    candidate_dims,
-    fold_assignment,
+from core.held_out_objects import (
     held_out_scores,
     log_densities_at,
     object_folds,
     place_latent,
-    select_latent_dim,
     split_halves,
 )
+from core.latent_selection import candidate_dims, fold_assignment, select_latent_dim
 from core.manifold import FitOptions, fit_manifold
 from core.object_posterior import touch_log_likelihoods
 from core.posterior import condition
@@ -23,6 +23,7 @@ from core.types import Hyperparameters, ManifoldModel, TrainingData
 from core.worlds import EXPERIMENT1_THETAS, sample_experiment1
 
 THETA = np.asarray(EXPERIMENT1_THETAS)[:, None]
+Starts = tuple[np.ndarray, ...]
 
 
 def hyper(ds: int) -> Hyperparameters:
@@ -52,12 +53,15 @@ def test_scores_are_the_held_out_log_likelihoods_of_the_folds() -> None:
     data = sample_experiment1(np.random.default_rng(1), touches_per_object=8)
     models: list[tuple[TrainingData, ManifoldModel]] = []
 
-    def fit(train: TrainingData, ds: int) -> ManifoldModel:
+    def fit(train: TrainingData, ds: int, starts: Starts = ()) -> ManifoldModel:
         model = condition(train, np.hstack([THETA, np.zeros((4, ds - 1))]), hyper(ds))
         models.append((train, model))
         return model
 
-    selection = select_latent_dim(data, fit, np.random.default_rng(2), (1, 2), n_folds=4)
+    # Fixed models, one call per candidate and fold (nesting adds refits: its own tests).
+    selection = select_latent_dim(
+        data, fit, np.random.default_rng(2), (1, 2), n_folds=4, nested=False
+    )
     folds = fold_assignment(data.object_index, 4, np.random.default_rng(2))
     for k in range(4):
         held = folds == k
@@ -77,11 +81,14 @@ def test_a_clearly_better_larger_dimension_is_chosen() -> None:
     data = sample_experiment1(np.random.default_rng(3), touches_per_object=8)
     scrambled = np.array([[0.0], [0.0], [1.0], [1.0]])  # ds = 1 cannot tell two pairs apart
 
-    def fit(train: TrainingData, ds: int) -> ManifoldModel:
+    def fit(train: TrainingData, ds: int, starts: Starts = ()) -> ManifoldModel:
         latents = scrambled if ds == 1 else np.hstack([scrambled, THETA])
         return condition(train, latents, hyper(ds))
 
-    selection = select_latent_dim(data, fit, np.random.default_rng(4), (1, 2), n_folds=4)
+    # Fixed models, not fits: without nesting (which would keep the better-fitting ds = 1).
+    selection = select_latent_dim(
+        data, fit, np.random.default_rng(4), (1, 2), n_folds=4, nested=False
+    )
     assert selection.best == 2
     assert selection.chosen == 2
     assert selection.candidates[0].difference < -selection.candidates[0].difference_standard_error
@@ -96,8 +103,9 @@ def test_experiment1_picks_one_latent_dimension() -> None:
     data = sample_experiment1(np.random.default_rng(5), touches_per_object=10)
     options = FitOptions(restarts=2)
 
-    def fit(train: TrainingData, ds: int) -> ManifoldModel:
-        return fit_manifold(train, ds, np.random.default_rng(0), options, noise_model="independent")
+    def fit(train: TrainingData, ds: int, starts: Starts = ()) -> ManifoldModel:
+        started = dataclasses.replace(options, initial_latents=starts)
+        return fit_manifold(train, ds, np.random.default_rng(0), started, noise_model="independent")
 
     selection = select_latent_dim(data, fit, np.random.default_rng(6), (1, 2), n_folds=3)
     assert selection.chosen == 1
@@ -108,7 +116,7 @@ def test_experiment1_picks_one_latent_dimension() -> None:
 def test_bad_candidates_are_rejected() -> None:
     data = sample_experiment1(np.random.default_rng(7), touches_per_object=8)
     with pytest.raises(InvalidInputError, match="candidates"):
-        select_latent_dim(data, lambda t, d: None, np.random.default_rng(0), (0, 1))  # type: ignore[arg-type,return-value]
+        select_latent_dim(data, lambda t, d, s: None, np.random.default_rng(0), (0, 1))  # type: ignore[arg-type,return-value]
 
 
 # Leave-objects-out (criterion="objects").
@@ -179,13 +187,13 @@ def test_objects_scores_are_the_direct_held_out_computation() -> None:
     data = sample_experiment1(np.random.default_rng(10), touches_per_object=8)
     models: list[tuple[TrainingData, ManifoldModel]] = []
 
-    def fit(train: TrainingData, ds: int) -> ManifoldModel:
+    def fit(train: TrainingData, ds: int, starts: Starts = ()) -> ManifoldModel:
         model = condition(train, true_latents(train, ds), hyper(ds))
         models.append((train, model))
         return model
 
     selection = select_latent_dim(
-        data, fit, np.random.default_rng(11), (1, 2), n_folds=4, criterion="objects"
+        data, fit, np.random.default_rng(11), (1, 2), n_folds=4, criterion="objects", nested=False
     )
     rng = np.random.default_rng(11)
     folds = object_folds(4, 4, rng)
@@ -214,11 +222,11 @@ def test_objects_criterion_picks_the_clearly_needed_dimension() -> None:
     """A new object is placed well only when the manifold holds θ: ds = 2 here, not ds = 1."""
     data = sample_experiment1(np.random.default_rng(12), touches_per_object=8)
 
-    def fit(train: TrainingData, ds: int) -> ManifoldModel:
+    def fit(train: TrainingData, ds: int, starts: Starts = ()) -> ManifoldModel:
         return condition(train, true_latents(train, ds, scrambled=True), hyper(ds))
 
     selection = select_latent_dim(
-        data, fit, np.random.default_rng(13), (1, 2), n_folds=4, criterion="objects"
+        data, fit, np.random.default_rng(13), (1, 2), n_folds=4, criterion="objects", nested=False
     )
     assert selection.chosen == 2
     assert selection.candidates[0].difference < -0.3  # nats per touch, 4 folds of one object
@@ -228,4 +236,4 @@ def test_objects_criterion_picks_the_clearly_needed_dimension() -> None:
 def test_bad_criterion_is_rejected() -> None:
     data = sample_experiment1(np.random.default_rng(7), touches_per_object=8)
     with pytest.raises(InvalidInputError, match="criterion"):
-        select_latent_dim(data, lambda t, d: None, np.random.default_rng(0), criterion="bic")  # type: ignore[arg-type,return-value]
+        select_latent_dim(data, lambda t, d, s: None, np.random.default_rng(0), criterion="bic")  # type: ignore[arg-type,return-value]

@@ -1,0 +1,144 @@
+"""Nested warm starts over the latent dimension (core/nested_fits.py) and their use in
+cross-validation (core/latent_selection.py)."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+
+import numpy as np
+import pytest
+
+from core.errors import InvalidInputError
+from core.latent_selection import select_latent_dim
+from core.manifold import FitOptions, fit_manifold
+from core.nested_fits import appended_starts, embed_model, nested_fits, projected_start
+from core.object_posterior import touch_log_likelihoods
+from core.posterior import condition
+from core.types import Hyperparameters, ManifoldModel, TrainingData
+from core.worlds import random_experiment2_world, sample_dataset
+
+Starts = tuple[np.ndarray, ...]
+OPTIONS = FitOptions(restarts=0, max_iterations=300)
+
+
+def small_world(latent_dim: int = 2, seed: int = 3) -> TrainingData:
+    rng = np.random.default_rng(seed)
+    world = random_experiment2_world(
+        rng, n_objects=6, latent_dim=latent_dim, action_dim=1, observation_dim=2
+    )
+    return sample_dataset(world, rng, touches_per_object=8)
+
+
+@pytest.mark.parametrize("downward", [False, True])
+def test_nested_fits_are_monotone_and_receive_the_nested_starts(downward: bool) -> None:
+    data = small_world()
+    received: list[tuple[int, Starts, float]] = []
+
+    def fit(train: TrainingData, ds: int, starts: Starts) -> ManifoldModel:
+        options = dataclasses.replace(OPTIONS, initial_latents=starts)
+        model = fit_manifold(train, ds, np.random.default_rng(ds), options)
+        received.append((ds, starts, model.log_likelihood))
+        return model
+
+    rungs = nested_fits(data, 3, fit, np.random.default_rng(0), downward=downward)
+    values = [r.model.log_likelihood for r in rungs]
+    assert [r.model.latent_dim for r in rungs] == [1, 2, 3]
+    assert all(b >= a - 1e-8 * abs(a) for a, b in itertools.pairwise(values))
+    assert [ds for ds, _, _ in received] == ([1, 2, 3, 2, 1] if downward else [1, 2, 3])
+    assert received[0][1] == ()
+    for ds, starts, _ in received[1:3]:  # upward: one coordinate appended to the rung below
+        assert len(starts) in (1, 2)
+        assert all(start.shape == (6, ds) for start in starts)
+        np.testing.assert_array_equal(starts[0][:, :-1], starts[-1][:, :-1])
+    for ds, starts, value in received[3:]:  # downward: one start, projected from above
+        assert len(starts) == 1
+        assert starts[0].shape == (6, ds)
+        kept = rungs[ds - 1]
+        assert kept.model.log_likelihood >= value - 1e-8 * abs(value)  # the better one kept
+    for rung in rungs:
+        if rung.carried_over:
+            assert not rung.from_above
+        else:
+            assert rung.model.log_likelihood == rung.fitted_log_likelihood
+
+
+def test_a_fit_that_ends_lower_is_replaced_by_the_embedded_optimum_below() -> None:
+    data = small_world()
+    one = fit_manifold(data, 1, np.random.default_rng(0), OPTIONS)
+    bad = Hyperparameters(
+        signal_variance=np.full(2, 1.0),
+        noise_variance=np.full(2, 1.0),  # everything explained as noise: far lower likelihood
+        latent_lengthscales=np.full((2, 2), 1.0),
+        action_lengthscales=np.full((2, 1), 1.0),
+    )
+
+    def fit(train: TrainingData, ds: int, starts: Starts) -> ManifoldModel:
+        if ds == 1:
+            return one
+        return condition(train, np.random.default_rng(1).standard_normal((6, 2)), bad)
+
+    rungs = nested_fits(data, 2, fit, np.random.default_rng(0), downward=False)
+    assert rungs[1].carried_over
+    assert rungs[1].fitted_log_likelihood < one.log_likelihood
+    assert rungs[1].model.latent_dim == 2
+    assert rungs[1].model.log_likelihood == pytest.approx(one.log_likelihood, rel=1e-10)
+
+
+@pytest.mark.parametrize("noise_model", [None, "correlated"])
+def test_embedding_keeps_predictions_and_likelihood(noise_model: str | None) -> None:
+    data = small_world(seed=4)
+    model = fit_manifold(data, 2, np.random.default_rng(0), OPTIONS, noise_model=noise_model)  # type: ignore[arg-type]
+    embedded = embed_model(model)
+    assert embedded.latent_dim == 3
+    np.testing.assert_array_equal(embedded.latents[:, 2], 0.0)
+    assert embedded.log_likelihood == pytest.approx(model.log_likelihood, rel=1e-10, abs=1e-8)
+    assert embedded.transform is model.transform
+    before = touch_log_likelihoods(model, data.object_index, data.actions, data.observations)
+    after = touch_log_likelihoods(embedded, data.object_index, data.actions, data.observations)
+    np.testing.assert_allclose(after, before, rtol=1e-9, atol=1e-9)
+
+
+def test_appended_coordinates_are_small_random_and_the_unexplained_direction() -> None:
+    data = small_world(latent_dim=2)
+    one = fit_manifold(data, 1, np.random.default_rng(0), OPTIONS)
+    starts = appended_starts(one, np.random.default_rng(5))
+    assert len(starts) == 2
+    random_column, residual_column = starts[0][:, 1], starts[1][:, 1]
+    assert np.sqrt(np.mean(random_column**2)) == pytest.approx(0.1, rel=1e-12)
+    assert random_column.mean() == pytest.approx(0.0, abs=1e-12)
+    # The residual direction is uncorrelated with the latents it extends (least-squares residual).
+    assert residual_column.mean() == pytest.approx(0.0, abs=1e-10)
+    assert float(residual_column @ one.latents[:, 0]) == pytest.approx(0.0, abs=1e-10)
+    assert np.sqrt(np.mean(residual_column**2)) >= 0.1 - 1e-12
+    with pytest.raises(InvalidInputError, match="top_dim"):
+        nested_fits(data, 0, lambda t, d, s: one, np.random.default_rng(0))
+
+
+def test_cross_validation_fits_are_nested_in_every_fold() -> None:
+    data = small_world()
+
+    def fit(train: TrainingData, ds: int, starts: Starts) -> ManifoldModel:
+        options = dataclasses.replace(OPTIONS, initial_latents=starts)
+        return fit_manifold(train, ds, np.random.default_rng(0), options)
+
+    selection = select_latent_dim(data, fit, np.random.default_rng(1), (1, 2, 3), n_folds=3)
+    fitted = np.array([c.fit_log_likelihoods for c in selection.candidates])  # (ds, fold)
+    assert fitted.shape == (3, 3)
+    assert np.all(np.diff(fitted, axis=0) >= -1e-8 * np.abs(fitted[:-1]))
+    assert all(c.carried_over >= 0 for c in selection.candidates)
+    assert selection.candidates[0].carried_over == 0
+
+
+def test_projected_start_keeps_the_leading_directions() -> None:
+    data = small_world()
+    two = fit_manifold(data, 2, np.random.default_rng(0), OPTIONS)
+    start = projected_start(two, 1)
+    centred = two.latents - two.latents.mean(axis=0)
+    # The projection onto the leading direction keeps the largest share of the spread.
+    assert start.shape == (6, 1)
+    best = max(
+        float(np.sum((centred @ np.array([np.cos(a), np.sin(a)])) ** 2))
+        for a in np.linspace(0, np.pi, 721)
+    )
+    assert float(np.sum(start**2)) == pytest.approx(best, rel=1e-4)
