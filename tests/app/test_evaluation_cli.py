@@ -78,6 +78,8 @@ def test_replay_from_a_csv_says_t_is_capped(model_path, tmp_path):
         (("--world", "replay"), "needs held-out touches"),
         (("--world", "exp1", "--workers", "2", "--scheduler", "tcp://x:1"), "give one"),
         (("--world", "exp1", "--out", "/nonexistent/dir/r.json"), "does not exist"),
+        (("--world", "exp1", "--placement", "shelf"), "placement: 'shelf'"),
+        (("--world", "exp1", "--placement", "touch"), "only the rig world"),
     ],
 )
 def test_bad_input_exits_2_naming_it(model_path, args, message):

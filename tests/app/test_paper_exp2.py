@@ -118,6 +118,7 @@ def test_cli_runs_end_to_end(tmp_path: Path) -> None:
         (["--table", "no_such_table"], "no_such_table"),
         (["--sources", "model,camera"], "camera"),
         (["--optimizer", "sgd"], "sgd"),
+        (["--placement", "shelf"], "shelf"),
     ],
 )
 def test_bad_input_exits_2_naming_it(args: list[str], named: str) -> None:
