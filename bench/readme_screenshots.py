@@ -57,6 +57,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--table", default=None)
     parser.add_argument("--seed", type=int, default=7)
     parser.add_argument("--steps", type=int, default=10)
+    parser.add_argument(
+        "--eval-trials", type=int, default=10, help="Evaluation trials per object and policy."
+    )
     args = parser.parse_args(argv)
     port, viz_port = free_port(), free_port()
     database = Path(tempfile.mkdtemp(prefix="activetouch-shots-")) / "demo.db"
@@ -125,7 +128,8 @@ def shoot(base: str, args: argparse.Namespace) -> None:
         page.goto(f"{base}/?viz=off#evaluation")
         expect(page.get_by_test_id("eval-model")).to_have_value(str(model["id"]))
         page.get_by_test_id("eval-world").select_option("rig")
-        page.get_by_test_id("eval-trials").fill("3")
+        page.get_by_test_id("eval-policy-discriminative").check()
+        page.get_by_test_id("eval-trials").fill(str(args.eval_trials))
         page.get_by_test_id("eval-steps").fill("6")
         page.get_by_test_id("eval-start").click()
         expect(page.get_by_test_id("eval-status")).to_have_text("completed", timeout=900_000)

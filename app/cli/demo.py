@@ -90,8 +90,8 @@ class DemoOptions:
             cushions' 1.5 lets about one random touch in ten press down to the inserts).
         latent_dim: ds of the fitted manifold.
         restarts: Random restarts of the fit.
-        max_iterations: L-BFGS iteration limit of each start of the fit (the demo's data is
-            small; the fit's default runs to a much tighter tolerance).
+        max_iterations: L-BFGS iteration limit of each start of the fit (``None``: the fit's
+            default; the 400 touches of the cushions fit in seconds).
         seed: Seed of the collection and of the fit.
         api_token: API token (required off loopback, made up when missing).
         open_browser: Open the dashboard in the default browser once it is up.
@@ -107,8 +107,8 @@ class DemoOptions:
     touches_per_object: int = DEMO_TOUCHES_PER_OBJECT
     action_scale: float | None = None
     latent_dim: int = 2
-    restarts: int = 1
-    max_iterations: int = 150
+    restarts: int = 2
+    max_iterations: int | None = None
     seed: int = 0
     api_token: str | None = None
     open_browser: bool = True
@@ -579,7 +579,7 @@ def demo_command(
         typer.Option(min=0.01, help="Std of each random action component (default: the table's)."),
     ] = None,
     latent_dim: Annotated[int, typer.Option(min=1, max=8, help="ds of the model.")] = 2,
-    restarts: Annotated[int, typer.Option(min=0, help="Random restarts of the fit.")] = 1,
+    restarts: Annotated[int, typer.Option(min=0, help="Random restarts of the fit.")] = 2,
     seed: Annotated[int, typer.Option(min=0, help="Seed of collection and fit.")] = 0,
     api_token: Annotated[
         str | None, typer.Option(envvar="ACTIVETOUCH_API_TOKEN", help="Token (off loopback).")

@@ -9,7 +9,7 @@ import { $, badge, el, fill, guarded, num, setOptions, throttle, toast } from ".
 
 const ACTIVE = ["queued", "running", "paused"];
 const SHOWN_TRIALS = 500; // finished trials listed (the newest)
-const POLICY_COLORS = { active: "#1f5fbf", passive: "#d9822b" };
+const POLICY_COLORS = { active: "#1f5fbf", discriminative: "#2e9e5b", passive: "#d9822b" };
 let evaluation = null; // GET /evaluations/{id}
 let pollTimer = null;
 let worldChosen = false; // the world follows the first model offered, then the user's choice
