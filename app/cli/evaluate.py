@@ -37,6 +37,7 @@ from rich.progress import (
 )
 from rich.table import Table
 
+from app.cli.options import PlacementOption
 from app.cli.output import messages as stderr
 from app.cli.output import results as stdout
 
@@ -153,13 +154,7 @@ def evaluate_command(
         str | None,
         typer.Option(help="rig only: the simulated table (`activetouch rig status --sim`)."),
     ] = None,
-    placement: Annotated[
-        str,
-        typer.Option(
-            help="rig only: place the object once per trial (trial) or anew before every touch "
-            "(touch)."
-        ),
-    ] = "trial",
+    placement: PlacementOption = "trial",
     workers: Annotated[
         int | None, typer.Option(help="Run on a LocalCluster of K single-threaded processes.")
     ] = None,

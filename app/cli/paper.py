@@ -14,6 +14,7 @@ from typing import Annotated, cast
 import typer
 from rich.markup import escape
 
+from app.cli.options import PlacementOption
 from app.cli.output import fail, progress_bar
 from app.cli.output import messages as stderr
 from app.cli.output import results as stdout
@@ -87,13 +88,7 @@ def paper_exp2(
     workers: Annotated[
         int | None, typer.Option(min=1, help="Dask worker processes for the trials.")
     ] = None,
-    placement: Annotated[
-        str,
-        typer.Option(
-            help="Rig trials: place the object once per trial (trial) or anew before every "
-            "touch (touch), as the collection did."
-        ),
-    ] = "trial",
+    placement: PlacementOption = "trial",
     figures: Annotated[
         Path | None, typer.Option(help="Write the PNG figures into this directory.")
     ] = None,

@@ -16,27 +16,34 @@ from core.types import ManifoldModel, TrainingData
 OBJECTS = ("paper_cup", "ceramic_mug", "foam_sponge")
 
 
-@pytest.fixture(scope="module")
-def rig_model() -> ManifoldModel:
-    """A ds=2 model fitted on 6 touches of three objects of the default simulated table."""
-    table = rig_tables()["default"]
-    handle = open_rig(simulate=SimulationMode.in_process, seed=3)
+def fitted_on_the_rig(
+    table: str, objects: tuple[str, ...], touches: int, latent_dim: int, seed: int
+) -> ManifoldModel:
+    """A model fitted on ``touches`` random touches of each of ``objects`` on a simulated table."""
+    slots_of = rig_tables()[table]
+    handle = open_rig(simulate=SimulationMode.in_process, table=table, seed=seed)
     try:
         lease = handle.rig.acquire("test")
         lease.connect()
-        design = np.random.default_rng(0).standard_normal((6, 6))
-        slots = {name: table.index(name) for name in OBJECTS}
-        touches = list(iter_collect(lease, TouchActions.from_teaching(), slots, design))
+        design = np.random.default_rng(seed).standard_normal((touches, 6))
+        slots = {name: slots_of.index(name) for name in objects}
+        collected = list(iter_collect(lease, TouchActions.from_teaching(), slots, design))
         lease.release()
     finally:
         handle.close()
     data = TrainingData(
-        object_names=OBJECTS,
-        object_index=np.array([OBJECTS.index(t.object_name) for t in touches]),
-        actions=np.array([t.action for t in touches]),
-        observations=np.array([t.record.observation for t in touches]),
+        object_names=objects,
+        object_index=np.array([objects.index(t.object_name) for t in collected]),
+        actions=np.array([t.action for t in collected]),
+        observations=np.array([t.record.observation for t in collected]),
     )
-    return fit_manifold(data, 2, np.random.default_rng(0), FitOptions(restarts=0))
+    return fit_manifold(data, latent_dim, np.random.default_rng(0), FitOptions(restarts=0))
+
+
+@pytest.fixture(scope="module")
+def rig_model() -> ManifoldModel:
+    """A ds=2 model fitted on 6 touches of three objects of the default simulated table."""
+    return fitted_on_the_rig("default", OBJECTS, touches=6, latent_dim=2, seed=3)
 
 
 def spec(**changes: object) -> EvaluationSpec:
@@ -126,23 +133,7 @@ def test_a_rig_evaluation_simulates_the_servers_table_unless_told(tmp_path) -> N
     from tests.app.conftest import make_settings
 
     cushions = rig_tables()["cushions"]
-    handle = open_rig(simulate=SimulationMode.in_process, table="cushions", seed=1)
-    try:
-        lease = handle.rig.acquire("test")
-        lease.connect()
-        design = np.random.default_rng(1).standard_normal((3, 6))
-        slots = {name: slot for slot, name in enumerate(cushions)}
-        touches = list(iter_collect(lease, TouchActions.from_teaching(), slots, design))
-        lease.release()
-    finally:
-        handle.close()
-    data = TrainingData(
-        object_names=cushions,
-        object_index=np.array([cushions.index(t.object_name) for t in touches]),
-        actions=np.array([t.action for t in touches]),
-        observations=np.array([t.record.observation for t in touches]),
-    )
-    model = fit_manifold(data, 1, np.random.default_rng(0), FitOptions(restarts=0))
+    model = fitted_on_the_rig("cushions", cushions, touches=3, latent_dim=1, seed=1)
     settings = make_settings(tmp_path, sim_table="cushions")
     with TestClient(create_app(settings)) as client:
         imported = client.post("/api/v1/models/import", json=model_to_document(model))
