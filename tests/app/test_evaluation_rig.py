@@ -96,9 +96,9 @@ def test_tables_come_by_name_from_the_simulator() -> None:
 def test_a_rig_trial_places_its_object_once_or_before_every_touch(
     replace_each_touch: bool, placements: int
 ) -> None:
-    from app.evaluation.context import _RigTrial
+    from app.evaluation.rig_trial import RigTrial
 
-    trial = _RigTrial(
+    trial = RigTrial(
         TouchActions.from_teaching(),
         rig_tables()["default"],
         "paper_cup",
@@ -153,3 +153,17 @@ def test_a_rig_evaluation_simulates_the_servers_table_unless_told(tmp_path) -> N
         other = client.post("/api/v1/evaluations", json={**body, "table": "default"})
         assert other.status_code == 422
         assert "cushion_cork" in other.json()["detail"]
+
+
+def test_a_rig_trial_simulates_the_noise_model_it_is_given() -> None:
+    from dataclasses import replace
+
+    from app.evaluation.rig_trial import RigTrial
+    from hardware.sim.noise import NO_DRIFT, NoiseModel
+
+    quiet = replace(NoiseModel(), drift=NO_DRIFT, placement_std_deg=0.0)
+    trial = RigTrial(TouchActions.from_teaching(), OBJECTS, "ceramic_mug", rig_seed=1, noise=quiet)
+    try:
+        assert trial._handle.simulation.devices.plant.noise is quiet  # type: ignore[union-attr]
+    finally:
+        trial.close()
