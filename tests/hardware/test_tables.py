@@ -20,6 +20,7 @@ from hardware.sim.materials import (
     PET_ON_WATER,
     TABLES,
     Material,
+    design_std,
     get_table,
 )
 
@@ -96,3 +97,11 @@ def test_a_deep_press_separates_the_stiffness_look_alikes_more_than_a_shallow_on
     vibration_gap = clean[0, :, 1] - clean[2, :, 1]
     assert np.all(vibration_gap > 0)  # less stick-slip on wax
     assert vibration_gap[2] > vibration_gap[1]
+
+
+def test_a_design_spread_is_the_given_one_else_the_tables() -> None:
+    assert design_std("cushions") == get_table("cushions").action_std == 1.5
+    assert design_std("cushions", 0.5) == 0.5
+    assert design_std("kitchen", 0.5) == 0.5  # a given spread needs no table
+    with pytest.raises(ConfigurationError, match="unknown table 'kitchen'"):
+        design_std("kitchen")
