@@ -40,7 +40,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from app.cli.output import messages
 from app.cli.serve import GracefulServer
 from app.config import Settings, is_loopback
-from app.documents import write_training_csv
+from app.documents.training_csv import write_training_csv
 from app.main import API_PREFIX, create_app
 from app.viz.live import LiveView
 from core.worlds import sample_experiment1

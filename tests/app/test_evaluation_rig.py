@@ -128,7 +128,7 @@ def test_only_the_rig_world_places_objects(rig_model):
 def test_a_rig_evaluation_simulates_the_servers_table_unless_told(tmp_path) -> None:
     from fastapi.testclient import TestClient
 
-    from app.documents import model_to_document
+    from app.documents.model import model_to_document
     from app.main import create_app
     from tests.app.conftest import make_settings
 
