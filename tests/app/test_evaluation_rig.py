@@ -167,3 +167,41 @@ def test_a_rig_trial_simulates_the_noise_model_it_is_given() -> None:
         assert trial._handle.simulation.devices.plant.noise is quiet  # type: ignore[union-attr]
     finally:
         trial.close()
+
+
+# Three active touches: the third action's mutual information depends on the second touch's
+# observation, which depends on where the object was placed.
+@pytest.mark.parametrize(("source", "world"), [("rig", "rig"), ("gp", "model")])
+def test_the_sim_tables_bench_runs_the_engines_trials(rig_model, source: str, world: str) -> None:
+    """bench/sim_tables.py's trials are the engine's: the same records as ``run_evaluation``."""
+    from bench.sim_tables import policy_records
+    from core.planning import Planner, make_policy
+
+    placement = "touch" if world == "rig" else "trial"
+    engine = run_evaluation(
+        rig_model,
+        spec(
+            world=world,
+            policies=("active",),
+            targets=None,
+            steps=3,
+            table="default" if world == "rig" else None,
+            tolerance=0.0,
+            seed=4,
+            placement=placement,
+        ),
+    )
+    bench = policy_records(
+        rig_model,
+        Planner(rig_model, make_policy("active")),
+        "active",
+        1,
+        3,
+        4,
+        source=source,
+        table="default",
+        actions=TouchActions.from_teaching(),
+        reseat_each_touch=placement == "touch",
+    )
+    assert len(bench) == len(rig_model.object_names) == 3
+    assert sorted(bench, key=lambda r: r.key) == sorted(engine.records, key=lambda r: r.key)
