@@ -28,6 +28,7 @@ from hardware.finger import DYNAMIXEL_BAUDRATE, Finger, FingerConfig
 from hardware.records import TouchRecord
 from hardware.rig import Rig, RigConfig, RigLease, TouchProgress
 from hardware.sim.materials import DEFAULT_TABLE_NAME, get_table
+from hardware.sim.noise import NoiseModel
 from hardware.sim.rig import SimulatedRig, in_process_rig, pty_rig
 from hardware.tactile import TACTILE_BAUDRATE, TactileConfig, TactileSensor
 from hardware.teaching import PAPER_TOUCH_DURATION_S, teaching_trajectory
@@ -133,6 +134,7 @@ def open_rig(
     seed: int = 0,
     speed: float | None = None,
     rig_config: RigConfig | None = None,
+    noise: NoiseModel | None = None,
 ) -> RigHandle:
     """Build a rig on ports, or a simulated one.
 
@@ -146,6 +148,7 @@ def open_rig(
         speed: Simulated seconds per real second. In process, None means virtual time (as fast
             as the computer goes); behind pseudo-terminals the default is 20.
         rig_config: Rig settings.
+        noise: Noise model of a simulated world (``None``: the simulator's default).
 
     Raises:
         ConfigurationError: Neither ports nor a simulation were given, or an unknown table
@@ -158,14 +161,18 @@ def open_rig(
     if simulate is SimulationMode.pty:
         assert objects is not None
         return RigHandle(
-            *_sim(pty_rig(objects, seed=seed, speed=speed or 20.0, rig_config=rig_config)),
+            *_sim(
+                pty_rig(objects, seed=seed, speed=speed or 20.0, rig_config=rig_config, noise=noise)
+            ),
             table=table_name,
         )
     if simulate is SimulationMode.in_process:
         assert objects is not None
         clock: Clock = VirtualClock() if speed is None else ScaledClock(speed)
         return RigHandle(
-            *_sim(in_process_rig(objects, seed=seed, clock=clock, rig_config=rig_config)),
+            *_sim(
+                in_process_rig(objects, seed=seed, clock=clock, rig_config=rig_config, noise=noise)
+            ),
             table=table_name,
         )
     if ports is None:
@@ -306,111 +313,3 @@ def iter_collect(
             record = actions.touch(lease, action, slot=slot)
             yield CollectedTouch(index, total, name, slot, action.copy(), record)
             index += 1
-
-
-class RigWorld:
-    """A rig (typically simulated) as a :class:`core.worlds.World`: observing object l with
-    action x touches l's slot with x and returns the touch's observation.
-
-    Lets :func:`core.evaluation.evaluate` run recognition trials on the rig itself (the honest
-    protocol: observations come from the touches, not from the learned GP).
-
-    Args:
-        lease: A lease on a connected rig.
-        actions: The action → trajectory map.
-        slots: Object name → slot, in the world's object order.
-        action_mean: Mean of the collection design's actions. Shape (dx,).
-        action_cov: Covariance of the collection design's actions. Shape (dx, dx).
-        reseat_each_touch: Turn the object away and back before every touch (as an
-            interleaved collection does), not only between trials.
-    """
-
-    def __init__(
-        self,
-        lease: RigLease,
-        actions: TouchActions,
-        slots: dict[str, int],
-        action_mean: npt.ArrayLike,
-        action_cov: npt.ArrayLike,
-        reseat_each_touch: bool = False,
-    ) -> None:
-        if not slots:
-            raise ConfigurationError("slots: at least one object is needed.")
-        self.lease = lease
-        self.actions = actions
-        self.slots = dict(slots)
-        self._names = tuple(self.slots)
-        dx = actions.action_dim
-        self._mean = np.asarray(action_mean, dtype=np.float64).reshape(dx)
-        self._cov = np.asarray(action_cov, dtype=np.float64).reshape(dx, dx)
-        self.touches = 0
-        self._last_slot: int | None = None
-        self.reseat_each_touch = bool(reseat_each_touch)
-
-    @property
-    def object_names(self) -> tuple[str, ...]:
-        """The objects, in the order of ``slots``."""
-        return self._names
-
-    @property
-    def action_dim(self) -> int:
-        """dx."""
-        return self.actions.action_dim
-
-    @property
-    def observation_dim(self) -> int:
-        """dy: the tactile channels."""
-        return len(self.lease.rig.tactile.config.channel_names)
-
-    @property
-    def action_mean(self) -> FloatArray:
-        """Mean of the design's actions. Shape (dx,)."""
-        return self._mean
-
-    @property
-    def action_cov(self) -> FloatArray:
-        """Covariance of the design's actions. Shape (dx, dx)."""
-        return self._cov
-
-    def mean_response(self, object_index: int, actions: FloatArray) -> FloatArray:
-        """Not known on a rig: the world is measured, not modelled.
-
-        Raises:
-            ConfigurationError: Always.
-        """
-        raise ConfigurationError("a rig has no known mean response; touch it (observe).")
-
-    def reseat(self) -> None:
-        """Turn the last touched object away and back, as between trials (a new placement).
-
-        Call it between trials (e.g. from :func:`core.evaluation.evaluate`'s callback): the
-        touches of one trial share the object's placement; separate trials should not.
-        """
-        if self._last_slot is None:
-            return
-        others = [s for s in self.slots.values() if s != self._last_slot]
-        if others:
-            self.lease.move_to_slot(others[0])
-        self._last_slot = None
-
-    def observe(
-        self, object_index: int, actions: FloatArray, rng: np.random.Generator
-    ) -> FloatArray:
-        """Touch object ``object_index`` with every action (M, dx). Shape (M, dy).
-
-        ``rng`` is unused: the rig's (or simulation's) own randomness makes the noise.
-        """
-        x = np.atleast_2d(np.asarray(actions, dtype=np.float64))
-        if x.shape[1] != self.action_dim:
-            raise ConfigurationError(
-                f"actions: expected shape (M, {self.action_dim}), received {x.shape}."
-            )
-        slot = self.slots[self._names[object_index]]
-        rows = []
-        for action in x:
-            if self.reseat_each_touch:
-                self.reseat()
-            rows.append(self.actions.touch(self.lease, action, slot=slot).observation)
-            self._last_slot = slot
-            self.touches += 1
-        return np.asarray(rows, dtype=np.float64)

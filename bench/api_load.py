@@ -27,7 +27,7 @@ from typing import Any
 import httpx
 import numpy as np
 
-from app.documents import model_to_document
+from app.documents.model import model_to_document
 from core.posterior import condition
 from core.types import Hyperparameters
 from core.worlds import EXPERIMENT1_THETAS, sample_experiment1

@@ -44,7 +44,8 @@ from typing import Any
 
 import numpy as np
 
-from app.documents import model_to_document, read_training_csv, write_training_csv
+from app.documents.model import model_to_document
+from app.documents.training_csv import read_training_csv, write_training_csv
 from core.manifold import FitOptions, fit_manifold
 from core.types import TrainingData
 

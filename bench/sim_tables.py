@@ -13,9 +13,11 @@ five tactile channels):
    separates them.
 2. **Recognition** (``--part trials``): a training set as ``activetouch collect --sim --table
    NAME --touches N --design random`` makes it (x ~ N(0, scale² I) afresh per touch), a ds = 2
-   fit, then recognition trials on the simulated rig (:class:`app.rig_factory.RigWorld`: every
-   observation is a real simulated touch) for the active, discriminative and passive policies,
-   and the accuracy after each touch, overall and per object.
+   fit, then recognition trials for the active, discriminative and passive policies, and the
+   accuracy after each touch, overall and per object. The trials run on the evaluation engine's
+   pieces (:func:`policy_records`): every observation is a real touch of a fresh simulated rig
+   per trial (:class:`app.evaluation.rig_trial.RigTrial`, as ``activetouch evaluate --world
+   rig``), or with ``--source gp`` a draw from the learned GP.
 
 Run: ``.venv/bin/python -m bench.sim_tables --table lookalike_cups [--part both]
 [--touches 100] [--action-scale 1] [--trials 10] [--steps 10] [--seed 0] [--json]``
@@ -35,13 +37,14 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from app.rig_factory import RigWorld, TouchActions
+from app.evaluation.rig_trial import RigTrial, rig_seed
+from app.rig_factory import TouchActions
 from core.designs import random_design
-from core.evaluation import TrialOutcome, accuracy_by_touch, accuracy_per_object, evaluate
+from core.evaluation_records import TrialRecord, trial_seed
+from core.evaluation_summary import summarise
+from core.evaluation_trial import Observe, TrialSettings, model_observer, run_trial
 from core.manifold import FitOptions, fit_manifold
 from core.planning import ActionBox, Planner, make_policy
-from core.posterior import predict
-from core.recognition import RecognitionSettings, default_prior
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray
 from hardware.rig import RigConfig
@@ -60,6 +63,10 @@ QUIET = NoiseModel(
 """No noise at all: the mean responses (up to the heat history of earlier touches)."""
 
 POLICIES = ("active", "discriminative", "passive")
+
+CONFIDENCE = 0.95
+"""The confidence level handed to :func:`core.evaluation_summary.summarise` (its accuracies do
+not depend on it)."""
 
 
 def touch_all(
@@ -176,72 +183,67 @@ def collect_training(
     return TrainingData(objects, design.object_index, design.actions, observations)
 
 
-class LearnedGPWorld:
-    """The paper's protocol: observations drawn from the learned GP at each object's latent,
-    y ~ N(m(s_l, x), v(s_l, x)) per feature (no model mismatch: isolates the policies)."""
-
-    def __init__(self, model: ManifoldModel) -> None:
-        self.model = model
-        actions = model.data.actions
-        self.object_names = model.object_names
-        self.action_dim = model.hyperparameters.action_dim
-        self.observation_dim = model.hyperparameters.observation_dim
-        self.action_mean = actions.mean(axis=0)
-        self.action_cov = np.cov(actions, rowvar=False)
-
-    def _at(self, object_index: int, actions: FloatArray) -> tuple[FloatArray, FloatArray]:
-        latents = np.repeat(self.model.latents[object_index : object_index + 1], len(actions), 0)
-        return predict(self.model, latents, actions)
-
-    def mean_response(self, object_index: int, actions: FloatArray) -> FloatArray:
-        return self._at(object_index, actions)[0]
-
-    def observe(
-        self, object_index: int, actions: FloatArray, rng: np.random.Generator
-    ) -> FloatArray:
-        mean, variance = self._at(object_index, actions)
-        return np.asarray(mean + np.sqrt(variance) * rng.standard_normal(mean.shape))
-
-
-def _rig_trials(
+def policy_records(
     model: ManifoldModel,
-    objects: tuple[str, ...],
-    actions: TouchActions,
-    data: TrainingData,
     planner: Planner,
-    settings: RecognitionSettings,
+    policy: str,
     n_trials: int,
+    steps: int,
     seed: int,
-    noise: NoiseModel | None,
+    *,
+    source: str,
+    table: str,
+    actions: TouchActions,
+    noise: NoiseModel | None = None,
     reseat_each_touch: bool = False,
-) -> list[TrialOutcome]:
-    """Trials whose observations are touches of a fresh simulated rig (world seed ``seed``)."""
-    dx = actions.action_dim
-    sim = in_process_rig(objects, seed=seed, rig_config=RigConfig(), noise=noise)
-    try:
-        with sim.rig.acquire("bench.sim_tables") as lease:
-            lease.connect()
-            world = RigWorld(
-                lease,
-                actions,
-                {n: i for i, n in enumerate(objects)},
-                data.actions.mean(axis=0),
-                np.cov(data.actions, rowvar=False).reshape(dx, dx),
-                reseat_each_touch=reseat_each_touch,
-            )
-            return evaluate(
-                model,
-                world,
-                planner,
-                settings,
-                n_trials,
-                np.random.default_rng(seed),
-                prior=default_prior(model),
-                # Every trial places the object anew (its touches share that placement).
-                callback=lambda _outcome: world.reseat(),
-            )
-    finally:
-        sim.close()
+) -> list[TrialRecord]:
+    """``n_trials`` trials of every model object, through the evaluation engine's pieces.
+
+    Each trial has its own seed (:func:`core.evaluation_records.trial_seed` of ``seed``, the
+    target and the index; the same under every policy) and runs
+    :func:`core.evaluation_trial.run_trial`. Observations are touches of a fresh simulated rig
+    seeded from the trial (:class:`app.evaluation.rig_trial.RigTrial`, as ``activetouch evaluate
+    --world rig`` makes them; with ``reseat_each_touch`` the object is placed anew before every
+    touch, else once per trial) or, with ``source="gp"``, draws from the learned GP
+    (:func:`core.evaluation_trial.model_observer`, the paper's protocol).
+    """
+    settings = TrialSettings(steps=steps, tolerance=0.0)
+    objects = get_table(table).objects
+    records = []
+    for target in model.object_names:
+        for index in range(n_trials):
+            trial = trial_seed(seed, target, index)
+            rig: RigTrial | None = None
+            observe: Observe
+            if source == "gp":
+                observe = model_observer(model, target)
+            else:
+                rig = RigTrial(
+                    actions,
+                    objects,
+                    target,
+                    rig_seed(trial),
+                    replace_each_touch=reseat_each_touch,
+                    noise=noise,
+                )
+                observe = rig.observe
+            try:
+                records.append(
+                    run_trial(
+                        model,
+                        planner,
+                        policy=policy,
+                        target=target,
+                        trial=index,
+                        seed=trial,
+                        observe=observe,
+                        settings=settings,
+                    )
+                )
+            finally:
+                if rig is not None:
+                    rig.close()
+    return records
 
 
 def trials(
@@ -263,48 +265,42 @@ def trials(
     model = fit_manifold(data, 2, np.random.default_rng(seed), FitOptions())
     fit_s = time.perf_counter() - start
     log(f"fit: {fit_s:.1f} s, log-likelihood {model.log_likelihood:.1f}")
-    settings = RecognitionSettings(max_steps=steps, tolerance=0.0)
     results: dict[str, Any] = {"fit_s": fit_s, "log_likelihood": model.log_likelihood}
-    objects = get_table(table).objects
-    for k, name in enumerate(POLICIES):
+    for name in POLICIES:
         box = None
         if box_std > 0:
             centre, spread = data.actions.mean(axis=0), data.actions.std(axis=0)
             box = ActionBox(centre - box_std * spread, centre + box_std * spread)
         planner = Planner(model, make_policy(name), box=box)
         begin = time.perf_counter()
-        if source == "gp":
-            world = LearnedGPWorld(model)
-            rng = np.random.default_rng(seed + 100 + k)
-            outcomes = evaluate(
-                model, world, planner, settings, n_trials, rng, prior=default_prior(model)
-            )
-        else:
-            outcomes = _rig_trials(
-                model,
-                objects,
-                actions,
-                data,
-                planner,
-                settings,
-                n_trials,
-                seed + 100 + k,
-                noise,
-                reseat_each_touch,
-            )
-        by_touch = accuracy_by_touch(outcomes)
-        per_object = accuracy_per_object(outcomes, len(objects))
+        records = policy_records(
+            model,
+            planner,
+            name,
+            n_trials,
+            steps,
+            seed + 100,
+            source=source,
+            table=table,
+            actions=actions,
+            noise=noise,
+            reseat_each_touch=reseat_each_touch,
+        )
+        summary = summarise(records, model.object_names, steps, CONFIDENCE)[name]
+        by_touch = np.asarray(summary["accuracy_by_touch"])
         object_by_touch = {
-            n: accuracy_by_touch([o for o in outcomes if o.target == i]).tolist()
-            for i, n in enumerate(model.object_names)
+            n: summarise(
+                [r for r in records if r.target == n], model.object_names, steps, CONFIDENCE
+            )[name]["accuracy_by_touch"]
+            for n in model.object_names
         }
         results[name] = {
             "accuracy_by_touch": by_touch.tolist(),
-            "final_accuracy_per_object": dict(
-                zip(model.object_names, per_object.tolist(), strict=True)
-            ),
+            "final_accuracy_per_object": {
+                n: summary["per_object"][n]["accuracy"] for n in model.object_names
+            },
             "accuracy_by_touch_per_object": object_by_touch,
-            "trials": len(outcomes),
+            "trials": len(records),
             "wall_s": time.perf_counter() - begin,
         }
         log(

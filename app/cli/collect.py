@@ -303,7 +303,7 @@ def _collect(
 ) -> tuple[list[CollectedTouch], str | None, int, float]:
     """Run the collection into the files; return the touches, the error, exit code, seconds."""
     from app.cli.output import progress_bar
-    from app.documents import TrainingCsvWriter
+    from app.documents.training_csv import TrainingCsvWriter
     from app.services.collections import iter_collection
     from app.services.rig import raw_series
     from hardware.errors import HardwareError

@@ -40,7 +40,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from app.cli.output import messages
 from app.cli.serve import GracefulServer
 from app.config import Settings, is_loopback
-from app.documents import write_training_csv
+from app.documents.training_csv import write_training_csv
 from app.main import API_PREFIX, create_app
 from app.viz.live import LiveView
 from core.worlds import sample_experiment1
@@ -344,11 +344,9 @@ class DemoServer:
     @property
     def action_scale(self) -> float:
         """The collection design's spread: the options', or the table's own."""
-        if self.options.action_scale is not None:
-            return self.options.action_scale
-        from hardware.sim.materials import get_table
+        from hardware.sim.materials import design_std
 
-        return get_table(self.options.table).action_std
+        return design_std(self.options.table, self.options.action_scale)
 
     @property
     def dataset_name(self) -> str:

@@ -67,7 +67,7 @@ def split_names(value: str | None, option: str) -> tuple[str, ...] | None:
 
 def read_data(path: Path) -> TrainingData:
     """The held-out touches of a replay (a training CSV)."""
-    from app.documents import read_training_csv
+    from app.documents.training_csv import read_training_csv
     from core.errors import CoreError
 
     try:

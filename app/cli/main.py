@@ -207,7 +207,8 @@ def fit(
     """Learn the object manifold from a training CSV."""
     import numpy as np
 
-    from app.documents import latent_selection_dict, model_to_document, read_training_csv
+    from app.documents.model import latent_selection_dict, model_to_document
+    from app.documents.training_csv import read_training_csv
     from core.errors import CoreError
     from core.manifold import FitOptions
 
@@ -264,7 +265,7 @@ def fit(
 
 def load_model(path: Path) -> ManifoldModel:
     """Read a model document from a file, with errors that say what is wrong."""
-    from app.documents import model_from_document
+    from app.documents.model import model_from_document
     from core.errors import CoreError
 
     try:
@@ -304,7 +305,7 @@ def dataset(
     """Write a simulated training set (x ~ N(0, I) per touch) as a training CSV."""
     import numpy as np
 
-    from app.documents import write_training_csv
+    from app.documents.training_csv import write_training_csv
     from core.worlds import sample_dataset
 
     data = sample_dataset(

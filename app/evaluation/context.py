@@ -9,13 +9,13 @@ trial (policy, target, index). This module imports no web stack, so a worker sta
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from core.evaluation_records import TrialRecord, seed_sequence, trial_seed
+from app.evaluation.rig_trial import RigTrial, rig_seed
+from core.evaluation_records import TrialRecord, trial_seed
 from core.evaluation_trial import (
     Observe,
     ReplayPool,
@@ -28,7 +28,6 @@ from core.evaluation_trial import (
 )
 from core.planning import Planner
 from core.types import ManifoldModel, TrainingData
-from core.validation import FloatArray
 from core.worlds import Experiment1World, World, random_experiment2_world
 
 if TYPE_CHECKING:
@@ -52,50 +51,6 @@ def synthetic_world(spec: EvaluationSpec) -> World:
         return Experiment1World(noise_std=0.1 if spec.noise_std is None else spec.noise_std)
     noise = 0.05 if spec.noise_std is None else spec.noise_std
     return random_experiment2_world(np.random.default_rng(spec.world_seed), noise_std=noise)
-
-
-@dataclass
-class _RigTrial:
-    """One trial's simulated rig: a fresh in-process rig seeded from the trial's seed.
-
-    With ``replace_each_touch`` the table turns to the next slot and back before every touch
-    after the first, so each touch meets a fresh placement of the object (as in a collection).
-    """
-
-    actions: TouchActions
-    objects: tuple[str, ...]
-    target: str
-    rig_seed: int
-    replace_each_touch: bool = False
-
-    def __post_init__(self) -> None:
-        from app.rig_factory import SimulationMode, open_rig
-
-        self._handle = open_rig(
-            simulate=SimulationMode.in_process, objects=self.objects, seed=self.rig_seed
-        )
-        try:
-            self._lease = self._handle.rig.acquire("evaluation")
-            self._lease.connect()
-        except BaseException:
-            self._handle.close()
-            raise
-        self._slot: int | None = self.objects.index(self.target)
-
-    def observe(self, action: FloatArray, rng: np.random.Generator) -> FloatArray:
-        target = self.objects.index(self.target)
-        if self._slot is None and self.replace_each_touch and len(self.objects) > 1:
-            self._lease.move_to_slot((target + 1) % len(self.objects))
-            self._slot = target
-        record = self.actions.touch(self._lease, action, slot=self._slot)
-        self._slot = None  # the table stays at the target after the touch
-        return np.asarray(record.observation, dtype=np.float64)
-
-    def close(self) -> None:
-        try:
-            self._lease.release()
-        finally:
-            self._handle.close()
 
 
 class TrialContext:
@@ -190,17 +145,16 @@ class TrialContext:
                 settings=settings,
                 steps=self.steps,
             )
-        rig: _RigTrial | None = None
+        rig: RigTrial | None = None
         observe: Observe
         if self.spec.world == "model":
             observe = model_observer(self.model, target)
         elif self.spec.world == "rig":
-            rig_seed = int(seed_sequence(seed).generate_state(1)[0])
-            rig = _RigTrial(
+            rig = RigTrial(
                 self._rig_actions(),
                 rig_tables()[self.spec.table or "default"],
                 target,
-                rig_seed,
+                rig_seed(seed),
                 replace_each_touch=self.spec.placement == "touch",
             )
             observe = rig.observe

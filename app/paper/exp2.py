@@ -93,11 +93,9 @@ class Experiment2Settings:
     @property
     def design_std(self) -> float:
         """The design's spread: ``action_scale``, or the table's own."""
-        if self.action_scale is not None:
-            return self.action_scale
-        from hardware.sim.materials import get_table
+        from hardware.sim.materials import design_std
 
-        return get_table(self.table).action_std
+        return design_std(self.table, self.action_scale)
 
 
 @dataclass(frozen=True)

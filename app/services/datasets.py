@@ -8,7 +8,7 @@ import numpy as np
 from sqlalchemy.orm import Session
 
 from app import crud
-from app.documents import TrainingCsvWriter, read_training_csv
+from app.documents.training_csv import TrainingCsvWriter, read_training_csv
 from app.errors import BadInputError, ConflictError, NotFoundError
 from app.models import Dataset
 from app.schemas import DatasetCreate, DatasetPublic, Page, SampleIn
@@ -73,7 +73,7 @@ def create_from_csv(session: Session, events: EventBus, text: str, name: str) ->
     """Parse a training CSV and store it.
 
     Raises:
-        app.documents.DocumentError: (→ 422) the message names the row and column.
+        app.documents.errors.DocumentError: (→ 422) the message names the row and column.
     """
     data = read_training_csv(text)
     return _commit_and_announce(session, events, data, name, "upload")
@@ -187,9 +187,9 @@ def _training_data(session: Session, dataset: Dataset) -> TrainingData:
 def export_csv(session: Session, dataset_id: int) -> str:
     """The dataset as training CSV (floats written with ``repr``: exact round trip).
 
-    Written touch by touch by :class:`app.documents.TrainingCsvWriter`, so a partial dataset (a
-    collection in progress or interrupted, which is not yet training data) exports in the same
-    format as a ready one.
+    Written touch by touch by :class:`app.documents.training_csv.TrainingCsvWriter`, so a
+    partial dataset (a collection in progress or interrupted, which is not yet training data)
+    exports in the same format as a ready one.
     """
     dataset = require(session, dataset_id)
     out = io.StringIO()

@@ -1,12 +1,12 @@
 """Models: fit in the background with progress events, read, export and import documents.
 
 The GP posterior is not stored, only how it was conditioned (the row's ``posterior``: the model
-document's ``posterior`` field, :func:`app.documents.posterior_field`). :class:`ModelStore`
-rebuilds a :class:`ManifoldModel` from the dataset, latents, hyperparameters and that record
-(deterministic, :func:`app.documents.condition_as_recorded`), so a model predicts the same after
-it leaves the in-memory cache of recent ones. Rows from before the record existed (``posterior``
-NULL) are rebuilt as :func:`core.posterior.condition` chooses by default, as they were then.
-"""
+document's ``posterior`` field, :func:`app.documents.posterior.posterior_field`).
+:class:`ModelStore` rebuilds a :class:`ManifoldModel` from the dataset, latents, hyperparameters
+and that record (deterministic, :func:`app.documents.posterior.condition_as_recorded`), so a
+model predicts the same after it leaves the in-memory cache of recent ones. Rows from before the
+record existed (``posterior`` NULL) are rebuilt as :func:`core.posterior.condition` chooses by
+default, as they were then."""
 
 from __future__ import annotations
 
@@ -24,16 +24,10 @@ from sqlalchemy.orm import Session
 
 from app import crud
 from app.db import Database
-from app.documents import (
-    DocumentError,
-    condition_as_recorded,
-    latent_selection_dict,
-    model_from_document,
-    model_to_document,
-    noise_model_field,
-    posterior_field,
-    read_noise_model_field,
-)
+from app.documents.errors import DocumentError
+from app.documents.model import latent_selection_dict, model_from_document, model_to_document
+from app.documents.noise_model import noise_model_field, read_noise_model_field
+from app.documents.posterior import condition_as_recorded, posterior_field
 from app.errors import AppError, BadInputError, ConflictError, NotFoundError
 from app.models import ModelRecord, utc_now
 from app.schemas import (
@@ -108,7 +102,7 @@ def store_fitted(
     latent_selection: dict[str, Any] | None = None,
 ) -> None:
     """Copy a fitted model's latents, hyperparameters, posterior record
-    (:func:`app.documents.posterior_field`, with the observation transform under
+    (:func:`app.documents.posterior.posterior_field`, with the observation transform under
     ``noise_model``), diagnostics (with ``latent_selection`` when ds was chosen) into its row;
     mark ready."""
     h = model.hyperparameters

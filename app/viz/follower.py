@@ -106,7 +106,7 @@ class TrialFollower:
 
     def show_model(self, model_id: Any) -> None:
         """Load model ``model_id`` from the app and show it."""
-        from app.documents import model_from_document
+        from app.documents.model import model_from_document
 
         response = self._client.get(f"/api/v1/models/{model_id}/export")
         response.raise_for_status()

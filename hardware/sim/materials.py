@@ -339,6 +339,21 @@ def get_table(name: str) -> Table:
         raise ConfigurationError(f"unknown table {name!r}; tables: {', '.join(TABLES)}.") from None
 
 
+def design_std(table: str, given: float | None = None) -> float:
+    """The spread (std per action component) of a random collection design on a table.
+
+    Args:
+        table: Table name.
+        given: The spread asked for; ``None`` takes the table's own :attr:`Table.action_std`.
+
+    Raises:
+        ConfigurationError: ``given`` is ``None`` and the table is unknown.
+    """
+    if given is not None:
+        return given
+    return get_table(table).action_std
+
+
 def get_object(
     name: str, temperature_c: float | None = None, contact_angle_deg: float | None = None
 ) -> TactileObject:

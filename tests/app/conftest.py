@@ -17,7 +17,7 @@ with warnings.catch_warnings():
     from fastapi.testclient import TestClient
 
 from app.config import Settings
-from app.documents import model_to_document
+from app.documents.model import model_to_document
 from app.main import create_app
 from core.posterior import condition
 from core.types import Hyperparameters

@@ -9,7 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from app.cli.main import app
-from app.documents import write_training_csv
+from app.documents.training_csv import write_training_csv
 from core.worlds import sample_experiment1
 
 runner = CliRunner()
@@ -129,7 +129,7 @@ def test_paper_exp1_small_run_reports_figures():
 
 
 def test_fit_with_a_sparse_structure_records_it_in_the_document(csv_path):
-    from app.documents import model_from_document
+    from app.documents.model import model_from_document
 
     result = runner.invoke(
         app,

@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from app import rig_factory
 from app.cli.main import app
-from app.documents import read_training_csv
+from app.documents.training_csv import read_training_csv
 from app.errors import BadInputError
 from app.rig_factory import RigHandle
 from app.services.collections import check_objects, iter_collection

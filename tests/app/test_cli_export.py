@@ -17,7 +17,8 @@ from typer.testing import CliRunner
 from app import crud
 from app.cli.main import app
 from app.db import Database
-from app.documents import model_from_document, read_training_csv
+from app.documents.model import model_from_document
+from app.documents.training_csv import read_training_csv
 from app.main import create_app
 from core.posterior import predict
 from core.worlds import Experiment1World

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from app.documents import read_training_csv
+from app.documents.training_csv import read_training_csv
 from core.designs import random_design, shared_design
 from core.types import TrainingData
 from tests.app.conftest import TestClient

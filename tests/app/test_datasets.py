@@ -9,7 +9,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app import crud
-from app.documents import DocumentError, read_training_csv
+from app.documents.errors import DocumentError
+from app.documents.training_csv import read_training_csv
 from tests.app.conftest import experiment1_csv
 
 CSV_HEADERS = {"content-type": "text/csv"}

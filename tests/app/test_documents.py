@@ -7,13 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from app.documents import (
-    DocumentError,
-    model_from_document,
-    model_to_document,
-    read_training_csv,
-    write_training_csv,
-)
+from app.documents.errors import DocumentError
+from app.documents.model import model_from_document, model_to_document
+from app.documents.training_csv import read_training_csv, write_training_csv
 from core.posterior import condition, predict
 from core.types import Hyperparameters
 from core.worlds import sample_experiment1

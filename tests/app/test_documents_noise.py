@@ -8,7 +8,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from app.documents import DocumentError, model_from_document, model_to_document
+from app.documents.errors import DocumentError
+from app.documents.model import model_from_document, model_to_document
 from core.noise_model import attach_transform, transform_data, whitening_transform
 from core.noise_model import standardising_transform as standardise
 from core.object_posterior import object_log_likelihoods

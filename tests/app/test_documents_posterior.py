@@ -12,7 +12,8 @@ import json
 import numpy as np
 import pytest
 
-from app.documents import DocumentError, model_from_document, model_to_document
+from app.documents.errors import DocumentError
+from app.documents.model import model_from_document, model_to_document
 from core.posterior import condition, predict
 from core.sparse import condition_sparse, select_inducing_points
 from core.types import InducingPoints, ManifoldModel, TrainingData

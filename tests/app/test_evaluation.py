@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from app.documents import model_from_document
+from app.documents.model import model_from_document
 from app.errors import BadInputError
 from app.evaluation.report import FORMAT, EvaluationReport
 from app.evaluation.runner import run_evaluation

@@ -8,7 +8,7 @@ import threading
 import numpy as np
 import pytest
 
-from app.documents import model_from_document
+from app.documents.model import model_from_document
 from app.errors import BadInputError
 from app.evaluation.cluster import batches
 from app.evaluation.runner import run_evaluation

@@ -96,9 +96,9 @@ def test_tables_come_by_name_from_the_simulator() -> None:
 def test_a_rig_trial_places_its_object_once_or_before_every_touch(
     replace_each_touch: bool, placements: int
 ) -> None:
-    from app.evaluation.context import _RigTrial
+    from app.evaluation.rig_trial import RigTrial
 
-    trial = _RigTrial(
+    trial = RigTrial(
         TouchActions.from_teaching(),
         rig_tables()["default"],
         "paper_cup",
@@ -128,7 +128,7 @@ def test_only_the_rig_world_places_objects(rig_model):
 def test_a_rig_evaluation_simulates_the_servers_table_unless_told(tmp_path) -> None:
     from fastapi.testclient import TestClient
 
-    from app.documents import model_to_document
+    from app.documents.model import model_to_document
     from app.main import create_app
     from tests.app.conftest import make_settings
 
@@ -153,3 +153,55 @@ def test_a_rig_evaluation_simulates_the_servers_table_unless_told(tmp_path) -> N
         other = client.post("/api/v1/evaluations", json={**body, "table": "default"})
         assert other.status_code == 422
         assert "cushion_cork" in other.json()["detail"]
+
+
+def test_a_rig_trial_simulates_the_noise_model_it_is_given() -> None:
+    from dataclasses import replace
+
+    from app.evaluation.rig_trial import RigTrial
+    from hardware.sim.noise import NO_DRIFT, NoiseModel
+
+    quiet = replace(NoiseModel(), drift=NO_DRIFT, placement_std_deg=0.0)
+    trial = RigTrial(TouchActions.from_teaching(), OBJECTS, "ceramic_mug", rig_seed=1, noise=quiet)
+    try:
+        assert trial._handle.simulation.devices.plant.noise is quiet  # type: ignore[union-attr]
+    finally:
+        trial.close()
+
+
+# Three active touches: the third action's mutual information depends on the second touch's
+# observation, which depends on where the object was placed.
+@pytest.mark.parametrize(("source", "world"), [("rig", "rig"), ("gp", "model")])
+def test_the_sim_tables_bench_runs_the_engines_trials(rig_model, source: str, world: str) -> None:
+    """bench/sim_tables.py's trials are the engine's: the same records as ``run_evaluation``."""
+    from bench.sim_tables import policy_records
+    from core.planning import Planner, make_policy
+
+    placement = "touch" if world == "rig" else "trial"
+    engine = run_evaluation(
+        rig_model,
+        spec(
+            world=world,
+            policies=("active",),
+            targets=None,
+            steps=3,
+            table="default" if world == "rig" else None,
+            tolerance=0.0,
+            seed=4,
+            placement=placement,
+        ),
+    )
+    bench = policy_records(
+        rig_model,
+        Planner(rig_model, make_policy("active")),
+        "active",
+        1,
+        3,
+        4,
+        source=source,
+        table="default",
+        actions=TouchActions.from_teaching(),
+        reseat_each_touch=placement == "touch",
+    )
+    assert len(bench) == len(rig_model.object_names) == 3
+    assert sorted(bench, key=lambda r: r.key) == sorted(engine.records, key=lambda r: r.key)

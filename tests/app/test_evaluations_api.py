@@ -24,7 +24,7 @@ from sqlalchemy import inspect, text
 from app import crud
 from app.config import Settings
 from app.db import Database, upgrade_to_head
-from app.documents import model_from_document
+from app.documents.model import model_from_document
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
 from app.main import create_app

@@ -16,7 +16,7 @@ from alembic.script import ScriptDirectory
 from sqlalchemy import inspect, text
 
 from app.db import Database, upgrade_to_head
-from app.documents import model_to_document
+from app.documents.model import model_to_document
 from app.models import Base, ModelRecord
 from app.services.events import EventBus
 from app.services.models import ModelStore

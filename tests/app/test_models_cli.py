@@ -10,7 +10,8 @@ import pytest
 from typer.testing import CliRunner
 
 from app.cli.main import app
-from app.documents import model_from_document, write_training_csv
+from app.documents.model import model_from_document
+from app.documents.training_csv import write_training_csv
 from core.types import TrainingData
 from core.worlds import correlated_noise_world, sample_dataset, sample_experiment1
 

@@ -7,7 +7,7 @@ import json
 import numpy as np
 
 from app.config import Settings
-from app.documents import model_to_document
+from app.documents.model import model_to_document
 from app.main import create_app
 from tests.app.conftest import TestClient
 from tests.app.test_documents_noise import correlated_model

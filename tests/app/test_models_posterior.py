@@ -16,12 +16,9 @@ import numpy as np
 import pytest
 
 from app.config import Settings
-from app.documents import (
-    DocumentError,
-    condition_as_recorded,
-    model_to_document,
-    posterior_field,
-)
+from app.documents.errors import DocumentError
+from app.documents.model import model_to_document
+from app.documents.posterior import condition_as_recorded, posterior_field
 from app.main import create_app
 from app.models import ModelRecord
 from app.services.events import EventBus

@@ -8,7 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from app.documents import model_to_document, read_training_csv
+from app.documents.model import model_to_document
+from app.documents.training_csv import read_training_csv
 from core.posterior import condition
 from core.types import Hyperparameters
 from hardware.frames import CHANNELS

@@ -20,6 +20,7 @@ from hardware.sim.materials import (
     PET_ON_WATER,
     TABLES,
     Material,
+    design_std,
     get_table,
 )
 
@@ -98,31 +99,9 @@ def test_a_deep_press_separates_the_stiffness_look_alikes_more_than_a_shallow_on
     assert vibration_gap[2] > vibration_gap[1]
 
 
-def test_a_simulated_rig_serves_as_a_world_for_trials() -> None:
-    from app.rig_factory import RigWorld
-    from hardware.rig import RigConfig
-    from hardware.sim.rig import in_process_rig
-
-    actions = TouchActions.from_teaching()
-    sim = in_process_rig(("pet_cup", "pet_cup_stiff"), seed=0, rig_config=RigConfig())
-    try:
-        with sim.rig.acquire("test") as lease:
-            lease.connect()
-            world = RigWorld(
-                lease, actions, {"pet_cup": 0, "pet_cup_stiff": 1}, np.zeros(6), np.eye(6)
-            )
-            assert world.object_names == ("pet_cup", "pet_cup_stiff")
-            assert (world.action_dim, world.observation_dim) == (6, 5)
-            y = world.observe(1, np.zeros((2, 6)), np.random.default_rng(0))
-            assert y.shape == (2, 5)
-            assert world.touches == 2
-            placements = sim.devices.plant.events.placements
-            world.observe(1, np.zeros((1, 6)), np.random.default_rng(0))
-            assert sim.devices.plant.events.placements == placements  # same placement
-            world.reseat()
-            world.observe(1, np.zeros((1, 6)), np.random.default_rng(0))
-            assert sim.devices.plant.events.placements == placements + 2  # away, back
-            with pytest.raises(ConfigurationError, match="mean response"):
-                world.mean_response(0, np.zeros((1, 6)))
-    finally:
-        sim.close()
+def test_a_design_spread_is_the_given_one_else_the_tables() -> None:
+    assert design_std("cushions") == get_table("cushions").action_std == 1.5
+    assert design_std("cushions", 0.5) == 0.5
+    assert design_std("kitchen", 0.5) == 0.5  # a given spread needs no table
+    with pytest.raises(ConfigurationError, match="unknown table 'kitchen'"):
+        design_std("kitchen")

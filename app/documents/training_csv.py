@@ -1,0 +1,194 @@
+"""The training CSV (DESIGN.md): header ``object,x_1,...,x_dx,y_1,...,y_dy``, one touch per row.
+
+:func:`read_training_csv` parses and checks a file; :class:`TrainingCsvWriter` appends rows as
+touches arrive (a collection keeps what it recorded); :func:`write_training_csv` renders a whole
+data set.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import re
+from typing import TextIO
+
+import numpy as np
+import numpy.typing as npt
+
+from app.documents.errors import DocumentError
+from core.errors import InvalidInputError
+from core.types import TrainingData
+
+_ACTION_COLUMN = re.compile(r"^x_(\d+)$")
+_OBSERVATION_COLUMN = re.compile(r"^y_(\d+)$")
+
+
+def _check_header(header: list[str]) -> tuple[int, int]:
+    """Validate the CSV header; return (dx, dy)."""
+    names = [h.strip() for h in header]
+    if not names or names[0] != "object":
+        raise DocumentError(
+            f"CSV header: the first column must be 'object', found {names[:1] or 'nothing'}.",
+            row=1,
+            column=names[0] if names else None,
+        )
+    unknown = [
+        n for n in names[1:] if not (_ACTION_COLUMN.match(n) or _OBSERVATION_COLUMN.match(n))
+    ]
+    if unknown:
+        raise DocumentError(
+            f"CSV header: unknown column(s) {unknown}; expected object,x_1..x_dx,y_1..y_dy.",
+            row=1,
+            column=unknown[0],
+        )
+    actions = [n for n in names[1:] if _ACTION_COLUMN.match(n)]
+    observations = [n for n in names[1:] if _OBSERVATION_COLUMN.match(n)]
+    expected = (
+        ["object"]
+        + [f"x_{i + 1}" for i in range(len(actions))]
+        + [f"y_{i + 1}" for i in range(len(observations))]
+    )
+    if not actions or not observations or names != expected:
+        wanted = (
+            ",".join(expected)
+            if actions and observations
+            else "object,x_1..x_dx,y_1..y_dy with at least one x and one y"
+        )
+        raise DocumentError(f"CSV header: expected {wanted}, found {','.join(names)}.", row=1)
+    return len(actions), len(observations)
+
+
+def read_training_csv(text: str) -> TrainingData:
+    """Parse and validate a training CSV.
+
+    Raises:
+        DocumentError: Unknown or misordered columns, ragged rows, values that are not finite
+            numbers (the message names row and column), or too few objects / touches.
+    """
+    reader = csv.reader(io.StringIO(text))
+    try:
+        header = next(reader)
+    except StopIteration:
+        raise DocumentError("CSV: the file is empty; expected a header line.", row=1) from None
+    dx, dy = _check_header(header)
+    columns = [h.strip() for h in header]
+    names: list[str] = []
+    index: list[int] = []
+    values: list[list[float]] = []
+    for line_number, row in enumerate(reader, start=2):
+        if not row or all(not cell.strip() for cell in row):
+            continue
+        if len(row) != len(columns):
+            raise DocumentError(
+                f"CSV row {line_number}: has {len(row)} fields, the header has {len(columns)}.",
+                row=line_number,
+            )
+        name = row[0].strip()
+        if not name:
+            raise DocumentError(
+                f"CSV row {line_number}: the object name is empty.",
+                row=line_number,
+                column="object",
+            )
+        numbers = []
+        for column, cell in zip(columns[1:], row[1:], strict=True):
+            try:
+                number = float(cell)
+            except ValueError:
+                raise DocumentError(
+                    f"CSV row {line_number}, column {column}: {cell!r} is not a number.",
+                    row=line_number,
+                    column=column,
+                ) from None
+            if not math.isfinite(number):
+                raise DocumentError(
+                    f"CSV row {line_number}, column {column}: {cell!r} is not finite.",
+                    row=line_number,
+                    column=column,
+                )
+            numbers.append(number)
+        if name not in names:
+            names.append(name)
+        index.append(names.index(name))
+        values.append(numbers)
+    if not values:
+        raise DocumentError("CSV: no data rows after the header.", row=2)
+    array = np.asarray(values, dtype=np.float64)
+    try:
+        return TrainingData(
+            object_names=tuple(names),
+            object_index=np.asarray(index, dtype=np.int64),
+            actions=array[:, :dx],
+            observations=array[:, dx : dx + dy],
+        )
+    except DocumentError:
+        raise
+    except InvalidInputError as exc:
+        raise DocumentError(f"CSV: {exc}") from exc
+
+
+def training_csv_header(action_dim: int, observation_dim: int) -> list[str]:
+    """The CSV header ``object,x_1..x_dx,y_1..y_dy``."""
+    return (
+        ["object"]
+        + [f"x_{i + 1}" for i in range(action_dim)]
+        + [f"y_{i + 1}" for i in range(observation_dim)]
+    )
+
+
+class TrainingCsvWriter:
+    """Write a training CSV touch by touch: the header at once, then one row per :meth:`write`.
+
+    Floats are written with ``repr``, so they round-trip exactly. Rows are not validated as a
+    whole (a partial collection may have an object with one touch); :func:`read_training_csv`
+    checks the file when it is used.
+
+    Args:
+        stream: Text stream to write to (opened with ``newline=""`` for a file).
+        action_dim: dx.
+        observation_dim: dy.
+    """
+
+    def __init__(self, stream: TextIO, action_dim: int, observation_dim: int) -> None:
+        if action_dim < 1 or observation_dim < 1:
+            raise DocumentError(
+                f"CSV: needs dx ≥ 1 and dy ≥ 1, received dx={action_dim}, dy={observation_dim}."
+            )
+        self.action_dim = int(action_dim)
+        self.observation_dim = int(observation_dim)
+        self.rows = 0
+        self._writer = csv.writer(stream, lineterminator="\n")
+        self._writer.writerow(training_csv_header(self.action_dim, self.observation_dim))
+
+    def write(self, name: str, action: npt.ArrayLike, observation: npt.ArrayLike) -> None:
+        """Append one touch: object ``name``, action (dx,), observation (dy,).
+
+        Raises:
+            DocumentError: An empty name, wrong lengths or values that are not finite.
+        """
+        x = np.asarray(action, dtype=np.float64).reshape(-1)
+        y = np.asarray(observation, dtype=np.float64).reshape(-1)
+        if not name.strip():
+            raise DocumentError("CSV: the object name is empty.", column="object")
+        for what, values, expected in (
+            ("action", x, self.action_dim),
+            ("observation", y, self.observation_dim),
+        ):
+            if values.shape[0] != expected:
+                raise DocumentError(
+                    f"CSV: {what} of {name!r} has {values.shape[0]} values, expected {expected}."
+                )
+            if not np.all(np.isfinite(values)):
+                raise DocumentError(f"CSV: {what} of {name!r} is not finite: {values.tolist()}.")
+        self._writer.writerow([name, *map(repr, map(float, x)), *map(repr, map(float, y))])
+        self.rows += 1
+
+
+def write_training_csv(data: TrainingData) -> str:
+    """Render training data as CSV text (floats written with ``repr``, so they round-trip)."""
+    out = io.StringIO()
+    writer = TrainingCsvWriter(out, data.action_dim, data.observation_dim)
+    for obj, x, y in zip(data.object_index, data.actions, data.observations, strict=True):
+        writer.write(data.object_names[obj], x, y)
+    return out.getvalue()

@@ -1,0 +1,86 @@
+"""One recognition trial on the simulated rig: the one place that seats the trial's object.
+
+Used by the evaluation engine (:class:`app.evaluation.context.TrialContext`, world ``rig``) and
+by ``bench/sim_tables.py``. Every trial gets a fresh in-process rig (virtual time) seeded from
+the trial's own seed (:func:`rig_seed`), so a trial can be re-run alone. With
+``replace_each_touch`` the object is placed anew before every touch, as a collection does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from core.evaluation_records import seed_sequence
+from core.validation import FloatArray
+
+if TYPE_CHECKING:
+    from app.rig_factory import TouchActions
+    from hardware.sim.noise import NoiseModel
+
+
+def rig_seed(seed: tuple[int, ...]) -> int:
+    """The world seed of a trial's simulated rig, drawn from the trial's seed tuple
+    (:func:`core.evaluation_records.trial_seed`)."""
+    return int(seed_sequence(seed).generate_state(1)[0])
+
+
+@dataclass
+class RigTrial:
+    """One trial's simulated rig: a fresh in-process rig seeded from the trial's seed.
+
+    With ``replace_each_touch`` the table turns to the next slot and back before every touch
+    after the first, so each touch meets a fresh placement of the object (as in a collection).
+
+    Attributes:
+        actions: The action → trajectory map.
+        objects: The table's objects, slot 0 first.
+        target: The object touched (one of ``objects``).
+        rig_seed: World seed of the simulated rig (:func:`rig_seed`).
+        replace_each_touch: Place the object anew before every touch, not once per trial.
+        noise: Noise model of the simulated world (``None``: the simulator's default).
+    """
+
+    actions: TouchActions
+    objects: tuple[str, ...]
+    target: str
+    rig_seed: int
+    replace_each_touch: bool = False
+    noise: NoiseModel | None = None
+
+    def __post_init__(self) -> None:
+        from app.rig_factory import SimulationMode, open_rig
+
+        self._handle = open_rig(
+            simulate=SimulationMode.in_process,
+            objects=self.objects,
+            seed=self.rig_seed,
+            noise=self.noise,
+        )
+        try:
+            self._lease = self._handle.rig.acquire("evaluation")
+            self._lease.connect()
+        except BaseException:
+            self._handle.close()
+            raise
+        self._slot: int | None = self.objects.index(self.target)
+
+    def observe(self, action: FloatArray, rng: np.random.Generator) -> FloatArray:
+        """Touch the target with ``action`` (dx,); the observation (dy,). ``rng`` is unused:
+        the simulation's own randomness makes the noise."""
+        target = self.objects.index(self.target)
+        if self._slot is None and self.replace_each_touch and len(self.objects) > 1:
+            self._lease.move_to_slot((target + 1) % len(self.objects))
+            self._slot = target
+        record = self.actions.touch(self._lease, action, slot=self._slot)
+        self._slot = None  # the table stays at the target after the touch
+        return np.asarray(record.observation, dtype=np.float64)
+
+    def close(self) -> None:
+        """Release the lease and stop the simulation."""
+        try:
+            self._lease.release()
+        finally:
+            self._handle.close()
