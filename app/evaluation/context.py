@@ -4,6 +4,12 @@
 builds per process what is costly and reusable (planners with their candidate statistics, the
 world, the rig's action map). It is what is sent to each Dask worker once; a task names only its
 trial (policy, target, index). This module imports no web stack, so a worker starts light.
+
+A rig trial whose touch the hardware refuses (:func:`is_refusal`: a servo overload, a command a
+servo refuses, a trajectory refused before it moved) ends as a
+:class:`~core.evaluation_records.RefusedTrial`; the evaluation goes on. Any other hardware error
+(a lost device, a timeout, an alarm of the turntable) propagates, noted with the trial and touch
+it happened in, and ends the evaluation.
 """
 
 from __future__ import annotations
@@ -15,7 +21,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from core.evaluation_records import TrialRecord, seed_sequence, trial_seed
+from core.errors import TouchRefused
+from core.evaluation_records import TrialOutcome, seed_sequence, trial_seed
 from core.evaluation_trial import (
     Observe,
     ReplayPool,
@@ -30,10 +37,18 @@ from core.planning import Planner
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray
 from core.worlds import Experiment1World, World, random_experiment2_world
+from hardware.errors import (
+    HardwareError,
+    ServoCommandError,
+    ServoHardwareError,
+    ServoHardwareErrorFlags,
+    UnsafeTrajectoryError,
+)
 
 if TYPE_CHECKING:
     from app.evaluation.spec import EvaluationSpec
     from app.rig_factory import TouchActions
+    from hardware.records import TouchRecord
 
 #: Key of one trial: (policy, target, trial index).
 TrialKey = tuple[str, str, int]
@@ -52,6 +67,22 @@ def synthetic_world(spec: EvaluationSpec) -> World:
         return Experiment1World(noise_std=0.1 if spec.noise_std is None else spec.noise_std)
     noise = 0.05 if spec.noise_std is None else spec.noise_std
     return random_experiment2_world(np.random.default_rng(spec.world_seed), noise_std=noise)
+
+
+def is_refusal(error: HardwareError) -> bool:
+    """Whether a hardware error refuses one touch (its action), not the rig as a whole.
+
+    Refusals: a servo overload (:class:`~hardware.errors.ServoHardwareError` with ``OVERLOAD``),
+    a command a servo refuses (:class:`~hardware.errors.ServoCommandError`), a trajectory
+    refused before anything moved (:class:`~hardware.errors.UnsafeTrajectoryError`). Every
+    other error (disconnection, timeout, a servo's voltage or encoder fault, a turntable
+    alarm, an emergency stop, a busy rig) is not.
+    """
+    if isinstance(error, UnsafeTrajectoryError | ServoCommandError):
+        return True
+    return isinstance(error, ServoHardwareError) and bool(
+        error.flags & ServoHardwareErrorFlags.OVERLOAD
+    )
 
 
 @dataclass
@@ -81,15 +112,33 @@ class _RigTrial:
             self._handle.close()
             raise
         self._slot: int | None = self.objects.index(self.target)
+        self.touched = 0  # touches asked for so far (the refused one included)
 
     def observe(self, action: FloatArray, rng: np.random.Generator) -> FloatArray:
+        """Touch with ``action``; a refusal (:func:`is_refusal`) as :class:`TouchRefused`.
+
+        Raises:
+            TouchRefused: The hardware refused this touch.
+            HardwareError: Anything else (noted with the touch it happened in).
+        """
+        self.touched += 1
+        try:
+            record = self._touch(action)
+        except HardwareError as exc:
+            if is_refusal(exc):
+                raise TouchRefused(type(exc).__name__, str(exc)) from exc
+            exc.add_note(f"at touch {self.touched} of the trial")
+            raise
+        return np.asarray(record.observation, dtype=np.float64)
+
+    def _touch(self, action: FloatArray) -> TouchRecord:
         target = self.objects.index(self.target)
         if self._slot is None and self.replace_each_touch and len(self.objects) > 1:
             self._lease.move_to_slot((target + 1) % len(self.objects))
             self._slot = target
         record = self.actions.touch(self._lease, action, slot=self._slot)
         self._slot = None  # the table stays at the target after the touch
-        return np.asarray(record.observation, dtype=np.float64)
+        return record
 
     def close(self) -> None:
         try:
@@ -162,18 +211,42 @@ class TrialContext:
             self._local.rig_actions = actions
         return actions
 
-    def run(self, key: TrialKey) -> TrialRecord:
+    def run(self, key: TrialKey) -> TrialOutcome:
         """Run one trial (BLAS on one thread, so results do not depend on the process)."""
         with threadpool_limits(limits=1):
             return self.run_unpinned(key)
 
-    def run_many(self, keys: list[TrialKey]) -> list[TrialRecord]:
+    def run_many(self, keys: list[TrialKey]) -> list[TrialOutcome]:
         """:meth:`run` of each key, BLAS pinned once for all of them (it costs ~1 ms)."""
         with threadpool_limits(limits=1):
             return [self.run_unpinned(key) for key in keys]
 
-    def run_unpinned(self, key: TrialKey) -> TrialRecord:
-        """One trial; the caller has pinned BLAS to one thread (see :meth:`run`)."""
+    def run_unpinned(self, key: TrialKey) -> TrialOutcome:
+        """One trial; the caller has pinned BLAS to one thread (see :meth:`run`).
+
+        Raises:
+            HardwareError: The rig failed other than by refusing a touch (the error carries a
+                note naming the trial).
+        """
+        try:
+            return self._run_trial(key)
+        except HardwareError as exc:
+            policy, target, trial = key
+            exc.add_note(f"in trial {trial} of {policy}/{target}")
+            raise
+
+    def open_rig_trial(self, key: TrialKey, rig_seed: int) -> _RigTrial:
+        """A fresh simulated rig for trial ``key`` (policy, target, index)."""
+        target = key[1]
+        return _RigTrial(
+            self._rig_actions(),
+            rig_tables()[self.spec.table or "default"],
+            target,
+            rig_seed,
+            replace_each_touch=self.spec.placement == "touch",
+        )
+
+    def _run_trial(self, key: TrialKey) -> TrialOutcome:
         policy, target, trial = key
         seed = trial_seed(self.spec.seed, target, trial)
         planner = self.planner(policy)
@@ -196,13 +269,7 @@ class TrialContext:
             observe = model_observer(self.model, target)
         elif self.spec.world == "rig":
             rig_seed = int(seed_sequence(seed).generate_state(1)[0])
-            rig = _RigTrial(
-                self._rig_actions(),
-                rig_tables()[self.spec.table or "default"],
-                target,
-                rig_seed,
-                replace_each_touch=self.spec.placement == "touch",
-            )
+            rig = self.open_rig_trial(key, rig_seed)
             observe = rig.observe
         else:
             observe = world_observer(self._world(), target)
@@ -222,6 +289,6 @@ class TrialContext:
                 rig.close()
 
 
-def run_trials_task(context: TrialContext, keys: list[TrialKey]) -> list[TrialRecord]:
+def run_trials_task(context: TrialContext, keys: list[TrialKey]) -> list[TrialOutcome]:
     """The task of a batch of trials (runs on a worker; ``context`` is its scattered copy)."""
     return context.run_many(keys)
