@@ -119,10 +119,9 @@ class EvaluationReport:
         refused = self.refused_by_policy()
         for policy, entry in summary.items():
             count = refused.get(policy, 0)
+            right = sum(r.correct for r in self.records if r.policy == policy)
             entry["refused"] = count
-            entry["accuracy_if_refused_wrong"] = (
-                entry["accuracy_by_touch"][-1] * entry["trials"] / (entry["trials"] + count)
-            )
+            entry["accuracy_if_refused_wrong"] = right / (entry["trials"] + count)
         return summary
 
     def comparison(self) -> str:

@@ -167,6 +167,14 @@ def test_an_error_that_is_not_a_refusal_still_fails_the_evaluation(
     assert failed.value.extra["device_error"] == error
 
 
+def test_a_rig_failure_on_dask_fails_the_evaluation_naming_the_trial(
+    rig_model, monkeypatch, dask_cluster
+):
+    monkeypatch.setattr(evaluation_runner, "TrialContext", DisconnectingContext)
+    with pytest.raises(DeviceUnavailableError, match=r"in trial 1 of (active|passive)/paper_cup"):
+        run_evaluation(rig_model, SPEC, scheduler=dask_cluster.scheduler_address)
+
+
 def test_refused_trials_are_the_same_on_dask(rig_model, refusing, dask_cluster):
     serial = run_evaluation(rig_model, SPEC)
     distributed = run_evaluation(rig_model, SPEC, scheduler=dask_cluster.scheduler_address)
