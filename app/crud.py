@@ -436,7 +436,8 @@ def set_evaluation_status(
 def add_evaluation_trial(
     session: Session, evaluation: Evaluation, record: dict[str, Any]
 ) -> EvaluationTrial:
-    """Add a finished trial (a ``TrialRecord.to_dict()``) as number ``done + 1``; bump ``done``.
+    """Add a finished trial (a ``TrialRecord.to_dict()``, or a ``RefusedTrial.to_dict()``, which
+    has ``refused``) as number ``done + 1``; bump ``done``.
 
     Raises:
         KeyError: ``record`` lacks ``policy``, ``target``, ``trial``, ``correct`` or ``touches``.
@@ -449,6 +450,7 @@ def add_evaluation_trial(
         trial=int(record["trial"]),
         correct=bool(record["correct"]),
         touches=int(record["touches"]),
+        refused=bool(record.get("refused")),
         record=record,
     )
     session.add(row)

@@ -24,6 +24,7 @@ from sqlalchemy import (
     Text,
     TypeDecorator,
     UniqueConstraint,
+    false,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
@@ -289,7 +290,9 @@ class EvaluationTrial(Base):
     """One finished trial of an evaluation: its ``TrialRecord`` as JSON (``record``).
 
     ``number`` counts the trials in the order they finished (1, 2, ...); (policy, target,
-    trial) names the trial as the engine does.
+    trial) names the trial as the engine does. ``refused``: the rig refused one of its touches
+    (``record`` is then a ``RefusedTrial`` document: ``correct`` false, ``touches`` those
+    performed before the refusal, ``refused`` the touch, action and device message).
     """
 
     __tablename__ = "evaluation_trials"
@@ -306,6 +309,7 @@ class EvaluationTrial(Base):
     trial: Mapped[int] = mapped_column(Integer)
     correct: Mapped[bool] = mapped_column(Boolean)
     touches: Mapped[int] = mapped_column(Integer)
+    refused: Mapped[bool] = mapped_column(Boolean, default=False, server_default=false())
     record: Mapped[dict[str, Any]] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utc_now)
 

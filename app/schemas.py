@@ -499,6 +499,8 @@ class EvaluationPublic(BaseModel):
     ``summary`` is the ``activetouch-evaluation/1`` document without its trials: the final
     report's once the job has ended with one; while it runs (or after it failed) the summary
     of the trials finished so far, marked ``"partial": true``; null before the first trial.
+    Its ``refused_trials`` and ``refused_by_policy`` count the trials the rig refused a touch
+    of (a servo overload, ...); each policy's accuracy is over its completed ``trials`` only.
     """
 
     id: int
@@ -518,8 +520,22 @@ class EvaluationPublic(BaseModel):
     finished_at: datetime | None
 
 
+class TrialRefusal(BaseModel):
+    """Why a trial was refused: the rig refused one of its touches (e.g. a servo overload)."""
+
+    touch: int = Field(description="The refused touch, 1-based (touches before it were made).")
+    action: list[float] = Field(description="The action refused.")
+    error: str = Field(description="The device error, e.g. ServoHardwareError.")
+    reason: str = Field(description="The device's message.")
+
+
 class EvaluationTrialSummary(BaseModel):
-    """A finished trial of an evaluation, without its touches (list view)."""
+    """A finished trial of an evaluation, without its touches (list view).
+
+    A refused trial (``refused``) ended when the rig refused one of its touches; ``correct`` is
+    false, ``touches`` counts those made before the refusal and ``stop_reason`` is
+    ``"refused"``; the evaluation's accuracy leaves it out (its summary counts it apart).
+    """
 
     number: int
     policy: str
@@ -529,6 +545,8 @@ class EvaluationTrialSummary(BaseModel):
     touches: int
     answer: str | None
     stop_reason: str | None
+    refused: bool = False
+    refusal: TrialRefusal | None = None
 
 
 class EvaluationTrialPublic(EvaluationTrialSummary):

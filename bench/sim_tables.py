@@ -40,7 +40,7 @@ from threadpoolctl import threadpool_limits
 from app.evaluation.rig_trial import RigTrial, rig_seed
 from app.rig_factory import TouchActions
 from core.designs import random_design
-from core.evaluation_records import TrialRecord, trial_seed
+from core.evaluation_records import TrialOutcome, TrialRecord, trial_seed
 from core.evaluation_summary import summarise
 from core.evaluation_trial import Observe, TrialSettings, model_observer, run_trial
 from core.manifold import FitOptions, fit_manifold
@@ -196,7 +196,7 @@ def policy_records(
     actions: TouchActions,
     noise: NoiseModel | None = None,
     reseat_each_touch: bool = False,
-) -> list[TrialRecord]:
+) -> list[TrialOutcome]:
     """``n_trials`` trials of every model object, through the evaluation engine's pieces.
 
     Each trial has its own seed (:func:`core.evaluation_records.trial_seed` of ``seed``, the
@@ -209,7 +209,7 @@ def policy_records(
     """
     settings = TrialSettings(steps=steps, tolerance=0.0)
     objects = get_table(table).objects
-    records = []
+    records: list[TrialOutcome] = []
     for target in model.object_names:
         for index in range(n_trials):
             trial = trial_seed(seed, target, index)
@@ -273,7 +273,7 @@ def trials(
             box = ActionBox(centre - box_std * spread, centre + box_std * spread)
         planner = Planner(model, make_policy(name), box=box)
         begin = time.perf_counter()
-        records = policy_records(
+        outcomes = policy_records(
             model,
             planner,
             name,
@@ -286,6 +286,8 @@ def trials(
             noise=noise,
             reseat_each_touch=reseat_each_touch,
         )
+        # A trial whose touch the rig refused has no answer; it is counted apart.
+        records = [r for r in outcomes if isinstance(r, TrialRecord)]
         summary = summarise(records, model.object_names, steps, CONFIDENCE)[name]
         by_touch = np.asarray(summary["accuracy_by_touch"])
         object_by_touch = {
@@ -301,12 +303,15 @@ def trials(
             },
             "accuracy_by_touch_per_object": object_by_touch,
             "trials": len(records),
+            "refused": len(outcomes) - len(records),
             "wall_s": time.perf_counter() - begin,
         }
         log(
             f"{name:>14}: accuracy by touch "
             + " ".join(f"{v:.2f}" for v in by_touch)
-            + f"  ({time.perf_counter() - begin:.0f} s)"
+            + f"  ({time.perf_counter() - begin:.0f} s"
+            + (f", {len(outcomes) - len(records)} refused" if len(outcomes) > len(records) else "")
+            + ")"
         )
         for obj, values in object_by_touch.items():
             log(f"{'':>14}  {obj:>16}: " + " ".join(f"{v:.2f}" for v in values))

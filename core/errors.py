@@ -28,3 +28,24 @@ class NotFittedError(CoreError):
 
 class ConvergenceError(CoreError):
     """An optimiser failed on every start."""
+
+
+class TouchRefused(CoreError):  # noqa: N818
+    """The observation source refused to perform one action (a device refused the touch).
+
+    Raised by an ``Observe`` function of an evaluation trial (e.g. the rig's, when a servo
+    overloads); :func:`core.evaluation_trial.run_trial` ends only that trial and records it as
+    refused. Anything else an observation source raises ends the whole evaluation.
+
+    Attributes:
+        error: What refused it, e.g. the device error's class name (``"ServoHardwareError"``).
+        reason: The device's message.
+    """
+
+    def __init__(self, error: str, reason: str) -> None:
+        super().__init__(f"{error}: {reason}")
+        self.error = error
+        self.reason = reason
+
+    def __reduce__(self) -> tuple[type[TouchRefused], tuple[str, str]]:
+        return (type(self), (self.error, self.reason))

@@ -176,3 +176,149 @@ class TrialRecord:
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise InvalidInputError(f"trial record: missing or malformed field ({exc}).") from None
+
+
+#: ``stop_reason`` of a refused trial's document (:meth:`RefusedTrial.to_dict`).
+REFUSED = "refused"
+
+
+@dataclass(frozen=True)
+class RefusedTrial:
+    """An evaluation trial that ended because the world refused one touch (e.g. a servo overload).
+
+    It is neither right nor wrong: an evaluation's accuracy counts only completed trials
+    (:class:`TrialRecord`) and reports the refused ones beside them.
+
+    Attributes:
+        policy: Name of the policy.
+        target: Name of the object touched.
+        trial: Index of this trial within its (policy, target) cell.
+        seed: The seed tuple that reproduces the trial alone (:func:`trial_seed`).
+        touch: The refused touch, 1-based (``touch - 1`` touches were performed before it).
+        action: The action refused, length dx.
+        error: What refused it (the device error's class name, e.g. ``"ServoHardwareError"``).
+        reason: The device's message.
+        answers: The answer after each touch performed before the refusal. Length
+            ``touch - 1``, as the three fields below.
+        probabilities: Object posterior after each of those touches, in the model's order.
+        actions: Their actions.
+        mutual_information: U1 of each of their actions, in nats.
+    """
+
+    policy: str
+    target: str
+    trial: int
+    seed: tuple[int, ...]
+    touch: int
+    action: tuple[float, ...]
+    error: str
+    reason: str
+    answers: tuple[str, ...] = ()
+    probabilities: tuple[tuple[float, ...], ...] = ()
+    actions: tuple[tuple[float, ...], ...] = ()
+    mutual_information: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        done = self.touch - 1
+        lengths = {
+            "answers": len(self.answers),
+            "probabilities": len(self.probabilities),
+            "actions": len(self.actions),
+            "mutual_information": len(self.mutual_information),
+        }
+        wrong = {name: length for name, length in lengths.items() if length != done}
+        if self.touch < 1 or wrong or not self.action:
+            raise InvalidInputError(
+                f"RefusedTrial: touch={self.touch} must be ≥ 1, the refused action non-empty, "
+                f"and the touches before it (touch - 1 = {done}) the length of every per-touch "
+                f"field; received lengths {lengths}, action of length {len(self.action)}."
+            )
+
+    @property
+    def key(self) -> tuple[str, str, int]:
+        """(policy, target, trial): the trial's place in a report."""
+        return (self.policy, self.target, self.trial)
+
+    @property
+    def touches(self) -> int:
+        """Touches performed before the refusal."""
+        return self.touch - 1
+
+    @property
+    def correct(self) -> bool:
+        """Always false: a refused trial is never counted as right."""
+        return False
+
+    def describe(self) -> str:
+        """ "touch 2 of active/paper_cup #0, action [0.10, …]: ServoHardwareError: …"."""
+        action = ", ".join(f"{v:.3g}" for v in self.action)
+        return (
+            f"touch {self.touch} of {self.policy}/{self.target} #{self.trial}, action "
+            f"[{action}]: {self.error}: {self.reason}"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready, with ``refused`` (touch, action, error, reason); ``correct`` is false and
+        ``stop_reason`` ``"refused"``. :meth:`from_dict` gives back an equal record."""
+        return {
+            "policy": self.policy,
+            "target": self.target,
+            "trial": self.trial,
+            "seed": list(self.seed),
+            "answers": list(self.answers),
+            "probabilities": [list(p) for p in self.probabilities],
+            "actions": [list(a) for a in self.actions],
+            "mutual_information": list(self.mutual_information),
+            "touches": self.touches,
+            "stop_reason": REFUSED,
+            "correct": False,
+            "refused": {
+                "touch": self.touch,
+                "action": list(self.action),
+                "error": self.error,
+                "reason": self.reason,
+            },
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> RefusedTrial:
+        """The record of a :meth:`to_dict` document.
+
+        Raises:
+            InvalidInputError: A field is missing or of the wrong kind.
+        """
+        try:
+            refused = d["refused"]
+            return cls(
+                policy=str(d["policy"]),
+                target=str(d["target"]),
+                trial=int(d["trial"]),
+                seed=tuple(int(v) for v in d["seed"]),
+                touch=int(refused["touch"]),
+                action=tuple(float(v) for v in refused["action"]),
+                error=str(refused["error"]),
+                reason=str(refused["reason"]),
+                answers=tuple(str(a) for a in d.get("answers", ())),
+                probabilities=tuple(tuple(float(v) for v in p) for p in d.get("probabilities", ())),
+                actions=tuple(tuple(float(v) for v in a) for a in d.get("actions", ())),
+                mutual_information=tuple(float(v) for v in d.get("mutual_information", ())),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InvalidInputError(
+                f"refused trial record: missing or malformed field ({exc})."
+            ) from None
+
+
+#: What one evaluation trial ends as: completed, or refused by the world.
+TrialOutcome = TrialRecord | RefusedTrial
+
+
+def outcome_from_dict(d: dict[str, Any]) -> TrialOutcome:
+    """A :class:`RefusedTrial` when the document has ``refused``, else a :class:`TrialRecord`.
+
+    Raises:
+        InvalidInputError: A field is missing or of the wrong kind.
+    """
+    if d.get("refused"):
+        return RefusedTrial.from_dict(d)
+    return TrialRecord.from_dict(d)

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from core.errors import InvalidInputError
-from core.evaluation_records import TrialRecord, trial_generators
+from core.errors import InvalidInputError, TouchRefused
+from core.evaluation_records import RefusedTrial, TrialRecord, trial_generators
 from core.moments import action_statistics
 from core.object_information import label_information_mc, object_predictives
 from core.planning import ActivePolicy, DiscriminativePolicy, PassivePolicy, Planner, Policy
@@ -37,6 +37,8 @@ from core.validation import FloatArray, as_float_array
 from core.worlds import World
 
 #: Observation source of a trial: (action (dx,), the trial's world generator) → observation (dy,).
+#: It raises :class:`core.errors.TouchRefused` when the world refuses that one action (the trial
+#: ends as a :class:`core.evaluation_records.RefusedTrial`); anything else it raises propagates.
 Observe = Callable[[FloatArray, np.random.Generator], FloatArray]
 
 #: How a policy scores the unused recorded actions (C, dx) of a replay, given the planning belief
@@ -218,7 +220,7 @@ def run_trial(
     seed: tuple[int, ...],
     observe: Observe,
     settings: TrialSettings,
-) -> TrialRecord:
+) -> TrialRecord | RefusedTrial:
     """One trial: the planner chooses each action, ``observe`` answers it.
 
     Args:
@@ -231,22 +233,49 @@ def run_trial(
             planner's and the world's generators are spawned from it.
         observe: The observation source.
         settings: Stop rule and prior.
+
+    Returns:
+        The trial's record, or a :class:`RefusedTrial` (with the touches performed before it)
+        when ``observe`` refused a touch (:class:`core.errors.TouchRefused`).
     """
     if target not in model.object_names:
         raise InvalidInputError(
             f"target: {target!r} is not an object of the model {list(model.object_names)}."
         )
     policy_rng, world_rng = trial_generators(seed)
-    steps = list(
-        iter_recognize(
+    asked: list[FloatArray] = []
+
+    def observe_action(action: FloatArray) -> FloatArray:
+        asked[:] = [action]
+        return observe(action, world_rng)
+
+    steps: list[RecognitionStep] = []
+    try:
+        for step in iter_recognize(
             model,
-            lambda action: observe(action, world_rng),
+            observe_action,
             planner,
             settings.prior(model),
             settings.recognition(),
             policy_rng,
+        ):
+            steps.append(step)
+    except TouchRefused as refusal:
+        names = model.object_names
+        return RefusedTrial(
+            policy=policy,
+            target=target,
+            trial=trial,
+            seed=tuple(seed),
+            touch=len(steps) + 1,
+            action=tuple(float(v) for v in asked[0]),
+            error=refusal.error,
+            reason=refusal.reason,
+            answers=tuple(names[s.answer] for s in steps),
+            probabilities=tuple(tuple(float(p) for p in s.probabilities) for s in steps),
+            actions=tuple(tuple(float(v) for v in s.action) for s in steps),
+            mutual_information=tuple(float(s.mutual_information) for s in steps),
         )
-    )
     return _record(model, policy, target, trial, seed, steps)
 
 

@@ -12,6 +12,10 @@ stderr; ``--json`` prints only the ``activetouch-evaluation/1`` report on stdout
 ``--plot`` are written once the evaluation has finished (nothing half-written). Bad input exits
 with 2 and a message naming it; Ctrl-C exits with 130 and writes nothing.
 
+On the ``rig`` world a trial whose touch the rig refuses (a servo overload, ...) is counted in
+the table's "refused" column and left out of the accuracy (over the "completed" trials); a rig
+failure that is not such a refusal exits with 1 naming the trial, touch and device error.
+
 This module imports only typer and rich at the top (the CLI starts light).
 """
 
@@ -113,6 +117,9 @@ def summary_table(document: dict[str, Any]) -> Table:
     table.add_column("at T (95 % interval)", justify="right")
     table.add_column(f"median touches to p ≥ {document['confidence']:g}", justify="right")
     table.add_column("per object at T (%)")
+    table.add_column("completed", justify="right")
+    table.add_column("refused", justify="right")
+    refused: dict[str, int] = document.get("refused_by_policy", {})
     for name, summary in document["policies"].items():
         curve = " ".join(f"{100 * a:.0f}" for a in summary["accuracy_by_touch"])
         lo, hi = summary["accuracy_interval"][-1]
@@ -127,7 +134,12 @@ def summary_table(document: dict[str, Any]) -> Table:
             f"{100 * summary['accuracy_by_touch'][-1]:.1f} ({100 * lo:.1f}–{100 * hi:.1f})",
             "never (half or more)" if median is None else f"{median:.1f}",
             per_object,
+            f"{summary['trials']:d}",
+            f"{refused.get(name, 0):d}",
         )
+    for name, count in refused.items():
+        if name not in document["policies"] and count:  # every trial of it was refused
+            table.add_row(escape(name), "—", "—", "—", "—", "0", f"{count:d}")
     return table
 
 
@@ -169,7 +181,7 @@ def evaluate_command(
 ) -> None:
     """Evaluate policies on a model: accuracy by touch with intervals, per object, confusion."""
     from app.cli.main import load_model
-    from app.errors import AppError
+    from app.errors import AppError, DeviceUnavailableError
     from app.evaluation.runner import run_evaluation
     from app.evaluation.spec import EvaluationSpec, Placement, world_name
     from core.errors import CoreError
@@ -221,6 +233,8 @@ def evaluate_command(
                 scheduler=scheduler,
                 on_trial=lambda _record: progress.advance(task),
             )
+    except DeviceUnavailableError as exc:  # the rig failed, other than by refusing a touch
+        raise fail(_message(exc), code=1) from None
     except (AppError, CoreError) as exc:
         raise fail(_message(exc)) from None
     except KeyboardInterrupt:

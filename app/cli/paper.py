@@ -95,7 +95,7 @@ def paper_exp2(
     as_json: Annotated[bool, typer.Option("--json", help="Print the evaluation reports.")] = False,
 ) -> None:
     """Experiment 2 on the simulated rig: collect, fit (ds = 2), active vs passive; vs the paper."""
-    from app.errors import BadInputError
+    from app.errors import BadInputError, DeviceUnavailableError
     from app.evaluation.spec import PLACEMENTS, Placement
     from app.evaluation.worlds import table_objects
     from app.paper.exp2 import SOURCES, Experiment2Settings, run_experiment2, write_figures
@@ -138,7 +138,10 @@ def paper_exp2(
         written = [] if figures is None else write_figures(result, figures)
     except (CoreError, BadInputError) as exc:
         raise fail(str(exc)) from None
-    except HardwareError as exc:  # the simulated rig refused a touch (e.g. a servo overload)
+    except DeviceUnavailableError as exc:  # the rig failed in a trial, other than by a refusal
+        stderr.print(f"[red]error:[/red] {escape(exc.message)}")
+        raise typer.Exit(code=1) from None
+    except HardwareError as exc:  # the collection's touch refused (a refused trial goes on)
         stderr.print(
             f"[red]error:[/red] the simulated rig stopped: {escape(type(exc).__name__)}: "
             f"{escape(str(exc))} (a smaller --action-scale keeps the touches shallower)"

@@ -4,6 +4,12 @@
 builds per process what is costly and reusable (planners with their candidate statistics, the
 world, the rig's action map). It is what is sent to each Dask worker once; a task names only its
 trial (policy, target, index). This module imports no web stack, so a worker starts light.
+
+A rig trial whose touch the hardware refuses (:func:`app.evaluation.rig_trial.is_refusal`: a
+servo overload, a command a servo refuses, a trajectory refused before it moved) ends as a
+:class:`~core.evaluation_records.RefusedTrial`; the evaluation goes on. Any other hardware error
+(a lost device, a timeout, an alarm of the turntable) propagates, noted with the trial and touch
+it happened in, and ends the evaluation.
 """
 
 from __future__ import annotations
@@ -15,7 +21,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from app.evaluation.rig_trial import RigTrial, rig_seed
-from core.evaluation_records import TrialRecord, trial_seed
+from core.evaluation_records import TrialOutcome, trial_seed
 from core.evaluation_trial import (
     Observe,
     ReplayPool,
@@ -29,6 +35,7 @@ from core.evaluation_trial import (
 from core.planning import Planner
 from core.types import ManifoldModel, TrainingData
 from core.worlds import Experiment1World, World, random_experiment2_world
+from hardware.errors import HardwareError
 
 if TYPE_CHECKING:
     from app.evaluation.spec import EvaluationSpec
@@ -117,18 +124,42 @@ class TrialContext:
             self._local.rig_actions = actions
         return actions
 
-    def run(self, key: TrialKey) -> TrialRecord:
+    def run(self, key: TrialKey) -> TrialOutcome:
         """Run one trial (BLAS on one thread, so results do not depend on the process)."""
         with threadpool_limits(limits=1):
             return self.run_unpinned(key)
 
-    def run_many(self, keys: list[TrialKey]) -> list[TrialRecord]:
+    def run_many(self, keys: list[TrialKey]) -> list[TrialOutcome]:
         """:meth:`run` of each key, BLAS pinned once for all of them (it costs ~1 ms)."""
         with threadpool_limits(limits=1):
             return [self.run_unpinned(key) for key in keys]
 
-    def run_unpinned(self, key: TrialKey) -> TrialRecord:
-        """One trial; the caller has pinned BLAS to one thread (see :meth:`run`)."""
+    def run_unpinned(self, key: TrialKey) -> TrialOutcome:
+        """One trial; the caller has pinned BLAS to one thread (see :meth:`run`).
+
+        Raises:
+            HardwareError: The rig failed other than by refusing a touch (the error carries a
+                note naming the trial).
+        """
+        try:
+            return self._run_trial(key)
+        except HardwareError as exc:
+            policy, target, trial = key
+            exc.add_note(f"in trial {trial} of {policy}/{target}")
+            raise
+
+    def open_rig_trial(self, key: TrialKey, seed: int) -> RigTrial:
+        """A fresh simulated rig for trial ``key`` (policy, target, index), world seed ``seed``."""
+        target = key[1]
+        return RigTrial(
+            self._rig_actions(),
+            rig_tables()[self.spec.table or "default"],
+            target,
+            seed,
+            replace_each_touch=self.spec.placement == "touch",
+        )
+
+    def _run_trial(self, key: TrialKey) -> TrialOutcome:
         policy, target, trial = key
         seed = trial_seed(self.spec.seed, target, trial)
         planner = self.planner(policy)
@@ -150,13 +181,7 @@ class TrialContext:
         if self.spec.world == "model":
             observe = model_observer(self.model, target)
         elif self.spec.world == "rig":
-            rig = RigTrial(
-                self._rig_actions(),
-                rig_tables()[self.spec.table or "default"],
-                target,
-                rig_seed(seed),
-                replace_each_touch=self.spec.placement == "touch",
-            )
+            rig = self.open_rig_trial(key, rig_seed(seed))
             observe = rig.observe
         else:
             observe = world_observer(self._world(), target)
@@ -176,6 +201,6 @@ class TrialContext:
                 rig.close()
 
 
-def run_trials_task(context: TrialContext, keys: list[TrialKey]) -> list[TrialRecord]:
+def run_trials_task(context: TrialContext, keys: list[TrialKey]) -> list[TrialOutcome]:
     """The task of a batch of trials (runs on a worker; ``context`` is its scattered copy)."""
     return context.run_many(keys)

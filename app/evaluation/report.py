@@ -1,4 +1,12 @@
-"""The result of an evaluation: its trials and their summary, as JSON and CSV."""
+"""The result of an evaluation: its trials and their summary, as JSON and CSV.
+
+Trials the rig refused (:class:`~core.evaluation_records.RefusedTrial`: one touch refused by the
+hardware, e.g. a servo overload) are kept beside the completed ones and counted per policy
+(``refused``); they are excluded from the accuracy, which is over the completed trials only
+(``trials``, its denominator) — a refused trial counts neither as right nor as wrong. What the
+final accuracy would be with every refused trial counted as wrong is given beside it
+(``accuracy_if_refused_wrong``), and a note says so whenever a trial was refused.
+"""
 
 from __future__ import annotations
 
@@ -6,7 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from app.evaluation.spec import EvaluationSpec
-from core.evaluation_records import TrialRecord
+from core.evaluation_records import REFUSED, RefusedTrial, TrialRecord
 from core.evaluation_summary import comparison_sentence, summarise
 
 FORMAT = "activetouch-evaluation/1"
@@ -18,12 +26,13 @@ class EvaluationReport:
 
     Attributes:
         spec: What was asked.
-        records: Every finished trial, sorted by (policy, target, trial).
+        records: Every completed trial, sorted by (policy, target, trial).
         seconds: Wall time of the run.
         workers: Processes that ran trials (1 in process; the cluster's workers otherwise).
         stopped: Whether the run was stopped before every trial finished.
         object_names: The model's objects (the order of the records' probabilities).
         steps: T actually run (``spec.steps``, or fewer when a replay pool caps it).
+        refused: Every trial that ended because the rig refused a touch, sorted likewise.
     """
 
     spec: EvaluationSpec
@@ -33,10 +42,12 @@ class EvaluationReport:
     stopped: bool
     object_names: tuple[str, ...] = field(default_factory=tuple)
     steps: int = 0
+    refused: tuple[RefusedTrial, ...] = ()
 
     def __post_init__(self) -> None:
         ordered = tuple(sorted(self.records, key=lambda r: r.key))
         object.__setattr__(self, "records", ordered)
+        object.__setattr__(self, "refused", tuple(sorted(self.refused, key=lambda r: r.key)))
         if self.steps == 0:
             object.__setattr__(self, "steps", self.spec.steps)
 
@@ -61,13 +72,57 @@ class EvaluationReport:
                 )
         if self.stopped:
             notes.append("stopped before every trial finished; the summary covers those that did.")
+        notes.extend(self._refusal_notes())
+        return notes
+
+    def refused_by_policy(self) -> dict[str, int]:
+        """Refused trials per policy (every policy of the spec, 0 when none was refused)."""
+        counts = dict.fromkeys(self.spec.policies, 0)
+        for record in self.refused:
+            counts[record.policy] = counts.get(record.policy, 0) + 1
+        return counts
+
+    def _refusal_notes(self) -> list[str]:
+        if not self.refused:
+            return []
+        notes = []
+        completed = {p: 0 for p in self.refused_by_policy()}
+        right = dict(completed)
+        for record in self.records:
+            completed[record.policy] = completed.get(record.policy, 0) + 1
+            right[record.policy] = right.get(record.policy, 0) + int(record.correct)
+        for policy, refused in self.refused_by_policy().items():
+            if refused == 0:
+                continue
+            done = completed.get(policy, 0)
+            asked = done + refused
+            notes.append(
+                f"{policy}: the rig refused a touch in {refused} of {asked} trials; its accuracy "
+                f"is over the {done} completed trials only (a refused trial counts neither as "
+                f"right nor as wrong); counted as wrong, its final accuracy would be "
+                f"{right.get(policy, 0)}/{asked} = {100 * right.get(policy, 0) / asked:.1f} %."
+            )
+        notes.append(f"first refusal: {self.refused[0].describe()}")
         return notes
 
     def summary(self) -> dict[str, dict[str, Any]]:
-        """:func:`core.evaluation_summary.summarise` of the records (empty when there are none)."""
+        """:func:`core.evaluation_summary.summarise` of the completed trials, per policy, with
+        ``refused`` (trials refused by the rig, not in ``trials``) and
+        ``accuracy_if_refused_wrong`` (final accuracy over ``trials + refused``) added.
+
+        Empty when no trial completed; a policy whose every trial was refused has no entry here
+        (see :meth:`refused_by_policy`).
+        """
         if not self.records:
             return {}
-        return summarise(self.records, self.object_names, self.steps, self.spec.confidence)
+        summary = summarise(self.records, self.object_names, self.steps, self.spec.confidence)
+        refused = self.refused_by_policy()
+        for policy, entry in summary.items():
+            count = refused.get(policy, 0)
+            right = sum(r.correct for r in self.records if r.policy == policy)
+            entry["refused"] = count
+            entry["accuracy_if_refused_wrong"] = right / (entry["trials"] + count)
+        return summary
 
     def comparison(self) -> str:
         """ "active reaches 95 % accuracy after k touches, passive after m"."""
@@ -94,7 +149,10 @@ class EvaluationReport:
             "notes": self.notes,
             "comparison": self.comparison(),
             "policies": self.summary(),
+            "refused_trials": len(self.refused),
+            "refused_by_policy": self.refused_by_policy(),
             "trials": [r.to_dict() for r in self.records] if include_trials else [],
+            "refused": [r.to_dict() for r in self.refused] if include_trials else [],
         }
 
     def csv_rows(self) -> list[list[str | int | float | bool]]:
@@ -102,9 +160,17 @@ class EvaluationReport:
 
         Columns: policy, target, trial, touch, answer, answer_probability, target_probability,
         correct (of this touch's answer), mutual_information, action_1..action_dx,
-        stop_reason (on the trial's last touch, else empty).
+        stop_reason (on the trial's last touch, else empty). A refused trial has its touches
+        before the refusal, then a row of the refused touch: its action, empty answer and
+        probabilities, and stop_reason ``refused: <error>: <device message>``.
         """
-        dx = len(self.records[0].actions[0]) if self.records else 0
+        dx = (
+            len(self.records[0].actions[0])
+            if self.records
+            else len(self.refused[0].action)
+            if self.refused
+            else 0
+        )
         header: list[str | int | float | bool] = [
             "policy",
             "target",
@@ -120,7 +186,8 @@ class EvaluationReport:
         ]
         rows = [header]
         names = self.object_names
-        for record in self.records:
+        trials: list[TrialRecord | RefusedTrial] = [*self.records, *self.refused]
+        for record in sorted(trials, key=lambda r: r.key):
             for touch in range(record.touches):
                 answer = record.answers[touch]
                 probabilities = record.probabilities[touch]
@@ -136,7 +203,25 @@ class EvaluationReport:
                         answer == record.target,
                         record.mutual_information[touch],
                         *record.actions[touch],
-                        record.stop_reason if touch + 1 == record.touches else "",
+                        record.stop_reason
+                        if isinstance(record, TrialRecord) and touch + 1 == record.touches
+                        else "",
+                    ]
+                )
+            if isinstance(record, RefusedTrial):
+                rows.append(
+                    [
+                        record.policy,
+                        record.target,
+                        record.trial,
+                        record.touch,
+                        "",
+                        "",
+                        "",
+                        False,
+                        "",
+                        *record.action,
+                        f"{REFUSED}: {record.error}: {record.reason}",
                     ]
                 )
         return rows

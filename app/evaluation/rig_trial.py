@@ -4,6 +4,8 @@ Used by the evaluation engine (:class:`app.evaluation.context.TrialContext`, wor
 by ``bench/sim_tables.py``. Every trial gets a fresh in-process rig (virtual time) seeded from
 the trial's own seed (:func:`rig_seed`), so a trial can be re-run alone. With
 ``replace_each_touch`` the object is placed anew before every touch, as a collection does.
+A touch the hardware refuses (:func:`is_refusal`) is raised as
+:class:`~core.errors.TouchRefused`, which ends only that trial.
 """
 
 from __future__ import annotations
@@ -13,11 +15,20 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from core.errors import TouchRefused
 from core.evaluation_records import seed_sequence
 from core.validation import FloatArray
+from hardware.errors import (
+    HardwareError,
+    ServoCommandError,
+    ServoHardwareError,
+    ServoHardwareErrorFlags,
+    UnsafeTrajectoryError,
+)
 
 if TYPE_CHECKING:
     from app.rig_factory import TouchActions
+    from hardware.records import TouchRecord
     from hardware.sim.noise import NoiseModel
 
 
@@ -25,6 +36,22 @@ def rig_seed(seed: tuple[int, ...]) -> int:
     """The world seed of a trial's simulated rig, drawn from the trial's seed tuple
     (:func:`core.evaluation_records.trial_seed`)."""
     return int(seed_sequence(seed).generate_state(1)[0])
+
+
+def is_refusal(error: HardwareError) -> bool:
+    """Whether a hardware error refuses one touch (its action), not the rig as a whole.
+
+    Refusals: a servo overload (:class:`~hardware.errors.ServoHardwareError` with ``OVERLOAD``),
+    a command a servo refuses (:class:`~hardware.errors.ServoCommandError`), a trajectory
+    refused before anything moved (:class:`~hardware.errors.UnsafeTrajectoryError`). Every
+    other error (disconnection, timeout, a servo's voltage or encoder fault, a turntable
+    alarm, an emergency stop, a busy rig) is not.
+    """
+    if isinstance(error, UnsafeTrajectoryError | ServoCommandError):
+        return True
+    return isinstance(error, ServoHardwareError) and bool(
+        error.flags & ServoHardwareErrorFlags.OVERLOAD
+    )
 
 
 @dataclass
@@ -66,17 +93,34 @@ class RigTrial:
             self._handle.close()
             raise
         self._slot: int | None = self.objects.index(self.target)
+        self.touched = 0  # touches asked for so far (the refused one included)
 
     def observe(self, action: FloatArray, rng: np.random.Generator) -> FloatArray:
         """Touch the target with ``action`` (dx,); the observation (dy,). ``rng`` is unused:
-        the simulation's own randomness makes the noise."""
+        the simulation's own randomness makes the noise.
+
+        Raises:
+            TouchRefused: The hardware refused this touch (:func:`is_refusal`).
+            HardwareError: Anything else (noted with the touch it happened in).
+        """
+        self.touched += 1
+        try:
+            record = self._touch(action)
+        except HardwareError as exc:
+            if is_refusal(exc):
+                raise TouchRefused(type(exc).__name__, str(exc)) from exc
+            exc.add_note(f"at touch {self.touched} of the trial")
+            raise
+        return np.asarray(record.observation, dtype=np.float64)
+
+    def _touch(self, action: FloatArray) -> TouchRecord:
         target = self.objects.index(self.target)
         if self._slot is None and self.replace_each_touch and len(self.objects) > 1:
             self._lease.move_to_slot((target + 1) % len(self.objects))
             self._slot = target
         record = self.actions.touch(self._lease, action, slot=self._slot)
         self._slot = None  # the table stays at the target after the touch
-        return np.asarray(record.observation, dtype=np.float64)
+        return record
 
     def close(self) -> None:
         """Release the lease and stop the simulation."""

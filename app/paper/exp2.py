@@ -189,7 +189,8 @@ class Experiment2Result:
                     f"{escape(source)}: {escape(policy)}, accuracy % by touch",
                     paper,
                     f"{escape(curve)}\nat T: {100 * figures['accuracy_by_touch'][-1]:.1f} % "
-                    f"({100 * lo:.1f}–{100 * hi:.1f})",
+                    f"({100 * lo:.1f}–{100 * hi:.1f})"
+                    + _refused_text(figures["trials"], figures.get("refused", 0)),
                 )
                 per_object = ", ".join(
                     f"{escape(o)} {100 * v['accuracy']:.0f}"
@@ -361,3 +362,10 @@ def write_figures(result: Experiment2Result, directory: Path) -> list[Path]:
     for source, report in result.reports.items():
         paths.append(accuracy_figure(report, source, directory / f"exp2-accuracy-{source}.png"))
     return paths
+
+
+def _refused_text(completed: int, refused: int) -> str:
+    """ "; 3 refused by the rig (accuracy over the 47 completed)", or nothing."""
+    if not refused:
+        return ""
+    return f"; {refused:d} refused by the rig (accuracy over the {completed:d} completed)"

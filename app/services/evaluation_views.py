@@ -26,9 +26,10 @@ from app.schemas import (
     EvaluationTrialPublic,
     EvaluationTrialSummary,
     Page,
+    TrialRefusal,
 )
 from core.errors import CoreError
-from core.evaluation_records import TrialRecord
+from core.evaluation_records import RefusedTrial, TrialRecord, outcome_from_dict
 
 
 def build_spec(body: EvaluationCreate) -> EvaluationSpec:
@@ -84,9 +85,15 @@ def to_public(row: Evaluation, summary: dict[str, Any] | None = None) -> Evaluat
     )
 
 
-def _records(rows: list[EvaluationTrial]) -> tuple[TrialRecord, ...]:
-    """The stored trials as engine records."""
-    return tuple(TrialRecord.from_dict(r.record) for r in rows)
+def _records(
+    rows: list[EvaluationTrial],
+) -> tuple[tuple[TrialRecord, ...], tuple[RefusedTrial, ...]]:
+    """The stored trials as engine records: (completed, refused)."""
+    outcomes = [outcome_from_dict(r.record) for r in rows]
+    return (
+        tuple(o for o in outcomes if isinstance(o, TrialRecord)),
+        tuple(o for o in outcomes if isinstance(o, RefusedTrial)),
+    )
 
 
 def stored_report(session: Session, row: Evaluation) -> EvaluationReport:
@@ -98,9 +105,11 @@ def stored_report(session: Session, row: Evaluation) -> EvaluationReport:
     if seconds is None:  # not ended with a report: the time it has run (or ran) so far
         started = row.started_at or row.created_at
         seconds = max(0.0, ((row.finished_at or utc_now()) - started).total_seconds())
+    records, refused = _records(crud.evaluation_trials(session, row.id))
     return EvaluationReport(
         spec=build_spec(body),
-        records=_records(crud.evaluation_trials(session, row.id)),
+        records=records,
+        refused=refused,
         seconds=seconds,
         workers=row.workers if row.workers is not None else 1,
         stopped=row.status in ("stopped", "aborted", "failed"),
@@ -115,6 +124,7 @@ def partial_summary(session: Session, row: Evaluation) -> dict[str, Any] | None:
         return None
     document = stored_report(session, row).to_dict(include_trials=False)
     document.pop("trials", None)
+    document.pop("refused", None)  # the refused trials are trial rows too
     document["partial"] = True
     return document
 
@@ -137,6 +147,7 @@ def list_page(
 
 def _trial_summary(row: EvaluationTrial) -> EvaluationTrialSummary:
     answers = row.record.get("answers") or []
+    refusal = row.record.get("refused") if row.refused else None
     return EvaluationTrialSummary(
         number=row.number,
         policy=row.policy,
@@ -144,8 +155,10 @@ def _trial_summary(row: EvaluationTrial) -> EvaluationTrialSummary:
         trial=row.trial,
         correct=row.correct,
         touches=row.touches,
-        answer=str(answers[-1]) if answers else None,
+        answer=str(answers[-1]) if answers and not row.refused else None,
         stop_reason=row.record.get("stop_reason"),
+        refused=row.refused,
+        refusal=TrialRefusal.model_validate(refusal) if refusal else None,
     )
 
 

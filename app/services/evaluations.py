@@ -39,7 +39,7 @@ from app.services.evaluation_views import build_spec, require, to_public
 from app.services.events import EventBus
 from app.services.models import ModelStore
 from core.errors import CoreError
-from core.evaluation_records import TrialRecord
+from core.evaluation_records import TrialOutcome, TrialRecord
 from core.types import ManifoldModel, TrainingData
 
 logger = logging.getLogger(__name__)
@@ -210,15 +210,15 @@ class EvaluationService:
         self._announce(row)
         return True
 
-    def store_trial(self, evaluation_id: int, record: TrialRecord) -> tuple[Evaluation, int]:
-        """Commit one finished trial; return the row and the trial's number."""
+    def store_trial(self, evaluation_id: int, record: TrialOutcome) -> tuple[Evaluation, int]:
+        """Commit one finished trial (refused ones too); return the row and the trial's number."""
         with self._lock, self._database.session() as session:
             row = require(session, evaluation_id)
             trial = crud.add_evaluation_trial(session, row, record.to_dict())
             session.commit()
             return row, trial.number
 
-    def publish_progress(self, row: Evaluation, number: int, record: TrialRecord | None) -> None:
+    def publish_progress(self, row: Evaluation, number: int, record: TrialOutcome | None) -> None:
         """Announce an evaluation's progress (``evaluation.progress``) after trial ``number``."""
         data: dict[str, object] = {
             "evaluation_id": row.id,
@@ -234,6 +234,7 @@ class EvaluationService:
                 trial=record.trial,
                 correct=record.correct,
                 touches=record.touches,
+                refused=not isinstance(record, TrialRecord),
             )
         self._events.publish("evaluation.progress", data)
 
@@ -250,6 +251,7 @@ class EvaluationService:
             if report is not None:
                 document = report.to_dict(include_trials=False)
                 document.pop("trials", None)
+                document.pop("refused", None)  # the refused trials are trial rows too
                 row.summary = document
                 row.seconds = report.seconds
                 row.workers = report.workers
@@ -306,9 +308,9 @@ class _Progress:
         self._service = service
         self._evaluation_id = evaluation_id
         self._last_event = 0.0
-        self._pending: tuple[Evaluation, int, TrialRecord] | None = None
+        self._pending: tuple[Evaluation, int, TrialOutcome] | None = None
 
-    def store(self, record: TrialRecord) -> None:
+    def store(self, record: TrialOutcome) -> None:
         row, number = self._service.store_trial(self._evaluation_id, record)
         now = time.monotonic()
         if now - self._last_event >= PROGRESS_INTERVAL_S:

@@ -2,7 +2,8 @@
 
 Start an evaluation from the page, watch it fill in from the event stream, see it complete with
 the accuracy curves and their interval bands, the per-object bars and the confusion matrix drawn
-from the API's summary, then open a finished trial in the Trials view.
+from the API's summary, then open a finished trial in the Trials view. An evaluation whose world
+refuses some touches shows how many trials were refused, and why.
 """
 
 from __future__ import annotations
@@ -170,4 +171,63 @@ def test_start_an_evaluation_watch_it_and_open_a_trial(
     for button in ("trial-pause", "trial-resume", "trial-stop"):
         expect(page.get_by_test_id(button)).to_be_disabled()
     save_screenshot(page, "dashboard-evaluation-trial")
+    assert page_errors.exceptions == []
+
+
+#: Actions beyond this refuse the touch in :class:`_CornerRefusingWorld` (the box's corner).
+CORNER = 1.3
+
+
+class _CornerRefusingWorld:
+    """Experiment 1, except that an action beyond :data:`CORNER` is refused like an overload."""
+
+    def __init__(self, world: Any) -> None:
+        self._world = world
+        self.object_names = world.object_names
+
+    def observe(self, index: int, actions: Any, rng: Any) -> Any:
+        from core.errors import TouchRefused
+
+        if actions[0, 0] > CORNER:
+            raise TouchRefused("ServoHardwareError", "servo FFJ3 (ID 1): OVERLOAD")
+        return self._world.observe(index, actions, rng)
+
+
+def test_refused_trials_are_counted_and_listed(
+    page: Any, served: Served, page_errors: PageErrors, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from app.evaluation import runner
+    from app.evaluation.context import TrialContext
+
+    class CornerContext(TrialContext):
+        def _world(self) -> Any:
+            return _CornerRefusingWorld(super()._world())
+
+    monkeypatch.setattr(runner, "TrialContext", CornerContext)
+    body = {"model_id": served.model_id, "world": "exp1", "trials_per_target": 5, "steps": 4}
+    created = served.client.post("/evaluations", json=body)
+    assert created.status_code == 202, created.text
+    path = f"/evaluations/{created.json()['id']}"
+    deadline = time.monotonic() + 120
+    while (evaluation := served.client.get(path).json())["status"] != "completed":
+        assert evaluation["status"] in ("queued", "running"), evaluation
+        assert time.monotonic() < deadline, "the evaluation did not complete within 120 s"
+        time.sleep(0.1)
+    summary = evaluation["summary"]
+    refused = summary["refused_trials"]
+    assert 0 < refused < evaluation["total"]
+
+    page.goto(f"{served.base_url}/?viz=off#evaluation")
+    expect(page.locator("#eval-title")).to_contain_text(f"Evaluation #{evaluation['id']}")
+    expect(page.get_by_test_id("eval-progress")).to_contain_text(
+        f"{refused} refused by the rig (left out of the accuracy)"
+    )
+    labels = {d["label"] for d in chart_datasets(page, "chart-eval-accuracy")}
+    for policy, values in summary["policies"].items():
+        extra = f", {values['refused']} refused" if values["refused"] else ""
+        assert f"{policy} (n = {values['trials']}{extra})" in labels
+    refusals = page.get_by_test_id("eval-trial-refusal")
+    expect(refusals).to_have_count(refused)
+    expect(refusals.first).to_contain_text("ServoHardwareError: servo FFJ3 (ID 1): OVERLOAD")
+    save_screenshot(page, "dashboard-evaluation-refused", full_page=True)
     assert page_errors.exceptions == []

@@ -1,6 +1,7 @@
 // Evaluation: start one (model, world, policies, trials, T, replay dataset); watch it fill in
 // from the event stream; accuracy after each touch with its 95 % interval band per policy, final
-// accuracy per object, the confusion matrix; a finished trial opens in the Trials view.
+// accuracy per object, the confusion matrix; a finished trial opens in the Trials view. Trials the
+// rig refused a touch of are counted apart (the accuracy is over the completed ones) and listed.
 
 import { api, apiList } from "../api.js";
 import { colorOf, compactNumber, renderChart } from "../charts.js";
@@ -135,6 +136,8 @@ function render() {
   $("eval-status").className = `badge ${e.status}`;
   $("eval-bar").style.width = `${e.total ? (100 * e.done) / e.total : 0}%`;
   const parts = [`${e.done} of ${e.total} trials`];
+  const refused = (e.summary && e.summary.refused_trials) || 0;
+  if (refused) parts.push(`${refused} refused by the rig (left out of the accuracy)`);
   if (e.seconds !== null && e.seconds !== undefined) parts.push(`${num(e.seconds, 3)} s`);
   if (e.workers) parts.push(`${e.workers} worker${e.workers === 1 ? "" : "s"}`);
   if (e.reason) parts.push(e.reason);
@@ -182,7 +185,7 @@ function drawAccuracy() {
       band: true,
     });
     datasets.push({
-      label: `${policy} (n = ${s.trials ?? "?"})`,
+      label: `${policy} (n = ${s.trials ?? "?"}${s.refused ? `, ${s.refused} refused` : ""})`,
       data: x.map((t, j) => ({ x: t, y: s.accuracy_by_touch[j] })),
       borderColor: color,
       backgroundColor: color,
@@ -300,13 +303,22 @@ async function renderTrials() {
     [...rows].reverse().map((t) =>
       el(
         "tr",
-        { "data-testid": "eval-trial-row", tabindex: 0, onclick: () => open(t.number), onkeydown: (e) => e.key === "Enter" && open(t.number) },
+        // A refused trial is not opened in the Trials view: its row says what was refused.
+        t.refused
+          ? { "data-testid": "eval-trial-row", class: "refused" }
+          : { "data-testid": "eval-trial-row", tabindex: 0, onclick: () => open(t.number), onkeydown: (e) => e.key === "Enter" && open(t.number) },
         el("td", {}, t.number),
         el("td", {}, t.policy),
         el("td", {}, t.target),
-        el("td", {}, `${t.answer ?? "—"}${t.correct ? " ✓" : " ✗"}`),
+        el("td", {}, t.refused ? "refused" : `${t.answer ?? "—"}${t.correct ? " ✓" : " ✗"}`),
         el("td", {}, t.touches),
-        el("td", {}, t.stop_reason ?? "—"),
+        t.refused && t.refusal
+          ? el(
+              "td",
+              { "data-testid": "eval-trial-refusal", title: `action [${t.refusal.action.map((v) => num(v, 3)).join(", ")}]` },
+              `refused at touch ${t.refusal.touch}: ${t.refusal.error}: ${t.refusal.reason}`,
+            )
+          : el("td", {}, t.stop_reason ?? "—"),
       ),
     ),
   );
