@@ -194,7 +194,7 @@ def _api_evaluation(tmp_path, rig_model, body_changes=None):
     """Import the model, run SPEC through the REST API; return (ended evaluation, client calls)."""
     from fastapi.testclient import TestClient
 
-    from app.documents import model_to_document
+    from app.documents.model import model_to_document
     from app.main import create_app
     from tests.app.conftest import make_settings
     from tests.app.test_evaluations_api import wait_ended
@@ -316,7 +316,7 @@ def test_the_migration_adds_refused_and_earlier_trials_stay_completed(tmp_path) 
 def model_path(rig_model, tmp_path_factory: pytest.TempPathFactory):
     import json
 
-    from app.documents import model_to_document
+    from app.documents.model import model_to_document
 
     path = tmp_path_factory.mktemp("refused") / "rig.json"
     path.write_text(json.dumps(model_to_document(rig_model)))
