@@ -87,7 +87,8 @@ class ModelCreate(BaseModel):
         default=2,
         description=(
             "ds, or 'auto': choose it by cross-validated held-out predictive likelihood "
-            "(candidates 1..min(5, L-1); the scores are reported in latent_selection)."
+            "(candidates 1..min(5, L-1); the smallest ds within one standard error of the best; "
+            "the scores are reported in latent_selection)."
         ),
     )
     noise_model: Literal["auto", "independent", "correlated"] = Field(
@@ -185,8 +186,8 @@ class LatentCandidatePublic(BaseModel):
 class LatentSelectionPublic(BaseModel):
     """How ``latent_dim: "auto"`` chose ds."""
 
-    chosen: int
-    best: int
+    chosen: int = Field(description="The smallest ds within one standard error of best.")
+    best: int = Field(description="The ds with the best mean held-out score.")
     n_folds: int
     candidates: list[LatentCandidatePublic]
     explanation: str
