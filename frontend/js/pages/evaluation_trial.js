@@ -17,7 +17,7 @@ function touchesText(n) {
 }
 
 /** The result box: the final answer, or for a refused trial the refusal and no answer. */
-function resultBox(record, r, refusal) {
+function resultBox(r, refusal) {
   const origin = `trial index ${r.trial} of its (policy, target) cell, seed [${r.seed.join(", ")}]`;
   const result = $("trial-result");
   result.hidden = false;
@@ -59,7 +59,7 @@ export function renderEvaluationTrial(record, model, evaluationId, number) {
   $("trial-title").textContent = `Evaluation #${evaluationId}, trial ${number} — ${r.policy}, target ${r.target}`;
   $("trial-status").textContent = refusal ? "refused by the rig" : "evaluation trial";
   $("trial-status").className = `badge ${refusal ? "failed" : "completed"}`;
-  resultBox(record, r, refusal);
+  resultBox(r, refusal);
   fill(
     $("trial-facts"),
     fact("touches", refusal ? `${r.touches} (touch ${refusal.touch} refused)` : String(r.touches), "trial-touches"),
