@@ -555,7 +555,9 @@ class EvaluationTrialPublic(EvaluationTrialSummary):
 
     ``record`` is the engine's ``TrialRecord`` as JSON (answers, probabilities, actions and
     mutual information after each touch, seed); ``objects`` the model's object order of its
-    probabilities.
+    probabilities. For a refused trial it is the engine's ``RefusedTrial``: those per-touch
+    fields cover only the touches made before the refusal (none when the first was refused),
+    ``refused`` (as ``refusal``) the refused touch, and there is no answer.
     """
 
     evaluation_id: int

@@ -181,7 +181,16 @@ class Experiment2Result:
         table.add_row("manifold (Fig. 9)", PAPER["manifold"], self._manifold_text())
         for source, report in self.reports.items():
             summary = report.summary()
-            for policy, figures in summary.items():
+            refused_by_policy = report.refused_by_policy()
+            for policy in report.spec.policies:
+                if policy not in summary:  # no completed trial: every one was refused
+                    table.add_row(
+                        f"{escape(source)}: {escape(policy)}, accuracy % by touch",
+                        PAPER.get(policy, "—") if source == "model" else "—",
+                        _all_refused_text(report, policy, refused_by_policy.get(policy, 0)),
+                    )
+                    continue
+                figures = summary[policy]
                 curve = " ".join(f"{100 * a:.0f}" for a in figures["accuracy_by_touch"])
                 lo, hi = figures["accuracy_interval"][-1]
                 paper = PAPER.get(policy, "—") if source == "model" else "—"
@@ -369,3 +378,15 @@ def _refused_text(completed: int, refused: int) -> str:
     if not refused:
         return ""
     return f"; {refused:d} refused by the rig (accuracy over the {completed:d} completed)"
+
+
+def _all_refused_text(report: EvaluationReport, policy: str, refused: int) -> str:
+    """ "all 8 trials refused by the rig (no accuracy); first: touch 1 of …", or, for a policy
+    with no trial at all, "no trials"."""
+    if not refused:
+        return "no trials"
+    first = next(r for r in report.refused if r.policy == policy)
+    return (
+        f"all {refused:d} trials refused by the rig (no accuracy); first: "
+        f"{escape(first.describe())}"
+    )

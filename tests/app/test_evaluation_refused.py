@@ -36,12 +36,13 @@ SPEC = EvaluationSpec(
 
 
 class _FaultyTrial(RigTrial):
-    """A rig trial whose finger servo (ID 1) latches ``FAULT`` before touch ``REFUSED_TOUCH``."""
+    """A rig trial whose finger servo (ID 1) latches ``fault`` before touch ``refused_touch``."""
 
     fault = ServoHardwareErrorFlags.OVERLOAD
+    refused_touch = REFUSED_TOUCH
 
     def _touch(self, action: FloatArray) -> TouchRecord:
-        if self.touched == REFUSED_TOUCH:
+        if self.touched == self.refused_touch:
             self._handle.simulation.devices.bus.inject_hardware_error(1, self.fault)  # type: ignore[union-attr]
         return super()._touch(action)
 

@@ -4,16 +4,26 @@ learned GP and from the rig, figures and a valid report."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
+from rich.console import Console
 from typer.testing import CliRunner
 
 from app.cli.main import app
+from app.evaluation import runner as evaluation_runner
+from app.evaluation.context import TrialContext, TrialKey, rig_tables
+from app.evaluation.rig_trial import RigTrial
+from app.evaluation.runner import run_evaluation
+from app.evaluation.spec import EvaluationSpec
 from app.paper.exp2 import Experiment2Settings, run_experiment2, write_figures
 from core.evaluation_summary import wilson_interval
+from core.validation import FloatArray
+from hardware.errors import ServoHardwareErrorFlags
+from hardware.records import TouchRecord
 
 runner = CliRunner()
 
@@ -142,3 +152,49 @@ def test_a_rig_refusal_is_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> None
     assert "OVERLOAD" in out.output
     assert "--action-scale" in out.output
     assert "Traceback" not in out.output
+
+
+class _RefuseFirstTouch(RigTrial):
+    """A rig trial whose finger servo (ID 1) latches an overload before its first touch."""
+
+    def _touch(self, action: FloatArray) -> TouchRecord:
+        if self.touched == 1:
+            self._handle.simulation.devices.bus.inject_hardware_error(  # type: ignore[union-attr]
+                1, ServoHardwareErrorFlags.OVERLOAD
+            )
+        return super()._touch(action)
+
+
+class _PassiveRefused(TrialContext):
+    """Every passive trial's first touch is refused by the (simulated) rig."""
+
+    def open_rig_trial(self, key: TrialKey, seed: int) -> RigTrial:
+        if key[0] != "passive":
+            return super().open_rig_trial(key, seed)
+        return _RefuseFirstTouch(self._rig_actions(), rig_tables()["paper"], key[1], seed)
+
+
+def test_a_policy_whose_every_trial_was_refused_has_a_row_saying_so(  # type: ignore[no-untyped-def]
+    result, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(evaluation_runner, "TrialContext", _PassiveRefused)
+    spec = EvaluationSpec(
+        world="rig", trials_per_target=1, steps=2, policies=("active", "passive"), table="paper"
+    )
+    report = run_evaluation(result.model, spec)
+    assert report.refused_by_policy() == {"active": 0, "passive": 4}
+    assert set(report.summary()) == {"active"}  # no completed passive trial
+    console = Console(record=True, width=1000)
+    console.print(replace(result, reports={"rig": report}).table())
+    rows = [" ".join(line.split()) for line in console.export_text().splitlines()]
+    active = [i for i, r in enumerate(rows) if "rig: active, accuracy % by touch" in r]
+    passive = [r for r in rows if "rig: passive, accuracy % by touch" in r]
+    right = sum(r.correct for r in report.records)
+    assert len(active) == 1
+    assert f"at T: {100 * right / 4:.1f} %" in rows[active[0] + 1]
+    assert len(passive) == 1
+    assert "all 4 trials refused by the rig (no accuracy)" in passive[0]
+    assert "first: touch 1 of passive/" in passive[0]
+    assert "ServoHardwareError" in passive[0]
+    assert "OVERLOAD" in passive[0]
+    assert not any("rig: passive, per object" in r for r in rows)

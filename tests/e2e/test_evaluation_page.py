@@ -3,7 +3,8 @@
 Start an evaluation from the page, watch it fill in from the event stream, see it complete with
 the accuracy curves and their interval bands, the per-object bars and the confusion matrix drawn
 from the API's summary, then open a finished trial in the Trials view. An evaluation whose world
-refuses some touches shows how many trials were refused, and why.
+refuses some touches shows how many trials were refused, and why; a refused trial opens in the
+Trials view with the touches made before the refusal, the refused touch and no answer.
 """
 
 from __future__ import annotations
@@ -230,4 +231,76 @@ def test_refused_trials_are_counted_and_listed(
     expect(refusals).to_have_count(refused)
     expect(refusals.first).to_contain_text("ServoHardwareError: servo FFJ3 (ID 1): OVERLOAD")
     save_screenshot(page, "dashboard-evaluation-refused", full_page=True)
+
+    # A refused trial opens in the Trials view: the touches made before the refusal, then the
+    # refused touch with its action and the device's reason, and no answer.
+    trials = served.client.get(f"{path}/trials?limit=1000").json()["data"]
+    refused_rows = [t for t in trials if t["refused"]]
+    assert len(refused_rows) == refused
+    # One refused at its first touch and one after some touches (seed 0 gives both).
+    chosen = {t["touches"] == 0: t for t in refused_rows}
+    assert set(chosen) == {True, False}, [(t["number"], t["touches"]) for t in refused_rows]
+    first = next(iter(chosen.values()))
+    for t in chosen.values():
+        if t is first:  # its row in the list, newest first, is clickable
+            row = page.get_by_test_id("eval-trial-row").nth(evaluation["done"] - t["number"])
+            expect(row.locator("td").first).to_have_text(str(t["number"]))
+            row.click()
+        else:
+            page.goto(
+                f"{served.base_url}/?viz=off#trials?evaluation={evaluation['id']}"
+                f"&trial={t['number']}"
+            )
+        _expect_refused_trial_view(page, served, evaluation["id"], t)
+    save_screenshot(page, "dashboard-evaluation-refused-trial")
     assert page_errors.exceptions == []
+
+
+def _expect_refused_trial_view(page: Any, served: Served, evaluation_id: int, row: Any) -> None:
+    """The Trials view shows refused trial ``row`` (a trial list row of the API)."""
+    view = served.client.get(f"/evaluations/{evaluation_id}/trials/{row['number']}").json()
+    refusal, record = view["refusal"], view["record"]
+    expect(page.get_by_test_id("page-trials")).to_be_visible()
+    expect(page.locator("#trial-title")).to_contain_text(
+        f"Evaluation #{evaluation_id}, trial {row['number']} — {view['policy']}"
+    )
+    expect(page.get_by_test_id("trial-status")).to_have_text("refused by the rig")
+    expect(page.get_by_test_id("trial-refusal")).to_have_text(
+        f"{refusal['error']}: {refusal['reason']}"
+    )
+    expect(page.get_by_test_id("trial-result")).to_contain_text(
+        f"Refused by the rig at touch {refusal['touch']}"
+    )
+    expect(page.get_by_test_id("trial-result")).to_contain_text("no answer")
+    expect(page.get_by_test_id("trial-result-object")).to_have_count(0)
+    expect(page.get_by_test_id("trial-nearest")).to_have_text("none (refused)")
+    expect(page.get_by_test_id("trial-touches")).to_have_text(
+        f"{view['touches']} (touch {refusal['touch']} refused)"
+    )
+    # The touches before the refusal, each with its answer and posterior, as for any trial.
+    steps = page.get_by_test_id("step-row")
+    expect(steps).to_have_count(view["touches"])
+    for t in range(view["touches"]):
+        cells = steps.nth(t).locator("td")
+        assert cells.nth(0).inner_text() == str(t + 1)
+        assert cells.nth(3).inner_text() == record["answers"][t]
+        shown = cells.nth(5).inner_text()
+        for name, p in zip(view["objects"], record["probabilities"][t], strict=True):
+            assert f"{name} " in shown
+            assert p >= 0
+    # The refused touch last, marked, with its action and the device's reason.
+    refused_row = page.get_by_test_id("step-refused")
+    expect(refused_row).to_have_count(1)
+    expect(refused_row).to_have_class("refused")
+    cells = refused_row.locator("td")
+    assert cells.nth(0).inner_text() == str(refusal["touch"])
+    assert cells.nth(3).inner_text() == "refused"
+    assert cells.nth(5).inner_text() == f"{refusal['error']}: {refusal['reason']}"
+    action = [float(v) for v in cells.nth(1).inner_text().strip("[]").split(",")]
+    assert action == pytest.approx(refusal["action"], rel=1e-2, abs=1e-3)
+    assert refusal["action"][0] > CORNER  # the corner world refused it for that
+    mi = chart_datasets(page, "chart-mi")
+    assert mi[0]["data"] == pytest.approx(record["mutual_information"])
+    posterior = chart_datasets(page, "chart-posterior")[0]["data"]
+    last = record["probabilities"][-1] if view["touches"] else [0.0] * len(view["objects"])
+    assert posterior == pytest.approx(last)

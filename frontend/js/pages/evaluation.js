@@ -303,10 +303,14 @@ async function renderTrials() {
     [...rows].reverse().map((t) =>
       el(
         "tr",
-        // A refused trial is not opened in the Trials view: its row says what was refused.
-        t.refused
-          ? { "data-testid": "eval-trial-row", class: "refused" }
-          : { "data-testid": "eval-trial-row", tabindex: 0, onclick: () => open(t.number), onkeydown: (e) => e.key === "Enter" && open(t.number) },
+        // Every trial opens in the Trials view; a refused one's row also says what was refused.
+        {
+          "data-testid": "eval-trial-row",
+          class: t.refused ? "refused" : false,
+          tabindex: 0,
+          onclick: () => open(t.number),
+          onkeydown: (e) => e.key === "Enter" && open(t.number),
+        },
         el("td", {}, t.number),
         el("td", {}, t.policy),
         el("td", {}, t.target),

@@ -1,13 +1,15 @@
 // Trials: start one (model, target, policy, T, prior); follow it live: the belief on the manifold
 // (mean path and ellipse), mutual information per touch, the posterior over objects, the joint
 // trajectories, the steps; pause/resume/stop; the result. The 3D view (viser) is embedded.
-// A finished trial of an evaluation (#trials?evaluation=ID&trial=N) is shown read-only: its
-// touches' actions, mutual information, answers and object probabilities.
+// A finished trial of an evaluation (#trials?evaluation=ID&trial=N) is shown read-only
+// (evaluation_trial.js): its touches' actions, mutual information, answers and object
+// probabilities; for a trial the rig refused, the refused touch and no answer.
 
 import { api, apiList, apiOptional } from "../api.js";
 import { lineChart, manifoldChart, posteriorChart } from "../charts.js";
 import { formatDuration, isotropicCov, normalizeTrajectory, rankedProbabilities } from "../lib/analysis.js";
 import * as store from "../store.js";
+import { fact, renderEvaluationTrial } from "./evaluation_trial.js";
 import { $, badge, el, fill, guarded, num, setOptions, throttle, toast, vec } from "../ui.js";
 
 const ACTIVE = ["queued", "running", "paused"];
@@ -176,10 +178,6 @@ function drawManifold(model, currentTrial) {
   });
 }
 
-function fact(label, value, testid) {
-  return el("div", { class: "fact" }, el("div", { class: "label" }, label), el("div", { class: "value", "data-testid": testid }, value));
-}
-
 function render() {
   const steps = trial.steps || [];
   const last = steps[steps.length - 1] || null;
@@ -308,66 +306,16 @@ function showTrialHeader() {
   if (stepsHead !== null) head.innerHTML = stepsHead;
 }
 
-/** Show finished trial `number` of evaluation `evaluationId` (read-only). */
+/** Show finished trial `number` of evaluation `evaluationId` (read-only; a refused trial too). */
 export async function loadEvaluationTrial(evaluationId, number) {
   const record = await api(`/evaluations/${evaluationId}/trials/${number}`);
   clearTimeout(pollTimer);
   trial = null;
   evaluationTrial = record;
   const model = await store.model(record.model_id);
-  const r = record.record;
-  const last = r.touches - 1;
-  const probabilities = (t) => Object.fromEntries(record.objects.map((name, i) => [name, r.probabilities[t][i]]));
-  $("trial-title").textContent = `Evaluation #${evaluationId}, trial ${number} — ${r.policy}, target ${r.target}`;
-  $("trial-status").textContent = "evaluation trial";
-  $("trial-status").className = "badge completed";
-  const result = $("trial-result");
-  result.hidden = false;
-  result.className = `result ${r.correct ? "correct" : "wrong"}`;
-  fill(
-    result,
-    "Answer: ",
-    el("strong", { "data-testid": "trial-result-object" }, r.answers[last]),
-    r.correct ? " ✓ correct" : ` ✗ wrong (target ${r.target})`,
-    el("div", { class: "small muted" }, `after ${r.touches} touch${r.touches === 1 ? "" : "es"} · ${r.stop_reason} · trial index ${r.trial} of its (policy, target) cell, seed [${r.seed.join(", ")}]`),
-  );
-  fill(
-    $("trial-facts"),
-    fact("touches", String(r.touches), "trial-touches"),
-    fact("answer", r.answers[last], "trial-nearest"),
-    fact("p(answer)", num(probabilities(last)[r.answers[last]], 3)),
-    fact("last MI (nats)", num(r.mutual_information[last], 3)),
-  );
-  for (const button of document.querySelectorAll("[data-trial-action]")) button.disabled = true;
-  manifoldChart("chart-belief", model.objects, { nearest: r.answers[last] });
-  posteriorChart("chart-posterior", record.objects, probabilities(last), r.answers[last]);
-  lineChart(
-    "chart-mi",
-    [{ label: "I(s; y | x) of the chosen action", x: r.mutual_information.map((_, t) => t + 1), y: r.mutual_information }],
-    { xTitle: "touch", yTitle: "mutual information (nats)", yMin: 0 },
-  );
-  $("plan-note").textContent = "An evaluation trial: its actions are listed below.";
   const head = $("steps-body").parentElement.tHead;
   if (stepsHead === null) stepsHead = head.innerHTML;
-  fill(
-    head,
-    el("tr", {}, ["Touch", "Action x", "MI (nats)", "Answer", "p(answer)", "Object probabilities"].map((h) => el("th", { scope: "col" }, h))),
-  );
-  fill(
-    $("steps-body"),
-    r.answers.map((answer, t) =>
-      el(
-        "tr",
-        { "data-testid": "step-row" },
-        el("td", {}, t + 1),
-        el("td", {}, vec(r.actions[t])),
-        el("td", {}, num(r.mutual_information[t], 3)),
-        el("td", {}, answer),
-        el("td", {}, num(probabilities(t)[answer], 3)),
-        el("td", {}, record.objects.map((name, i) => `${name} ${num(r.probabilities[t][i], 3)}`).join(", ")),
-      ),
-    ),
-  );
+  renderEvaluationTrial(record, model, evaluationId, number);
 }
 
 function hashParams() {
