@@ -51,6 +51,11 @@ class Settings(BaseSettings):
             session, as they always do off loopback. Set it behind a reverse proxy on the same
             machine, where every client appears as loopback.
         session_ttl_s: How long a dashboard sign-in lasts without use (each request renews it).
+            Sessions live in memory: a restart signs everyone out.
+        auth_max_failures: Wrong tokens (sign-in or bearer header) one client address may send
+            within ``auth_failure_window_s``; beyond, its attempts answer 429 with
+            ``Retry-After`` until the oldest failure is that old (:mod:`app.security.attempts`).
+        auth_failure_window_s: The window of ``auth_max_failures``, in seconds.
         dask_scheduler: Address of a Dask scheduler (``tcp://host:8786``) that evaluations
             run their trials on; none: in-process, or a local cluster of the request's workers.
     """
@@ -79,6 +84,8 @@ class Settings(BaseSettings):
     dask_scheduler: str | None = None
     require_auth_for_reads: bool = False
     session_ttl_s: float = Field(default=12 * 3600.0, gt=0.0, le=30 * 24 * 3600.0)
+    auth_max_failures: int = Field(default=10, ge=1, le=10_000)
+    auth_failure_window_s: float = Field(default=60.0, gt=0.0, le=24 * 3600.0)
 
     @property
     def token(self) -> str | None:

@@ -1,5 +1,6 @@
 """FastAPI dependencies as ``Annotated`` aliases: the app context, a DB session, the caller's
-identity, the session store, and the auth check (a backstop of the gate's middleware)."""
+identity, the session store, the limit on wrong tokens, and the auth check (a backstop of the
+gate's middleware)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from typing import Annotated
 from fastapi import Depends, Path, Query, Request
 from sqlalchemy.orm import Session
 
+from app.security.attempts import AttemptLimiter
 from app.security.errors import ForbiddenError, UnauthorizedError
 from app.security.gate import Identity, identify, refusal
 from app.security.sessions import SessionStore
@@ -61,6 +63,15 @@ async def get_sessions(request: Request) -> SessionStore:
 
 
 SessionsDep = Annotated[SessionStore, Depends(get_sessions)]
+
+
+async def get_attempts(request: Request) -> AttemptLimiter:
+    """The app's limit on wrong tokens per client address."""
+    attempts: AttemptLimiter = request.app.state.auth_attempts
+    return attempts
+
+
+AttemptsDep = Annotated[AttemptLimiter, Depends(get_attempts)]
 
 
 async def require_token(request: Request, identity: IdentityDep) -> None:

@@ -32,6 +32,8 @@ class AppError(Exception):
     """
 
     status_code = 400
+    #: Headers of the response (``Retry-After`` of a 429, say).
+    headers: dict[str, str] | None = None
 
     def __init__(self, message: str, **extra: Any) -> None:
         super().__init__(message)
@@ -82,7 +84,9 @@ def _body(message: str, **extra: Any) -> dict[str, Any]:
 def error_response(exc: Exception) -> JSONResponse:
     """The HTTP response for an error raised by app, core or hardware code."""
     if isinstance(exc, AppError):
-        return JSONResponse(_body(exc.message, **exc.extra), status_code=exc.status_code)
+        return JSONResponse(
+            _body(exc.message, **exc.extra), status_code=exc.status_code, headers=exc.headers
+        )
     if isinstance(exc, RecognitionFinishedError):
         return JSONResponse(_body(str(exc), current_state="completed"), status_code=409)
     if isinstance(exc, CoreError):

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
+import time
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 
 from fastapi import APIRouter, Depends, FastAPI
@@ -18,8 +19,10 @@ from app.routes import audit as audit_routes
 from app.routes import collections, datasets, events, health, models, objects, rig, trials
 from app.routes import session as session_routes
 from app.routes.evaluations import router as evaluations_router
+from app.security.attempts import AttemptLimiter
 from app.security.audit import AuditMiddleware, AuditRecorder, database_writer
 from app.security.gate import AuthGate
+from app.security.openapi import install_openapi_security
 from app.security.sessions import SessionStore
 from app.services.context import start_context
 from app.services.health import version
@@ -85,8 +88,13 @@ class BodySizeLimit:
         await self.app(scope, receive, send)
 
 
-def create_app(settings: Settings | None = None) -> FastAPI:
+def create_app(
+    settings: Settings | None = None, clock: Callable[[], float] = time.monotonic
+) -> FastAPI:
     """Build the app from ``settings`` (read from the environment when not given).
+
+    ``clock`` (monotonic, seconds) times the sessions and the limit on wrong tokens; tests pass
+    their own.
 
     Raises:
         app.config.ConfigurationError: Unsafe settings (a non-loopback host without a token).
@@ -105,9 +113,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.add_middleware(BodySizeLimit, max_body_size=settings.max_upload_bytes)
     # Security (app.security): the gate inside the audit, so refusals are recorded too.
-    app.state.sessions = SessionStore(settings.session_ttl_s)
+    app.state.sessions = SessionStore(settings.session_ttl_s, clock=clock)
+    app.state.auth_attempts = AttemptLimiter(
+        settings.auth_max_failures, settings.auth_failure_window_s, clock=clock
+    )
     app.add_middleware(
-        AuthGate, settings=settings, sessions=app.state.sessions, api_prefix=API_PREFIX
+        AuthGate,
+        settings=settings,
+        sessions=app.state.sessions,
+        attempts=app.state.auth_attempts,
+        api_prefix=API_PREFIX,
     )
     app.add_middleware(AuditMiddleware, api_prefix=API_PREFIX)
     install_error_handlers(app)
@@ -118,6 +133,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     api.include_router(session_routes.router)
     api.include_router(audit_routes.router)
     app.include_router(api)
+    install_openapi_security(app, settings, API_PREFIX)
     if settings.frontend_dir.is_dir():
         app.mount("/", StaticFiles(directory=settings.frontend_dir, html=True), name="frontend")
     return app

@@ -6,7 +6,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Body, Request, Response
 
-from app.deps import ContextDep, IdentityDep, SessionsDep
+from app.deps import AttemptsDep, ContextDep, IdentityDep, SessionsDep
 from app.schemas import SessionStatus, SignIn
 from app.security.gate import Identity, session_id_of
 from app.security.sessions import SESSION_COOKIE
@@ -15,22 +15,35 @@ from app.services import session as sessions_service
 router = APIRouter(prefix="/session", tags=["session"])
 
 
-@router.post("", responses={401: {"description": "Not this server's token."}})
+@router.post(
+    "",
+    responses={
+        401: {"description": "Not this server's token."},
+        429: {"description": "Too many wrong tokens from this address: wait `Retry-After` s."},
+    },
+)
 def sign_in(
     request: Request,
     response: Response,
     context: ContextDep,
     sessions: SessionsDep,
+    attempts: AttemptsDep,
     body: Annotated[SignIn | None, Body()] = None,
 ) -> SessionStatus:
     """Check the API token once and set an HttpOnly, SameSite=Strict session cookie.
 
     The cookie holds a random session id issued by the server (never the token). The session
     ends after ``session_ttl_s`` without use, at sign-out or at a server restart; the cookie when
-    the browser closes. The token goes in the body, never in the URL.
+    the browser closes. The token goes in the body, never in the URL. After
+    ``auth_max_failures`` wrong tokens from one address within ``auth_failure_window_s``, its
+    sign-ins answer 429 with ``Retry-After`` until the window has passed.
     """
     session = sessions_service.sign_in(
-        context.settings, sessions, body.token if body is not None else None
+        context.settings,
+        sessions,
+        body.token if body is not None else None,
+        attempts,
+        request.client.host if request.client else None,
     )
     # The request presented the token (in its body): the audit records it as authenticated.
     request.scope.setdefault("state", {})["identity"] = Identity("token")

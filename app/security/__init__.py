@@ -11,6 +11,9 @@
   SameSite=Strict cookie, so the browser's ``EventSource`` needs no token in its URL.
 - :mod:`app.security.gate`: the ASGI middleware that enforces the above (constant-time token
   comparison, CSRF check on cookie-authenticated changes).
+- :mod:`app.security.attempts`: wrong tokens (sign-in or bearer) limited per client address;
+  beyond the limit, 429 with ``Retry-After``.
+- :mod:`app.security.openapi`: the schemes above declared in the OpenAPI schema.
 - :mod:`app.security.audit`: every mutating request recorded in the database, off the request
   path (a queue and a writer thread), so recording never delays or breaks it.
 """

@@ -14,6 +14,10 @@ Policy (DESIGN.md Security; README "Security"):
   The cookie is also SameSite=Strict, so other sites' pages do not send it at all; the header
   and origin checks cover pages of the same site on other ports. Websockets to the 3D view
   check ``Origin`` likewise.
+- Wrong tokens are limited per client address (:mod:`app.security.attempts`): a wrong bearer
+  token counts as a failure (the sign-in counts its own, :mod:`app.services.session`); while an
+  address is over the limit its tokens are not checked, and the sign-in or a request that would
+  need its token answers 429 with ``Retry-After``. Requests that need no token pass as before.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from starlette.responses import JSONResponse
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from app.config import Settings
+from app.security.attempts import AttemptLimiter, retry_after_header
 from app.security.sessions import SESSION_COOKIE, SessionStore
 from app.security.watch import watch_session
 
@@ -57,10 +62,12 @@ class Identity:
 
 @dataclass(frozen=True)
 class Refusal:
-    """Why a request may not pass: HTTP status (401 or 403) and a message."""
+    """Why a request may not pass: HTTP status (401, 403 or 429) and a message; a 429 says
+    when to try again."""
 
     status_code: int
     detail: str
+    retry_after_s: float | None = None
 
 
 def token_matches(presented: str, token: str) -> bool:
@@ -83,11 +90,23 @@ def session_id_of(headers: Mapping[str, str]) -> str | None:
     return cookie_parser(headers.get("cookie", "")).get(SESSION_COOKIE) or None
 
 
-def identify(headers: Mapping[str, str], token: str | None, sessions: SessionStore) -> Identity:
-    """Who is calling: the token (header), a live session (cookie), or nobody."""
+def client_address(scope: Scope) -> str | None:
+    """The client's address as the server sees it (``None`` when unknown)."""
+    client = scope.get("client")
+    return str(client[0]) if client else None
+
+
+def identify(
+    headers: Mapping[str, str], token: str | None, sessions: SessionStore, check_bearer: bool = True
+) -> Identity:
+    """Who is calling: the token (header), a live session (cookie), or nobody.
+
+    With ``check_bearer`` false (the client is over the limit of wrong tokens) a bearer token
+    is not looked at.
+    """
     if token is None:
         return Identity()
-    presented = bearer_of(headers)
+    presented = bearer_of(headers) if check_bearer else None
     if presented is not None and token_matches(presented, token):
         return Identity("token")
     if sessions.is_valid(session_id_of(headers)):
@@ -100,11 +119,16 @@ def is_under(path: str, prefix: str) -> bool:
     return path == prefix or path.startswith(prefix + "/")
 
 
+def is_sign_in(method: str, path: str, api_prefix: str) -> bool:
+    """Whether the request is the sign-in (``POST /session``, the token in its body)."""
+    return method == "POST" and path == f"{api_prefix}/session"
+
+
 def is_exempt(method: str, path: str, api_prefix: str) -> bool:
     """The requests that pass without auth: the health check and the sign-in."""
     if method in ("GET", "HEAD") and path == f"{api_prefix}/health":
         return True
-    return method == "POST" and path == f"{api_prefix}/session"
+    return is_sign_in(method, path, api_prefix)
 
 
 def same_origin(headers: Mapping[str, str]) -> bool:
@@ -162,35 +186,69 @@ class AuthGate:
 
     It stores the caller's :class:`Identity` in ``scope["state"]["identity"]`` (read by the
     health check, the session routes and the request audit). The event stream and websockets
-    opened with a session end when the session does (:mod:`app.security.watch`).
+    opened with a session end when the session does (:mod:`app.security.watch`). Wrong bearer
+    tokens are counted per client address, and an address over the limit gets 429
+    (:meth:`_identify`).
 
     Args:
         app: The wrapped application.
         settings: Token and whether reads need auth.
         sessions: The session store.
+        attempts: The limit on wrong tokens per client address.
         api_prefix: Prefix of the REST API (``/api/v1``).
     """
 
     def __init__(
-        self, app: ASGIApp, settings: Settings, sessions: SessionStore, api_prefix: str
+        self,
+        app: ASGIApp,
+        settings: Settings,
+        sessions: SessionStore,
+        attempts: AttemptLimiter,
+        api_prefix: str,
     ) -> None:
         self.app = app
         self.settings = settings
         self.sessions = sessions
+        self.attempts = attempts
         self.api_prefix = api_prefix
+
+    def _identify(
+        self, scope: Scope, headers: Headers, method: str, websocket: bool
+    ) -> tuple[Identity, float | None]:
+        """The caller's identity, and the seconds it must wait when it is over the limit of
+        wrong tokens and this request is an attempt (a bearer token, or the sign-in)."""
+        token = self.settings.token
+        if token is None:
+            return Identity(), None
+        client = client_address(scope)
+        presented = bearer_of(headers)
+        signing_in = not websocket and is_sign_in(method, scope["path"], self.api_prefix)
+        wait_s = None
+        if presented is not None or signing_in:
+            wait_s = self.attempts.retry_after_s(client)
+        identity = identify(headers, token, self.sessions, check_bearer=wait_s is None)
+        if wait_s is None and presented is not None and identity.method != "token":
+            self.attempts.record_failure(client)
+        return identity, wait_s
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] not in ("http", "websocket"):
             await self.app(scope, receive, send)
             return
         headers = Headers(scope=scope)
-        identity = identify(headers, self.settings.token, self.sessions)
-        scope.setdefault("state", {})["identity"] = identity
         websocket = scope["type"] == "websocket"
         method = "GET" if websocket else scope["method"]
+        identity, wait_s = self._identify(scope, headers, method, websocket)
+        scope.setdefault("state", {})["identity"] = identity
         refused = refusal(
             self.settings, method, scope["path"], identity, headers, self.api_prefix, websocket
         )
+        if wait_s is not None and (
+            is_sign_in(method, scope["path"], self.api_prefix)
+            or (refused is not None and refused.status_code == 401)
+        ):
+            # Over the limit: the token was not checked, and this request needs one.
+            refused = Refusal(429, self.attempts.detail(wait_s), wait_s)
         if refused is None:
             if identity.method == "session" and (
                 websocket or scope["path"] == f"{self.api_prefix}/events"
@@ -207,10 +265,12 @@ class AuthGate:
             # Closing before accepting: the server answers the handshake with HTTP 403.
             await send({"type": "websocket.close", "code": 1008, "reason": refused.detail})
         else:
+            body: dict[str, object] = {"detail": refused.detail}
             extra = {"WWW-Authenticate": "Bearer"} if refused.status_code == 401 else {}
-            response = JSONResponse(
-                {"detail": refused.detail}, status_code=refused.status_code, headers=extra
-            )
+            if refused.retry_after_s is not None:
+                extra["Retry-After"] = retry_after_header(refused.retry_after_s)
+                body["retry_after_s"] = int(extra["Retry-After"])
+            response = JSONResponse(body, status_code=refused.status_code, headers=extra)
             await response(scope, receive, send)
 
 

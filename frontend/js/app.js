@@ -127,7 +127,9 @@ async function submitSignIn(event) {
     toast("Signed in.", "ok");
   } catch (error) {
     const refused = error instanceof ApiError && error.status === 401;
-    $("signin-error").textContent = refused ? "That is not this server's API token." : error.message;
+    // 429: too many wrong tokens from this address; the server's message says when to retry.
+    const waiting = error instanceof ApiError && error.status === 429 && error.body && error.body.detail;
+    $("signin-error").textContent = refused ? "That is not this server's API token." : waiting || error.message;
     $("signin-error").hidden = false;
     input.select();
   } finally {

@@ -9,6 +9,7 @@ opened by the test.
 
 from __future__ import annotations
 
+import re
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -187,3 +188,29 @@ def test_on_loopback_reads_are_open_and_a_change_asks_to_sign_in(
     expect(page.get_by_test_id("signin-button")).to_be_visible()
     expect(page.get_by_test_id("model-row")).to_have_count(1)
     assert page.request.get(f"{local_demo.server.base_url}/api/v1/trials").status == 200
+
+
+@pytest.fixture(scope="module")
+def strict_demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Demo]:
+    """Reads locked, and only two wrong tokens per minute from one address."""
+    with running_demo(
+        tmp_path_factory.mktemp("strict"),
+        settings_overrides={"require_auth_for_reads": True, "auth_max_failures": 2},
+        world="experiment1",
+        latent_dim=1,
+        api_token=TOKEN,
+    ) as running:
+        yield running
+
+
+def test_too_many_wrong_tokens_the_form_says_when_to_retry(page: Any, strict_demo: Demo) -> None:
+    page.goto(f"{strict_demo.server.base_url}/?viz=off")
+    error = page.get_by_test_id("signin-error")
+    for _ in range(2):
+        sign_in(page, "not-the-token")
+        expect(error).to_have_text("That is not this server's API token.")
+        expect(page.get_by_test_id("signin-submit")).to_be_enabled()  # the answer is in
+    # Over the limit: even the right token is refused; the form shows the server's message.
+    sign_in(page, TOKEN)
+    expect(error).to_have_text(re.compile(r"^Too many wrong API tokens .* Try again in \d+ s"))
+    expect(page.get_by_test_id("signin-dialog")).to_be_visible()
