@@ -14,10 +14,10 @@ from core.evaluation_records import (
 )
 from core.evaluation_trial import TrialSettings, policy_entry, run_trial, world_observer
 from core.planning import Planner
+from core.reference_model import experiment1_at_true_latents
 from core.types import ManifoldModel
 from core.validation import FloatArray
 from core.worlds import Experiment1World
-from tests.core.conftest import experiment1_at_true_latents
 
 SETTINGS = TrialSettings(steps=5, tolerance=0.0)
 

@@ -21,9 +21,9 @@ from core.evaluation_trial import (
 from core.planning import Planner
 from core.posterior import predict
 from core.recognition import default_prior
+from core.reference_model import experiment1_at_true_latents
 from core.types import ManifoldModel
 from core.worlds import Experiment1World, sample_experiment1
-from tests.core.conftest import experiment1_at_true_latents
 
 
 @pytest.fixture(scope="module")
