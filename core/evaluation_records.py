@@ -138,15 +138,7 @@ class TrialRecord:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready; :meth:`from_dict` gives back an equal record (floats round-trip)."""
         return {
-            "policy": self.policy,
-            "target": self.target,
-            "trial": self.trial,
-            "seed": list(self.seed),
-            "answers": list(self.answers),
-            "probabilities": [list(p) for p in self.probabilities],
-            "actions": [list(a) for a in self.actions],
-            "mutual_information": list(self.mutual_information),
-            "touches": self.touches,
+            **_touch_fields_to_dict(self),
             "stop_reason": self.stop_reason,
             "correct": self.correct,
             "nearest": list(self.nearest),
@@ -161,14 +153,7 @@ class TrialRecord:
         """
         try:
             return cls(
-                policy=str(d["policy"]),
-                target=str(d["target"]),
-                trial=int(d["trial"]),
-                seed=tuple(int(v) for v in d["seed"]),
-                answers=tuple(str(a) for a in d["answers"]),
-                probabilities=tuple(tuple(float(v) for v in p) for p in d["probabilities"]),
-                actions=tuple(tuple(float(v) for v in a) for a in d["actions"]),
-                mutual_information=tuple(float(v) for v in d["mutual_information"]),
+                **_touch_fields_from_dict(d, required=True),
                 touches=int(d["touches"]),
                 stop_reason=str(d["stop_reason"]),
                 correct=bool(d["correct"]),
@@ -261,15 +246,7 @@ class RefusedTrial:
         """JSON-ready, with ``refused`` (touch, action, error, reason); ``correct`` is false and
         ``stop_reason`` ``"refused"``. :meth:`from_dict` gives back an equal record."""
         return {
-            "policy": self.policy,
-            "target": self.target,
-            "trial": self.trial,
-            "seed": list(self.seed),
-            "answers": list(self.answers),
-            "probabilities": [list(p) for p in self.probabilities],
-            "actions": [list(a) for a in self.actions],
-            "mutual_information": list(self.mutual_information),
-            "touches": self.touches,
+            **_touch_fields_to_dict(self),
             "stop_reason": REFUSED,
             "correct": False,
             "refused": {
@@ -290,18 +267,11 @@ class RefusedTrial:
         try:
             refused = d["refused"]
             return cls(
-                policy=str(d["policy"]),
-                target=str(d["target"]),
-                trial=int(d["trial"]),
-                seed=tuple(int(v) for v in d["seed"]),
+                **_touch_fields_from_dict(d, required=False),
                 touch=int(refused["touch"]),
                 action=tuple(float(v) for v in refused["action"]),
                 error=str(refused["error"]),
                 reason=str(refused["reason"]),
-                answers=tuple(str(a) for a in d.get("answers", ())),
-                probabilities=tuple(tuple(float(v) for v in p) for p in d.get("probabilities", ())),
-                actions=tuple(tuple(float(v) for v in a) for a in d.get("actions", ())),
-                mutual_information=tuple(float(v) for v in d.get("mutual_information", ())),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise InvalidInputError(
@@ -311,6 +281,46 @@ class RefusedTrial:
 
 #: What one evaluation trial ends as: completed, or refused by the world.
 TrialOutcome = TrialRecord | RefusedTrial
+
+
+def _touch_fields_to_dict(record: TrialOutcome) -> dict[str, Any]:
+    """The fields both kinds of record share (who, which trial, and every touch performed)."""
+    return {
+        "policy": record.policy,
+        "target": record.target,
+        "trial": record.trial,
+        "seed": list(record.seed),
+        "answers": list(record.answers),
+        "probabilities": [list(p) for p in record.probabilities],
+        "actions": [list(a) for a in record.actions],
+        "mutual_information": list(record.mutual_information),
+        "touches": record.touches,
+    }
+
+
+def _touch_fields_from_dict(d: dict[str, Any], required: bool) -> dict[str, Any]:
+    """Constructor arguments of the shared fields (not ``touches``, which only
+    :class:`TrialRecord` stores). The per-touch lists may be absent when not ``required``
+    (a trial refused at its first touch).
+
+    Raises:
+        KeyError, TypeError, ValueError: A field is missing or malformed (the callers turn
+            these into :class:`~core.errors.InvalidInputError`).
+    """
+
+    def per_touch(name: str) -> Any:
+        return d[name] if required else d.get(name, ())
+
+    return {
+        "policy": str(d["policy"]),
+        "target": str(d["target"]),
+        "trial": int(d["trial"]),
+        "seed": tuple(int(v) for v in d["seed"]),
+        "answers": tuple(str(a) for a in per_touch("answers")),
+        "probabilities": tuple(tuple(float(v) for v in p) for p in per_touch("probabilities")),
+        "actions": tuple(tuple(float(v) for v in a) for a in per_touch("actions")),
+        "mutual_information": tuple(float(v) for v in per_touch("mutual_information")),
+    }
 
 
 def outcome_from_dict(d: dict[str, Any]) -> TrialOutcome:

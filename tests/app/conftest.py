@@ -19,9 +19,8 @@ with warnings.catch_warnings():
 from app.config import Settings
 from app.documents.model import model_to_document
 from app.main import create_app
-from core.posterior import condition
-from core.types import Hyperparameters
-from core.worlds import EXPERIMENT1_THETAS, sample_experiment1
+from core.reference_model import experiment1_at_true_latents
+from core.worlds import sample_experiment1
 
 
 def make_settings(tmp_path: Path, **overrides: object) -> Settings:
@@ -59,24 +58,8 @@ def experiment1_csv(seed: int = 0, touches_per_object: int = 12) -> str:
 
 
 def experiment1_document(seed: int = 0, touches_per_object: int = 25) -> dict[str, object]:
-    """A model document for Experiment 1 built without fitting (fast).
-
-    Latents are the true θ, normalised (centred, RMS 1) as a fit returns them; the
-    hyperparameters are those ``core.manifold.fit_hyperparameters`` finds for these latents on
-    this data (seed 0, 25 touches per object), rounded. Recognition with it is a real GP
-    computation; only the (slow) fit is skipped.
-    """
-    data = sample_experiment1(np.random.default_rng(seed), touches_per_object=touches_per_object)
-    thetas = np.asarray(EXPERIMENT1_THETAS)[:, None]
-    centred = thetas - thetas.mean()
-    latents = centred / np.sqrt(np.mean(np.sum(centred**2, axis=1)))
-    hyper = Hyperparameters(
-        signal_variance=np.array([0.18, 0.2, 0.27]),
-        noise_variance=np.array([0.0094, 0.016, 0.011]),
-        latent_lengthscales=np.array([[1.9], [100.0], [8.0]]),
-        action_lengthscales=np.array([[0.84], [0.88], [0.92]]),
-    )
-    return model_to_document(condition(data, latents, hyper))
+    """The document of :func:`core.reference_model.experiment1_at_true_latents` (no fit)."""
+    return model_to_document(experiment1_at_true_latents(seed, touches_per_object))
 
 
 def import_model(client: TestClient, seed: int = 0) -> int:
