@@ -1,0 +1,171 @@
+"""Calibration measures against values computed by hand."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from core.calibration import (
+    answer_confidence,
+    brier_score,
+    calibration,
+    expected_calibration_error,
+    log_loss,
+    reliability_table,
+    sure_and_wrong,
+)
+from core.errors import InvalidInputError
+
+# Four answers over three objects (truth: 0, 1, 2, 0).
+P = np.array(
+    [
+        [0.7, 0.2, 0.1],  # answer 0, right, confidence 0.7
+        [0.5, 0.4, 0.1],  # answer 0, wrong (truth 1), confidence 0.5
+        [0.05, 0.0, 0.95],  # answer 2, right, confidence 0.95
+        [0.02, 0.96, 0.02],  # answer 1, wrong (truth 0), confidence 0.96
+    ]
+)
+Y = np.array([0, 1, 2, 0])
+
+
+def test_answer_confidence_is_the_probability_of_the_answer() -> None:
+    confidence, correct = answer_confidence(P, Y)
+    np.testing.assert_allclose(confidence, [0.7, 0.5, 0.95, 0.96])
+    assert correct.tolist() == [True, False, True, False]
+    # A given answer (the second row answered 1) takes its own probability.
+    confidence, correct = answer_confidence(P, Y, answers=np.array([0, 1, 2, 1]))
+    np.testing.assert_allclose(confidence, [0.7, 0.4, 0.95, 0.96])
+    assert correct.tolist() == [True, True, True, False]
+
+
+def test_reliability_table_by_hand() -> None:
+    confidence, correct = answer_confidence(P, Y)
+    table = reliability_table(confidence, correct, n_bins=10)
+    assert len(table) == 10
+    counts = [b.count for b in table]
+    # 0.5 → bin [0.5, 0.6); 0.7 → [0.7, 0.8); 0.95 and 0.96 → [0.9, 1.0].
+    assert counts == [0, 0, 0, 0, 0, 1, 0, 1, 0, 2]
+    last = table[9]
+    assert last.mean_confidence == pytest.approx(0.955)
+    assert last.accuracy == pytest.approx(0.5)
+    assert table[5].accuracy == 0.0
+    assert table[0].accuracy is None
+    assert table[0].mean_confidence is None
+
+
+def test_bin_edges_are_half_open_and_one_is_in_the_last_bin() -> None:
+    confidence = np.array([0.3, 0.7, 1.0, 0.0, 0.1 * 3])
+    table = reliability_table(confidence, np.ones(5, dtype=bool), n_bins=10)
+    counts = [b.count for b in table]
+    assert counts == [1, 0, 0, 2, 0, 0, 0, 1, 0, 1]
+
+
+def test_ece_by_hand() -> None:
+    confidence, correct = answer_confidence(P, Y)
+    # Bins: {0.5: wrong} |0 - 0.5| = 0.5; {0.7: right} |1 - 0.7| = 0.3;
+    # {0.95 right, 0.96 wrong} |0.5 - 0.955| = 0.455.  ECE = (0.5 + 0.3 + 2 * 0.455) / 4.
+    expected = (0.5 + 0.3 + 2 * 0.455) / 4
+    assert expected_calibration_error(confidence, correct) == pytest.approx(expected)
+
+
+def test_ece_is_zero_when_stated_equals_observed() -> None:
+    # Ten answers at 0.8, eight of them right: perfectly calibrated.
+    confidence = np.full(10, 0.8)
+    correct = np.array([True] * 8 + [False] * 2)
+    assert expected_calibration_error(confidence, correct) == pytest.approx(0.0)
+
+
+def test_brier_by_hand() -> None:
+    rows = [
+        (0.3**2 + 0.2**2 + 0.1**2),
+        (0.5**2 + 0.6**2 + 0.1**2),
+        (0.05**2 + 0.0 + 0.05**2),
+        (0.98**2 + 0.96**2 + 0.02**2),
+    ]
+    assert brier_score(P, Y) == pytest.approx(sum(rows) / 4)
+
+
+def test_brier_of_a_uniform_posterior_is_one_minus_one_over_l() -> None:
+    uniform = np.full((5, 4), 0.25)
+    assert brier_score(uniform, np.array([0, 1, 2, 3, 0])) == pytest.approx(0.75)
+
+
+def test_log_loss_by_hand_and_its_floor() -> None:
+    expected = -(math.log(0.7) + math.log(0.4) + math.log(0.95) + math.log(0.02)) / 4
+    assert log_loss(P, Y) == pytest.approx(expected)
+    ruled_out = np.array([[1.0, 0.0]])
+    assert log_loss(ruled_out, np.array([1]), floor=1e-15) == pytest.approx(-math.log(1e-15))
+
+
+def test_sure_and_wrong_by_hand() -> None:
+    confidence, correct = answer_confidence(P, Y)
+    result = sure_and_wrong(confidence, correct, threshold=0.95)
+    assert (result.sure, result.wrong) == (2, 1)
+    assert result.share_wrong == pytest.approx(0.5)
+    none = sure_and_wrong(confidence, correct, threshold=0.99)
+    assert none.sure == 0
+    assert none.share_wrong is None
+
+
+def test_calibration_collects_every_measure_and_is_json_ready() -> None:
+    result = calibration(P, Y, threshold=0.95)
+    assert result.answers == 4
+    assert result.accuracy == pytest.approx(0.5)
+    assert result.ece == pytest.approx((0.5 + 0.3 + 2 * 0.455) / 4)
+    assert result.brier == pytest.approx(brier_score(P, Y))
+    assert result.log_loss == pytest.approx(log_loss(P, Y))
+    d = result.to_dict()
+    assert d["sure_and_wrong"] == {"threshold": 0.95, "sure": 2, "wrong": 1, "share_wrong": 0.5}
+    assert len(d["reliability"]) == 10
+
+
+def test_calibration_of_no_answers_has_no_measures() -> None:
+    result = calibration(np.zeros((0, 3)), np.zeros(0, dtype=int), threshold=0.9)
+    assert result.answers == 0
+    assert result.accuracy is None
+    assert result.ece is None
+    assert result.brier is None
+    assert result.log_loss is None
+
+
+def test_sampled_from_its_own_probabilities_a_posterior_is_calibrated() -> None:
+    # Labels drawn from the stated posterior: the ECE must shrink to binning error.
+    rng = np.random.default_rng(0)
+    logits = rng.normal(scale=2.0, size=(20000, 4))
+    p = np.exp(logits - logits.max(axis=1, keepdims=True))
+    p /= p.sum(axis=1, keepdims=True)
+    labels = np.array([rng.choice(4, p=row) for row in p])
+    result = calibration(p, labels, threshold=0.95)
+    assert result.ece is not None
+    assert result.ece < 0.02
+    overconfident = p**3 / np.sum(p**3, axis=1, keepdims=True)
+    assert calibration(overconfident, labels, threshold=0.95).ece > 0.1  # type: ignore[operator]
+
+
+@pytest.mark.parametrize(
+    ("probabilities", "labels", "message"),
+    [
+        (np.array([0.5, 0.5]), np.array([0]), "shape"),
+        (np.array([[0.5, 0.6]]), np.array([0]), "sums to"),
+        (np.array([[np.nan, 1.0]]), np.array([0]), "finite"),
+        (np.array([[0.5, 0.5]]), np.array([2]), "0..1"),
+        (np.array([[0.5, 0.5]]), np.array([0.0]), "integers"),
+        (np.array([[0.5, 0.5]]), np.array([0, 1]), "shape"),
+    ],
+)
+def test_bad_input_names_what_is_wrong(
+    probabilities: np.ndarray, labels: np.ndarray, message: str
+) -> None:
+    with pytest.raises(InvalidInputError, match=message):
+        calibration(probabilities, labels, threshold=0.95)
+
+
+def test_bad_threshold_and_bins() -> None:
+    with pytest.raises(InvalidInputError, match="threshold"):
+        sure_and_wrong(np.array([0.5]), np.array([True]), threshold=0.0)
+    with pytest.raises(InvalidInputError, match="n_bins"):
+        reliability_table(np.array([0.5]), np.array([True]), n_bins=0)
+    with pytest.raises(InvalidInputError, match=r"\[0, 1\]"):
+        reliability_table(np.array([1.5]), np.array([True]))
