@@ -5,7 +5,8 @@ how often the answer was right; calibration says whether the probability can be 
 answers given with p ≈ 0.9, about 90 % should be right. The measures here are the standard ones
 (Guo et al. 2017, "On calibration of modern neural networks", for the reliability diagram and
 the expected calibration error; Brier 1950 for the multi-class Brier score), computed over any
-set of answers — in an evaluation, one per (trial, touch). See docs/method.md, "Calibration and model error".
+set of answers — in an evaluation, one per (trial, touch). See docs/method.md, "Calibration and
+model error".
 
 All functions are pure and take arrays:
 
