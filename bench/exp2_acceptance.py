@@ -18,7 +18,7 @@ Measured (shared 2-core machine, ``--trials 50 --steps 6 --workers 2``, models: 
 active 54..64 %, passive 57..63 % (largest gap at a touch ≤ 5: 0.5 points; 193 s);
 ``textures`` active 45..57 %, discriminative 42..47 %, passive 44..52 % (largest gap 5 points;
 251 s). Active is never below passive beyond the intervals, after any touch or per object, and
-nowhere 15 points ahead (README, "What choosing the touch buys").
+nowhere 15 points ahead (docs/results.md, "What choosing the touch buys").
 """
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ support points to take L distinct latents, which they do) run unchanged on it, a
 candidate instead of O(N²).
 
 **Accuracy trade-off** (measured by ``bench/run.py``'s sparse section against the exact dense
-path, Experiment-2-like world, random design): see the README Performance section. The bound is
+path, Experiment-2-like world, random design): see docs/results.md, "Performance". The bound is
 below the exact log-likelihood by the KL gap, which shrinks as m grows; the latents, the
 predictive and the mutual information approach the exact ones accordingly.
 

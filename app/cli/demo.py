@@ -49,8 +49,7 @@ from core.worlds import sample_experiment1
 DEMO_DATASET_NAME = "demo: simulated rig"
 
 #: The simulated table of the demo: four cushions alike to any ordinary touch, told apart by a
-#: deep press (README, "What choosing the touch buys": on the rig active recognition is ahead of
-#: passive by 30-40 points over the first touches there). ``--table`` picks another.
+#: deep press (docs/results.md, "What choosing the touch buys"). ``--table`` picks another.
 DEMO_TABLE = "cushions"
 
 #: Touches per object of the demo's training set: enough that some of each object's random
