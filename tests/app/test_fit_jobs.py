@@ -15,6 +15,8 @@ from typing import Any
 
 import pytest
 
+from app import crud
+from app.db import Database
 from app.main import create_app
 from app.services import fits
 from app.services.jobs import Job
@@ -213,3 +215,27 @@ def test_a_shutdown_fails_running_and_queued_fits_as_interrupted(
             ended = client.get(f"{API}/models/{model['id']}").json()
             assert (ended["status"], ended["reason"]) == ("failed", "interrupted")
     assert gates.passed == []
+
+
+def test_a_restart_fails_the_fits_a_killed_server_left_queued_or_fitting(tmp_path: Any) -> None:
+    settings = make_settings(tmp_path)
+    with TestClient(create_app(settings)) as client:
+        dataset_id = upload(client)
+    database = Database(settings.database_url)
+    with database.session() as session:  # what a killed server leaves behind
+        left = {
+            status: crud.create_model(
+                session, dataset_id=dataset_id, status=status, latent_dim=1,
+                optimizer="lbfgs", restarts=0, seed=None,
+            ).id
+            for status in ("queued", "fitting", "stopped")
+        }  # fmt: skip
+        session.commit()
+    database.dispose()
+    with TestClient(create_app(settings)) as client:
+        after = {s: client.get(f"{API}/models/{i}").json() for s, i in left.items()}
+        events = client.get(f"{API}/events?after=0&follow=false").text
+    for status in ("queued", "fitting"):
+        assert (after[status]["status"], after[status]["reason"]) == ("failed", "interrupted")
+        assert f'"model_id": {left[status]}, "status": "failed"' in events
+    assert after["stopped"]["status"] == "stopped"  # an ended fit is left as it was
