@@ -122,6 +122,7 @@ class EvaluationService:
         targets = spec.target_names(model)
         total = len(spec.policies) * len(targets) * spec.trials_per_target
         workers = None if self._scheduler else body.workers
+        self._jobs.check_open()
         row = crud.create_evaluation(
             session,
             model_id=body.model_id,

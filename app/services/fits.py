@@ -103,6 +103,7 @@ class FitService:
                 f"least 4 touches of every object; this dataset has an object with {fewest}.",
                 field="latent_dim",
             )
+        self._jobs.check_open()
         row = crud.create_model(
             session,
             dataset_id=body.dataset_id,

@@ -170,6 +170,16 @@ class JobRunner:
                     return job
         return None
 
+    def check_open(self) -> None:
+        """Refuse new work once the runner is closing (checked before a job's row is stored).
+
+        Raises:
+            ConflictError: (409) the server is shutting down.
+        """
+        with self._lock:
+            if self._closing:
+                raise ConflictError("The server is shutting down.", current_state="shutdown")
+
     def start(
         self,
         kind: JobKind,

@@ -71,12 +71,15 @@ def test_jobs_over_the_limit_wait_in_order_and_start_as_others_end() -> None:
 
 def test_close_stops_running_and_queued_jobs_and_refuses_new_ones() -> None:
     runner, recorder = JobRunner({"fit": 1}), Recorder()
+    runner.check_open()
     runner.start("fit", *recorder.work(1))  # type: ignore[arg-type]
     runner.start("fit", *recorder.work(2))  # type: ignore[arg-type]
     runner.close(timeout_s=TIMEOUT_S)
     assert recorder.ended == {1: "shutdown", 2: "shutdown"}
     with pytest.raises(ConflictError, match="shutting down"):
         runner.start("fit", *recorder.work(3))  # type: ignore[arg-type]
+    with pytest.raises(ConflictError, match="shutting down"):
+        runner.check_open()
 
 
 def test_the_rig_lease_of_a_job_is_given_back_when_it_ends() -> None:
