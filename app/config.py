@@ -7,6 +7,7 @@ Nothing here is a module-level instance: :func:`app.main.create_app` is handed a
 from __future__ import annotations
 
 import ipaddress
+import os
 from pathlib import Path
 from typing import Literal
 
@@ -56,6 +57,8 @@ class Settings(BaseSettings):
             within ``auth_failure_window_s``; beyond, its attempts answer 429 with
             ``Retry-After`` until the oldest failure is that old (:mod:`app.security.attempts`).
         auth_failure_window_s: The window of ``auth_max_failures``, in seconds.
+        max_concurrent_fits: Most model fits the server runs at once; more wait ``queued`` in
+            the order they came (default: the cores this process may use).
         dask_scheduler: Address of a Dask scheduler (``tcp://host:8786``) that evaluations
             run their trials on; none: in-process, or a local cluster of the request's workers.
     """
@@ -81,6 +84,7 @@ class Settings(BaseSettings):
     migrations_dir: Path = PROJECT_ROOT / "migrations"
     viz: bool = True
     viz_port: int = Field(default=8081, ge=0, le=65535)
+    max_concurrent_fits: int = Field(default_factory=lambda: available_cores(), ge=1)
     dask_scheduler: str | None = None
     require_auth_for_reads: bool = False
     session_ttl_s: float = Field(default=12 * 3600.0, gt=0.0, le=30 * 24 * 3600.0)
@@ -122,6 +126,13 @@ class Settings(BaseSettings):
             raise ConfigurationError(
                 "require_auth_for_reads is set without an API token: set ACTIVETOUCH_API_TOKEN."
             )
+
+
+def available_cores() -> int:
+    """How many CPU cores this process may run on (its affinity, where the OS tells it)."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return max(1, os.cpu_count() or 1)
 
 
 def is_loopback(host: str) -> bool:

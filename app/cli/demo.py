@@ -37,6 +37,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from app import states
 from app.cli.output import messages
 from app.cli.serve import GracefulServer
 from app.config import Settings, is_loopback
@@ -58,7 +59,6 @@ DEMO_TOUCHES_PER_OBJECT = 100
 
 
 EXPERIMENT1_DATASET_NAME = "demo: paper Experiment 1"
-FINISHED = ("completed", "stopped", "aborted", "failed")
 
 
 @dataclass(frozen=True)
@@ -425,7 +425,7 @@ class DemoServer:
             f"/collections/{run['id']}",
             "collect",
             lambda r: (int(r.get("done") or 0), int(r.get("total") or 0), ""),
-            done=lambda r: r["status"] in FINISHED,
+            done=lambda r: r["status"] in states.FINISHED,
         )
         if run["status"] != "completed" or run.get("dataset_id") is None:
             raise DemoError(
@@ -469,7 +469,7 @@ class DemoServer:
             f"/models/{accepted['id']}",
             "fit",
             progress,
-            done=lambda m: m["status"] in ("ready", "failed"),
+            done=lambda m: m["status"] in states.MODEL_FINISHED,
         )
         if model["status"] != "ready":
             raise DemoError(f"the fit failed: {model.get('reason') or 'no reason given'}.")
