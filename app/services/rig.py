@@ -29,7 +29,7 @@ from core.validation import FloatArray
 from hardware.errors import HardwareError
 from hardware.records import TouchRecord
 from hardware.rig import RigLease, RigState
-from hardware.sim.materials import get_table
+from hardware.sim.materials import Table
 
 OPERATOR = "operator"
 
@@ -91,7 +91,10 @@ class RigService:
     """Owns this server's rig.
 
     Args:
-        settings: ``hardware`` and the device ports.
+        settings: ``hardware``, the device ports and the simulated table.
+
+    Raises:
+        app.config.ConfigurationError: The simulated table is unusable.
         runs: The run manager (who holds the rig).
         events: Where rig state changes are announced.
     """
@@ -100,6 +103,8 @@ class RigService:
         self._settings = settings
         self._runs = runs
         self._events = events
+        #: The simulated table (``mock`` hardware's, and simulated rig trials').
+        self.simulated_table: Table = settings.simulated_table()
         self._lock = threading.Lock()
         self._handle: RigHandle | None = None
         self._actions: TouchActions | None = None
@@ -120,7 +125,7 @@ class RigService:
     def _open(self) -> RigHandle:
         s = self._settings
         if s.hardware == "mock":
-            return open_rig(simulate=SimulationMode.in_process, table=s.sim_table, seed=0)
+            return open_rig(simulate=SimulationMode.in_process, table=self.simulated_table, seed=0)
         missing = [
             name
             for name, port in (
@@ -151,7 +156,7 @@ class RigService:
     @property
     def sim_table(self) -> tuple[str, ...]:
         """The objects of the simulated table (``mock`` hardware's, and simulated rig trials')."""
-        return get_table(self._settings.sim_table).objects
+        return self.simulated_table.objects
 
     @property
     def action_dim(self) -> int:
