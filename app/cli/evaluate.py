@@ -188,6 +188,7 @@ def evaluate_command(
         raise fail("--workers and --scheduler: give one (a local cluster or an existing one)")
     check_output(out, "--out")
     check_output(plot, "--plot")
+    chosen_table = table_choice(table, table_file)
     model = load_model(model_path)
     replay = read_data(data) if data is not None else None
     try:
@@ -202,7 +203,7 @@ def evaluate_command(
         confidence=confidence,
         seed=seed,
         targets=split_names(targets, "--targets"),
-        table=table_choice(table, table_file),
+        table=chosen_table,
         placement=cast(Placement, placement),
     )
     try:
