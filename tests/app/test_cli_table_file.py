@@ -14,6 +14,7 @@ from app.cli.main import app
 from app.config import ConfigurationError
 from app.main import create_app
 from tests.app.conftest import TestClient, make_settings
+from tests.app.test_evaluations_api import wait_ended
 
 runner = CliRunner()
 
@@ -98,6 +99,21 @@ def test_rig_status_collect_fit_and_evaluate_on_a_table_file(kitchen: Path, tmp_
     report = json.loads(evaluated.stdout)
     assert report["table"] == "kitchen"
     assert {t["target"] for t in report["trials"]} == {"cork", "mug"}
+
+    # The server with the same file: a rig evaluation naming no table, or naming the file's.
+    with TestClient(create_app(make_settings(tmp_path, sim_table_file=kitchen))) as client:
+        imported = client.post("/api/v1/models/import", json=json.loads(model.read_text()))
+        assert imported.status_code == 201, imported.text
+        body = {"model_id": imported.json()["id"], "world": "rig", "trials_per_target": 1}
+        for named in ({}, {"table": "kitchen"}):
+            created = client.post("/api/v1/evaluations", json={**body, **named, "steps": 1})
+            assert created.status_code == 202, created.text
+            ended = wait_ended(client, created.json()["id"])
+            assert ended["status"] == "completed", ended["reason"]
+            assert ended["summary"]["table"] == "kitchen"
+        unknown = client.post("/api/v1/evaluations", json={**body, "steps": 1, "table": "cushions"})
+        assert unknown.status_code == 422  # a built-in table does not hold cork and mug
+        assert "targets" in unknown.text
 
 
 @pytest.mark.parametrize(
