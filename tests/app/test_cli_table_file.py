@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 from typing import Any
 
@@ -111,6 +112,19 @@ def test_rig_status_collect_fit_and_evaluate_on_a_table_file(kitchen: Path, tmp_
             ended = wait_ended(client, created.json()["id"])
             assert ended["status"] == "completed", ended["reason"]
             assert ended["summary"]["table"] == "kitchen"
+        trial = client.post(
+            "/api/v1/trials",
+            json={"model_id": body["model_id"], "mode": "simulated", "target": "mug",
+                  "max_steps": 1, "seed": 2, "simulation": {"world": "rig"}},
+        )  # fmt: skip
+        assert trial.status_code == 201, trial.text
+        path = f"/api/v1/trials/{trial.json()['id']}"
+        for _ in range(600):
+            touched = client.get(path).json()
+            if touched["status"] not in ("queued", "running"):
+                break
+            time.sleep(0.1)
+        assert touched["status"] == "completed", touched
         unknown = client.post("/api/v1/evaluations", json={**body, "steps": 1, "table": "cushions"})
         assert unknown.status_code == 422  # a built-in table does not hold cork and mug
         assert "targets" in unknown.text
