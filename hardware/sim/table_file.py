@@ -60,6 +60,9 @@ _OBJECT_DEFAULTS: dict[str, float] = {
 
 ABSOLUTE_ZERO_C = -273.15
 
+#: How errors name a shared material (``materials.KEY``) in the place of an object.
+SHARED = "materials."
+
 
 class TableFileError(ConfigurationError):
     """A table file that cannot be read: what is wrong, where.
@@ -75,7 +78,12 @@ class TableFileError(ConfigurationError):
         self.source = source
         self.object_name = object_name
         self.field = field
-        where = f"object {object_name!r}, " if object_name is not None else ""
+        if object_name is None:
+            where = ""
+        elif object_name.startswith(SHARED):  # a shared material: materials.KEY.field
+            where = f"{object_name}."
+        else:
+            where = f"object {object_name!r}, "
         super().__init__(f"{source}: {where}{field}: {problem}")
 
 
@@ -141,7 +149,9 @@ def parse_table(document: Any, default_name: str = "custom", source: str = "tabl
         label = f"objects[{index}]"
         if not isinstance(entry, Mapping):
             raise reader.error(label, "object", f"expected a table of keys, found {_kind(entry)}.")
-        label = entry["name"] if isinstance(entry.get("name"), str) else label
+        given_name = entry.get("name")
+        if isinstance(given_name, str) and given_name.strip():
+            label = given_name
         item, slot = reader.tactile_object(entry, label, materials, slot_count)
         if item.name in names:
             raise reader.error(item.name, "name", "another object has this name.")
@@ -281,13 +291,15 @@ class _Reader:
                 None, "materials", f"expected a table of materials, found {_kind(section)}."
             )
         return {
-            key: self.material(entry, f"materials.{key}", key, "") for key, entry in section.items()
+            key: self.material(entry, f"{SHARED}{key}", key, "") for key, entry in section.items()
         }
 
     def material(self, entry: Any, owner: str, default_name: str, prefix: str) -> Material:
         if not isinstance(entry, Mapping):
             raise self.error(
-                owner, prefix.rstrip(".") or "material", f"expected a table, found {_kind(entry)}."
+                owner if prefix else None,
+                prefix.rstrip(".") or owner,
+                f"expected a table, found {_kind(entry)}.",
             )
         self.unknown_keys(entry, tuple(_MATERIAL_FIELDS), owner, prefix)
         name = self.text(entry, "name", owner, default=default_name)

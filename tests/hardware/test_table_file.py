@@ -319,8 +319,12 @@ def test_bad_input_names_the_object_and_the_field(
     assert (error.object_name, error.field) == (owner, field)
     assert words in str(error)
     assert str(error).startswith("kitchen.json: ")
-    if owner is not None:
-        assert repr(owner) in str(error)
+    if owner is not None and owner.startswith("materials."):
+        assert f"{owner}.{field}: " in str(error)
+    elif owner is not None:
+        assert f"object {owner!r}, {field}: " in str(error)
+    else:
+        assert str(error).startswith(f"kitchen.json: {field}: ")
 
 
 def test_unreadable_files_name_the_file(tmp_path: Path) -> None:
