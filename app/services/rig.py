@@ -92,11 +92,11 @@ class RigService:
 
     Args:
         settings: ``hardware``, the device ports and the simulated table.
+        runs: The run manager (who holds the rig).
+        events: Where rig state changes are announced.
 
     Raises:
         app.config.ConfigurationError: The simulated table is unusable.
-        runs: The run manager (who holds the rig).
-        events: Where rig state changes are announced.
     """
 
     def __init__(self, settings: Settings, runs: RunManager, events: EventBus) -> None:
