@@ -495,7 +495,11 @@ class EvaluationCreate(BaseModel):
     steps: Annotated[int, Field(ge=1, le=1000)] = 10
     confidence: Annotated[float, Field(gt=0.0, le=1.0)] = 0.95
     seed: Seed = 0
-    table: Name | None = Field(default=None, description="rig only: the simulated rig table.")
+    table: Name | None = Field(
+        default=None,
+        description="rig only: the simulated rig table — a built-in one by name, or the name of "
+        "the server's table file (ACTIVETOUCH_SIM_TABLE_FILE); the server's table when omitted.",
+    )
     placement: Literal["trial", "touch"] = Field(
         default="trial",
         description="rig only: place the object once per trial, or anew before every touch "

@@ -22,6 +22,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from dataclasses import replace
 
 from sqlalchemy.orm import Session
 
@@ -53,8 +54,9 @@ class EvaluationService:
     """Starts, stores and stops evaluation jobs.
 
     Args:
-        settings: The server's settings (``dask_scheduler``; ``sim_table``: the table a rig
-            evaluation simulates when the request names none).
+        settings: The server's settings (``dask_scheduler``; ``sim_table`` or
+            ``sim_table_file``: the table a rig evaluation simulates when the request names none
+            or names it).
         database: Where evaluations and their trials live.
         events: Where progress is announced.
         models: Loads the fitted models evaluated.
@@ -70,7 +72,7 @@ class EvaluationService:
         jobs: JobRunner,
     ) -> None:
         self._scheduler = settings.dask_scheduler or None
-        self._sim_table = settings.sim_table
+        self._sim_table = settings.simulated_table()
         self._database = database
         self._events = events
         self._models = models
@@ -116,8 +118,10 @@ class EvaluationService:
             )
         if body.world == "rig" and body.table is None:
             # The rig world simulates this server's table unless another is named.
-            body = body.model_copy(update={"table": self._sim_table})
+            body = body.model_copy(update={"table": self._sim_table.name})
         spec = build_spec(body)
+        if spec.table == self._sim_table.name:  # the server's table, read from its file too
+            spec = replace(spec, table=self._sim_table)
         spec.check(model, replay)
         targets = spec.target_names(model)
         total = len(spec.policies) * len(targets) * spec.trials_per_target

@@ -31,7 +31,7 @@ from core.validation import FloatArray
 from hardware.errors import HardwareError, RigBusy
 from hardware.records import TouchRecord
 from hardware.rig import RigLease, RigState
-from hardware.sim.materials import get_table
+from hardware.sim.materials import Table
 
 OPERATOR = "operator"
 
@@ -93,15 +93,20 @@ class RigService:
     """Owns this server's rig.
 
     Args:
-        settings: ``hardware`` and the device ports.
+        settings: ``hardware``, the device ports and the simulated table.
         jobs: The job runner (the job holding the rig is told of an emergency stop).
         events: Where rig state changes are announced.
+
+    Raises:
+        app.config.ConfigurationError: The simulated table is unusable.
     """
 
     def __init__(self, settings: Settings, jobs: JobRunner, events: EventBus) -> None:
         self._settings = settings
         self._jobs = jobs
         self._events = events
+        #: The simulated table (``mock`` hardware's, and simulated rig trials').
+        self.simulated_table: Table = settings.simulated_table()
         self._lock = threading.Lock()
         self._handle: RigHandle | None = None
         self._actions: TouchActions | None = None
@@ -122,7 +127,7 @@ class RigService:
     def _open(self) -> RigHandle:
         s = self._settings
         if s.hardware == "mock":
-            return open_rig(simulate=SimulationMode.in_process, table=s.sim_table, seed=0)
+            return open_rig(simulate=SimulationMode.in_process, table=self.simulated_table, seed=0)
         missing = [
             name
             for name, port in (
@@ -153,7 +158,7 @@ class RigService:
     @property
     def sim_table(self) -> tuple[str, ...]:
         """The objects of the simulated table (``mock`` hardware's, and simulated rig trials')."""
-        return get_table(self._settings.sim_table).objects
+        return self.simulated_table.objects
 
     @property
     def action_dim(self) -> int:

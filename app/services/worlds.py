@@ -147,7 +147,7 @@ class WorldFactory:
                 return WorldTouchSource(world, _target_index(world.object_names, target))
             handle = open_rig(
                 simulate=SimulationMode.in_process,
-                objects=self._rig.sim_table,
+                objects=self._rig.simulated_table.slots,
                 seed=options.world_seed,
             )
             try:
