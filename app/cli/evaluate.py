@@ -8,7 +8,7 @@
 
 Trials run in process, on a ``LocalCluster`` of ``--workers`` single-threaded processes, or on an
 existing Dask scheduler (:mod:`app.evaluation.runner`). A progress bar (trials done, ETA) goes to
-stderr; ``--json`` prints only the ``activetouch-evaluation/1`` report on stdout. ``--out`` and
+stderr; ``--json`` prints only the ``activetouch-evaluation/2`` report on stdout. ``--out`` and
 ``--plot`` are written once the evaluation has finished (nothing half-written). Bad input exits
 with 2 and a message naming it; Ctrl-C exits with 130 and writes nothing.
 

@@ -37,7 +37,7 @@ def test_json_prints_only_the_report_and_files_are_written(model_path, tmp_path)
     )
     assert result.exit_code == 0, result.output
     document = json.loads(result.stdout)
-    assert document["format"] == "activetouch-evaluation/1"
+    assert document["format"] == "activetouch-evaluation/2"
     assert document["steps"] == 3
     assert document["trials_per_target"] == 2
     assert len(document["trials"]) == 2 * 2 * 2

@@ -71,7 +71,7 @@ def test_reports_for_both_sources_summarise_their_trials(result) -> None:  # typ
             assert figures["accuracy_interval"][-1] == pytest.approx([lo, hi])
     document = json.loads(json.dumps(result.to_dict()))
     assert document["format"] == "activetouch-paper-exp2/1"
-    assert document["reports"]["rig"]["format"] == "activetouch-evaluation/1"
+    assert document["reports"]["rig"]["format"] == "activetouch-evaluation/2"
     assert document["seconds"] >= document["collect_seconds"] + document["fit_seconds"]
 
 
