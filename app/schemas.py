@@ -323,7 +323,10 @@ class TrialSummary(BaseModel):
     mode: str
     policy: str
     status: RunStatus
-    reason: str | None
+    reason: str | None = Field(
+        description="Why it ended: the stop rule of a completed trial (confident: an object "
+        "reached confidence_threshold; converged; max_steps), else what stopped or failed it."
+    )
     max_steps: int
     tolerance: float
     confidence_threshold: float | None
@@ -373,6 +376,11 @@ class ObservationResult(BaseModel):
     answer: str
     probabilities: dict[str, float]
     done: bool
+    stop_reason: str | None = Field(
+        default=None,
+        description="Why the trial stopped after this touch: confident (an object reached the "
+        "confidence threshold), converged or max_steps; null while it goes on.",
+    )
     status: RunStatus
     result: TrialResult | None
 

@@ -349,3 +349,32 @@ def _expect_refused_trial_view(page: Any, served: Served, evaluation_id: int, ro
     posterior = chart_datasets(page, "chart-posterior")[0]["data"]
     last = record["probabilities"][-1] if view["touches"] else [0.0] * len(view["objects"])
     assert posterior == pytest.approx(last)
+
+
+def test_the_trials_page_says_a_trial_stopped_by_the_confidence_rule(
+    page: Any, served: Served, page_errors: PageErrors
+) -> None:
+    body = {
+        "model_id": served.model_id,
+        "mode": "simulated",
+        "target": "O2",
+        "seed": 4,
+        "max_steps": 20,
+        "tolerance": 0.0,
+        "confidence_threshold": 0.9,
+    }
+    created = served.client.post("/trials", json=body)
+    assert created.status_code == 201, created.text
+    path = f"/trials/{created.json()['id']}"
+    deadline = time.monotonic() + 60
+    while (trial := served.client.get(path).json())["status"] != "completed":
+        assert trial["status"] in ("queued", "running"), trial
+        assert time.monotonic() < deadline, "the trial did not complete within 60 s"
+        time.sleep(0.05)
+    assert trial["reason"] == "confident"
+    page.goto(f"{served.base_url}/?viz=off#trials?trial={trial['id']}")
+    expect(page.get_by_test_id("trial-stopped-by")).to_contain_text(
+        f"after {trial['n_steps']} touches · completed — stopped by the confidence rule "
+        "(an object reached p ≥ 0.9)"
+    )
+    assert page_errors.exceptions == []
