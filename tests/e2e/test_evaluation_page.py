@@ -215,6 +215,17 @@ def _expect_calibration(page: Any, summary: dict[str, Any]) -> None:
             assert int(cells[0]) == measures["answers"]
             assert float(cells[2]) == pytest.approx(measures["brier"], rel=5e-3, abs=1e-6)
             assert float(cells[3]) == pytest.approx(measures["log_loss"], rel=5e-3, abs=1e-6)
+        # After each touch: ECE and wrong/sure, as many cells as touches.
+        by_touch = values["calibration"]["by_touch"]
+        wrong_sure = page.locator(
+            f"[data-testid=eval-sure-wrong-by-touch][data-policy={policy}] td"
+        )
+        assert wrong_sure.all_inner_texts() == [
+            f"{t['sure_and_wrong']['wrong']}/{t['sure_and_wrong']['sure']}" for t in by_touch
+        ]
+        eces = page.locator(f"[data-testid=eval-ece-by-touch][data-policy={policy}] td")
+        shown = [float(v) for v in eces.all_inner_texts()]
+        assert shown == pytest.approx([t["ece"] for t in by_touch], rel=5e-3, abs=1e-6)
     expect(page.get_by_test_id("eval-calibration")).to_contain_text("sure (p ≥ 0.95) and wrong")
     page.get_by_test_id("eval-calibration").scroll_into_view_if_needed()
     save_screenshot(page, "dashboard-evaluation-calibration")

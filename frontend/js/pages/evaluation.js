@@ -319,6 +319,37 @@ function drawCalibration() {
       el("thead", {}, el("tr", {}, head.map((h) => el("th", { scope: "col" }, h)))),
       el("tbody", {}, rows),
     ),
+    byTouchTable(entries.filter(([, s]) => s.calibration)),
+  );
+}
+
+/** ECE and sure-and-wrong after each touch, beside the accuracy curve's touches. */
+function byTouchTable(entries) {
+  const steps = Math.max(...entries.map(([, s]) => s.calibration.by_touch.length));
+  const touches = Array.from({ length: steps }, (_, t) => t + 1);
+  const rows = [];
+  for (const [policy, s] of entries) {
+    const byTouch = s.calibration.by_touch;
+    rows.push(
+      el(
+        "tr",
+        { "data-testid": "eval-ece-by-touch", "data-policy": policy },
+        el("th", { scope: "row" }, `${policy}: ECE`),
+        byTouch.map((t) => el("td", {}, num(t.ece, 3))),
+      ),
+      el(
+        "tr",
+        { "data-testid": "eval-sure-wrong-by-touch", "data-policy": policy },
+        el("th", { scope: "row" }, `${policy}: sure and wrong`),
+        byTouch.map((t) => el("td", { title: sureAndWrong(t.sure_and_wrong) }, `${t.sure_and_wrong.wrong}/${t.sure_and_wrong.sure}`)),
+      ),
+    );
+  }
+  return el(
+    "table",
+    { class: "table compact", "data-testid": "eval-calibration-by-touch" },
+    el("thead", {}, el("tr", {}, el("th", { scope: "col" }, "after touch"), touches.map((t) => el("th", { scope: "col" }, t)))),
+    el("tbody", {}, rows),
   );
 }
 
