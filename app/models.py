@@ -261,7 +261,7 @@ class Evaluation(Base):
 
     ``spec`` is the request as the API received it (``EvaluationCreate``); ``steps`` the T
     actually run (fewer than asked when a replay pool caps it); ``summary`` is the
-    ``activetouch-evaluation/1`` document of the finished report without its ``trials`` (those
+    ``activetouch-evaluation/2`` document of the finished report without its ``trials`` (those
     are :class:`EvaluationTrial` rows, written as each trial finishes); ``workers`` is the
     number asked for until the report says how many ran trials.
     """

@@ -333,7 +333,10 @@ class TrialSummary(BaseModel):
     mode: str
     policy: str
     status: RunStatus
-    reason: str | None
+    reason: str | None = Field(
+        description="Why it ended: the stop rule of a completed trial (confident: an object "
+        "reached confidence_threshold; converged; max_steps), else what stopped or failed it."
+    )
     max_steps: int
     tolerance: float
     confidence_threshold: float | None
@@ -383,6 +386,11 @@ class ObservationResult(BaseModel):
     answer: str
     probabilities: dict[str, float]
     done: bool
+    stop_reason: str | None = Field(
+        default=None,
+        description="Why the trial stopped after this touch: confident (an object reached the "
+        "confidence threshold), converged or max_steps; null while it goes on.",
+    )
     status: RunStatus
     result: TrialResult | None
 
@@ -508,14 +516,86 @@ class EvaluationCreate(BaseModel):
     workers: Annotated[int, Field(ge=1, le=256)] | None = None
 
 
+class ReliabilityBinPublic(BaseModel):
+    """One bin of stated probability [lower, upper) (the last includes 1) of a reliability table."""
+
+    lower: float
+    upper: float
+    count: int = Field(description="Answers given with a probability in the bin.")
+    mean_confidence: float | None = Field(description="Their mean probability (null if none).")
+    accuracy: float | None = Field(description="The share of them that were right (null if none).")
+
+
+class SureAndWrongPublic(BaseModel):
+    """Answers given with probability ≥ the evaluation's confidence, and the wrong ones."""
+
+    threshold: float
+    sure: int
+    wrong: int
+    share_wrong: float | None = Field(description="wrong / sure; null when none was sure.")
+
+
+class CalibrationAtTouch(BaseModel):
+    """Calibration of a set of answers, without the reliability table (the measures are null
+    for an empty set)."""
+
+    answers: int = Field(description="Answers scored.")
+    accuracy: float | None
+    ece: float | None = Field(description="Expected calibration error over 10 equal bins.")
+    brier: float | None = Field(description="Multi-class Brier score of the object posterior.")
+    log_loss: float | None = Field(description="Mean −log p(true object), nats.")
+    sure_and_wrong: SureAndWrongPublic
+
+
+class CalibrationPublic(CalibrationAtTouch):
+    """Calibration of a set of answers with its reliability table (stated vs observed)."""
+
+    reliability: list[ReliabilityBinPublic]
+
+
+class PolicyCalibration(BaseModel):
+    """How far one policy's stated probabilities can be trusted (completed trials only).
+
+    Every answer is scored with the object posterior behind it; a trial that stopped early
+    keeps its last answer up to T, as in ``accuracy_by_touch``.
+    """
+
+    all_touches: CalibrationPublic = Field(description="Over every (trial, touch 1..T).")
+    final: CalibrationPublic = Field(description="At touch T.")
+    by_touch: list[CalibrationAtTouch] = Field(description="At touch 1..T.")
+
+
+class EvaluationPolicySummary(BaseModel):
+    """One policy's summary: accuracy by touch with 95 % intervals, per object, confusion,
+    touches to confidence, calibration (null in summaries of format ``/1``), trials, refused."""
+
+    model_config = ConfigDict(extra="allow")
+
+    accuracy_by_touch: list[float]
+    accuracy_interval: list[list[float]]
+    trials: int
+    calibration: PolicyCalibration | None = None
+
+
+class EvaluationSummary(BaseModel):
+    """The ``activetouch-evaluation/2`` document without its trials (see ``EvaluationPublic``);
+    a stored ``/1`` one has no calibration."""
+
+    model_config = ConfigDict(extra="allow")
+
+    format: str
+    policies: dict[str, EvaluationPolicySummary]
+
+
 class EvaluationPublic(BaseModel):
     """``GET /evaluations/{id}``: the request, state, progress and summary.
 
-    ``summary`` is the ``activetouch-evaluation/1`` document without its trials: the final
+    ``summary`` is the ``activetouch-evaluation/2`` document without its trials: the final
     report's once the job has ended with one; while it runs (or after it failed) the summary
     of the trials finished so far, marked ``"partial": true``; null before the first trial.
     Its ``refused_trials`` and ``refused_by_policy`` count the trials the rig refused a touch
-    of (a servo overload, ...); each policy's accuracy is over its completed ``trials`` only.
+    of (a servo overload, ...); each policy's accuracy and calibration are over its completed
+    ``trials`` only.
     """
 
     id: int
@@ -528,7 +608,7 @@ class EvaluationPublic(BaseModel):
     total: int
     workers: int | None
     seconds: float | None
-    summary: dict[str, Any] | None
+    summary: EvaluationSummary | None
     created_at: datetime
     updated_at: datetime
     started_at: datetime | None

@@ -1,5 +1,6 @@
 """Summaries of evaluation trials: accuracy by touch with Wilson intervals, per object, confusion,
-touches to confidence, and the comparison of policies (METHOD.md, "Evaluation protocols").
+touches to confidence, calibration of the answers' probabilities, and the comparison of policies
+(METHOD.md, "Evaluation protocols").
 
 Pure functions of :class:`core.evaluation_records.TrialRecord` lists; the result is JSON-ready.
 """
@@ -12,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from core.calibration import DEFAULT_BINS, calibration
 from core.errors import InvalidInputError
 from core.evaluation_records import TrialRecord
 
@@ -108,6 +110,7 @@ def summarise(
         of the first touch whose answer has probability ≥ ``confidence``; trials that never get
         there count as more than T; ``None`` when at least half never do),
         ``touches_to_accuracy`` (first touch whose accuracy is ≥ ``confidence``, or ``None``),
+        ``calibration`` (:func:`calibration_summary`, its "sure and wrong" at ``confidence``),
         ``trials``.
 
     Raises:
@@ -172,8 +175,95 @@ def _summarise_policy(
         "confusion": confusion,
         "median_touches_to_confidence": median_touches(reached),
         "touches_to_accuracy": first_touch_reaching(accuracy, confidence),
+        "calibration": calibration_summary(records, names, steps, confidence),
         "trials": n,
     }
+
+
+def calibration_summary(
+    records: Sequence[TrialRecord],
+    object_names: Sequence[str],
+    steps: int,
+    threshold: float,
+    n_bins: int = DEFAULT_BINS,
+) -> dict[str, Any]:
+    """How far the probabilities of one policy's answers can be trusted (core.calibration).
+
+    Every answer is scored with the object posterior behind it (``record.probabilities``, in the
+    order of ``object_names``) against the trial's target. The answers are counted exactly as
+    accuracy by touch counts them: a trial that stopped early (converged, confident, pool
+    exhausted) keeps its last answer and the posterior behind it up to touch ``steps``, so the
+    scores at touch t cover every trial, ``by_touch[t-1]["accuracy"]`` is the accuracy after
+    touch t, and a confident early stop counts once per touch it carries forward to (as a user
+    reading the recogniser at touch t would see it). Refused trials are not records and are not
+    scored.
+
+    Args:
+        records: Completed trials of one policy, each with at most ``steps`` touches.
+        object_names: The model's objects, the order of the records' probabilities.
+        steps: T.
+        threshold: The confidence threshold of "sure and wrong" (the evaluation's).
+        n_bins: Bins of the reliability tables.
+
+    Returns:
+        ``all_touches`` (:meth:`core.calibration.Calibration.to_dict` over every
+        (trial, touch), n·T answers), ``final`` (the same at touch T, n answers) and
+        ``by_touch`` [T] (per touch: ``answers``, ``accuracy``, ``ece``, ``brier``,
+        ``log_loss``, ``sure_and_wrong``; the reliability table left out).
+
+    Raises:
+        InvalidInputError: No records, a record longer than ``steps``, an object that is not in
+            ``object_names``, or probabilities that are not a distribution over them.
+    """
+    names = tuple(object_names)
+    if not records:
+        raise InvalidInputError("records: need at least one trial to score.")
+    index = {name: k for k, name in enumerate(names)}
+    unknown = {n for r in records for n in (r.target, *r.answers)} - set(index)
+    if unknown:
+        raise InvalidInputError(
+            f"records: objects {sorted(unknown)} are not among the model's {list(names)}."
+        )
+    # (n, T, L) posteriors, (n, T) answers and (n,) targets, carried forward like the answers.
+    probabilities = np.array(
+        [_carried(r.probabilities, r.touches, steps) for r in records], dtype=np.float64
+    )
+    if probabilities.shape[2:] != (len(names),):
+        raise InvalidInputError(
+            f"records: probabilities of length {probabilities.shape[2:]} for the model's "
+            f"{len(names)} objects."
+        )
+    answers = np.array(
+        [[index[a] for a in r.answers_by_touch(steps)] for r in records], dtype=np.int64
+    )
+    targets = np.array([index[r.target] for r in records], dtype=np.int64)
+    labels = np.repeat(targets[:, None], steps, axis=1)
+    n, t, n_objects = probabilities.shape
+
+    def scored(p: np.ndarray, y: np.ndarray, a: np.ndarray) -> dict[str, Any]:
+        return calibration(p, y, threshold, answers=a, n_bins=n_bins).to_dict()
+
+    by_touch = []
+    for touch in range(t):
+        entry = scored(probabilities[:, touch], labels[:, touch], answers[:, touch])
+        entry.pop("reliability")
+        by_touch.append(entry)
+    return {
+        "all_touches": scored(
+            probabilities.reshape(n * t, n_objects), labels.reshape(-1), answers.reshape(-1)
+        ),
+        "final": scored(probabilities[:, -1], labels[:, -1], answers[:, -1]),
+        "by_touch": by_touch,
+    }
+
+
+def _carried(
+    rows: tuple[tuple[float, ...], ...], touches: int, steps: int
+) -> tuple[tuple[float, ...], ...]:
+    """``rows`` (one per touch performed) with the last carried forward to ``steps``."""
+    if steps < touches:
+        raise InvalidInputError(f"steps: {steps} is fewer than the {touches} touches of a trial.")
+    return rows + (rows[-1],) * (steps - touches)
 
 
 def comparison_sentence(summaries: dict[str, dict[str, Any]], level: float) -> str:

@@ -8,9 +8,12 @@
 
 Trials run in process, on a ``LocalCluster`` of ``--workers`` single-threaded processes, or on an
 existing Dask scheduler (:mod:`app.evaluation.runner`). A progress bar (trials done, ETA) goes to
-stderr; ``--json`` prints only the ``activetouch-evaluation/1`` report on stdout. ``--out`` and
-``--plot`` are written once the evaluation has finished (nothing half-written). Bad input exits
-with 2 and a message naming it; Ctrl-C exits with 130 and writes nothing.
+stderr; ``--json`` prints only the ``activetouch-evaluation/2`` report on stdout (with each
+policy's calibration: reliability tables, ECE, Brier score, log-loss and "sure and wrong", over
+every trial and touch, at T and by touch); the table shows the ECE and "sure and wrong" (answers
+given with p ≥ ``--confidence``, and how many of them were wrong) over every trial and touch.
+``--out`` and ``--plot`` are written once the evaluation has finished (nothing half-written). Bad
+input exits with 2 and a message naming it; Ctrl-C exits with 130 and writes nothing.
 
 On the ``rig`` world a trial whose touch the rig refuses (a servo overload, ...) is counted in
 the table's "refused" column and left out of the accuracy (over the "completed" trials); a rig
@@ -104,17 +107,40 @@ def check_output(path: Path | None, option: str) -> None:
         raise fail(f"{option}: the folder {path.parent} does not exist")
 
 
+def calibration_cells(summary: dict[str, Any]) -> tuple[str, str]:
+    """(ECE, "sure and wrong") of a policy over every (trial, touch): "0.031" and
+    "3 of 120 (2.5 %)"; dashes for a summary without calibration (an ``/1`` document) or no
+    sure answer."""
+    calibration = summary.get("calibration")
+    if not calibration:
+        return "—", "—"
+    scored = calibration["all_touches"]
+    ece = "—" if scored["ece"] is None else f"{scored['ece']:.3f}"
+    sure = scored["sure_and_wrong"]
+    share = sure["share_wrong"]
+    wrong = f"{sure['wrong']:d} of {sure['sure']:d}" + (
+        "" if share is None else f" ({100 * share:.1f} %)"
+    )
+    return ece, wrong
+
+
 def summary_table(document: dict[str, Any]) -> Table:
-    """Accuracy by touch, at T with its interval, touches to confidence, per object."""
+    """Accuracy by touch, at T with its interval, calibration (ECE and "sure and wrong" over
+    every trial and touch), touches to confidence, per object."""
     steps = int(document["steps"])
     table = Table(
         title=f"{escape(str(document['world']))}: {document['trials_per_target']:d} trials per "
         f"target, T = {steps:d}, seed {document['seed']:d}, {document['workers']:d} worker(s), "
-        f"{document['seconds']:.1f} s"
+        f"{document['seconds']:.1f} s",
+        caption="ECE: expected calibration error; sure and wrong: of the answers given with "
+        f"p ≥ {document['confidence']:g}, the wrong ones (both over every trial and touch).",
+        caption_justify="left",
     )
     table.add_column("policy")
     table.add_column("accuracy % by touch 1..T")
     table.add_column("at T (95 % interval)", justify="right")
+    table.add_column("ECE", justify="right", no_wrap=True)
+    table.add_column("sure and wrong", justify="right", no_wrap=True)
     table.add_column(f"median touches to p ≥ {document['confidence']:g}", justify="right")
     table.add_column("per object at T (%)")
     table.add_column("completed", justify="right")
@@ -132,6 +158,7 @@ def summary_table(document: dict[str, Any]) -> Table:
             escape(name),
             curve,
             f"{100 * summary['accuracy_by_touch'][-1]:.1f} ({100 * lo:.1f}–{100 * hi:.1f})",
+            *calibration_cells(summary),
             "never (half or more)" if median is None else f"{median:.1f}",
             per_object,
             f"{summary['trials']:d}",
@@ -139,7 +166,7 @@ def summary_table(document: dict[str, Any]) -> Table:
         )
     for name, count in refused.items():
         if name not in document["policies"] and count:  # every trial of it was refused
-            table.add_row(escape(name), "—", "—", "—", "—", "0", f"{count:d}")
+            table.add_row(escape(name), "—", "—", "—", "—", "—", "—", "0", f"{count:d}")
     return table
 
 
@@ -177,7 +204,8 @@ def evaluate_command(
         Path | None, typer.Option(help="Write the accuracy curves and per-object bars (PNG).")
     ] = None,
 ) -> None:
-    """Evaluate policies on a model: accuracy by touch with intervals, per object, confusion."""
+    """Evaluate policies on a model: accuracy by touch with intervals, calibration, per object,
+    confusion."""
     from app.cli.main import load_model
     from app.errors import AppError, DeviceUnavailableError
     from app.evaluation.runner import run_evaluation

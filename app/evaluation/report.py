@@ -3,9 +3,15 @@
 Trials the rig refused (:class:`~core.evaluation_records.RefusedTrial`: one touch refused by the
 hardware, e.g. a servo overload) are kept beside the completed ones and counted per policy
 (``refused``); they are excluded from the accuracy, which is over the completed trials only
-(``trials``, its denominator) — a refused trial counts neither as right nor as wrong. What the
-final accuracy would be with every refused trial counted as wrong is given beside it
-(``accuracy_if_refused_wrong``), and a note says so whenever a trial was refused.
+(``trials``, its denominator) — a refused trial counts neither as right nor as wrong — and so is
+the calibration of the answers' probabilities. What the final accuracy would be with every refused
+trial counted as wrong is given beside it (``accuracy_if_refused_wrong``), and a note says so
+whenever a trial was refused.
+
+Format ``activetouch-evaluation/2`` adds each policy's ``calibration``
+(:func:`core.evaluation_summary.calibration_summary`) to ``/1``; the rest is unchanged, so a
+reader of ``/1`` documents reads ``/2`` ones, and a ``/1`` document is a ``/2`` one without
+calibration (:data:`FORMATS`).
 """
 
 from __future__ import annotations
@@ -18,7 +24,10 @@ from core.evaluation_records import REFUSED, RefusedTrial, TrialRecord
 from core.evaluation_summary import comparison_sentence, summarise
 from hardware.sim.materials import table_name
 
-FORMAT = "activetouch-evaluation/1"
+FORMAT = "activetouch-evaluation/2"
+
+#: Every format of the evaluation document that is still read (``/1``: without calibration).
+FORMATS: tuple[str, ...] = ("activetouch-evaluation/1", FORMAT)
 
 
 @dataclass(frozen=True)
@@ -99,7 +108,8 @@ class EvaluationReport:
             asked = done + refused
             notes.append(
                 f"{policy}: the rig refused a touch in {refused} of {asked} trials; its accuracy "
-                f"is over the {done} completed trials only (a refused trial counts neither as "
+                f"and calibration are over the {done} completed trials only (a refused trial "
+                f"counts neither as "
                 f"right nor as wrong); counted as wrong, its final accuracy would be "
                 f"{right.get(policy, 0)}/{asked} = {100 * right.get(policy, 0) / asked:.1f} %."
             )
@@ -131,7 +141,7 @@ class EvaluationReport:
         return comparison_sentence(summary, self.spec.confidence) if summary else ""
 
     def to_dict(self, include_trials: bool = True) -> dict[str, Any]:
-        """The ``activetouch-evaluation/1`` document."""
+        """The ``activetouch-evaluation/2`` document."""
         spec = self.spec
         return {
             "format": FORMAT,

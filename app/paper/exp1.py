@@ -18,6 +18,7 @@ from rich.table import Table
 
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
+from app.paper.calibration import calibration_text
 from core.evaluation_records import TrialRecord
 from core.evaluation_summary import summarise, wilson_interval
 from core.manifold import FitOptions, fit_hyperparameters, fit_manifold
@@ -32,7 +33,8 @@ PAPER_RANDOM_CORRELATION = 0.3449
 
 @dataclass
 class PolicyFigures:
-    """Accuracy of one policy pooled over seeds."""
+    """Accuracy of one policy pooled over seeds, and the calibration of its answers
+    (:func:`core.evaluation_summary.calibration_summary`, "sure and wrong" at p ≥ 0.95)."""
 
     accuracy_by_touch: list[float] = field(default_factory=list)
     nearest_accuracy_by_touch: list[float] = field(default_factory=list)
@@ -40,6 +42,7 @@ class PolicyFigures:
     final_interval: list[float] = field(default_factory=list)
     trials: int = 0
     seconds_per_step: float = 0.0
+    calibration: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
@@ -99,6 +102,12 @@ class Experiment1Figures:
                 f"accuracy % by touch 1..T, {escape(name)}",
                 "converges to the true object within T = 10" if name == "active" else "—",
                 curve,
+            )
+        for name, figures in self.policies.items():
+            table.add_row(
+                f"calibration, {escape(name)} (every trial and touch)",
+                "—",
+                calibration_text({"calibration": figures.calibration}),
             )
         for name, figures in self.policies.items():
             table.add_row(
@@ -192,6 +201,7 @@ def run_experiment1(
             final_interval=list(wilson_interval(final, len(mine))),
             trials=len(mine),
             seconds_per_step=float(np.median(step_seconds[name])),
+            calibration=summary["calibration"],
         )
     return Experiment1Figures(
         seeds=seeds,

@@ -24,6 +24,7 @@ from rich.table import Table
 from app.evaluation.report import EvaluationReport
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec, Placement
+from app.paper.calibration import calibration_text
 from app.rig_factory import SimulationMode, TouchActions, open_rig
 from core.designs import random_design
 from core.evaluation_trial import POLICIES
@@ -174,7 +175,10 @@ class Experiment2Result:
             f"T = {s.steps:d}, {s.trials_per_target:d} trials per object, policy and source",
             caption="model: observations sampled from the learned GP at the target's latent "
             "(the paper's protocol); rig: every observation a touch of the simulated rig. "
-            "Accuracy: the most probable object after each touch; 95 % Wilson intervals.",
+            "Accuracy: the most probable object after each touch; 95 % Wilson intervals. "
+            "Calibration over every trial and touch: ECE (expected calibration error), Brier "
+            "score, log-loss, and of the answers given with p ≥ the confidence threshold the "
+            "wrong ones.",
             caption_justify="left",
         )
         table.add_column("figure")
@@ -210,6 +214,11 @@ class Experiment2Result:
                 )
                 table.add_row(
                     f"{escape(source)}: {escape(policy)}, per object % at T", "—", per_object
+                )
+                table.add_row(
+                    f"{escape(source)}: {escape(policy)}, calibration",
+                    "—",
+                    calibration_text(figures),
                 )
             table.add_row(f"{escape(source)}: comparison", "—", escape(report.comparison()))
         table.add_row("first actions (Fig. 11)", PAPER["actions"], "see the trajectories figure")
@@ -361,9 +370,14 @@ def run_experiment2(
 
 
 def write_figures(result: Experiment2Result, directory: Path) -> list[Path]:
-    """The manifold (Fig. 9), the first actions' trajectories (Fig. 11) and the accuracy curves
-    per observation source, as PNGs in ``directory``."""
-    from app.paper.exp2_figures import accuracy_figure, manifold_figure, trajectory_figure
+    """The manifold (Fig. 9), the first actions' trajectories (Fig. 11), the accuracy curves and
+    the reliability diagrams per observation source, as PNGs in ``directory``."""
+    from app.paper.exp2_figures import (
+        accuracy_figure,
+        manifold_figure,
+        reliability_figure,
+        trajectory_figure,
+    )
 
     directory.mkdir(parents=True, exist_ok=True)
     actions = TouchActions.from_teaching()
@@ -373,6 +387,9 @@ def write_figures(result: Experiment2Result, directory: Path) -> list[Path]:
     ]
     for source, report in result.reports.items():
         paths.append(accuracy_figure(report, source, directory / f"exp2-accuracy-{source}.png"))
+        paths.append(
+            reliability_figure(report, source, directory / f"exp2-reliability-{source}.png")
+        )
     return paths
 
 

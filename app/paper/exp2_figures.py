@@ -6,6 +6,8 @@
 * :func:`trajectory_figure` — the joint trajectories (FFJ3, FFJ4) of the first actions chosen in
   one trial per policy beside the teaching trajectory (the paper's Fig. 11).
 * :func:`accuracy_figure` — accuracy by touch with the 95 % Wilson intervals, per policy.
+* :func:`reliability_figure` — the reliability diagram of each policy's answers
+  (:func:`app.evaluation.plot.draw_reliability`).
 """
 
 from __future__ import annotations
@@ -143,6 +145,20 @@ def accuracy_figure(report: EvaluationReport, source: str, path: Path) -> Path:
     ax.set_ylim(0, 102)
     ax.set_title(f"Experiment 2, observations from the {source}", fontsize=9)
     ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def reliability_figure(report: EvaluationReport, source: str, path: Path) -> Path:
+    """Stated probability against observed accuracy of every answer, one curve per policy."""
+    from app.evaluation.plot import draw_reliability
+
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(5.5, 4.5), dpi=110)
+    draw_reliability(ax, report.summary())
+    ax.set_title(f"Experiment 2, observations from the {source}: reliability", fontsize=9)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)

@@ -86,7 +86,7 @@ def get_evaluation_trial(
                 "application/json": {"schema": {"type": "object"}},
                 "text/csv": {"schema": {"type": "string"}},
             },
-            "description": "The activetouch-evaluation/1 report (JSON, default) or one CSV row "
+            "description": "The activetouch-evaluation/2 report (JSON, default) or one CSV row "
             "per trial and touch.",
         }
     },

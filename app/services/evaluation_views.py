@@ -4,7 +4,9 @@ The summary of a finished job is the one its report gave (stored). While a job r
 failed without a report, the summary is that of the trials finished so far (the engine's
 :class:`~app.evaluation.report.EvaluationReport` rebuilt from the stored trials), marked
 ``"partial": true``. Exports rebuild the report the same way, so a completed evaluation exports
-exactly the engine's document and CSV.
+exactly the engine's document and CSV. A stored summary of an older format (``/1``, before each
+policy's calibration was reported) is summarised again from the stored trials when one
+evaluation is read (the list shows the stored one, with no calibration).
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from sqlalchemy.orm import Session
 
 from app import crud
 from app.errors import BadInputError, NotFoundError
-from app.evaluation.report import EvaluationReport
+from app.evaluation.report import FORMAT, EvaluationReport
 from app.evaluation.spec import EvaluationSpec
 from app.models import Evaluation, EvaluationTrial, utc_now
 from app.schemas import (
@@ -118,23 +120,30 @@ def stored_report(session: Session, row: Evaluation) -> EvaluationReport:
     )
 
 
+def stored_summary(session: Session, row: Evaluation) -> dict[str, Any]:
+    """The summary document (without trials) of the stored trials, in today's format."""
+    document = stored_report(session, row).to_dict(include_trials=False)
+    document.pop("trials", None)
+    document.pop("refused", None)  # the refused trials are trial rows too
+    return document
+
+
 def partial_summary(session: Session, row: Evaluation) -> dict[str, Any] | None:
     """The summary document (without trials) of the trials finished so far; ``None`` if none."""
     if row.done == 0:
         return None
-    document = stored_report(session, row).to_dict(include_trials=False)
-    document.pop("trials", None)
-    document.pop("refused", None)  # the refused trials are trial rows too
-    document["partial"] = True
-    return document
+    return {**stored_summary(session, row), "partial": True}
 
 
 def get(session: Session, evaluation_id: int) -> EvaluationPublic:
-    """One evaluation, with the summary of its trials so far while it has no final one."""
+    """One evaluation, with the summary of its trials so far while it has no final one, and a
+    final one of an older format summarised again from its trials."""
     row = require(session, evaluation_id)
-    if row.summary is not None:
-        return to_public(row)
-    return to_public(row, partial_summary(session, row))
+    if row.summary is None:
+        return to_public(row, partial_summary(session, row))
+    if row.summary.get("format") != FORMAT:
+        return to_public(row, stored_summary(session, row))
+    return to_public(row)
 
 
 def list_page(
@@ -192,7 +201,7 @@ def trial(session: Session, evaluation_id: int, number: int) -> EvaluationTrialP
 
 
 def report_document(session: Session, evaluation_id: int) -> dict[str, Any]:
-    """The ``activetouch-evaluation/1`` document: the summary and every finished trial.
+    """The ``activetouch-evaluation/2`` document: the summary and every finished trial.
 
     For a job that has not completed, the summary is that of the trials finished so far.
     """

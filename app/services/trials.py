@@ -353,6 +353,7 @@ class TrialService:
             answer=row.answer,
             probabilities=dict(zip(names, row.probabilities.tolist(), strict=True)),
             done=step.done,
+            stop_reason=step.stop_reason,
             status=trial.status,
             result=trial_result(trial),
         )

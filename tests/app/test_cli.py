@@ -126,6 +126,15 @@ def test_paper_exp1_small_run_reports_figures():
     assert set(figures["policies"]) == {"active", "passive", "random-latent active"}
     assert len(figures["policies"]["active"]["accuracy_by_touch"]) == 3
     assert figures["policies"]["active"]["trials"] == 4
+    # Each policy's calibration over every trial and touch: 4 trials x 3 touches.
+    calibration = figures["policies"]["active"]["calibration"]
+    assert calibration["all_touches"]["answers"] == 4 * 3
+    assert calibration["all_touches"]["sure_and_wrong"]["threshold"] == 0.95
+    table = runner.invoke(app, ["paper", "exp1", "--seeds", "1", "--trials", "1", "--steps", "3"])
+    assert table.exit_code == 0, table.output
+    text = " ".join(table.stdout.split())
+    assert "calibration, active" in text
+    assert "ECE" in text
 
 
 def test_fit_with_a_sparse_structure_records_it_in_the_document(csv_path):

@@ -109,6 +109,35 @@ def test_csv_rows_have_one_row_per_trial_and_touch(exp1_model):
     assert last_of_first[-1] == report.records[0].stop_reason
 
 
+def assert_stopped_by_confidence(records, threshold):
+    """Every trial whose answer reached ``threshold`` stopped at that touch saying "confident";
+    no other trial says it; and at least one did."""
+    assert any(r.stop_reason == "confident" for r in records)
+    for record in records:
+        reached = [t for t, p in enumerate(record.probabilities, 1) if max(p) >= threshold]
+        if reached:
+            assert record.stop_reason == "confident", record
+            assert record.touches == reached[0]
+        else:
+            assert record.stop_reason != "confident", record
+
+
+@pytest.mark.parametrize("world", ["exp1", "model", "replay"])
+def test_a_trial_stopped_by_the_confidence_rule_records_it(exp1_model, world):
+    held_out = sample_experiment1(np.random.default_rng(6), touches_per_object=10)
+    report = run_evaluation(
+        exp1_model,
+        spec(world=world, steps=10, tolerance=0.0, stop_at_confidence=True, confidence=0.9),
+        replay=held_out if world == "replay" else None,
+    )
+    assert_stopped_by_confidence(report.records, 0.9)
+    # The CSV says so on the trial's last touch.
+    rows = report.csv_rows()
+    last = {(r[0], r[1], r[2]): r[-1] for r in rows[1:] if r[-1]}
+    for record in report.records:
+        assert last[record.key] == record.stop_reason
+
+
 def test_replay_world_caps_t_at_the_pool_and_says_so(exp1_model):
     held_out = sample_experiment1(np.random.default_rng(5), touches_per_object=3)
     report = run_evaluation(

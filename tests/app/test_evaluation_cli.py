@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from app.cli.evaluate import calibration_cells
 from app.cli.main import app
 from core.worlds import random_experiment2_world, sample_dataset
 from tests.app.conftest import experiment1_csv, experiment1_document
@@ -37,7 +38,7 @@ def test_json_prints_only_the_report_and_files_are_written(model_path, tmp_path)
     )
     assert result.exit_code == 0, result.output
     document = json.loads(result.stdout)
-    assert document["format"] == "activetouch-evaluation/1"
+    assert document["format"] == "activetouch-evaluation/2"
     assert document["steps"] == 3
     assert document["trials_per_target"] == 2
     assert len(document["trials"]) == 2 * 2 * 2
@@ -52,7 +53,43 @@ def test_table_output_names_the_policies(model_path):
     assert result.exit_code == 0, result.output
     assert "active" in result.stdout
     assert "passive" in result.stdout
-    assert "median touches" in result.stdout
+    assert "median" in result.stdout  # "median touches to p ≥ 0.95", folded in its column
+    assert "touches to p" in result.stdout
+
+
+def test_table_shows_each_policys_ece_and_sure_and_wrong(model_path, tmp_path):
+    out = tmp_path / "report.json"
+    result = evaluate(
+        model_path, *("--world", "model", "--trials", "3", "--steps", "3", "--out", str(out))
+    )
+    assert result.exit_code == 0, result.output
+    assert "ECE" in result.stdout
+    assert "sure and wrong" in result.stdout
+    assert "of the answers given with p ≥ 0.95, the wrong ones" in result.stdout
+    document = json.loads(out.read_text())
+    for summary in document["policies"].values():
+        ece, _ = calibration_cells(summary)
+        assert ece == f"{summary['calibration']['all_touches']['ece']:.3f}"
+        assert ece in result.stdout
+
+
+def test_calibration_cells_count_the_sure_answers_and_say_when_there_are_none():
+    def summary(sure: int, wrong: int, ece: float | None) -> dict[str, object]:
+        share = wrong / sure if sure else None
+        scored = {
+            "ece": ece,
+            "sure_and_wrong": {
+                "threshold": 0.95,
+                "sure": sure,
+                "wrong": wrong,
+                "share_wrong": share,
+            },
+        }
+        return {"calibration": {"all_touches": scored}}
+
+    assert calibration_cells(summary(120, 3, 0.0312)) == ("0.031", "3 of 120 (2.5 %)")
+    assert calibration_cells(summary(0, 0, None)) == ("—", "0 of 0")
+    assert calibration_cells({"accuracy_by_touch": [1.0]}) == ("—", "—")  # an /1 summary
 
 
 def test_replay_from_a_csv_says_t_is_capped(model_path, tmp_path):

@@ -130,6 +130,13 @@ def test_the_report_counts_refused_trials_and_states_the_denominator(rig_model, 
         note = next(n for n in document["notes"] if n.startswith(f"{policy}:"))
         assert "refused a touch in 1 of 4 trials" in note
         assert "over the 3 completed trials only" in note
+        assert "accuracy and calibration" in note
+        # The calibration is over the completed trials too (their touches before the refusal
+        # are not scored): 3 trials, T touches each.
+        calibration = summary["calibration"]
+        assert calibration["final"]["answers"] == 3
+        assert calibration["all_touches"]["answers"] == 3 * document["steps"]
+        assert calibration["final"]["accuracy"] == pytest.approx(right / 3)
         assert f"{right}/4" in note
     rows = report.csv_rows()
     refused_rows = [row for row in rows if str(row[-1]).startswith("refused: ServoHardwareError")]

@@ -71,6 +71,16 @@ def test_rig_trials_touch_the_simulated_table_and_are_reproducible(rig_model):
     assert again.records == first.records[3:]
 
 
+def test_a_rig_trial_stopped_by_the_confidence_rule_records_it(rig_model):
+    from tests.app.test_evaluation import assert_stopped_by_confidence
+
+    report = run_evaluation(
+        rig_model,
+        spec(steps=4, tolerance=0.0, stop_at_confidence=True, confidence=0.6, trials_per_target=2),
+    )
+    assert_stopped_by_confidence(report.records, 0.6)
+
+
 def test_rig_targets_must_be_model_objects(rig_model):
     with pytest.raises(BadInputError, match=r"targets: \['cork_board'\] are not objects"):
         run_evaluation(rig_model, spec(targets=("cork_board",)))

@@ -129,9 +129,19 @@ def test_an_evaluation_runs_to_the_engines_report(client: TestClient) -> None:
     exported = client.get(f"{API}/evaluations/{created['id']}/export?format=json")
     assert exported.status_code == 200
     document = exported.json()
-    assert document["format"] == "activetouch-evaluation/1"
+    assert document["format"] == "activetouch-evaluation/2"
     assert document["trials"] == report["trials"]
     assert without(document, *trial_lists) == summary
+    # Each policy's calibration: over every (trial, touch), at T and by touch, sure-and-wrong at
+    # the evaluation's confidence.
+    for policy in ("active", "passive"):
+        calibration = summary["policies"][policy]["calibration"]
+        assert calibration["all_touches"]["answers"] == 8 * 4
+        assert calibration["final"]["answers"] == 8
+        assert len(calibration["all_touches"]["reliability"]) == 10
+        assert calibration["final"]["sure_and_wrong"]["threshold"] == 0.95
+        by_touch = [t["accuracy"] for t in calibration["by_touch"]]
+        assert by_touch == pytest.approx(summary["policies"][policy]["accuracy_by_touch"])
 
     # Progress was published as trials finished, and every change of state.
     events = events_of(client)
@@ -479,3 +489,33 @@ def test_the_migration_adds_and_removes_the_evaluation_tables(tmp_path: Path) ->
             ]
     finally:
         database.dispose()
+
+
+def test_a_summary_stored_before_calibration_reads_with_it(
+    client: TestClient, settings: Settings
+) -> None:
+    """A completed evaluation whose stored summary is an ``activetouch-evaluation/1`` one (no
+    calibration) is summarised again from its trials when read; the list shows it as stored."""
+    model_id = import_model(client)
+    created = start(client, model_id=model_id, world="exp1", trials_per_target=1, steps=3)
+    ended = wait_ended(client, created["id"])
+    assert ended["status"] == "completed"
+    old = json.loads(json.dumps(ended["summary"]))
+    old["format"] = "activetouch-evaluation/1"
+    for entry in old["policies"].values():
+        del entry["calibration"]
+    database = Database(settings.database_url)
+    try:
+        with database.session() as session:
+            row = crud.get_evaluation(session, created["id"])
+            assert row is not None
+            row.summary = old
+            session.commit()
+    finally:
+        database.dispose()
+    listed = client.get(f"{API}/evaluations").json()["data"][0]["summary"]
+    assert listed["format"] == "activetouch-evaluation/1"
+    assert all(p["calibration"] is None for p in listed["policies"].values())
+    again = client.get(f"{API}/evaluations/{created['id']}").json()["summary"]
+    assert again == ended["summary"]
+    assert again["format"] == "activetouch-evaluation/2"

@@ -19,6 +19,7 @@ from app.evaluation.context import TrialContext, TrialKey, rig_tables
 from app.evaluation.rig_trial import RigTrial
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
+from app.paper.calibration import calibration_text
 from app.paper.exp2 import Experiment2Settings, run_experiment2, write_figures
 from core.evaluation_summary import wilson_interval
 from core.validation import FloatArray
@@ -69,9 +70,19 @@ def test_reports_for_both_sources_summarise_their_trials(result) -> None:  # typ
             assert figures["accuracy_by_touch"][-1] == pytest.approx(final_correct / len(mine))
             lo, hi = wilson_interval(final_correct, len(mine))
             assert figures["accuracy_interval"][-1] == pytest.approx([lo, hi])
+    # The table gives each policy's calibration per source, as the reports have it.
+    console = Console(width=300, record=True)
+    console.print(result.table())
+    shown = console.export_text()
+    for source, report in result.reports.items():
+        for policy, figures in report.summary().items():
+            assert f"{source}: {policy}, calibration" in shown
+            assert calibration_text(figures) in shown
+            sure = figures["calibration"]["all_touches"]["sure_and_wrong"]
+            assert f"and wrong: {sure['wrong']} of {sure['sure']}" in calibration_text(figures)
     document = json.loads(json.dumps(result.to_dict()))
     assert document["format"] == "activetouch-paper-exp2/1"
-    assert document["reports"]["rig"]["format"] == "activetouch-evaluation/1"
+    assert document["reports"]["rig"]["format"] == "activetouch-evaluation/2"
     assert document["seconds"] >= document["collect_seconds"] + document["fit_seconds"]
 
 
@@ -82,6 +93,8 @@ def test_figures_are_pngs(result, tmp_path: Path) -> None:  # type: ignore[no-un
         "exp2-accuracy-model.png",
         "exp2-accuracy-rig.png",
         "exp2-manifold.png",
+        "exp2-reliability-model.png",
+        "exp2-reliability-rig.png",
         "exp2-trajectories.png",
     ]
     for path in paths:
@@ -118,7 +131,7 @@ def test_cli_runs_end_to_end(tmp_path: Path) -> None:
     assert list(document["reports"]) == ["model"]
     policies = document["reports"]["model"]["policies"]
     assert {"active", "passive"} <= set(policies)
-    assert len(document["figures"]) == 3
+    assert len(document["figures"]) == 4  # manifold, trajectories, accuracy, reliability
     assert all(Path(p).exists() for p in document["figures"])
 
 

@@ -102,6 +102,41 @@ def test_caller_may_post_its_own_action_without_asking(client: TestClient, model
     assert step["mutual_information"] > 0
 
 
+@pytest.mark.parametrize("mode", ["scripted", "simulated"])
+def test_a_trial_stopped_by_the_confidence_rule_says_so(
+    client: TestClient, model_id: int, mode: str
+) -> None:
+    body = {
+        "model_id": model_id,
+        "mode": mode,
+        "target": "O2",
+        "seed": 4,
+        "max_steps": 20,
+        "tolerance": 0.0,
+        "confidence_threshold": 0.9,
+    }
+    created = client.post(f"{API}/trials", json=body)
+    assert created.status_code == 201, created.text
+    tid = created.json()["id"]
+    if mode == "scripted":
+        rng = np.random.default_rng(5)
+        while True:
+            update = touch(client, tid, 1, rng).json()
+            if update["done"]:
+                break
+            assert update["stop_reason"] is None
+        assert update["stop_reason"] == "confident"
+        assert update["status"] == "completed"
+    trial = wait_for(client, tid, lambda t: t["status"] == "completed")
+    assert trial["reason"] == "confident"
+    steps = trial["steps"]
+    assert len(steps) < 20  # stopped before T by the rule
+    assert steps[-1]["stop_reason"] == "confident"
+    assert max(steps[-1]["probabilities"].values()) >= 0.9
+    assert all(s["stop_reason"] is None for s in steps[:-1])
+    assert all(max(s["probabilities"].values()) < 0.9 for s in steps[:-1])
+
+
 @pytest.mark.parametrize(
     ("extra", "field"),
     [

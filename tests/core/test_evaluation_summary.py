@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import json
+import math
 
 import pytest
 
 from core.errors import InvalidInputError
 from core.evaluation_records import TrialRecord, trial_seed
 from core.evaluation_summary import (
+    calibration_summary,
     comparison_sentence,
     median_touches,
     summarise,
@@ -159,3 +161,79 @@ def test_trial_seed_does_not_depend_on_the_policy_or_other_targets():
     assert trial_seed(7, "A", 3) == trial_seed(7, "A", 3)
     assert trial_seed(7, "A", 3) != trial_seed(7, "B", 3)
     assert trial_seed(7, "A", 3)[0] == 7
+
+
+def test_calibration_by_hand_carries_an_early_stop_forward_like_accuracy():
+    records = [
+        # Sure and wrong at touch 1, stopped there: carried forward to touch 2.
+        record("A", ("B",), (0.96,), trial=0),
+        record("A", ("A", "A"), (0.5, 0.9), trial=1),
+        record("B", ("B", "B"), (0.8, 0.99), trial=0),
+    ]
+    summary = summarise(records, NAMES, steps=2, confidence=0.95)["active"]
+    calibration = summary["calibration"]
+    everything = calibration["all_touches"]
+    # Six answers: 0.96 ✗, 0.96 ✗ (carried), 0.5 ✓, 0.9 ✓, 0.8 ✓, 0.99 ✓.
+    assert everything["answers"] == 6
+    assert everything["accuracy"] == pytest.approx(4 / 6)
+    assert everything["sure_and_wrong"] == {
+        "threshold": 0.95,
+        "sure": 3,
+        "wrong": 2,
+        "share_wrong": pytest.approx(2 / 3),
+    }
+    bins = {round(b["lower"], 1): b for b in everything["reliability"] if b["count"]}
+    assert {k: b["count"] for k, b in bins.items()} == {0.5: 1, 0.8: 1, 0.9: 4}
+    assert bins[0.9]["mean_confidence"] == pytest.approx(3.81 / 4)
+    assert bins[0.9]["accuracy"] == 0.5
+    # ECE = (1·|1 − 0.5| + 1·|1 − 0.8| + 4·|0.5 − 0.9525|) / 6.
+    assert everything["ece"] == pytest.approx(2.51 / 6)
+    # Brier per answer: 1.8824 twice, 0.375, 0.015, 0.06, 0.00015.
+    assert everything["brier"] == pytest.approx(4.21495 / 6)
+    # −log p(true): −log 0.02 twice, −log 0.5, −log 0.9, −log 0.8, −log 0.99.
+    expected = -(2 * math.log(0.02) + math.log(0.5 * 0.9 * 0.8 * 0.99)) / 6
+    assert everything["log_loss"] == pytest.approx(expected)
+    # At T: 0.96 ✗ (carried), 0.9 ✓, 0.99 ✓.
+    final = calibration["final"]
+    assert final["answers"] == 3
+    assert final["sure_and_wrong"]["sure"] == 2
+    assert final["sure_and_wrong"]["wrong"] == 1
+    # By touch: the accuracy is accuracy by touch; touch 1 is 0.96 ✗, 0.5 ✓, 0.8 ✓.
+    by_touch = calibration["by_touch"]
+    assert [t["accuracy"] for t in by_touch] == pytest.approx(summary["accuracy_by_touch"])
+    assert by_touch[0]["ece"] == pytest.approx((0.5 + 0.2 + 0.96) / 3)
+    assert by_touch[0]["sure_and_wrong"]["sure"] == 1
+    assert by_touch[0]["sure_and_wrong"]["wrong"] == 1
+    assert "reliability" not in by_touch[0]
+
+
+def test_calibration_scores_the_answer_given_not_the_most_probable():
+    # The answer after the touch is A (the nearest-latent rule) at p = 0.3, while B has 0.4.
+    trial = TrialRecord(
+        policy="active",
+        target="A",
+        trial=0,
+        seed=trial_seed(0, "A", 0),
+        answers=("A",),
+        probabilities=((0.3, 0.4, 0.3),),
+        actions=((0.0,),),
+        mutual_information=(0.1,),
+        touches=1,
+        stop_reason="max_steps",
+        correct=True,
+    )
+    final = calibration_summary([trial], NAMES, 1, 0.95)["final"]
+    assert final["accuracy"] == 1.0
+    [used] = [b for b in final["reliability"] if b["count"]]
+    assert used["mean_confidence"] == pytest.approx(0.3)
+
+
+def test_calibration_summary_rejects_what_it_cannot_score():
+    with pytest.raises(InvalidInputError, match="at least one trial"):
+        calibration_summary([], NAMES, 3, 0.95)
+    with pytest.raises(InvalidInputError, match="fewer than the 3 touches"):
+        calibration_summary([record("A", ("A", "A", "A"), (0.9, 0.9, 0.9))], NAMES, 2, 0.95)
+    with pytest.raises(InvalidInputError, match=r"\['B'\] are not among"):
+        calibration_summary([record("B", ("A",), (0.9,))], ("A", "Z", "C"), 3, 0.95)
+    with pytest.raises(InvalidInputError, match="threshold"):
+        calibration_summary([record("A", ("A",), (0.9,))], NAMES, 1, 1.5)

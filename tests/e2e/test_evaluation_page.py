@@ -1,10 +1,11 @@
 """The Evaluation page in headless Chromium against the real app (uvicorn, SQLite, the engine).
 
 Start an evaluation from the page, watch it fill in from the event stream, see it complete with
-the accuracy curves and their interval bands, the per-object bars and the confusion matrix drawn
-from the API's summary, then open a finished trial in the Trials view. An evaluation whose world
-refuses some touches shows how many trials were refused, and why; a refused trial opens in the
-Trials view with the touches made before the refusal, the refused touch and no answer.
+the accuracy curves and their interval bands, the per-object bars, each policy's reliability
+diagram and calibration measures and the confusion matrix drawn from the API's summary, then
+open a finished trial in the Trials view. An evaluation whose world refuses some touches shows
+how many trials were refused, and why; a refused trial opens in the Trials view with the touches
+made before the refusal, the refused touch and no answer.
 """
 
 from __future__ import annotations
@@ -152,6 +153,7 @@ def test_start_an_evaluation_watch_it_and_open_a_trial(
     first_object = next(iter(confusion))
     cells = rows.first.locator("td")
     assert [int(c) for c in cells.all_inner_texts()] == list(confusion[first_object].values())
+    _expect_calibration(page, summary)
     expect(page.get_by_test_id("eval-comparison")).to_contain_text("active reaches 95")
     expect(page.get_by_test_id("eval-trial-row")).to_have_count(total)
     save_screenshot(page, "dashboard-evaluation", docs=True)
@@ -173,6 +175,60 @@ def test_start_an_evaluation_watch_it_and_open_a_trial(
         expect(page.get_by_test_id(button)).to_be_disabled()
     save_screenshot(page, "dashboard-evaluation-trial")
     assert page_errors.exceptions == []
+
+
+def _expect_calibration(page: Any, summary: dict[str, Any]) -> None:
+    """The reliability diagram and the calibration table show each policy's calibration."""
+    points = page.evaluate(
+        """() => window.Chart.getChart(document.getElementById("chart-eval-reliability"))
+          .data.datasets.map((d) => ({
+            label: d.label, x: d.data.map((p) => p.x), y: d.data.map((p) => p.y),
+            count: d.data.map((p) => p.count ?? null),
+          }))"""
+    )
+    by_label = {p["label"]: p for p in points}
+    diagonal = by_label["calibrated"]
+    assert (diagonal["x"], diagonal["y"]) == ([0, 1], [0, 1])
+    rows = page.get_by_test_id("eval-calibration-row")
+    expect(rows).to_have_count(2 * len(summary))
+    for policy, values in summary.items():
+        scored = values["calibration"]["all_touches"]
+        [drawn] = [p for label, p in by_label.items() if label.startswith(f"{policy} (ECE ")]
+        used = [b for b in scored["reliability"] if b["count"]]
+        assert drawn["x"] == pytest.approx([b["mean_confidence"] for b in used])
+        assert drawn["y"] == pytest.approx([b["accuracy"] for b in used])
+        assert drawn["count"] == [b["count"] for b in used]
+        assert sum(drawn["count"]) == values["trials"] * len(values["accuracy_by_touch"])
+        for scope, key in (("every touch", "all_touches"), ("at T", "final")):
+            measures = values["calibration"][key]
+            row = page.locator(
+                f"[data-testid=eval-calibration-row][data-policy={policy}][data-scope='{scope}']"
+            )
+            expect(row).to_have_count(1)
+            ece = row.get_by_test_id("eval-ece").inner_text()
+            assert float(ece) == pytest.approx(measures["ece"], rel=5e-3, abs=1e-6)
+            sure = measures["sure_and_wrong"]
+            expect(row.get_by_test_id("eval-sure-wrong")).to_contain_text(
+                f"{sure['wrong']} of {sure['sure']}"
+            )
+            cells = row.locator("td").all_inner_texts()
+            assert int(cells[0]) == measures["answers"]
+            assert float(cells[2]) == pytest.approx(measures["brier"], rel=5e-3, abs=1e-6)
+            assert float(cells[3]) == pytest.approx(measures["log_loss"], rel=5e-3, abs=1e-6)
+        # After each touch: ECE and wrong/sure, as many cells as touches.
+        by_touch = values["calibration"]["by_touch"]
+        wrong_sure = page.locator(
+            f"[data-testid=eval-sure-wrong-by-touch][data-policy={policy}] td"
+        )
+        assert wrong_sure.all_inner_texts() == [
+            f"{t['sure_and_wrong']['wrong']}/{t['sure_and_wrong']['sure']}" for t in by_touch
+        ]
+        eces = page.locator(f"[data-testid=eval-ece-by-touch][data-policy={policy}] td")
+        shown = [float(v) for v in eces.all_inner_texts()]
+        assert shown == pytest.approx([t["ece"] for t in by_touch], rel=5e-3, abs=1e-6)
+    expect(page.get_by_test_id("eval-calibration")).to_contain_text("sure (p ≥ 0.95) and wrong")
+    page.get_by_test_id("eval-calibration").scroll_into_view_if_needed()
+    save_screenshot(page, "dashboard-evaluation-calibration")
 
 
 #: Actions beyond this refuse the touch in :class:`_CornerRefusingWorld` (the box's corner).
@@ -304,3 +360,32 @@ def _expect_refused_trial_view(page: Any, served: Served, evaluation_id: int, ro
     posterior = chart_datasets(page, "chart-posterior")[0]["data"]
     last = record["probabilities"][-1] if view["touches"] else [0.0] * len(view["objects"])
     assert posterior == pytest.approx(last)
+
+
+def test_the_trials_page_says_a_trial_stopped_by_the_confidence_rule(
+    page: Any, served: Served, page_errors: PageErrors
+) -> None:
+    body = {
+        "model_id": served.model_id,
+        "mode": "simulated",
+        "target": "O2",
+        "seed": 4,
+        "max_steps": 20,
+        "tolerance": 0.0,
+        "confidence_threshold": 0.9,
+    }
+    created = served.client.post("/trials", json=body)
+    assert created.status_code == 201, created.text
+    path = f"/trials/{created.json()['id']}"
+    deadline = time.monotonic() + 60
+    while (trial := served.client.get(path).json())["status"] != "completed":
+        assert trial["status"] in ("queued", "running"), trial
+        assert time.monotonic() < deadline, "the trial did not complete within 60 s"
+        time.sleep(0.05)
+    assert trial["reason"] == "confident"
+    page.goto(f"{served.base_url}/?viz=off#trials?trial={trial['id']}")
+    expect(page.get_by_test_id("trial-stopped-by")).to_contain_text(
+        f"after {trial['n_steps']} touches · completed — stopped by the confidence rule "
+        "(an object reached p ≥ 0.9)"
+    )
+    assert page_errors.exceptions == []

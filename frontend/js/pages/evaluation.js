@@ -1,7 +1,9 @@
 // Evaluation: start one (model, world, policies, trials, T, replay dataset); watch it fill in
 // from the event stream; accuracy after each touch with its 95 % interval band per policy, final
-// accuracy per object, the confusion matrix; a finished trial opens in the Trials view. Trials the
-// rig refused a touch of are counted apart (the accuracy is over the completed ones) and listed.
+// accuracy per object, the reliability diagram and the calibration measures (ECE, Brier, log-loss,
+// sure and wrong) of each policy, the confusion matrix; a finished trial opens in the Trials view.
+// Trials the rig refused a touch of are counted apart (the accuracy and the calibration are over
+// the completed ones) and listed.
 
 import { api, apiList } from "../api.js";
 import { colorOf, compactNumber, renderChart } from "../charts.js";
@@ -151,6 +153,8 @@ function render() {
   $("eval-comparison").textContent = comparison();
   drawAccuracy();
   drawObjects();
+  drawReliability();
+  drawCalibration();
   drawConfusion();
 }
 
@@ -211,6 +215,142 @@ function drawAccuracy() {
       },
     },
   });
+}
+
+/** Per policy: stated probability against observed accuracy of every answer, per bin. */
+function drawReliability() {
+  const datasets = [
+    {
+      label: "calibrated",
+      data: [{ x: 0, y: 0 }, { x: 1, y: 1 }],
+      borderColor: "#7f7f7f",
+      borderDash: [5, 4],
+      borderWidth: 1,
+      pointRadius: 0,
+      showLine: true,
+    },
+  ];
+  policies().forEach(([policy, s], i) => {
+    if (!s.calibration) return;
+    const color = policyColor(policy, i);
+    const scored = s.calibration.all_touches;
+    const bins = scored.reliability.filter((b) => b.count > 0);
+    const largest = Math.max(1, ...bins.map((b) => b.count));
+    datasets.push({
+      label: `${policy} (ECE ${num(scored.ece, 3)})`,
+      data: bins.map((b) => ({ x: b.mean_confidence, y: b.accuracy, count: b.count, label: String(b.count) })),
+      borderColor: color,
+      backgroundColor: color,
+      labelColor: color,
+      borderWidth: 2,
+      pointRadius: bins.map((b) => 3 + 7 * Math.sqrt(b.count / largest)),
+      showLine: true,
+      showLabels: true,
+    });
+  });
+  renderChart("chart-eval-reliability", {
+    type: "scatter",
+    data: { datasets },
+    options: {
+      parsing: false,
+      scales: {
+        x: { type: "linear", min: 0, max: 1, title: { display: true, text: "stated probability of the answer" } },
+        // Room above 1 for the points at 1 and their counts; no tick there.
+        y: { min: 0, max: 1.05, title: { display: true, text: "observed accuracy" }, ticks: { callback: (v) => (v <= 1 ? compactNumber(v) : "") } },
+      },
+      plugins: {
+        legend: { position: "bottom", labels: { boxWidth: 12 } },
+        tooltip: {
+          callbacks: {
+            label: (item) => {
+              const p = item.raw;
+              if (p.count === undefined) return item.dataset.label;
+              return `${item.dataset.label}: stated ${num(p.x, 3)}, right ${num(p.y, 3)} of ${p.count} answers`;
+            },
+          },
+        },
+      },
+    },
+  });
+}
+
+/** "3 of 120 (2.5 %)": the answers given with p ≥ the threshold, and the wrong ones. */
+function sureAndWrong(sure) {
+  const share = sure.share_wrong === null ? "" : ` (${num(100 * sure.share_wrong, 3)} %)`;
+  return `${sure.wrong} of ${sure.sure}${share}`;
+}
+
+/** ECE, Brier, log-loss and sure-and-wrong per policy, over every (trial, touch) and at T. */
+function drawCalibration() {
+  const entries = policies();
+  if (!entries.length) {
+    fill($("eval-calibration"), el("p", { class: "muted" }, "No finished trials yet."));
+    return;
+  }
+  if (!entries.some(([, s]) => s.calibration)) {
+    fill($("eval-calibration"), el("p", { class: "muted" }, "This summary has no calibration."));
+    return;
+  }
+  const threshold = entries.map(([, s]) => s.calibration).find(Boolean).all_touches.sure_and_wrong.threshold;
+  const head = ["policy", "answers", "ECE", "Brier", "log-loss (nats)", `sure (p ≥ ${threshold}) and wrong`];
+  const rows = [];
+  for (const [policy, s] of entries) {
+    if (!s.calibration) continue;
+    for (const [scope, scored] of [["every touch", s.calibration.all_touches], ["at T", s.calibration.final]]) {
+      rows.push(
+        el(
+          "tr",
+          { "data-testid": "eval-calibration-row", "data-policy": policy, "data-scope": scope },
+          el("th", { scope: "row" }, `${policy}, ${scope}`),
+          el("td", {}, scored.answers),
+          el("td", { "data-testid": "eval-ece" }, num(scored.ece, 3)),
+          el("td", {}, num(scored.brier, 3)),
+          el("td", {}, num(scored.log_loss, 3)),
+          el("td", { "data-testid": "eval-sure-wrong" }, sureAndWrong(scored.sure_and_wrong)),
+        ),
+      );
+    }
+  }
+  fill(
+    $("eval-calibration"),
+    el(
+      "table",
+      { class: "table compact", "data-testid": "eval-calibration-table" },
+      el("thead", {}, el("tr", {}, head.map((h) => el("th", { scope: "col" }, h)))),
+      el("tbody", {}, rows),
+    ),
+    byTouchTable(entries.filter(([, s]) => s.calibration)),
+  );
+}
+
+/** ECE and sure-and-wrong after each touch, beside the accuracy curve's touches. */
+function byTouchTable(entries) {
+  const steps = Math.max(...entries.map(([, s]) => s.calibration.by_touch.length));
+  const touches = Array.from({ length: steps }, (_, t) => t + 1);
+  const rows = [];
+  for (const [policy, s] of entries) {
+    const byTouch = s.calibration.by_touch;
+    rows.push(
+      el(
+        "tr",
+        { "data-testid": "eval-ece-by-touch", "data-policy": policy },
+        el("th", { scope: "row" }, `${policy}: ECE`),
+        byTouch.map((t) => el("td", {}, num(t.ece, 3))),
+      ),
+      el(
+        "tr",
+        { "data-testid": "eval-sure-wrong-by-touch", "data-policy": policy },
+        el("th", { scope: "row" }, `${policy}: sure and wrong`),
+        byTouch.map((t) => el("td", { title: sureAndWrong(t.sure_and_wrong) }, `${t.sure_and_wrong.wrong}/${t.sure_and_wrong.sure}`)),
+      ),
+    );
+  }
+  return el(
+    "table",
+    { class: "table compact", "data-testid": "eval-calibration-by-touch" },
+    el("thead", {}, el("tr", {}, el("th", { scope: "col" }, "after touch"), touches.map((t) => el("th", { scope: "col" }, t)))),
+    el("tbody", {}, rows),
+  );
 }
 
 function objectNames() {

@@ -1,6 +1,7 @@
 // Trials: start one (model, target, policy, T, prior); follow it live: the belief on the manifold
 // (mean path and ellipse), mutual information per touch, the posterior over objects, the joint
 // trajectories, the steps; pause/resume/stop; the result. The 3D view (viser) is embedded.
+// A trial opens by #trials?trial=ID; the result says why it stopped (the confidence rule, ...).
 // A finished trial of an evaluation (#trials?evaluation=ID&trial=N) is shown read-only
 // (evaluation_trial.js): its touches' actions, mutual information, answers and object
 // probabilities; for a trial the rig refused, the refused touch and no answer.
@@ -92,6 +93,16 @@ async function startTrial() {
 
 /** The policy to compare a finished trial with: passive for a planned one, the default
  * (discriminative) for passive. */
+/** Why a finished trial stopped, in words: the stop rule of its `reason`, else the reason. */
+export function stopText(record) {
+  if (record.reason === "confident") {
+    return `stopped by the confidence rule (an object reached p ≥ ${record.confidence_threshold})`;
+  }
+  if (record.reason === "converged") return "stopped: the belief stopped moving";
+  if (record.reason === "max_steps") return `all ${record.max_steps} touches made`;
+  return record.reason || "";
+}
+
 export function otherPolicy(policy) {
   if (policy === "passive") return "discriminative";
   if (policy === "active" || policy === "discriminative") return "passive";
@@ -209,7 +220,7 @@ function render() {
         "Recognised: ",
         el("strong", { "data-testid": "trial-result-object" }, trial.result.object),
         correct === true ? " ✓ correct" : correct === false ? ` ✗ wrong (target ${trial.target})` : "",
-        el("div", { class: "small muted" }, `after ${steps.length} touch${steps.length === 1 ? "" : "es"} · ${trial.status}${trial.reason ? ` — ${trial.reason}` : ""}`),
+        el("div", { class: "small muted", "data-testid": "trial-stopped-by" }, `after ${steps.length} touch${steps.length === 1 ? "" : "es"} · ${trial.status}${trial.reason ? ` — ${stopText(trial)}` : ""}`),
         otherPolicyButton(),
       );
     } else {
@@ -351,7 +362,8 @@ export async function show() {
     await loadEvaluationTrial(Number(params.get("evaluation")), Number(params.get("trial")));
     return;
   }
-  if (trial) await load(trial.id);
+  if (params.get("trial")) await load(Number(params.get("trial"))); // #trials?trial=ID
+  else if (trial) await load(trial.id);
   else {
     const recent = await apiList("/trials?status=running", { max: 1, pageSize: 1 }).catch(() => []);
     if (recent.length) await load(recent[0].id);
