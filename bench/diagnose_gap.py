@@ -51,13 +51,17 @@ import numpy as np
 import numpy.typing as npt
 from threadpoolctl import threadpool_limits
 
+from app.evaluation.context import TrialContext, TrialKey
 from app.evaluation.report import EvaluationReport
-from app.evaluation.rig_trial import RigTrial, rig_seed
+from app.evaluation.rig_trial import RigTrial
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
 from core.calibration import calibration
 from core.errors import TouchRefused
+from core.evaluation_records import RefusedTrial, TrialRecord
 from core.evaluation_trial import model_observer
+from core.noise_model import loo_log_likelihoods
+from core.noise_model import standardised_residuals as loo_residuals
 from core.posterior import predict_model_space
 from core.types import ManifoldModel
 from core.validation import FloatArray
@@ -315,14 +319,91 @@ def training_like_sequences(
     ]
 
 
-def planner_sequences(report: EvaluationReport, policy: str) -> list[TouchSequence]:
-    """The actions of every rig trial of ``policy``, with the trial's own rig seed (so the rig
-    re-touched with them gives the trial's observations again)."""
-    return [
-        TouchSequence(r.target, np.array(r.actions, dtype=np.float64), rig_seed(r.seed))
-        for r in report.records
-        if r.policy == policy
-    ]
+class CapturingContext(TrialContext):
+    """The engine's trial context, keeping every rig observation of its trials.
+
+    :attr:`captured` maps a trial key (policy, target, index) to its touches' actions and raw
+    observations, so the residuals at the planners' actions come from the very touches the
+    trials saw (no second rig run).
+    """
+
+    def __init__(self, model: ManifoldModel, spec: EvaluationSpec) -> None:
+        super().__init__(model, spec)
+        self.captured: dict[TrialKey, list[tuple[FloatArray, FloatArray]]] = {}
+
+    def open_rig_trial(self, key: TrialKey, seed: int) -> RigTrial:
+        rig = super().open_rig_trial(key, seed)
+        touches = self.captured.setdefault(key, [])
+        touch = rig.observe
+
+        def observe(action: FloatArray, rng: np.random.Generator) -> FloatArray:
+            y = touch(action, rng)
+            touches.append((np.array(action, dtype=np.float64), y))
+            return y
+
+        rig.observe = observe  # type: ignore[method-assign]
+        return rig
+
+
+def evaluate(
+    model: ManifoldModel, spec: EvaluationSpec
+) -> tuple[EvaluationReport, dict[TrialKey, list[tuple[FloatArray, FloatArray]]]]:
+    """The evaluation of ``spec``: :func:`app.evaluation.runner.run_evaluation` for a sampled
+    world; for the rig, the same trials (the engine's :class:`TrialContext`, in order, one
+    thread) with their observations captured."""
+    if spec.world != "rig":
+        return run_evaluation(model, spec), {}
+    spec.check(model)
+    started = time.perf_counter()
+    context = CapturingContext(model, spec)
+    outcomes = context.run_many(context.trial_keys())
+    report = EvaluationReport(
+        spec=spec,
+        records=tuple(r for r in outcomes if isinstance(r, TrialRecord)),
+        refused=tuple(r for r in outcomes if isinstance(r, RefusedTrial)),
+        seconds=time.perf_counter() - started,
+        workers=1,
+        stopped=False,
+        object_names=model.object_names,
+        steps=context.steps,
+    )
+    return report, context.captured
+
+
+def planner_touches(
+    model: ManifoldModel,
+    captured: dict[TrialKey, list[tuple[FloatArray, FloatArray]]],
+    policy: str,
+    seed: int,
+) -> tuple[Touches, Touches]:
+    """The rig touches of ``policy``'s trials (each trial one group) and the model's own draws
+    at the same actions."""
+    rig_t, model_t = Touches.empty(), Touches.empty()
+    keys = [k for k in captured if k[0] == policy]
+    for g, key in enumerate(keys):
+        obj = model.object_names.index(key[1])
+        draw = model_observer(model, key[1])
+        rng = np.random.default_rng([seed, g])
+        for action, y in captured[key]:
+            rig_t.add(obj, action, y, g)
+            model_t.add(obj, action, draw(action, rng), g)
+    return rig_t, model_t
+
+
+def training_loo(model: ManifoldModel) -> dict[str, Any] | None:
+    """Leave-one-out fit of the training touches themselves (at the fitted latents and
+    hyperparameters, so optimistic): mean log-density per touch and E[z²] per feature.
+    ``None`` for a sparse posterior."""
+    log_density = loo_log_likelihoods(model)
+    if log_density is None:
+        return None
+    z = loo_residuals(model)
+    return {
+        "touches": int(z.shape[0]),
+        "log_density": float(log_density.mean()),
+        "mean_z2": (z**2).mean(axis=0).tolist(),
+        "tail_share": float(np.mean(np.abs(z) > 3.0)),
+    }
 
 
 # ---------------------------------------------------------------------------------------------
@@ -418,6 +499,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     }
     # (c) worlds model and rig, per policy.
     reports: dict[str, EvaluationReport] = {}
+    captured: dict[TrialKey, list[tuple[FloatArray, FloatArray]]] = {}
     for world in ("model", "rig"):
         t0 = time.perf_counter()
         spec = EvaluationSpec(
@@ -429,7 +511,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             table=args.table if world == "rig" else None,
             confidence=args.confidence,
         )
-        reports[world] = run_evaluation(model, spec)
+        reports[world], found = evaluate(model, spec)
+        captured.update(found)
         out["seconds"][f"evaluate_{world}"] = time.perf_counter() - t0
     out["evaluation"] = {
         world: {p: evaluation_figures(rep, p, args.confidence) for p in policies}
@@ -450,18 +533,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "refused_sequences": refused,
         }
     for policy in policies:
-        rig_t, model_t, refused = touch_sequences(
-            model,
-            table_objects,
-            planner_sequences(reports["rig"], policy),
-            replace_each_touch=False,
-        )
+        rig_t, model_t = planner_touches(model, captured, policy, args.seed)
         residuals[f"{policy}'s rig-trial actions"] = {
             "rig": rig_t.summary(model).to_dict(),
             "model": model_t.summary(model).to_dict(),
-            "refused_sequences": refused,
+            "refused_sequences": len([r for r in reports["rig"].refused if r.policy == policy]),
         }
     out["seconds"]["residuals"] = time.perf_counter() - t0
+    out["training_loo"] = training_loo(model)
     out["residuals"] = residuals
     out["seconds"]["total"] = time.perf_counter() - started
     return out
@@ -505,6 +584,12 @@ def print_report(out: dict[str, Any]) -> None:
             )
         if r["refused_sequences"]:
             print(f"{'':34} ({r['refused_sequences']} sequences refused by the rig)")
+    loo = out["training_loo"]
+    if loo is not None:
+        print(
+            f"{'training touches, leave-one-out':34} {'loo':5} {loo['touches']:>4} {'':>5} "
+            f"{loo['log_density']:>7.2f} {_fmt(loo['mean_z2']):>26} {loo['tail_share']:>6.3f}"
+        )
     print("\nmean z per feature (rig):")
     for label, r in out["residuals"].items():
         print(f"  {label:34} {_fmt(r['rig']['mean_z'])}")
