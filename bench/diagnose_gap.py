@@ -233,15 +233,18 @@ class Touches:
 
     @classmethod
     def empty(cls) -> Touches:
+        """No touches yet."""
         return cls([], [], [], [])
 
     def add(self, obj: int, action: FloatArray, y: FloatArray, group: int) -> None:
+        """One touch of object ``obj`` at ``action`` (dx,) observing raw ``y`` (dy,)."""
         self.objects.append(obj)
         self.actions.append(np.asarray(action, dtype=np.float64))
         self.observations.append(np.asarray(y, dtype=np.float64))
         self.groups.append(group)
 
     def summary(self, model: ManifoldModel) -> ResidualSummary:
+        """:func:`summarise` of these touches, grouped by sequence."""
         return summarise(
             model,
             np.array(self.objects),
