@@ -7,11 +7,15 @@ Nothing here is a module-level instance: :func:`app.main.create_app` is handed a
 from __future__ import annotations
 
 import ipaddress
+import os
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
+
+if TYPE_CHECKING:
+    from hardware.sim.materials import Table
 
 #: Repository root (``app/..``): where ``migrations/`` and ``frontend/`` live.
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
@@ -30,8 +34,10 @@ class Settings(BaseSettings):
         database_url: SQLAlchemy URL of the SQLite database.
         api_token: Bearer token for mutating endpoints; required off loopback.
         hardware: ``mock`` (simulated rig) or ``serial`` (real devices on the ports below).
-        sim_table: The simulated rig's table of objects by name (``mock`` hardware;
-            :data:`hardware.sim.materials.TABLES`).
+        sim_table: The simulated rig's table of objects by name (``mock`` hardware, and rig
+            evaluations; :data:`hardware.sim.materials.TABLES`).
+        sim_table_file: A table file of your own objects (JSON or TOML,
+            :mod:`hardware.sim.table_file`) used instead of ``sim_table``.
         turntable_port: Serial port of the GRBL turntable controller (serial hardware).
         finger_port: Serial port of the Dynamixel bus (serial hardware).
         tactile_port: Serial port of the tactile sensor stream (serial hardware).
@@ -56,6 +62,8 @@ class Settings(BaseSettings):
             within ``auth_failure_window_s``; beyond, its attempts answer 429 with
             ``Retry-After`` until the oldest failure is that old (:mod:`app.security.attempts`).
         auth_failure_window_s: The window of ``auth_max_failures``, in seconds.
+        max_concurrent_fits: Most model fits the server runs at once; more wait ``queued`` in
+            the order they came (default: the cores this process may use).
         dask_scheduler: Address of a Dask scheduler (``tcp://host:8786``) that evaluations
             run their trials on; none: in-process, or a local cluster of the request's workers.
     """
@@ -70,6 +78,7 @@ class Settings(BaseSettings):
     api_token: SecretStr | None = None
     hardware: Literal["mock", "serial"] = "mock"
     sim_table: str = "default"
+    sim_table_file: Path | None = None
     turntable_port: str | None = None
     finger_port: str | None = None
     tactile_port: str | None = None
@@ -81,6 +90,7 @@ class Settings(BaseSettings):
     migrations_dir: Path = PROJECT_ROOT / "migrations"
     viz: bool = True
     viz_port: int = Field(default=8081, ge=0, le=65535)
+    max_concurrent_fits: int = Field(default_factory=lambda: available_cores(), ge=1)
     dask_scheduler: str | None = None
     require_auth_for_reads: bool = False
     session_ttl_s: float = Field(default=12 * 3600.0, gt=0.0, le=30 * 24 * 3600.0)
@@ -102,12 +112,31 @@ class Settings(BaseSettings):
         ``require_auth_for_reads`` asks for it."""
         return self.require_auth_for_reads or not is_loopback(self.host)
 
+    def simulated_table(self) -> Table:
+        """The simulated rig's table: read from ``sim_table_file``, or ``sim_table`` by name.
+
+        Raises:
+            ConfigurationError: An unknown name, or a table file that cannot be used (the
+                message names the object and the field).
+        """
+        from hardware.errors import ConfigurationError as TableError
+        from hardware.sim.materials import get_table
+        from hardware.sim.table_file import read_table_file
+
+        try:
+            if self.sim_table_file is not None:
+                return read_table_file(self.sim_table_file)
+            return get_table(self.sim_table)
+        except TableError as exc:
+            field = "sim_table_file" if self.sim_table_file is not None else "sim_table"
+            raise ConfigurationError(f"{field}: {exc}") from None
+
     def check_safe_to_serve(self) -> None:
         """Refuse to bind a non-loopback address without an API token.
 
         Raises:
             ConfigurationError: ``host`` is not a loopback address (or reads need auth) and no
-                token is set, or the database URL is not SQLite.
+                token is set, the database URL is not SQLite, or the simulated table is unusable.
         """
         if not self.database_url.startswith("sqlite"):
             raise ConfigurationError(
@@ -122,6 +151,14 @@ class Settings(BaseSettings):
             raise ConfigurationError(
                 "require_auth_for_reads is set without an API token: set ACTIVETOUCH_API_TOKEN."
             )
+        self.simulated_table()  # an unusable table refuses to serve, naming the object and field
+
+
+def available_cores() -> int:
+    """How many CPU cores this process may run on (its affinity, where the OS tells it)."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return max(1, os.cpu_count() or 1)
 
 
 def is_loopback(host: str) -> bool:

@@ -28,8 +28,7 @@ from app.models import (
     TrialStep,
     utc_now,
 )
-
-ACTIVE_STATES = ("queued", "running", "paused")
+from app.states import ACTIVE, MODEL_ACTIVE
 
 # --- objects ----------------------------------------------------------------------------------
 
@@ -243,7 +242,7 @@ def set_trial_status(
     now = utc_now()
     if status == "running" and trial.started_at is None:
         trial.started_at = now
-    if status not in ACTIVE_STATES:
+    if status not in ACTIVE:
         trial.finished_at = now
 
 
@@ -287,7 +286,7 @@ def set_run_status(session: Session, run: Run, status: str, reason: str | None =
     now = utc_now()
     if status == "running" and run.started_at is None:
         run.started_at = now
-    if status not in ACTIVE_STATES:
+    if status not in ACTIVE:
         run.finished_at = now
 
 
@@ -295,7 +294,9 @@ def set_run_status(session: Session, run: Run, status: str, reason: str | None =
 
 
 def fail_interrupted(session: Session, reason: str) -> dict[str, list[int]]:
-    """Mark trials, runs and evaluations left running/paused, and models left fitting, as failed.
+    """Mark every job a previous process left unfinished as ``failed`` with ``reason``: trials,
+    runs and evaluations queued, running or paused, models queued or fitting, and datasets still
+    collecting.
 
     Steps, samples and finished evaluation trials already recorded are kept. Commits.
 
@@ -305,12 +306,13 @@ def fail_interrupted(session: Session, reason: str) -> dict[str, list[int]]:
     """
     now = utc_now()
     changed: dict[str, list[int]] = {}
-    for kind, table, states in (
-        ("trials", Trial, ACTIVE_STATES),
-        ("runs", Run, ACTIVE_STATES),
-        ("evaluations", Evaluation, ACTIVE_STATES),
+    for kind, table, active in (
+        ("trials", Trial, ACTIVE),
+        ("runs", Run, ACTIVE),
+        ("evaluations", Evaluation, ACTIVE),
+        ("models", ModelRecord, MODEL_ACTIVE),
     ):
-        ids = list(session.scalars(select(table.id).where(table.status.in_(states))).all())
+        ids = list(session.scalars(select(table.id).where(table.status.in_(active))).all())
         if ids:
             session.execute(
                 update(table)
@@ -318,16 +320,6 @@ def fail_interrupted(session: Session, reason: str) -> dict[str, list[int]]:
                 .values(status="failed", reason=reason, finished_at=now)
             )
         changed[kind] = ids
-    model_ids = list(
-        session.scalars(select(ModelRecord.id).where(ModelRecord.status == "fitting")).all()
-    )
-    if model_ids:
-        session.execute(
-            update(ModelRecord)
-            .where(ModelRecord.id.in_(model_ids))
-            .values(status="failed", reason=reason, finished_at=now)
-        )
-    changed["models"] = model_ids
     collecting = list(
         session.scalars(select(Dataset.id).where(Dataset.status == "collecting")).all()
     )
@@ -429,7 +421,7 @@ def set_evaluation_status(
     evaluation.updated_at = now
     if status == "running" and evaluation.started_at is None:
         evaluation.started_at = now
-    if status not in ACTIVE_STATES:
+    if status not in ACTIVE:
         evaluation.finished_at = now
 
 

@@ -145,7 +145,7 @@ class ModelRecord(Base):
 
     id: Mapped[int] = mapped_column(primary_key=True)
     dataset_id: Mapped[int] = mapped_column(ForeignKey("datasets.id"))
-    status: Mapped[str] = mapped_column(String(20), default="fitting")  # fitting|ready|failed
+    status: Mapped[str] = mapped_column(String(20), default="fitting")  # app.states.ModelStatus
     reason: Mapped[str | None] = mapped_column(Text, default=None)
     latent_dim: Mapped[int] = mapped_column(Integer)
     optimizer: Mapped[str] = mapped_column(String(20), default="lbfgs")

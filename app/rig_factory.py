@@ -27,7 +27,7 @@ from hardware.errors import ConfigurationError
 from hardware.finger import DYNAMIXEL_BAUDRATE, Finger, FingerConfig
 from hardware.records import TouchRecord
 from hardware.rig import Rig, RigConfig, RigLease, TouchProgress
-from hardware.sim.materials import DEFAULT_TABLE_NAME, get_table
+from hardware.sim.materials import DEFAULT_TABLE_NAME, Table, TactileObject, get_table
 from hardware.sim.noise import NoiseModel
 from hardware.sim.rig import SimulatedRig, in_process_rig, pty_rig
 from hardware.tactile import TACTILE_BAUDRATE, TactileConfig, TactileSensor
@@ -70,12 +70,12 @@ class RigHandle:
     Attributes:
         rig: The rig.
         simulation: The simulated devices, when the rig is simulated.
-        table: The name of a simulated rig's table (None: a real rig, or a list of objects).
+        table: A simulated rig's table (None: a real rig, or a list of objects).
     """
 
     rig: Rig
     simulation: SimulatedRig | None = None
-    table: str | None = None
+    table: Table | None = None
 
     @property
     def object_names(self) -> list[str] | None:
@@ -129,8 +129,8 @@ def open_rig(
     *,
     ports: RigPorts | None = None,
     simulate: SimulationMode | None = None,
-    table: str = DEFAULT_TABLE_NAME,
-    objects: Sequence[str] | None = None,
+    table: str | Table = DEFAULT_TABLE_NAME,
+    objects: Sequence[str | TactileObject] | None = None,
     seed: int = 0,
     speed: float | None = None,
     rig_config: RigConfig | None = None,
@@ -141,9 +141,11 @@ def open_rig(
     Args:
         ports: Serial ports of a real rig (ignored when ``simulate`` is given).
         simulate: Simulate the devices in process or behind pseudo-terminals.
-        table: Named table of a simulated rig (:data:`hardware.sim.materials.TABLES`; default:
-            the paper's four cups, then a ceramic mug, a wooden block and a foam sponge).
-        objects: Preset objects of a simulated table, slot 0 first, instead of ``table``'s.
+        table: Table of a simulated rig: a name (:data:`hardware.sim.materials.TABLES`;
+            default: the paper's four cups, then a ceramic mug, a wooden block and a foam
+            sponge) or a table read from a file (:mod:`hardware.sim.table_file`).
+        objects: Objects of a simulated table (preset names or objects), slot 0 first,
+            instead of ``table``'s.
         seed: Seed of the simulated world.
         speed: Simulated seconds per real second. In process, None means virtual time (as fast
             as the computer goes); behind pseudo-terminals the default is 20.
@@ -154,17 +156,17 @@ def open_rig(
         ConfigurationError: Neither ports nor a simulation were given, or an unknown table
             (the message lists the tables).
     """
-    table_name = None
+    table_used = None
     if simulate is not None and objects is None:
-        objects = get_table(table).objects
-        table_name = table
+        table_used = get_table(table)
+        objects = table_used.slots
     if simulate is SimulationMode.pty:
         assert objects is not None
         return RigHandle(
             *_sim(
                 pty_rig(objects, seed=seed, speed=speed or 20.0, rig_config=rig_config, noise=noise)
             ),
-            table=table_name,
+            table=table_used,
         )
     if simulate is SimulationMode.in_process:
         assert objects is not None
@@ -173,7 +175,7 @@ def open_rig(
             *_sim(
                 in_process_rig(objects, seed=seed, clock=clock, rig_config=rig_config, noise=noise)
             ),
-            table=table_name,
+            table=table_used,
         )
     if ports is None:
         raise ConfigurationError(

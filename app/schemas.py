@@ -11,6 +11,8 @@ from typing import Annotated, Any, Generic, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, StringConstraints
 
+from app.states import ModelStatus, RunStatus
+
 T = TypeVar("T")
 
 Name = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=200)]
@@ -18,7 +20,6 @@ Vector = Annotated[list[FiniteFloat], Field(min_length=1, max_length=64)]
 Matrix = Annotated[list[Vector], Field(min_length=1, max_length=64)]
 Seed = Annotated[int, Field(ge=0, le=2**32 - 1)]
 Id = Annotated[int, Field(ge=1, le=2**63 - 1)]
-RunStatus = Literal["queued", "running", "paused", "completed", "stopped", "aborted", "failed"]
 
 
 class Page(BaseModel, Generic[T]):
@@ -107,10 +108,12 @@ class ModelCreate(BaseModel):
 
 
 class ModelAccepted(BaseModel):
-    """202 answer of ``POST /models``."""
+    """202 answer of ``POST /models``: ``fitting`` when the fit started at once, else ``queued``
+    with its place in the queue of fits."""
 
     id: int
-    status: str
+    status: ModelStatus
+    queue_position: int | None = None
 
 
 class ObjectLatent(BaseModel):
@@ -197,7 +200,14 @@ class ModelPublic(BaseModel):
     """``GET /models/{id}``."""
 
     id: int
-    status: Literal["fitting", "ready", "failed"]
+    status: ModelStatus
+    queue_position: int | None = Field(
+        default=None,
+        description=(
+            "While the model is queued: its place in the queue of fits (1: the next to start); "
+            "the server fits at most its max_concurrent_fits models at once."
+        ),
+    )
     reason: str | None
     dataset_id: int
     latent_dim: int
@@ -485,7 +495,11 @@ class EvaluationCreate(BaseModel):
     steps: Annotated[int, Field(ge=1, le=1000)] = 10
     confidence: Annotated[float, Field(gt=0.0, le=1.0)] = 0.95
     seed: Seed = 0
-    table: Name | None = Field(default=None, description="rig only: the simulated rig table.")
+    table: Name | None = Field(
+        default=None,
+        description="rig only: the simulated rig table — a built-in one by name, or the name of "
+        "the server's table file (ACTIVETOUCH_SIM_TABLE_FILE); the server's table when omitted.",
+    )
     placement: Literal["trial", "touch"] = Field(
         default="trial",
         description="rig only: place the object once per trial, or anew before every touch "

@@ -1,75 +1,55 @@
 """How a manifold fit runs: starts, screening, differential evolution, choice, normalisation.
 
-The engine behind :func:`core.manifold.iter_fit` (:class:`FitRun`):
+The engine behind :func:`core.manifold.iter_fit` (:class:`FitRun`), for the objective of
+docs/method.md (M2). The measurements behind each choice below are in docs/fitting.md.
 
 1. **Starts.** The first starts are data-driven (:func:`core.initialisation.data_driven_starts`:
-   the PCA of the object profiles below 8 objects; from 8 on their Isomap, then their PCA);
-   the caller's ``FitOptions.initial_latents`` (normalised) join them as data-driven starts;
-   R more draw S ~ N(0, I) (``FitOptions.restarts``). Every start has unit latent spread, the
-   data-relative initial hyperparameters of :func:`core.parameters.initial_hyperparameters`
-   and latent length-scales ≈10× the spread. Data-driven starts first fit the hyperparameters
-   with S frozen — one small problem per feature, from the current and a unit latent
-   length-scale, best kept per feature (:mod:`core.hyperparameter_fit`) — then everything
-   jointly; random starts go straight to the joint fit (with frozen random latents the
-   hyperparameters adapt to a meaningless arrangement: on Experiment 1 that took 10-20× more
-   joint iterations).
-2. **Screening.** When some object has more touches than ``screen_touches_per_object``,
-   every start is first optimised (at most ``screen_iterations``) on one random subsample of
-   that many touches per object, which costs ~(N/n)³ less per evaluation. The
-   ``polish_starts`` best screened starts — ranked by their likelihood on all the data at the
-   screened parameters (one evaluation each; the subsample's own likelihood ranked a start
-   whose optimum has |corr| 0.53 first on an Experiment-1 data set, above the PCA start's
-   0.994) — are then optimised on all the data, from their
-   screened latents with fresh initial hyperparameters (hyperparameters fitted to a subsample
-   transfer badly, see :meth:`FitRun._transfer`): first the hyperparameters alone, feature
-   by feature as in 1., then jointly. Going straight to the joint fit from fresh
-   hyperparameters, the first quasi-Newton steps can throw every latent length-scale onto its
-   lower bound (K^s = I, a flat corner L-BFGS-B never leaves): measured at L=4, M=100,
-   dx=6, that corner was 770 nats below the optimum. Without screening (every object has at
-   most that many touches, or ``screen_touches_per_object=0``) every start is optimised on all
-   the data. When the subsample would make an evaluation less than :data:`SCREEN_MIN_SAVING`
+   the PCA of the object profiles, and their Isomap from 8 objects on); the caller's
+   ``FitOptions.initial_latents`` (normalised) join them; R more draw S ~ N(0, I)
+   (``FitOptions.restarts``). Every start has unit latent spread, the data-relative initial
+   hyperparameters of :func:`core.parameters.initial_hyperparameters` and latent length-scales
+   about 10× the spread. Data-driven starts first fit the hyperparameters with S frozen (one
+   small problem per feature, :mod:`core.hyperparameter_fit`), then everything jointly; random
+   starts go straight to the joint fit, because hyperparameters fitted to frozen random latents
+   adapt to a meaningless arrangement and slow the joint fit down.
+2. **Screening.** When some object has more touches than ``screen_touches_per_object``, every
+   start is first optimised (at most ``screen_iterations``) on one random subsample of that many
+   touches per object, which makes an evaluation about (N/n)³ cheaper. The ``polish_starts``
+   best screened starts — ranked by their likelihood on *all* the data at the screened
+   parameters, since the subsample's own likelihood can rank a poor start first — are then
+   optimised on all the data from their screened latents with fresh hyperparameters
+   (hyperparameters fitted to a subsample transfer badly, see :meth:`FitRun._transfer`): the
+   hyperparameters alone first, then jointly, because a joint fit from fresh hyperparameters can
+   throw every latent length-scale onto its lower bound (K^s = I, a flat corner L-BFGS-B never
+   leaves). When the subsample would make an evaluation less than :data:`SCREEN_MIN_SAVING`
    times cheaper (:func:`evaluation_cost`: many objects on a shared design, where the L × L
-   latent factorisations dominate), screening runs on all the data instead — every start
-   still limited to ``screen_iterations`` — and the polished starts go on from their screened
-   parameters. Measured at L=400 × M=100: a 25-action subsample saved 1.3× per evaluation,
-   but took the Isomap start from R² 0.954 to 0.863, and the fit ended ~1,000 nats lower
-   (263,034 vs 264,031) and 17 s slower (92 s vs 76 s) than screening on all the data.
+   latent factorisations dominate), screening runs on all the data instead.
 3. **Differential evolution** (``optimizer="de"``): one more start, a
    :func:`scipy.optimize.differential_evolution` search over the same bounded vector on the
    screening data (value only), seeded with the best start so far, refined with L-BFGS-B and
-   always polished on all the data.
-4. **Choice.** The best full-data likelihood among the polished starts wins, except that a
-   *degenerate* winner is replaced by a non-degenerate polished start. The next screened
-   start is polished too while every polished start is degenerate, or while its full-data
-   likelihood at its screened parameters beats the best polished start's (so no start left
-   unpolished looks better than the winner). Degenerate: some latent length-scale sits on
-   its lower bound (objects uncorrelated in a feature), or every feature's length-scale of
-   some latent dimension sits on its upper bound (an unused dimension).
-   ``FitDiagnostics.starts_log_likelihood`` holds the full-data log-likelihood of every
-   start: after polishing for the polished ones, at the screened parameters for the others.
-5. **Normalisation.** Latents are centred and scaled to RMS distance 1 from their centre, and
-   the latent length-scales divided by the same factor, which leaves the likelihood unchanged;
-   the model is built with :func:`core.posterior.condition`.
+   polished on all the data.
+4. **Choice.** The best full-data likelihood among the polished starts wins, unless it is
+   *degenerate* and a non-degenerate polished start exists. The next screened start is polished
+   too while every polished start is degenerate, or while its full-data likelihood at its
+   screened parameters beats the best polished one (so no unpolished start looks better than
+   the winner). Degenerate: some latent length-scale sits on its lower bound (objects
+   uncorrelated in a feature), or every feature's length-scale of some latent dimension sits on
+   its upper bound (an unused dimension). ``FitDiagnostics.starts_log_likelihood`` holds every
+   start's full-data log-likelihood.
+5. **Normalisation.** Latents are centred and scaled to RMS distance 1 from their centre, and the
+   latent length-scales divided by the same factor, which leaves the likelihood unchanged; the
+   model is built with :func:`core.posterior.condition`.
 
-Every L-BFGS-B run also stops once it stalls (``FitOptions.stall_nats`` /
-``stall_relative``): log-likelihood gains of hundredths of a nat per iteration along a flat
-ridge cost most of the iterations otherwise. The joint runs on all the data, which end the
-fit, use ``joint_stall_nats`` / ``joint_stall_iterations`` instead (0.5 nats over 30
-iterations): on ``bench/fit_n800.py``'s data (N = 800, two seeds, ds = 2 and 5) the last
-19-45 % of their evaluations gained under one nat, and replaying the recorded runs, that
-rule stopped them 0.05-0.93 nats short of where the hundredth-of-a-nat rule stopped; shorter
-windows or larger thresholds stopped on temporary plateaus, 2-5 nats short. The screening
-and hyperparameter stages keep the tighter rule, so the starts and their choice are those
-the tighter rule gives. Where they stop is not an optimum either: along the valley of
-latent length-scales at ds = 5 (unused latent dimensions switching off, s/ℓ^s → 0),
-1,500 more iterations gained another 7.7 nats on one seed.
+Every L-BFGS-B run also stops once it stalls (``FitOptions.stall_nats`` / ``stall_relative``):
+gains of hundredths of a nat per iteration along a flat ridge would otherwise cost most of the
+iterations. The joint runs on all the data, which end the fit, use the looser
+``joint_stall_nats`` / ``joint_stall_iterations``; the screening and hyperparameter stages keep
+the tighter rule, so the starts and their choice do not depend on it.
 
-The likelihood is exactly invariant to scaling one latent dimension of S and every
-feature's ℓ^s of that dimension by one factor (and to shifting S); its gradient is
-orthogonal to those directions (tests/core/test_likelihood.py), so L-BFGS-B never steps
-along them to first order. Fixing the spread (a penalty zero at the starting spread)
-reached the same optima (within 0.4 nats) but took 5-26 % more joint evaluations on the
-same data, so the fit leaves the symmetry alone and normalises at the end (5.).
+The likelihood is exactly invariant to scaling one latent dimension of S together with every
+feature's ℓ^s of that dimension (and to shifting S); its gradient is orthogonal to those
+directions (tests/core/test_likelihood.py), so the fit leaves the symmetry alone and normalises
+at the end (5.).
 
 Bounds (log space, relative to the data): see :func:`core.parameters.parameter_bounds`.
 """

@@ -1,7 +1,9 @@
 """The rig: turntable, finger and tactile sensor together.
 
 - One run at a time drives the rig: motion and connection go through a :class:`RigLease` from
-  :meth:`Rig.acquire`; a second :meth:`Rig.acquire` gets :class:`~hardware.errors.RigBusy`.
+  :meth:`Rig.acquire`; a second :meth:`Rig.acquire` gets :class:`~hardware.errors.RigBusy`. The
+  rig's operations take the lease as their first argument and refuse any but the current one
+  (:class:`~hardware.errors.LeaseError`); the lease's methods call them with itself.
 - :meth:`Rig.estop` works at any moment, from any thread, without the lease: GRBL soft reset, the
   finger held (or its torque switched off), every operation in progress stopped with
   :class:`~hardware.errors.EmergencyStopped`; :meth:`RigLease.recover` brings the rig back.
@@ -252,7 +254,12 @@ class Rig:
         """A real-time deadline ``timeout_s`` from now (lease waits are in real time)."""
         return time.monotonic() + max(0.0, timeout_s)
 
-    def _release(self, lease: RigLease) -> None:
+    def holds(self, lease: RigLease) -> bool:
+        """Whether ``lease`` is the rig's current lease."""
+        return self._lease is lease
+
+    def release(self, lease: RigLease) -> None:
+        """Give ``lease`` back (no-op unless it is the current one); wakes a waiting taker."""
         with self._lease_condition:
             if self._lease is lease:
                 self._lease = None
@@ -263,10 +270,7 @@ class Rig:
         with self._lease_condition:
             lease, self._lease = self._lease, None
             self._lease_condition.notify_all()
-        if lease is None:
-            return None
-        lease._active = False
-        return lease.owner
+        return None if lease is None else lease.owner
 
     def estop(self, reason: str = "emergency stop") -> None:
         """Stop everything now. Safe to call from any thread, at any time, without the lease.
@@ -294,7 +298,11 @@ class Rig:
         """Whether an emergency stop is in force."""
         return self._estop.is_set()
 
-    # -- operations (through a lease) ----------------------------------------------------------
+    # -- operations: public, each with the lease of the caller ---------------------------------
+
+    def _check_lease(self, lease: RigLease) -> None:
+        if not lease.active:
+            raise LeaseError(f"the lease of {lease.owner!r} is no longer valid.")
 
     def _check_estop(self) -> None:
         if self._estop.is_set():
@@ -310,7 +318,9 @@ class Rig:
         if self._state is RigState.DISCONNECTED:
             raise NotConnectedError("the rig is not connected; connect it first.")
 
-    def _connect(self) -> RigStatus:
+    def connect(self, lease: RigLease) -> RigStatus:
+        """See :meth:`RigLease.connect`."""
+        self._check_lease(lease)
         with self._operation:
             self._check_estop()
             try:
@@ -326,7 +336,9 @@ class Rig:
             self._set_state(RigState.IDLE)
             return self.status()
 
-    def _close(self) -> None:
+    def close(self, lease: RigLease) -> None:
+        """See :meth:`RigLease.close`."""
+        self._check_lease(lease)
         with self._operation:
             for device in (self.tactile, self.finger, self.turntable):
                 with contextlib.suppress(HardwareError):
@@ -334,8 +346,9 @@ class Rig:
             if not self._estop.is_set():
                 self._set_state(RigState.DISCONNECTED)
 
-    def _recover(self) -> RigStatus:
-        """Clear an emergency stop or a fault: reconnect and re-home what needs it."""
+    def recover(self, lease: RigLease) -> RigStatus:
+        """See :meth:`RigLease.recover`."""
+        self._check_lease(lease)
         with self._operation:
             self._estop.clear()
             self._set_state(RigState.DISCONNECTED)
@@ -356,7 +369,7 @@ class Rig:
             except HardwareError as exc:
                 self._set_state(RigState.FAULT, f"recovery failed: {type(exc).__name__}: {exc}")
                 raise
-            return self._connect()
+            return self.connect(lease)
 
     def _ensure_safe_pose(self) -> None:
         state = self.finger.read_state()
@@ -384,7 +397,9 @@ class Rig:
         )
         self._stream(check_trajectory(path, self.config.control_period_s, self.finger.joints))
 
-    def _go_safe(self) -> None:
+    def go_safe(self, lease: RigLease) -> None:
+        """See :meth:`RigLease.go_safe`."""
+        self._check_lease(lease)
         with self._operation:
             self._require_ready()
             try:
@@ -395,7 +410,9 @@ class Rig:
                 raise self._estop_error(exc) from exc
             self._set_state(RigState.IDLE)
 
-    def _move_to_slot(self, slot: int) -> float:
+    def move_to_slot(self, lease: RigLease, slot: int) -> float:
+        """See :meth:`RigLease.move_to_slot`."""
+        self._check_lease(lease)
         with self._operation:
             self._require_ready()
             self.turntable.slot_angle(slot)  # validates before anything moves
@@ -409,7 +426,9 @@ class Rig:
             self._set_state(RigState.IDLE)
             return angle
 
-    def _home(self) -> None:
+    def home(self, lease: RigLease) -> None:
+        """See :meth:`RigLease.home`."""
+        self._check_lease(lease)
         with self._operation:
             self._require_ready()
             try:
@@ -484,12 +503,15 @@ class Rig:
             k += 1
         return late
 
-    def _touch(
+    def touch(
         self,
+        lease: RigLease,
         trajectory: npt.ArrayLike,
         dt_s: float | None,
         on_progress: Callable[[TouchProgress], None] | None,
     ) -> TouchRecord:
+        """See :meth:`RigLease.touch`."""
+        self._check_lease(lease)
         dt = self.config.control_period_s if dt_s is None else float(dt_s)
         with self._operation:
             self._require_ready()
@@ -501,7 +523,7 @@ class Rig:
                 approach = ramp(start_state.positions_deg, points[0], self._ramp_velocity(), dt)
                 self._stream(check_trajectory(approach, dt, self.finger.joints), dt)
                 self._set_state(RigState.TOUCHING)
-                session.run(on_progress)
+                session.run(on_progress, self._stream, self._check_estop)
                 record = session.record(complete=True, failure=None)
                 session.check_integrity(record)
                 self._set_state(RigState.MOVING)
@@ -565,7 +587,14 @@ class _TouchSession:
                 f"{silence:.3f} s during the touch."
             )
 
-    def run(self, on_progress: Callable[[TouchProgress], None] | None) -> None:
+    def run(
+        self,
+        on_progress: Callable[[TouchProgress], None] | None,
+        stream: Callable[..., int],
+        check_estop: Callable[[], None],
+    ) -> None:
+        """Stream the setpoints (``stream``: the rig's setpoint loop) while recording; then read
+        on until the sensor's clock has passed the end (``check_estop`` between reads)."""
         rig = self.rig
         tactile = rig.tactile
         tactile.restart()
@@ -588,11 +617,11 @@ class _TouchSession:
             if on_progress is not None:
                 on_progress(TouchProgress(k, n, len(self.recorder), t))
 
-        self.late_steps = rig._stream(self.points, self.dt_s, on_step=on_step)
+        self.late_steps = stream(self.points, self.dt_s, on_step=on_step)
         # Keep reading until the sensor's clock has passed the end of the trajectory.
         assert self.host_start is not None
         while (self.recorder.last_time_s or -math.inf) < self._sensor_start() + self.duration_s:
-            rig._check_estop()
+            check_estop()
             self._take_frames(wait_s=tactile.config.frame_timeout_s / 4)
 
     def _sensor_start(self) -> float:
@@ -669,40 +698,35 @@ class RigLease:
         self.owner = owner
         self._active = True
 
-    def _check(self) -> Rig:
-        if not self._active or self.rig._lease is not self:
-            raise LeaseError(f"the lease of {self.owner!r} is no longer valid.")
-        return self.rig
-
     @property
     def active(self) -> bool:
-        """Whether this lease still drives the rig."""
-        return self._active and self.rig._lease is self
+        """Whether this lease still drives the rig (not released, not revoked)."""
+        return self._active and self.rig.holds(self)
 
     def connect(self) -> RigStatus:
         """Connect the three devices; the finger goes to its safe pose, the table is homed or
         unlocked."""
-        return self._check()._connect()
+        return self.rig.connect(self)
 
     def close(self) -> None:
         """Close the three ports."""
-        self._check()._close()
+        self.rig.close(self)
 
     def recover(self) -> RigStatus:
         """Clear an emergency stop or a fault: reboot faulty servos, reconnect, re-home."""
-        return self._check()._recover()
+        return self.rig.recover(self)
 
     def home(self) -> None:
         """Retract the finger and run the turntable's homing cycle."""
-        self._check()._home()
+        self.rig.home(self)
 
     def go_safe(self) -> None:
         """Move the finger to its safe pose."""
-        self._check()._go_safe()
+        self.rig.go_safe(self)
 
     def move_to_slot(self, slot: int) -> float:
         """Retract the finger and put ``slot`` under it; returns the table angle."""
-        return self._check()._move_to_slot(slot)
+        return self.rig.move_to_slot(self, slot)
 
     def touch(
         self,
@@ -727,7 +751,7 @@ class RigLease:
                 was recorded.
             EmergencyStopped: :meth:`Rig.estop` was called.
         """
-        return self._check()._touch(trajectory, dt_s, on_progress)
+        return self.rig.touch(self, trajectory, dt_s, on_progress)
 
     def status(self) -> RigStatus:
         """The rig's status."""
@@ -737,7 +761,7 @@ class RigLease:
         """Give the lease back (idempotent)."""
         if self._active:
             self._active = False
-            self.rig._release(self)
+            self.rig.release(self)
 
     def __enter__(self) -> RigLease:
         return self

@@ -36,20 +36,10 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal, TextIO
 import typer
 from rich.markup import escape
 
+from app.cli.options import AsJson, RigOptions, rig_options
+from app.cli.output import fail
 from app.cli.output import messages as console
-from app.cli.rig import (
-    AsJson,
-    FingerPort,
-    RigOptions,
-    SimTransport,
-    Simulate,
-    TableName,
-    TactilePort,
-    TurntablePort,
-    connected_rig,
-    fail,
-    touch_actions,
-)
+from app.cli.rig import connected_rig, touch_actions
 
 if TYPE_CHECKING:
     from app.rig_factory import CollectedTouch, RigHandle, TouchActions
@@ -198,7 +188,9 @@ def _sync(stream: TextIO) -> None:
     os.fsync(stream.fileno())
 
 
+@rig_options
 def collect_command(
+    options: RigOptions,
     out: Annotated[
         Path, typer.Option("--out", help="Training CSV to write: object,x_1..x_dx,y_1..y_dy.")
     ],
@@ -234,17 +226,11 @@ def collect_command(
         typer.Option(help="Also write each touch's raw tactile and joint series (JSON lines)."),
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Replace existing output files.")] = False,
-    turntable_port: TurntablePort = None,
-    finger_port: FingerPort = None,
-    tactile_port: TactilePort = None,
-    sim: Simulate = False,
-    sim_transport: SimTransport = "in-process",
-    table: TableName = "default",
     as_json: AsJson = False,
 ) -> None:
     """Collect a training set on the rig: touch each object, write the training CSV."""
-    options = RigOptions(turntable_port, finger_port, tactile_port, sim, sim_transport, seed, table)
     options.check()
+    sim, sim_transport = options.sim, options.sim_transport
     if not action_scale > 0:
         raise fail(f"--action-scale: must be > 0, received {action_scale}.", 2)
     parsed = parse_objects(objects or [], simulated=sim)

@@ -37,6 +37,8 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from app import states
+from app.cli.options import TableFile, TableName, table_choice
 from app.cli.output import messages
 from app.cli.serve import GracefulServer
 from app.config import Settings, is_loopback
@@ -58,7 +60,6 @@ DEMO_TOUCHES_PER_OBJECT = 100
 
 
 EXPERIMENT1_DATASET_NAME = "demo: paper Experiment 1"
-FINISHED = ("completed", "stopped", "aborted", "failed")
 
 
 @dataclass(frozen=True)
@@ -83,6 +84,7 @@ class DemoOptions:
             ``experiment1``: the paper's Experiment 1 synthetic world, no rig.
         objects: Objects to collect on the simulated rig; ``None``: the rig's own catalogue.
         table: The simulated rig's table (:data:`DEMO_TABLE` by default).
+        table_file: A table file of your own objects, used instead of ``table``.
         touches_per_object: Touches per object of the training set.
         action_scale: Standard deviation of each component of the collection's random actions
             (``None``: the table's :attr:`~hardware.sim.materials.Table.action_std`; the
@@ -103,6 +105,7 @@ class DemoOptions:
     world: Literal["rig", "experiment1"] = "rig"
     objects: tuple[DemoObject, ...] | None = None
     table: str = DEMO_TABLE
+    table_file: Path | None = None
     touches_per_object: int = DEMO_TOUCHES_PER_OBJECT
     action_scale: float | None = None
     latent_dim: int = 2
@@ -174,9 +177,11 @@ class DemoServer:
             database_url=options.database_url,
             hardware="mock",
             sim_table=options.table,
+            sim_table_file=options.table_file,
             api_token=token,
             **(settings_overrides or {}),
         )
+        self.table = self.settings.simulated_table()
         self.timings = DemoTimings()
         self._started_at = 0.0
         self._server: uvicorn.Server | None = None
@@ -345,14 +350,14 @@ class DemoServer:
         """The collection design's spread: the options', or the table's own."""
         from hardware.sim.materials import design_std
 
-        return design_std(self.options.table, self.options.action_scale)
+        return design_std(self.table, self.options.action_scale)
 
     @property
     def dataset_name(self) -> str:
         """The demo dataset's name: the default table's keeps the old name, others name theirs."""
-        if self.options.table == "default":
+        if self.table.name == "default" and self.options.table_file is None:
             return DEMO_DATASET_NAME
-        return f"{DEMO_DATASET_NAME} ({self.options.table})"
+        return f"{DEMO_DATASET_NAME} ({self.table.name})"
 
     @property
     def viz_url(self) -> str:
@@ -425,7 +430,7 @@ class DemoServer:
             f"/collections/{run['id']}",
             "collect",
             lambda r: (int(r.get("done") or 0), int(r.get("total") or 0), ""),
-            done=lambda r: r["status"] in FINISHED,
+            done=lambda r: r["status"] in states.FINISHED,
         )
         if run["status"] != "completed" or run.get("dataset_id") is None:
             raise DemoError(
@@ -469,7 +474,7 @@ class DemoServer:
             f"/models/{accepted['id']}",
             "fit",
             progress,
-            done=lambda m: m["status"] in ("ready", "failed"),
+            done=lambda m: m["status"] in states.MODEL_FINISHED,
         )
         if model["status"] != "ready":
             raise DemoError(f"the fit failed: {model.get('reason') or 'no reason given'}.")
@@ -565,9 +570,8 @@ def demo_command(
     world: Annotated[
         str, typer.Option(help="rig (simulated rig) or experiment1 (the paper's world).")
     ] = "rig",
-    table: Annotated[
-        str, typer.Option(help="Simulated table (activetouch rig status --sim --table NAME).")
-    ] = DEMO_TABLE,
+    table: TableName = None,
+    table_file: TableFile = None,
     touches_per_object: Annotated[
         int, typer.Option(min=2, help="Training touches per object.")
     ] = DEMO_TOUCHES_PER_OBJECT,
@@ -590,6 +594,8 @@ def demo_command(
         )
     from hardware.sim.materials import TABLES
 
+    table_choice(table, table_file)  # exit 2 naming what is wrong with a table file
+    table = table or DEMO_TABLE
     if table not in TABLES:
         raise typer.BadParameter(
             f"{table!r} is not a simulated table; choose from {sorted(TABLES)}",
@@ -602,6 +608,7 @@ def demo_command(
         database_url=database_url,
         world="rig" if world == "rig" else "experiment1",
         table=table,
+        table_file=table_file,
         touches_per_object=touches_per_object,
         action_scale=action_scale,
         latent_dim=latent_dim,

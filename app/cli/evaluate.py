@@ -41,7 +41,7 @@ from rich.progress import (
 )
 from rich.table import Table
 
-from app.cli.options import PlacementOption
+from app.cli.options import PlacementOption, TableFile, TableName, table_choice
 from app.cli.output import messages as stderr
 from app.cli.output import results as stdout
 
@@ -162,10 +162,8 @@ def evaluate_command(
         float, typer.Option(help="Probability for 'touches to confidence' and the comparison.")
     ] = 0.95,
     seed: Annotated[int, typer.Option(help="Seed of every trial's SeedSequence.")] = 0,
-    table: Annotated[
-        str | None,
-        typer.Option(help="rig only: the simulated table (`activetouch rig status --sim`)."),
-    ] = None,
+    table: TableName = None,
+    table_file: TableFile = None,
     placement: PlacementOption = "trial",
     workers: Annotated[
         int | None, typer.Option(help="Run on a LocalCluster of K single-threaded processes.")
@@ -190,6 +188,7 @@ def evaluate_command(
         raise fail("--workers and --scheduler: give one (a local cluster or an existing one)")
     check_output(out, "--out")
     check_output(plot, "--plot")
+    chosen_table = table_choice(table, table_file)
     model = load_model(model_path)
     replay = read_data(data) if data is not None else None
     try:
@@ -204,7 +203,7 @@ def evaluate_command(
         confidence=confidence,
         seed=seed,
         targets=split_names(targets, "--targets"),
-        table=table,
+        table=chosen_table,
         placement=cast(Placement, placement),
     )
     try:

@@ -283,11 +283,7 @@ def model_command(
     from app.services.models import ModelStore
 
     with open_session(db) as (database, session), _app_errors():
-        store = ModelStore(database, EventBus(database))
-        try:
-            document = store.export_document(session, model_id)
-        finally:
-            store.close()
+        document = ModelStore(database, EventBus(database)).export_document(session, model_id)
     _write(json.dumps(document, indent=1), out, f"model {model_id}")
 
 

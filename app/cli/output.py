@@ -39,7 +39,7 @@ def progress_bar(disable: bool = False) -> Progress:
     )
 
 
-def fail(message: str) -> typer.Exit:
-    """Print a one-line error to stderr and return the exit to raise."""
+def fail(message: str, code: int = 2) -> typer.Exit:
+    """Print a one-line error to stderr and return the exit to raise (2: bad usage)."""
     messages.print(f"[red]error:[/red] {escape(message)}")
-    return typer.Exit(code=2)
+    return typer.Exit(code=code)

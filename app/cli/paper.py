@@ -14,7 +14,7 @@ from typing import Annotated, cast
 import typer
 from rich.markup import escape
 
-from app.cli.options import PlacementOption
+from app.cli.options import PlacementOption, TableFile, TableName, table_choice
 from app.cli.output import fail, progress_bar
 from app.cli.output import messages as stderr
 from app.cli.output import results as stdout
@@ -60,9 +60,8 @@ def paper_exp1(
 
 @paper_app.command("exp2")
 def paper_exp2(
-    table: Annotated[str, typer.Option(help="Simulated table (the paper's four cups: paper).")] = (
-        "paper"
-    ),
+    table: TableName = None,
+    table_file: TableFile = None,
     touches: Annotated[int, typer.Option(min=2, help="Random-design touches per object.")] = 100,
     action_scale: Annotated[
         float | None,
@@ -110,12 +109,13 @@ def paper_exp2(
         raise fail(f"--placement: {placement!r} is not one of {list(PLACEMENTS)}.")
     if optimizer not in ("de", "lbfgs"):
         raise fail(f"--optimizer: {optimizer!r} is not one of [de, lbfgs].")
+    chosen_table = table_choice(table, table_file) or "paper"  # the paper's four cups
     try:
-        table_objects(table)
+        table_objects(chosen_table)
     except BadInputError as exc:
         raise fail(str(exc)) from None
     settings = Experiment2Settings(
-        table=table,
+        table=chosen_table,
         touches_per_object=touches,
         action_scale=action_scale,
         trials_per_target=trials,

@@ -13,8 +13,9 @@ closes them again::
 Ports can also come from ``ACTIVETOUCH_TURNTABLE_PORT``, ``ACTIVETOUCH_FINGER_PORT`` and
 ``ACTIVETOUCH_TACTILE_PORT``. Exit codes: 0 success, 1 a device error, 2 bad usage.
 
-:class:`RigOptions` (the port/simulation options) and :func:`connected_rig` (open, lease,
-connect, close) serve every command here and ``activetouch collect``. The drivers, numpy and the
+:class:`~app.cli.options.RigOptions` (the port/simulation options, declared once) and
+:func:`connected_rig` (open, lease, connect, close) serve every command here and
+``activetouch collect``. The drivers, numpy and the
 DMPs are imported when a command runs, not when the CLI starts.
 """
 
@@ -24,12 +25,13 @@ import json
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.markup import escape
 
+from app.cli.options import AsJson, RigOptions, rig_options
+from app.cli.output import fail
 from app.cli.output import messages as console
 from app.cli.output import results as stdout
 
@@ -44,121 +46,6 @@ rig_app = typer.Typer(
     help="Check the rig: status, homing, turning a slot under the finger, a touch, e-stop.",
     no_args_is_help=True,
 )
-
-#: How a simulated rig is wired (the values of :class:`app.rig_factory.SimulationMode`).
-SimulationName = Literal["in-process", "pty"]
-
-TurntablePort = Annotated[
-    str | None,
-    typer.Option(
-        "--turntable-port", envvar="ACTIVETOUCH_TURNTABLE_PORT", help="GRBL port, 115200 baud."
-    ),
-]
-FingerPort = Annotated[
-    str | None,
-    typer.Option(
-        "--finger-port", envvar="ACTIVETOUCH_FINGER_PORT", help="Dynamixel bus port, 1 Mbaud."
-    ),
-]
-TactilePort = Annotated[
-    str | None,
-    typer.Option(
-        "--tactile-port", envvar="ACTIVETOUCH_TACTILE_PORT", help="Tactile sensor, 460800 baud."
-    ),
-]
-Simulate = Annotated[
-    bool,
-    typer.Option(
-        "--sim",
-        help="Use a simulated rig (the paper's four cups in slots 0-3, then a ceramic mug, "
-        "a wooden block and a foam sponge).",
-    ),
-]
-SimTransport = Annotated[
-    SimulationName,
-    typer.Option(
-        "--sim-transport",
-        help="in-process: simulated devices called directly; pty: emulators on "
-        "pseudo-terminals, driven through pyserial.",
-    ),
-]
-Seed = Annotated[int, typer.Option("--seed", help="Seed of the simulated world.")]
-TableName = Annotated[
-    str,
-    typer.Option(
-        "--table",
-        help="With --sim: the named table of objects (default, paper, lookalike_cups, "
-        "textures; see docs/simulation.md).",
-    ),
-]
-AsJson = Annotated[bool, typer.Option("--json", help="Print a JSON document on stdout.")]
-
-
-def fail(message: str, code: int) -> typer.Exit:
-    """Print a one-line error to stderr and return the exit to raise."""
-    console.print(f"[red]error:[/red] {escape(message)}")
-    return typer.Exit(code=code)
-
-
-@dataclass(frozen=True)
-class RigOptions:
-    """Where the rig is: three serial ports, or a simulation (the ``rig`` options).
-
-    Attributes:
-        turntable_port: GRBL controller port.
-        finger_port: Dynamixel bus port.
-        tactile_port: Tactile sensor port.
-        sim: Simulate the rig instead.
-        sim_transport: ``in-process`` or ``pty``.
-        seed: Seed of the simulated world.
-        table: Named table of the simulated rig.
-    """
-
-    turntable_port: str | None = None
-    finger_port: str | None = None
-    tactile_port: str | None = None
-    sim: bool = False
-    sim_transport: SimulationName = "in-process"
-    seed: int = 0
-    table: str = "default"
-
-    def check(self) -> None:
-        """Exit 2 when a real rig lacks a port, or the simulated table is unknown."""
-        if self.sim:
-            from hardware.sim.materials import TABLES
-
-            if self.table not in TABLES:
-                raise fail(f"--table {self.table!r}: unknown; tables: {', '.join(TABLES)}.", 2)
-            return
-        missing = [
-            name
-            for name, port in (
-                ("--turntable-port", self.turntable_port),
-                ("--finger-port", self.finger_port),
-                ("--tactile-port", self.tactile_port),
-            )
-            if not port
-        ]
-        if missing:
-            raise fail(f"missing {', '.join(missing)} (or use --sim).", 2)
-
-    def open(self) -> RigHandle:
-        """Build the rig (not connected yet)."""
-        from app.rig_factory import RigPorts, SimulationMode, open_rig
-        from hardware.rig import RigConfig
-
-        self.check()
-        if self.sim:
-            return open_rig(
-                simulate=SimulationMode(self.sim_transport),
-                table=self.table,
-                seed=self.seed,
-                rig_config=RigConfig(),
-            )
-        assert self.turntable_port is not None
-        assert self.finger_port is not None
-        assert self.tactile_port is not None
-        return open_rig(ports=RigPorts(self.turntable_port, self.finger_port, self.tactile_port))
 
 
 @contextmanager
@@ -216,11 +103,9 @@ def _status_document(lease: RigLease, handle: RigHandle) -> dict[str, Any]:
             zip(rig.tactile.config.channel_names, last.channels, strict=True)
         )
     if handle.object_names is not None:
-        document["simulated_table"] = handle.table
         if handle.table is not None:
-            from hardware.sim.materials import get_table
-
-            document["simulated_table_action_std"] = get_table(handle.table).action_std
+            document["simulated_table"] = handle.table.name
+            document["simulated_table_action_std"] = handle.table.action_std
         document["simulated_objects"] = handle.object_names
         document["simulated_materials"] = {
             name: str(record["material"])
@@ -244,30 +129,19 @@ def _print(document: dict[str, Any], as_json: bool) -> None:
 
 
 @rig_app.command()
+@rig_options
 def status(
-    turntable_port: TurntablePort = None,
-    finger_port: FingerPort = None,
-    tactile_port: TactilePort = None,
-    sim: Simulate = False,
-    sim_transport: SimTransport = "in-process",
-    seed: Seed = 0,
-    table: TableName = "default",
+    rig: RigOptions,
     as_json: AsJson = False,
 ) -> None:
     """Connect the three devices and report what they say (GRBL version, servo models,...)."""
-    options = RigOptions(turntable_port, finger_port, tactile_port, sim, sim_transport, seed, table)
-    _on_rig(options, "status", _status_document, as_json)
+    _on_rig(rig, "status", _status_document, as_json)
 
 
 @rig_app.command()
+@rig_options
 def home(
-    turntable_port: TurntablePort = None,
-    finger_port: FingerPort = None,
-    tactile_port: TactilePort = None,
-    sim: Simulate = False,
-    sim_transport: SimTransport = "in-process",
-    seed: Seed = 0,
-    table: TableName = "default",
+    rig: RigOptions,
     as_json: AsJson = False,
 ) -> None:
     """Retract the finger and run the turntable's homing cycle ($H)."""
@@ -276,20 +150,14 @@ def home(
         lease.home()
         return _status_document(lease, handle)
 
-    options = RigOptions(turntable_port, finger_port, tactile_port, sim, sim_transport, seed, table)
-    _on_rig(options, "home", operation, as_json)
+    _on_rig(rig, "home", operation, as_json)
 
 
 @rig_app.command()
+@rig_options
 def slot(
     k: Annotated[int, typer.Argument(help="Slot to turn under the finger (0-based).")],
-    turntable_port: TurntablePort = None,
-    finger_port: FingerPort = None,
-    tactile_port: TactilePort = None,
-    sim: Simulate = False,
-    sim_transport: SimTransport = "in-process",
-    seed: Seed = 0,
-    table: TableName = "default",
+    rig: RigOptions,
     as_json: AsJson = False,
 ) -> None:
     """Turn slot K under the finger (the finger is retracted first)."""
@@ -298,8 +166,7 @@ def slot(
         lease.move_to_slot(k)
         return _status_document(lease, handle)
 
-    options = RigOptions(turntable_port, finger_port, tactile_port, sim, sim_transport, seed, table)
-    _on_rig(options, "slot", operation, as_json)
+    _on_rig(rig, "slot", operation, as_json)
 
 
 def _parse_action(text: str, dimension: int) -> np.ndarray:
@@ -309,10 +176,10 @@ def _parse_action(text: str, dimension: int) -> np.ndarray:
         values = [float(part) for part in text.split(",")] if text.strip() else []
     except ValueError:
         raise fail(
-            f"--action: expected {dimension} comma-separated numbers, got {text!r}.", 2
+            f"--action: expected {dimension} comma-separated numbers, got {text!r}."
         ) from None
     if len(values) != dimension:
-        raise fail(f"--action: expected {dimension} numbers, got {len(values)}.", 2)
+        raise fail(f"--action: expected {dimension} numbers, got {len(values)}.")
     return np.asarray(values, dtype=np.float64)
 
 
@@ -353,7 +220,9 @@ def touch_actions(duration_s: float) -> TouchActions:
 
 
 @rig_app.command()
+@rig_options
 def touch(
+    rig: RigOptions,
     slot_k: Annotated[
         int | None, typer.Option("--slot", help="Turn this slot under the finger first.")
     ] = None,
@@ -363,13 +232,6 @@ def touch(
     duration_s: Annotated[
         float, typer.Option("--duration", min=1.0, help="Touch duration in seconds.")
     ] = 14.4,
-    turntable_port: TurntablePort = None,
-    finger_port: FingerPort = None,
-    tactile_port: TactilePort = None,
-    sim: Simulate = False,
-    sim_transport: SimTransport = "in-process",
-    seed: Seed = 0,
-    table: TableName = "default",
     as_json: AsJson = False,
 ) -> None:
     """Execute one touch (action → DMP → trajectory) and print its observation y."""
@@ -379,43 +241,41 @@ def touch(
     def operation(lease: RigLease, handle: RigHandle) -> dict[str, Any]:
         return _touch_document(actions.touch(lease, x, slot=slot_k), x)
 
-    options = RigOptions(turntable_port, finger_port, tactile_port, sim, sim_transport, seed, table)
-    _on_rig(options, "touch", operation, as_json)
+    _on_rig(rig, "touch", operation, as_json)
 
 
 @rig_app.command()
-def estop(
-    turntable_port: TurntablePort = None,
-    finger_port: FingerPort = None,
-    tactile_port: TactilePort = None,
-    sim: Simulate = False,
-    sim_transport: SimTransport = "in-process",
-    seed: Seed = 0,
-) -> None:
+@rig_options
+def estop(rig: RigOptions) -> None:
     """Emergency stop: GRBL soft reset and servo torque off, without waiting for anything.
 
     Only the turntable and finger ports are used (``--tactile-port`` is accepted and ignored).
     A port held by another program (a running server) cannot be opened: stop the rig through
     that program (``POST /api/v1/rig/estop``).
     """
-    from app.rig_factory import SimulationMode, open_rig
     from hardware.errors import HardwareError
     from hardware.finger import DYNAMIXEL_BAUDRATE, Finger
     from hardware.transport import SerialTransport
     from hardware.turntable import GRBL_BAUDRATE, Turntable
 
     handle: RigHandle | None = None
-    if sim:
-        handle = open_rig(simulate=SimulationMode(sim_transport), seed=seed)
+    if rig.sim:
+        handle = rig.open()
         turntable: Turntable | None = handle.rig.turntable
         finger: Finger | None = handle.rig.finger
     else:
-        if not turntable_port and not finger_port:
-            raise fail("give --turntable-port and/or --finger-port (or use --sim).", 2)
+        if not rig.turntable_port and not rig.finger_port:
+            raise fail("give --turntable-port and/or --finger-port (or use --sim).")
         turntable = (
-            Turntable(SerialTransport(turntable_port, GRBL_BAUDRATE)) if turntable_port else None
+            Turntable(SerialTransport(rig.turntable_port, GRBL_BAUDRATE))
+            if rig.turntable_port
+            else None
         )
-        finger = Finger(SerialTransport(finger_port, DYNAMIXEL_BAUDRATE)) if finger_port else None
+        finger = (
+            Finger(SerialTransport(rig.finger_port, DYNAMIXEL_BAUDRATE))
+            if rig.finger_port
+            else None
+        )
     stopped = []
     try:
         if turntable is not None:

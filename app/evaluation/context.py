@@ -40,6 +40,7 @@ from hardware.errors import HardwareError
 if TYPE_CHECKING:
     from app.evaluation.spec import EvaluationSpec
     from app.rig_factory import TouchActions
+    from hardware.sim.materials import Table
 
 #: Key of one trial: (policy, target, trial index).
 TrialKey = tuple[str, str, int]
@@ -50,6 +51,17 @@ def rig_tables() -> dict[str, tuple[str, ...]]:
     from hardware.sim.materials import TABLES
 
     return {name: table.objects for name, table in TABLES.items()}
+
+
+def rig_table(table: str | Table | None) -> Table:
+    """A spec's simulated rig table: by name (the default table when ``None``), or as itself.
+
+    Raises:
+        ConfigurationError: Unknown name.
+    """
+    from hardware.sim.materials import DEFAULT_TABLE_NAME, get_table
+
+    return get_table(DEFAULT_TABLE_NAME if table is None else table)
 
 
 def synthetic_world(spec: EvaluationSpec) -> World:
@@ -153,7 +165,7 @@ class TrialContext:
         target = key[1]
         return RigTrial(
             self._rig_actions(),
-            rig_tables()[self.spec.table or "default"],
+            rig_table(self.spec.table).slots,
             target,
             seed,
             replace_each_touch=self.spec.placement == "touch",

@@ -16,6 +16,7 @@ from typing import Any
 from app.evaluation.spec import EvaluationSpec
 from core.evaluation_records import REFUSED, RefusedTrial, TrialRecord
 from core.evaluation_summary import comparison_sentence, summarise
+from hardware.sim.materials import table_name
 
 FORMAT = "activetouch-evaluation/1"
 
@@ -144,7 +145,7 @@ class EvaluationReport:
             "confidence": spec.confidence,
             "objects": list(self.object_names),
             "targets": list(spec.targets) if spec.targets is not None else None,
-            "table": spec.table,
+            "table": None if spec.table is None else table_name(spec.table),
             "stopped": self.stopped,
             "notes": self.notes,
             "comparison": self.comparison(),

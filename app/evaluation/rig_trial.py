@@ -29,6 +29,7 @@ from hardware.errors import (
 if TYPE_CHECKING:
     from app.rig_factory import TouchActions
     from hardware.records import TouchRecord
+    from hardware.sim.materials import TactileObject
     from hardware.sim.noise import NoiseModel
 
 
@@ -63,15 +64,15 @@ class RigTrial:
 
     Attributes:
         actions: The action → trajectory map.
-        objects: The table's objects, slot 0 first.
-        target: The object touched (one of ``objects``).
+        objects: The table's objects (preset names or objects), slot 0 first.
+        target: The name of the object touched (one of ``objects``).
         rig_seed: World seed of the simulated rig (:func:`rig_seed`).
         replace_each_touch: Place the object anew before every touch, not once per trial.
         noise: Noise model of the simulated world (``None``: the simulator's default).
     """
 
     actions: TouchActions
-    objects: tuple[str, ...]
+    objects: tuple[str | TactileObject, ...]
     target: str
     rig_seed: int
     replace_each_touch: bool = False
@@ -92,7 +93,9 @@ class RigTrial:
         except BaseException:
             self._handle.close()
             raise
-        self._slot: int | None = self.objects.index(self.target)
+        names = [item if isinstance(item, str) else item.name for item in self.objects]
+        self._target_slot = names.index(self.target)
+        self._slot: int | None = self._target_slot
         self.touched = 0  # touches asked for so far (the refused one included)
 
     def observe(self, action: FloatArray, rng: np.random.Generator) -> FloatArray:
@@ -114,7 +117,7 @@ class RigTrial:
         return np.asarray(record.observation, dtype=np.float64)
 
     def _touch(self, action: FloatArray) -> TouchRecord:
-        target = self.objects.index(self.target)
+        target = self._target_slot
         if self._slot is None and self.replace_each_touch and len(self.objects) > 1:
             self._lease.move_to_slot((target + 1) % len(self.objects))
             self._slot = target

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal, cast, get_args
+from typing import TYPE_CHECKING, Literal, cast, get_args
 
 from app.errors import BadInputError
 from core.evaluation_trial import POLICIES, TrialSettings
 from core.types import ManifoldModel, TrainingData
+
+if TYPE_CHECKING:
+    from hardware.sim.materials import Table
 
 WorldName = Literal["exp1", "exp2", "rig", "model", "replay"]
 Placement = Literal["trial", "touch"]
@@ -34,7 +37,8 @@ class EvaluationSpec:
         confidence: Threshold of "touches to confidence" and of the compared accuracy level.
         seed: Entropy of every trial's ``SeedSequence``.
         targets: Objects to recognise (model objects); every model object when ``None``.
-        table: Simulated rig table by name (``rig``; the default table when ``None``).
+        table: Simulated rig table (``rig``): a name, or a table read from a file
+            (:mod:`hardware.sim.table_file`); the default table when ``None``.
         world_seed: Seed that draws the ``exp2`` world (as the server's simulated trials do).
         noise_std: Observation noise of ``exp1``/``exp2`` (0.1 / 0.05 when ``None``).
         tolerance: Stop when the belief mean moves less (normalised latent units; 0 disables).
@@ -53,7 +57,7 @@ class EvaluationSpec:
     confidence: float = 0.95
     seed: int = 0
     targets: tuple[str, ...] | None = None
-    table: str | None = None
+    table: str | Table | None = None
     world_seed: int = 0
     noise_std: float | None = None
     tolerance: float = 1e-3

@@ -7,17 +7,21 @@ from typing import TYPE_CHECKING
 from app.errors import BadInputError
 from app.evaluation.context import rig_tables, synthetic_world
 from core.types import ManifoldModel, TrainingData
+from hardware.sim.materials import table_name
 
 if TYPE_CHECKING:
     from app.evaluation.spec import EvaluationSpec
+    from hardware.sim.materials import Table
 
 
-def table_objects(name: str | None) -> tuple[str, ...]:
-    """The objects of a rig table by name (slot 0 first).
+def table_objects(name: str | Table | None) -> tuple[str, ...]:
+    """The objects of a rig table by name, or of a table read from a file (slot 0 first).
 
     Raises:
         BadInputError: Unknown table (the message lists them).
     """
+    if name is not None and not isinstance(name, str):
+        return name.objects
     tables = rig_tables()
     key = "default" if name is None else name
     if key not in tables:
@@ -76,7 +80,7 @@ def check_world(spec: EvaluationSpec, model: ManifoldModel, replay: TrainingData
         if missing:
             raise BadInputError(
                 f"targets: {missing} are not on the simulated table "
-                f"{spec.table or 'default'!r} ({list(objects)}).",
+                f"{table_name(spec.table or 'default')!r} ({list(objects)}).",
                 field="targets",
             )
     elif spec.world == "replay":

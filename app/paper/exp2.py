@@ -29,6 +29,8 @@ from core.designs import random_design
 from core.evaluation_trial import POLICIES
 from core.manifold import FitOptions, fit_manifold
 from core.types import ManifoldModel, TrainingData
+from hardware.sim.materials import Table as SimTable
+from hardware.sim.materials import table_name
 
 #: Observation sources of the recognition trials: the learned GP (the paper's) and the rig.
 SOURCES: tuple[str, ...] = ("model", "rig")
@@ -52,7 +54,8 @@ class Experiment2Settings:
     """What ``activetouch paper exp2`` runs.
 
     Attributes:
-        table: Simulated table (the paper's four cups: ``paper``).
+        table: Simulated table: a name (the paper's four cups: ``paper``) or a table read from
+            a file (:mod:`hardware.sim.table_file`).
         touches_per_object: Random-design training touches per object (the paper: 100).
         action_scale: Standard deviation of each action component of the design (``None``: the
             table's :attr:`~hardware.sim.materials.Table.action_std`; the paper's cups 0.75 — at
@@ -71,7 +74,7 @@ class Experiment2Settings:
             :class:`app.evaluation.spec.EvaluationSpec`).
     """
 
-    table: str = "paper"
+    table: str | SimTable = "paper"
     touches_per_object: int = 100
     action_scale: float | None = None
     latent_dim: int = 2
@@ -140,7 +143,7 @@ class Experiment2Result:
         return {
             "format": "activetouch-paper-exp2/1",
             "settings": {
-                "table": s.table,
+                "table": table_name(s.table),
                 "touches_per_object": s.touches_per_object,
                 "action_scale": s.design_std,
                 "latent_dim": s.latent_dim,
@@ -166,7 +169,7 @@ class Experiment2Result:
         """A rich table: figure, the paper's, ours."""
         s = self.settings
         table = Table(
-            title=f"Experiment 2 on the simulated rig — table {escape(s.table)}, "
+            title=f"Experiment 2 on the simulated rig — table {escape(table_name(s.table))}, "
             f"{s.touches_per_object:d} touches per object, ds = {s.latent_dim:d}, "
             f"T = {s.steps:d}, {s.trials_per_target:d} trials per object, policy and source",
             caption="model: observations sampled from the learned GP at the target's latent "

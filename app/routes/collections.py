@@ -5,8 +5,9 @@ from __future__ import annotations
 from fastapi import APIRouter
 
 from app.deps import ContextDep, IdPath, Limit, Offset, SessionDep
-from app.schemas import CollectionCreate, Page, RunPublic, RunStatus
+from app.schemas import CollectionCreate, Page, RunPublic
 from app.services import collections
+from app.states import RunStatus
 
 router = APIRouter(prefix="/collections", tags=["collections"])
 

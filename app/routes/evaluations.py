@@ -14,9 +14,9 @@ from app.schemas import (
     EvaluationTrialPublic,
     EvaluationTrialSummary,
     Page,
-    RunStatus,
 )
 from app.services import evaluation_views
+from app.states import RunStatus
 
 router = APIRouter(prefix="/evaluations", tags=["evaluations"])
 

@@ -12,12 +12,12 @@ from app.schemas import (
     ObservationIn,
     ObservationResult,
     Page,
-    RunStatus,
     TrialCreate,
     TrialPublic,
     TrialSummary,
 )
 from app.services import trial_views
+from app.states import RunStatus
 
 router = APIRouter(prefix="/trials", tags=["trials"])
 

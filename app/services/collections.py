@@ -21,16 +21,16 @@ from typing import Literal
 import numpy as np
 from sqlalchemy.orm import Session
 
-from app import crud
+from app import crud, states
 from app.db import Database
 from app.errors import AppError, BadInputError, ConflictError, NotFoundError
 from app.models import Run
 from app.rig_factory import CollectedTouch, TouchActions, iter_collect
 from app.schemas import CollectionCreate, Page, RunPublic
-from app.services import objects, states
+from app.services import objects
 from app.services.events import EventBus
+from app.services.jobs import INTERRUPTED, Job, JobCancelled, JobRunner
 from app.services.rig import RigService, raw_series, trace_preview
-from app.services.runs import RunCancelled, RunHandle, RunManager
 from core.designs import CollectionDesign, random_design, shared_design
 from core.errors import CoreError
 from core.validation import FloatArray
@@ -162,20 +162,19 @@ class CollectionService:
     """Starts, drives and controls collection runs on the rig."""
 
     def __init__(
-        self, database: Database, events: EventBus, runs: RunManager, rig: RigService
+        self, database: Database, events: EventBus, jobs: JobRunner, rig: RigService
     ) -> None:
         self._database = database
         self._events = events
-        self._runs = runs
+        self._jobs = jobs
         self._rig = rig
 
     def create(self, session: Session, body: CollectionCreate) -> RunPublic:
         """Check a collection request, store the run and its (empty) dataset, start it."""
         check_objects([(o.name, o.slot) for o in body.objects])
-        if self._runs.rig_holder is not None:
-            raise ConflictError(
-                f"The rig is in use by {self._runs.rig_holder}.", held_by=self._runs.rig_holder
-            )
+        holder = self._rig.holder
+        if holder is not None:
+            raise ConflictError(f"The rig is in use by {holder}.", held_by=holder)
         dx, dy = self._rig.action_dim, self._rig.observation_dim
         dataset = crud.create_dataset(
             session,
@@ -200,12 +199,18 @@ class CollectionService:
             total=len(body.objects) * body.samples_per_object,
             dataset_id=dataset.id,
         )
+        try:
+            lease = self._rig.take(f"{KIND} {run.id}")
+        except AppError:
+            session.rollback()  # nothing of the refused collection is kept
+            raise
         session.commit()
         self._announce(run)
+        run_id = run.id
         try:
-            self._runs.start(KIND, run.id, lambda handle: self._collect(handle, run.id), True)
+            self._jobs.start(KIND, run_id, lambda job: self._collect(job, run_id), lease=lease)
         except AppError as exc:
-            self._finish(run.id, "failed", f"could not start: {exc.message}")
+            self._finish(run_id, "failed", f"could not start: {exc.message}")
             raise
         session.refresh(run)
         return to_public(run)
@@ -223,15 +228,19 @@ class CollectionService:
             },
         )
 
-    def _collect(self, handle: RunHandle, run_id: int) -> None:
+    def _collect(self, job: Job, run_id: int) -> None:
+        """The job: touch, store each touch, give the rig back, then end the run."""
         try:
             with self._database.session() as session:
                 run = require(session, run_id)
                 body = CollectionCreate.model_validate(run.params)
             design = self._design(body)
             slots = {o.name: o.slot for o in body.objects}
-            with self._rig.lease(handle.label) as lease:
-                with self._runs.run_lock(KIND, run_id), self._database.session() as session:
+            assert job.lease is not None
+            with job.lease as lease:
+                job.checkpoint()
+                self._rig.ensure_connected(lease)
+                with self._jobs.run_lock(KIND, run_id), self._database.session() as session:
                     run = require(session, run_id)
                     if run.status != "queued":
                         return
@@ -241,15 +250,15 @@ class CollectionService:
                 for touch in iter_collection(lease, self._rig.actions(), slots, design):
                     self._store(run_id, touch.object_name, touch.action, touch.record)
                     if touch.index + 1 < touch.total:
-                        handle.checkpoint()
+                        job.checkpoint()
             self._finish(run_id, "completed", None)
-        except RunCancelled as cancelled:
+        except JobCancelled as cancelled:
             if cancelled.kind == "shutdown":
-                self._finish(run_id, "failed", "server shut down")
+                self._finish(run_id, "failed", INTERRUPTED)
             else:  # normally already set by the request; an e-stop only tells the handle
                 self._finish(run_id, cancelled.kind, f"{cancelled.kind} by the operator")
         except HardwareError as exc:
-            requested = handle.stop_requested
+            requested = job.stop_requested
             if requested in ("stopped", "aborted"):  # the stop interrupted the touch
                 self._finish(run_id, requested, f"{requested} by the operator ({exc})")
             else:
@@ -282,7 +291,7 @@ class CollectionService:
         )
 
     def _store(self, run_id: int, name: str, action: FloatArray, record: TouchRecord) -> None:
-        with self._runs.run_lock(KIND, run_id), self._database.session() as session:
+        with self._jobs.run_lock(KIND, run_id), self._database.session() as session:
             run = require(session, run_id)
             dataset = crud.get_dataset(session, run.dataset_id or 0)
             assert dataset is not None
@@ -307,7 +316,7 @@ class CollectionService:
 
     def _finish(self, run_id: int, status: str | None, reason: str | None) -> None:
         """End the run (``status=None``: a stop/abort already set it) and settle its dataset."""
-        with self._runs.run_lock(KIND, run_id), self._database.session() as session:
+        with self._jobs.run_lock(KIND, run_id), self._database.session() as session:
             run = require(session, run_id)
             if status is not None and run.status in states.ACTIVE:
                 crud.set_run_status(session, run, status, reason)
@@ -322,19 +331,19 @@ class CollectionService:
 
     def control(self, session: Session, run_id: int, action: states.Action) -> RunPublic:
         """Pause, resume, stop or abort a collection (409 with the current state if not allowed)."""
-        with self._runs.run_lock(KIND, run_id):
+        with self._jobs.run_lock(KIND, run_id):
             run = require(session, run_id)
             target = states.check_action(f"collection {run_id}", run.status, action)
             crud.set_run_status(session, run, target, reason=f"{action} requested")
             session.commit()
-            handle = self._runs.handle(KIND, run_id)
-            if handle is not None:
+            job = self._jobs.handle(KIND, run_id)
+            if job is not None:
                 if action == "pause":
-                    handle.pause()
+                    job.pause()
                 elif action == "resume":
-                    handle.resume()
+                    job.resume()
                 else:
-                    handle.request_stop("stopped" if action == "stop" else "aborted")
+                    job.request_stop("stopped" if action == "stop" else "aborted")
         if action == "abort":
             self._rig.halt()
         self._announce(run)

@@ -1,7 +1,8 @@
 """Evaluations as server jobs: many recognition trials of one model, summarised per policy.
 
 :class:`EvaluationService` checks a request (model, world, replay dataset, policies), stores the
-evaluation and runs :func:`app.evaluation.runner.run_evaluation` in a thread of its own. Each
+evaluation and runs :func:`app.evaluation.runner.run_evaluation` as a job of the job runner
+(:mod:`app.services.jobs`). Each
 trial is committed as an :class:`app.models.EvaluationTrial` the moment the engine reports it
 (``on_trial``) and announced as ``evaluation.progress`` (at most every
 :data:`PROGRESS_INTERVAL_S`, and for the last trial); ``POST /evaluations/{id}/stop`` makes the
@@ -9,7 +10,7 @@ engine start no further trial (``should_stop``), the finished ones are kept. Tri
 server's Dask cluster when it has one (``ACTIVETOUCH_DASK_SCHEDULER``), else on the request's
 ``workers`` local processes, else in-process.
 
-States follow DESIGN.md "Run states" (``queued → running → completed | stopped | failed``); an
+States follow :mod:`app.states` (``queued → running → completed | stopped | failed``); an
 evaluation a previous process left running is ``failed`` with reason ``interrupted`` at start-up
 (:func:`app.crud.fail_interrupted`), and so is one still running when the server shuts
 down. Reads (:mod:`app.services.evaluation_views`) give the summary of the trials finished so far
@@ -21,11 +22,11 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import replace
 
 from sqlalchemy.orm import Session
 
-from app import crud
+from app import crud, states
 from app.config import Settings
 from app.db import Database
 from app.errors import AppError, BadInputError, ConflictError
@@ -34,9 +35,10 @@ from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
 from app.models import Evaluation
 from app.schemas import EvaluationCreate, EvaluationPublic
-from app.services import datasets, states
+from app.services import datasets
 from app.services.evaluation_views import build_spec, require, to_public
 from app.services.events import EventBus
+from app.services.jobs import INTERRUPTED, Job, JobRunner
 from app.services.models import ModelStore
 from core.errors import CoreError
 from core.evaluation_records import TrialOutcome, TrialRecord
@@ -44,46 +46,38 @@ from core.types import ManifoldModel, TrainingData
 
 logger = logging.getLogger(__name__)
 
-#: Reason of an evaluation that a restart (or a shutdown) interrupted.
-INTERRUPTED = "interrupted"
-
 #: Seconds between two ``evaluation.progress`` events of one evaluation.
 PROGRESS_INTERVAL_S = 0.2
-
-#: Seconds :meth:`EvaluationService.close` waits for each job to end.
-CLOSE_TIMEOUT_S = 30.0
-
-
-@dataclass
-class _Job:
-    """A running evaluation: its thread and its stop flag."""
-
-    stop: threading.Event
-    thread: threading.Thread | None = None
 
 
 class EvaluationService:
     """Starts, stores and stops evaluation jobs.
 
     Args:
-        settings: The server's settings (``dask_scheduler``; ``sim_table``: the table a rig
-            evaluation simulates when the request names none).
+        settings: The server's settings (``dask_scheduler``; ``sim_table`` or
+            ``sim_table_file``: the table a rig evaluation simulates when the request names none
+            or names it).
         database: Where evaluations and their trials live.
         events: Where progress is announced.
         models: Loads the fitted models evaluated.
+        jobs: The job runner the evaluations run on.
     """
 
     def __init__(
-        self, settings: Settings, database: Database, events: EventBus, models: ModelStore
+        self,
+        settings: Settings,
+        database: Database,
+        events: EventBus,
+        models: ModelStore,
+        jobs: JobRunner,
     ) -> None:
         self._scheduler = settings.dask_scheduler or None
-        self._sim_table = settings.sim_table
+        self._sim_table = settings.simulated_table()
         self._database = database
         self._events = events
         self._models = models
         self._lock = threading.RLock()  # status changes and trial writes of every evaluation
-        self._jobs: dict[int, _Job] = {}
-        self._closing = threading.Event()
+        self._jobs = jobs
 
     # --- starting -----------------------------------------------------------------------------
 
@@ -124,14 +118,15 @@ class EvaluationService:
             )
         if body.world == "rig" and body.table is None:
             # The rig world simulates this server's table unless another is named.
-            body = body.model_copy(update={"table": self._sim_table})
+            body = body.model_copy(update={"table": self._sim_table.name})
         spec = build_spec(body)
+        if spec.table == self._sim_table.name:  # the server's table, read from its file too
+            spec = replace(spec, table=self._sim_table)
         spec.check(model, replay)
         targets = spec.target_names(model)
         total = len(spec.policies) * len(targets) * spec.trials_per_target
         workers = None if self._scheduler else body.workers
-        if self._closing.is_set():
-            raise ConflictError("The server is shutting down.", current_state="shutdown")
+        self._jobs.check_open()
         row = crud.create_evaluation(
             session,
             model_id=body.model_id,
@@ -145,29 +140,30 @@ class EvaluationService:
         )
         session.commit()
         self._announce(row)
-        job = _Job(stop=threading.Event())
-        job.thread = threading.Thread(
-            target=self._run,
-            args=(row.id, model, spec, replay, workers, job),
-            name=f"evaluation {row.id}",
-            daemon=True,
-        )
-        with self._lock:
-            self._jobs[row.id] = job
-        job.thread.start()
+        evaluation_id = row.id
+        try:
+            self._jobs.start(
+                "evaluation",
+                evaluation_id,
+                lambda job: self._run(job, evaluation_id, model, spec, replay, workers),
+            )
+        except ConflictError as exc:
+            self._finish(evaluation_id, "failed", f"could not start: {exc.message}", None)
+            raise
         return to_public(row)
 
     # --- the job ------------------------------------------------------------------------------
 
     def _run(
         self,
+        job: Job,
         evaluation_id: int,
         model: ManifoldModel,
         spec: EvaluationSpec,
         replay: TrainingData | None,
         workers: int | None,
-        job: _Job,
     ) -> None:
+        """The job: run the trials (stored as they end), then store the report's summary."""
         try:
             if not self._set_running(evaluation_id):
                 return
@@ -179,10 +175,10 @@ class EvaluationService:
                 workers=workers,
                 scheduler=self._scheduler,
                 on_trial=progress.store,
-                should_stop=lambda: job.stop.is_set() or self._closing.is_set(),
+                should_stop=lambda: job.stop_requested is not None,
             )
             progress.flush()
-            if self._closing.is_set() and not job.stop.is_set():
+            if job.stop_requested == "shutdown":
                 self._finish(evaluation_id, "failed", INTERRUPTED, report)
             else:
                 status = "stopped" if report.stopped else "completed"
@@ -195,9 +191,6 @@ class EvaluationService:
             self._finish(
                 evaluation_id, "failed", f"internal error: {type(exc).__name__}: {exc}", None
             )
-        finally:
-            with self._lock:
-                self._jobs.pop(evaluation_id, None)
 
     def _set_running(self, evaluation_id: int) -> bool:
         """``queued → running``; false when it was stopped before it started."""
@@ -285,20 +278,11 @@ class EvaluationService:
             target = states.check_action(f"evaluation {evaluation_id}", row.status, "stop")
             crud.set_evaluation_status(session, row, target, reason="stop requested")
             session.commit()
-            job = self._jobs.get(evaluation_id)
+            job = self._jobs.handle("evaluation", evaluation_id)
             if job is not None:
-                job.stop.set()
+                job.request_stop("stopped")
         self._announce(row)
         return to_public(row)
-
-    def close(self) -> None:
-        """Stop every job (each ends ``failed`` "interrupted", its trials kept) and wait."""
-        self._closing.set()
-        with self._lock:
-            jobs = list(self._jobs.values())
-        for job in jobs:
-            if job.thread is not None:
-                job.thread.join(timeout=CLOSE_TIMEOUT_S)
 
 
 class _Progress:

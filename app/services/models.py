@@ -1,4 +1,5 @@
-"""Models: fit in the background with progress events, read, export and import documents.
+"""Models: read, keep fitted ones for use, export and import documents (fits are jobs of
+:mod:`app.services.fits`).
 
 The GP posterior is not stored, only how it was conditioned (the row's ``posterior``: the model
 document's ``posterior`` field, :func:`app.documents.posterior.posterior_field`).
@@ -10,13 +11,11 @@ default, as they were then."""
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import threading
-import time
 from collections import OrderedDict
-from concurrent.futures import ThreadPoolExecutor
-from typing import Any
+from collections.abc import Callable
+from typing import Any, get_args
 
 import numpy as np
 from pydantic import ValidationError
@@ -25,7 +24,7 @@ from sqlalchemy.orm import Session
 from app import crud
 from app.db import Database
 from app.documents.errors import DocumentError
-from app.documents.model import latent_selection_dict, model_from_document, model_to_document
+from app.documents.model import model_from_document, model_to_document
 from app.documents.noise_model import noise_model_field, read_noise_model_field
 from app.documents.posterior import condition_as_recorded, posterior_field
 from app.errors import AppError, BadInputError, ConflictError, NotFoundError
@@ -33,8 +32,6 @@ from app.models import ModelRecord, utc_now
 from app.schemas import (
     FeatureHyperparameters,
     LatentSelectionPublic,
-    ModelAccepted,
-    ModelCreate,
     ModelPosterior,
     ModelPublic,
     NoiseModelPublic,
@@ -43,21 +40,14 @@ from app.schemas import (
 )
 from app.services import datasets
 from app.services.events import EventBus
+from app.states import ModelStatus
 from core.errors import CoreError
-from core.fit_options import FitProgress
-from core.latent_selection import DEFAULT_FOLDS, LatentSelection, select_latent_dim
-from core.manifold import FitOptions, NoiseModelChoice, fit_manifold, iter_fit
-from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
-from core.validation import FloatArray
+from core.types import FitDiagnostics, Hyperparameters, ManifoldModel
 
 logger = logging.getLogger(__name__)
 
 #: Seconds between two progress events (and progress writes) of one fit.
 PROGRESS_INTERVAL_S = 0.25
-
-
-class _ClosingError(Exception):
-    """The server is shutting down during a latent-dimension selection."""
 
 
 class StoredModelError(AppError):
@@ -164,8 +154,8 @@ def _latent_selection_public(row: ModelRecord) -> LatentSelectionPublic | None:
         return None
 
 
-def to_public(row: ModelRecord) -> ModelPublic:
-    """The API view of a model row."""
+def to_public(row: ModelRecord, queue_position: int | None = None) -> ModelPublic:
+    """The API view of a model row (``queue_position``: its place in the queue of fits)."""
     objects: list[ObjectLatent] = []
     hyper: list[FeatureHyperparameters] = []
     if row.latents is not None:
@@ -189,7 +179,7 @@ def to_public(row: ModelRecord) -> ModelPublic:
             )
             for a in range(row.signal_variance.shape[0])
         ]
-    status = row.status if row.status in ("fitting", "ready", "failed") else "failed"
+    status = row.status if row.status in get_args(ModelStatus) else "failed"
     posterior: ModelPosterior | None = None
     if row.posterior is not None:
         try:
@@ -199,6 +189,7 @@ def to_public(row: ModelRecord) -> ModelPublic:
     return ModelPublic(
         id=row.id,
         status=status,
+        queue_position=queue_position,
         reason=row.reason,
         dataset_id=row.dataset_id,
         latent_dim=row.latent_dim,
@@ -230,22 +221,37 @@ def require(session: Session, model_id: int) -> ModelRecord:
 
 
 def get(session: Session, model_id: int) -> ModelPublic:
-    """One model."""
+    """One model (without its place in a queue: see :meth:`app.services.fits.FitService.get`)."""
     return to_public(require(session, model_id))
 
 
-def list_page(session: Session, status: str | None, limit: int, offset: int) -> Page[ModelPublic]:
-    """Models, newest first."""
+def list_page(
+    session: Session,
+    status: str | None,
+    limit: int,
+    offset: int,
+    queue_position: Callable[[int], int | None] | None = None,
+) -> Page[ModelPublic]:
+    """Models, newest first (``queue_position``: a model's place in the queue of fits)."""
     rows, count = crud.list_models(session, status, limit, offset)
-    return Page[ModelPublic](data=[to_public(r) for r in rows], count=count)
+
+    def position(row: ModelRecord) -> int | None:
+        if queue_position is None or row.status != "queued":
+            return None
+        return queue_position(row.id)
+
+    return Page[ModelPublic](
+        data=[to_public(r, position(r)) for r in rows],
+        count=count,
+    )
 
 
 class ModelStore:
-    """Fits models in a background thread and rebuilds fitted ones for use (cached).
+    """Rebuilds fitted models for use (cached), exports and imports model documents.
 
     Args:
         database: Where models live.
-        events: Where progress is announced.
+        events: Where imports are announced.
         max_training_touches: Largest N accepted for a fit or an imported document.
         cache_size: How many rebuilt models are kept in memory.
     """
@@ -263,39 +269,9 @@ class ModelStore:
         self._cache: OrderedDict[int, ManifoldModel] = OrderedDict()
         self._cache_size = cache_size
         self._lock = threading.Lock()
-        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fit")
-        self._closing = threading.Event()
 
-    # --- fitting ------------------------------------------------------------------------------
-
-    def submit(self, session: Session, body: ModelCreate) -> ModelAccepted:
-        """Check the request, add a ``fitting`` model and queue the fit."""
-        data = datasets.load_training_data(session, body.dataset_id)
-        self._check_size(data.n_touches, "dataset_id")
-        fewest = int(data.touches_per_object().min())
-        if body.latent_dim == "auto" and fewest < 4:
-            raise BadInputError(
-                f"latent_dim: 'auto' cross-validates over touches within objects and needs at "
-                f"least 4 touches of every object; this dataset has an object with {fewest}.",
-                field="latent_dim",
-            )
-        row = crud.create_model(
-            session,
-            dataset_id=body.dataset_id,
-            status="fitting",
-            latent_dim=0 if body.latent_dim == "auto" else body.latent_dim,
-            optimizer=body.optimizer,
-            restarts=body.restarts,
-            seed=body.seed,
-        )
-        session.commit()
-        self._events.publish(
-            "model.status", {"model_id": row.id, "status": "fitting", "dataset_id": row.dataset_id}
-        )
-        self._executor.submit(self._fit, row.id, data, body)
-        return ModelAccepted(id=row.id, status="fitting")
-
-    def _check_size(self, n_touches: int, field: str) -> None:
+    def check_size(self, n_touches: int, field: str) -> None:
+        """Refuse (422 naming ``field``) more touches than this server fits."""
         if n_touches > self._max_touches:
             raise BadInputError(
                 f"{field}: {n_touches} touches is more than this server fits "
@@ -303,145 +279,15 @@ class ModelStore:
                 field=field,
             )
 
-    def _fit(self, model_id: int, data: TrainingData, body: ModelCreate) -> None:
-        try:
-            self._run_fit(model_id, data, body)
-        except Exception as exc:  # a bug must still leave the model failed, not "fitting"
-            logger.exception("fit of model %d failed", model_id)
-            self._finish_failed(model_id, f"internal error: {type(exc).__name__}: {exc}")
-
-    def _run_fit(self, model_id: int, data: TrainingData, body: ModelCreate) -> None:
-        options_kwargs: dict[str, Any] = {"optimizer": body.optimizer, "restarts": body.restarts}
-        if body.max_iterations is not None:
-            options_kwargs["max_iterations"] = body.max_iterations
-        options = FitOptions(**options_kwargs)
-        rng = np.random.default_rng(body.seed)
-        started = time.perf_counter()
-        last_report = 0.0
-        fitted: ManifoldModel | None = None
-        selection: dict[str, Any] | None = None
-        try:
-            latent_dim = body.latent_dim
-            if latent_dim == "auto":
-                chosen = self._select_latent_dim(model_id, data, body, options, rng, started)
-                if chosen is None:
-                    self._finish_failed(model_id, "server shut down during the fit")
-                    return
-                selection = latent_selection_dict(chosen)
-                latent_dim = chosen.chosen
-            for progress in iter_fit(data, latent_dim, rng, options, body.noise_model):
-                if self._closing.is_set():
-                    self._finish_failed(model_id, "server shut down during the fit")
-                    return
-                if progress.model is not None:
-                    fitted = progress.model
-                now = time.perf_counter()
-                if now - last_report >= PROGRESS_INTERVAL_S or progress.model is not None:
-                    last_report = now
-                    self._report(model_id, progress, now - started)
-        except (CoreError, ValueError, ArithmeticError) as exc:
-            self._finish_failed(model_id, f"{type(exc).__name__}: {exc}")
-            return
-        if fitted is None:
-            self._finish_failed(model_id, "the fit ended without a model")
-            return
-        fit_seconds = time.perf_counter() - started
-        with self._database.session() as session:
-            row = require(session, model_id)
-            store_fitted(row, fitted, fit_seconds, selection)
-            session.commit()
-        with self._lock:
-            self._remember(model_id, fitted)
-        self._events.publish(
-            "model.status",
-            {
-                "model_id": model_id,
-                "status": "ready",
-                "log_likelihood": float(fitted.log_likelihood),
-                "fit_seconds": fit_seconds,
-            },
-        )
-
-    def _select_latent_dim(
-        self,
-        model_id: int,
-        data: TrainingData,
-        body: ModelCreate,
-        options: FitOptions,
-        rng: np.random.Generator,
-        started: float,
-    ) -> LatentSelection | None:
-        """Cross-validate ds (``None`` if the server is closing). The folds use the requested
-        noise model, "independent" for "auto" (it is decided by the final fit)."""
-        fold_noise: NoiseModelChoice = (
-            "independent" if body.noise_model == "auto" else body.noise_model
-        )
-        n_folds = min(DEFAULT_FOLDS, int(data.touches_per_object().min()) - 2)
-        n_candidates = min(5, data.n_objects - 1)
-        done = [0]
-
-        def fit_fold(train: TrainingData, ds: int, starts: tuple[FloatArray, ...]) -> ManifoldModel:
-            if self._closing.is_set():
-                raise _ClosingError()
-            started_from = dataclasses.replace(options, initial_latents=starts)
-            return fit_manifold(train, ds, rng, started_from, noise_model=fold_noise)
-
-        def report(ds: int, fold: int, score: float) -> None:
-            done[0] += 1
-            progress = FitProgress(
-                start=done[0],
-                n_starts=n_folds * n_candidates,
-                iteration=0,
-                log_likelihood=score,
-                best_log_likelihood=float("-inf"),
-                phase=f"latent selection: ds={ds}, fold {fold + 1}/{n_folds}",
-            )
-            self._report(model_id, progress, time.perf_counter() - started)
-
-        try:
-            return select_latent_dim(data, fit_fold, rng, n_folds=n_folds, callback=report)
-        except _ClosingError:
-            return None
-
-    def _report(self, model_id: int, progress: Any, elapsed_s: float) -> None:
-        values = {
-            "start": int(progress.start),
-            "n_starts": int(progress.n_starts),
-            "iteration": int(progress.iteration),
-            "phase": str(getattr(progress, "phase", "")),
-            "log_likelihood": _finite_or_none(progress.log_likelihood),
-            "best_log_likelihood": _finite_or_none(progress.best_log_likelihood),
-            "elapsed_s": elapsed_s,
-        }
-        with self._database.session() as session:
-            row = require(session, model_id)
-            row.progress = values
-            session.commit()
-        self._events.publish("model.progress", {"model_id": model_id, **values})
-
-    def _finish_failed(self, model_id: int, reason: str) -> None:
-        with self._database.session() as session:
-            row = require(session, model_id)
-            row.status = "failed"
-            row.reason = reason
-            row.finished_at = utc_now()
-            session.commit()
-        self._events.publish(
-            "model.status", {"model_id": model_id, "status": "failed", "reason": reason}
-        )
-
-    def close(self) -> None:
-        """Stop running fits (they end ``failed``) and wait for the worker."""
-        self._closing.set()
-        self._executor.shutdown(wait=True, cancel_futures=True)
-
     # --- use ----------------------------------------------------------------------------------
 
-    def _remember(self, model_id: int, model: ManifoldModel) -> None:
-        self._cache[model_id] = model
-        self._cache.move_to_end(model_id)
-        while len(self._cache) > self._cache_size:
-            self._cache.popitem(last=False)
+    def remember(self, model_id: int, model: ManifoldModel) -> None:
+        """Keep a fitted model for use (the least recently kept of too many is dropped)."""
+        with self._lock:
+            self._cache[model_id] = model
+            self._cache.move_to_end(model_id)
+            while len(self._cache) > self._cache_size:
+                self._cache.popitem(last=False)
 
     def load(self, session: Session, model_id: int) -> ManifoldModel:
         """The fitted model, ready to predict and plan.
@@ -489,8 +335,7 @@ class ModelStore:
                 f"{type(exc).__name__}: {exc}",
                 model_id=model_id,
             ) from exc
-        with self._lock:
-            self._remember(model_id, model)
+        self.remember(model_id, model)
         return model
 
     def export_document(self, session: Session, model_id: int) -> dict[str, Any]:
@@ -508,7 +353,7 @@ class ModelStore:
         """
         training = document.get("training_data")
         if isinstance(training, dict) and isinstance(training.get("actions"), list):
-            self._check_size(len(training["actions"]), "training_data.actions")
+            self.check_size(len(training["actions"]), "training_data.actions")
         try:
             model = model_from_document(document)
         except DocumentError:
@@ -539,16 +384,7 @@ class ModelStore:
             selection if isinstance(selection, dict) else None,
         )
         session.commit()
-        with self._lock:
-            self._remember(row.id, model)
+        self.remember(row.id, model)
         self._events.publish("model.status", {"model_id": row.id, "status": "ready"})
         session.refresh(row)
         return to_public(row)
-
-
-def _finite_or_none(value: Any) -> float | None:
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        return None
-    return number if np.isfinite(number) else None

@@ -2,10 +2,12 @@
 
 - The rig is built on first use from the settings (``hardware=mock``: an in-process simulated
   rig with the paper's four cups and three more objects; ``serial``: the configured ports).
-- Operator actions (connect, home, turntable) take the rig for their duration; a run (a rig
-  trial or a collection) holds it from start to end. A second taker gets a 409 naming the holder
-  (:class:`app.services.runs.RunManager`).
-- ``estop`` works in any state and bypasses every lock; it also asks the run holding the rig to
+- Who holds the rig is recorded in one place, the rig's lease (:meth:`RigService.take`,
+  :class:`hardware.rig.RigLease`). Operator actions (connect, home, turntable) take it for their
+  duration; a job that drives the rig (a rig trial or a collection) takes it when it is created
+  and the job runner (:mod:`app.services.jobs`) gives it back when the job ends. A second taker
+  gets a 409 naming the holder.
+- ``estop`` works in any state and bypasses every lock; it also asks the job holding the rig to
   abort.
 """
 
@@ -19,17 +21,17 @@ from typing import Any
 import numpy as np
 
 from app.config import Settings
-from app.errors import DeviceUnavailableError
+from app.errors import ConflictError, DeviceUnavailableError
 from app.rig_factory import RigHandle, RigPorts, SimulationMode, TouchActions, open_rig
 from app.schemas import RigPublic
 from app.services.events import EventBus
-from app.services.runs import RunManager
+from app.services.jobs import JobRunner
 from app.services.touch import Touch
 from core.validation import FloatArray
-from hardware.errors import HardwareError
+from hardware.errors import HardwareError, RigBusy
 from hardware.records import TouchRecord
 from hardware.rig import RigLease, RigState
-from hardware.sim.materials import get_table
+from hardware.sim.materials import Table
 
 OPERATOR = "operator"
 
@@ -91,15 +93,20 @@ class RigService:
     """Owns this server's rig.
 
     Args:
-        settings: ``hardware`` and the device ports.
-        runs: The run manager (who holds the rig).
+        settings: ``hardware``, the device ports and the simulated table.
+        jobs: The job runner (the job holding the rig is told of an emergency stop).
         events: Where rig state changes are announced.
+
+    Raises:
+        app.config.ConfigurationError: The simulated table is unusable.
     """
 
-    def __init__(self, settings: Settings, runs: RunManager, events: EventBus) -> None:
+    def __init__(self, settings: Settings, jobs: JobRunner, events: EventBus) -> None:
         self._settings = settings
-        self._runs = runs
+        self._jobs = jobs
         self._events = events
+        #: The simulated table (``mock`` hardware's, and simulated rig trials').
+        self.simulated_table: Table = settings.simulated_table()
         self._lock = threading.Lock()
         self._handle: RigHandle | None = None
         self._actions: TouchActions | None = None
@@ -120,7 +127,7 @@ class RigService:
     def _open(self) -> RigHandle:
         s = self._settings
         if s.hardware == "mock":
-            return open_rig(simulate=SimulationMode.in_process, table=s.sim_table, seed=0)
+            return open_rig(simulate=SimulationMode.in_process, table=self.simulated_table, seed=0)
         missing = [
             name
             for name, port in (
@@ -151,7 +158,7 @@ class RigService:
     @property
     def sim_table(self) -> tuple[str, ...]:
         """The objects of the simulated table (``mock`` hardware's, and simulated rig trials')."""
-        return get_table(self._settings.sim_table).objects
+        return self.simulated_table.objects
 
     @property
     def action_dim(self) -> int:
@@ -181,7 +188,7 @@ class RigService:
                 hardware=self._settings.hardware,
                 connected=False,
                 state="disconnected",
-                held_by=self._runs.rig_holder,
+                held_by=None,
                 detail={"objects_by_slot": None},
             )
         status = handle.rig.status()
@@ -190,7 +197,7 @@ class RigService:
             connected=status.state
             not in (RigState.DISCONNECTED, RigState.FAULT, RigState.ESTOPPED),
             state=str(status.state),
-            held_by=self._runs.rig_holder or status.lease_owner,
+            held_by=status.lease_owner,
             detail={
                 "slot": status.slot,
                 "table_angle_deg": status.table_angle_deg,
@@ -208,31 +215,49 @@ class RigService:
         self._events.publish("rig.state", public.model_dump(mode="json"))
         return public
 
+    @property
+    def holder(self) -> str | None:
+        """Who holds the rig's lease (``trial 3``, ``collection 5``, ``operator``), if anyone."""
+        with self._lock:
+            handle = self._handle
+        return None if handle is None else handle.rig.status().lease_owner
+
+    def take(self, owner: str) -> RigLease:
+        """Take the rig's lease for ``owner`` (building the rig if needed); release it when done.
+
+        Raises:
+            ConflictError: (409) someone holds it (``held_by`` names them).
+            DeviceUnavailableError: (503) serial hardware without its ports.
+        """
+        try:
+            return self.handle().rig.acquire(owner)
+        except RigBusy as exc:
+            raise ConflictError(
+                f"The rig is in use by {exc.owner}; stop it or wait for it to finish.",
+                held_by=exc.owner,
+            ) from exc
+
+    @staticmethod
+    def ensure_connected(lease: RigLease) -> None:
+        """Connect the rig through ``lease`` if it is disconnected."""
+        if lease.rig.state is RigState.DISCONNECTED:
+            lease.connect()
+
     @contextmanager
     def lease(self, owner: str) -> Iterator[RigLease]:
-        """Hold the rig for ``owner`` (409 if a run holds it); connect it if needed."""
-        self._runs.reserve_rig(owner)
-        try:
-            rig = self.handle().rig
-            with rig.acquire(owner) as lease:
-                if rig.state is RigState.DISCONNECTED:
-                    lease.connect()
-                yield lease
-        finally:
-            self._runs.release_rig(owner)
+        """Hold the rig for ``owner`` (409 if someone holds it); connect it if needed."""
+        with self.take(owner) as lease:
+            self.ensure_connected(lease)
+            yield lease
 
     def connect(self) -> RigPublic:
         """Connect the devices, or recover after an emergency stop or a fault."""
-        self._runs.reserve_rig(OPERATOR)
-        try:
-            rig = self.handle().rig
-            with rig.acquire(OPERATOR) as lease:
-                if rig.estopped or rig.state is RigState.FAULT:
-                    lease.recover()
-                elif rig.state is RigState.DISCONNECTED:
-                    lease.connect()
-        finally:
-            self._runs.release_rig(OPERATOR)
+        with self.take(OPERATOR) as lease:
+            rig = lease.rig
+            if rig.estopped or rig.state is RigState.FAULT:
+                lease.recover()
+            elif rig.state is RigState.DISCONNECTED:
+                lease.connect()
         return self._announce()
 
     def home(self) -> RigPublic:
@@ -254,15 +279,12 @@ class RigService:
         return self.status()
 
     def estop(self) -> RigPublic:
-        """Emergency stop: works in any state, takes no lock; aborts the run holding the rig."""
-        # The run is told first, so that the fault the e-stop causes in its touch reads as an
+        """Emergency stop: works in any state, takes no lock; aborts the job holding the rig."""
+        # The job is told first, so that the fault the e-stop causes in its touch reads as an
         # abort by the operator, not a device failure.
-        holder = self._runs.rig_holder
-        if holder is not None:
-            kind, _, run_id = holder.partition(" ")
-            live = self._runs.handle(kind, int(run_id)) if run_id.isdigit() else None
-            if live is not None:
-                live.request_stop("aborted")
+        job = self._jobs.rig_job()
+        if job is not None:
+            job.request_stop("aborted")
         with self._lock:
             handle = self._handle
         if handle is not None:

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from sqlalchemy.orm import Session
 
-from app import crud
+from app import crud, states
 from app.config import Settings
 from app.db import Database
 from app.errors import AppError, BadInputError, ConflictError
@@ -32,11 +32,10 @@ from app.schemas import (
     TrialCreate,
     TrialPublic,
 )
-from app.services import states
 from app.services.events import EventBus
+from app.services.jobs import INTERRUPTED, Job, JobCancelled, JobRunner
 from app.services.models import ModelStore
 from app.services.rig import RigService
-from app.services.runs import RunCancelled, RunHandle, RunManager
 from app.services.trial_views import require, step_public, to_public, trial_result
 from app.services.worlds import Touch, TouchSource, WorldFactory
 from core.errors import CoreError, InvalidInputError
@@ -81,7 +80,7 @@ class TrialService:
         database: Where trials live.
         events: Where steps and states are announced.
         models: Loads fitted models.
-        runs: Owns background runs and the rig.
+        jobs: Runs the simulated and rig trials.
         worlds: Makes the touch sources of simulated and rig trials.
         rig: This server's rig (slots of its simulated objects).
     """
@@ -92,7 +91,7 @@ class TrialService:
         database: Database,
         events: EventBus,
         models: ModelStore,
-        runs: RunManager,
+        jobs: JobRunner,
         worlds: WorldFactory,
         rig: RigService,
     ) -> None:
@@ -100,7 +99,7 @@ class TrialService:
         self._database = database
         self._events = events
         self._models = models
-        self._runs = runs
+        self._jobs = jobs
         self._worlds = worlds
         self._rig = rig
         self._planners: OrderedDict[tuple[Any, ...], tuple[ManifoldModel, Planner]] = OrderedDict()
@@ -178,10 +177,8 @@ class TrialService:
         if body.mode != "scripted":
             # Validates the world/rig and the target before anything is stored.
             self._worlds.check(body.mode, simulation, model, body.target, target_slot)
-        if body.mode == "rig" and self._runs.rig_holder is not None:
-            raise ConflictError(
-                f"The rig is in use by {self._runs.rig_holder}.", held_by=self._runs.rig_holder
-            )
+        if body.mode == "rig" and (holder := self._rig.holder) is not None:
+            raise ConflictError(f"The rig is in use by {holder}.", held_by=holder)
         trial = crud.create_trial(
             session,
             model_id=body.model_id,
@@ -204,15 +201,20 @@ class TrialService:
             raise BadInputError(str(exc), field="action_bounds") from exc
         if body.mode == "scripted":
             crud.set_trial_status(session, trial, "running")
+        lease = None
+        if body.mode == "rig":
+            try:
+                lease = self._rig.take(f"trial {trial.id}")
+            except AppError:
+                session.rollback()  # nothing of the refused trial is kept
+                raise
         session.commit()
         self._announce_status(trial)
         if body.mode != "scripted":
+            trial_id = trial.id
             try:
-                self._runs.start(
-                    "trial",
-                    trial.id,
-                    lambda handle: self._drive(handle, trial.id),
-                    holds_rig=body.mode == "rig",
+                self._jobs.start(
+                    "trial", trial_id, lambda job: self._drive(job, trial_id), lease=lease
                 )
             except AppError as exc:
                 self._fail(trial.id, f"could not start: {exc.message}")
@@ -306,7 +308,7 @@ class TrialService:
 
     def next_action(self, session: Session, trial_id: int) -> NextAction:
         """The planner's advice for the next touch of a scripted trial."""
-        with self._runs.run_lock("trial", trial_id):
+        with self._jobs.run_lock("trial", trial_id):
             trial = require(session, trial_id)
             self._require_scripted_running(trial)
             live = self._live(session, trial)
@@ -319,7 +321,7 @@ class TrialService:
 
     def observe(self, session: Session, trial_id: int, body: ObservationIn) -> ObservationResult:
         """Record a touch the caller performed and update the beliefs."""
-        with self._runs.run_lock("trial", trial_id):
+        with self._jobs.run_lock("trial", trial_id):
             trial = require(session, trial_id)
             self._require_scripted_running(trial)
             live = self._live(session, trial)
@@ -422,7 +424,7 @@ class TrialService:
 
     def control(self, session: Session, trial_id: int, action: states.Action) -> TrialPublic:
         """Pause, resume, stop or abort a trial (409 with the current state if not allowed)."""
-        with self._runs.run_lock("trial", trial_id):
+        with self._jobs.run_lock("trial", trial_id):
             trial = require(session, trial_id)
             target = states.check_action(f"trial {trial_id}", trial.status, action)
             crud.set_trial_status(session, trial, target, reason=f"{action} requested")
@@ -431,7 +433,7 @@ class TrialService:
                 if steps:
                     self._set_result(trial, steps[-1].answer)
             session.commit()
-            handle = self._runs.handle("trial", trial_id)
+            handle = self._jobs.handle("trial", trial_id)
             if handle is not None:
                 if action == "pause":
                     handle.pause()
@@ -439,7 +441,7 @@ class TrialService:
                     handle.resume()
                 else:
                     handle.request_stop("stopped" if action == "stop" else "aborted")
-            if target in states.TERMINAL:
+            if target in states.FINISHED:
                 self._scripted.pop(trial_id, None)
         if action == "abort" and trial.mode == "rig":
             self._worlds.halt()
@@ -448,7 +450,7 @@ class TrialService:
 
     # --- simulated and rig trials -------------------------------------------------------------
 
-    def _drive(self, handle: RunHandle, trial_id: int) -> None:
+    def _drive(self, handle: Job, trial_id: int) -> None:
         """Worker: plan, touch, record, until done, stopped or failed.
 
         The write that ends the trial (its last step, or the failure) is made only after the
@@ -471,10 +473,11 @@ class TrialService:
                     trial.target,
                     trial.options.get("target_slot"),
                     owner=f"trial {trial_id}",
+                    lease=handle.lease,
                 )
                 interval_s = options.step_interval_s if options is not None else 0.0
                 rng = np.random.default_rng(trial.seed)
-                with self._runs.run_lock("trial", trial_id):
+                with self._jobs.run_lock("trial", trial_id):
                     session.refresh(trial)
                     if trial.status != "queued":
                         return
@@ -500,9 +503,9 @@ class TrialService:
                     return
                 record()
                 handle.sleep(interval_s)
-        except RunCancelled as cancelled:
+        except JobCancelled as cancelled:
             if cancelled.kind == "shutdown":
-                end = functools.partial(self._fail, trial_id, "server shut down")
+                end = functools.partial(self._fail, trial_id, INTERRUPTED)
             else:  # normally already set by the request; an e-stop only tells the handle
                 end = functools.partial(
                     self._fail, trial_id, f"{cancelled.kind} by the operator", cancelled.kind
@@ -525,7 +528,8 @@ class TrialService:
         finally:
             if source is not None:
                 source.close()
-            self._runs.release_rig(handle.label)
+            if handle.lease is not None:
+                handle.lease.release()
             if end is not None:
                 self._end(trial_id, end)
 
@@ -548,7 +552,7 @@ class TrialService:
         trajectory: dict[str, Any] | None,
         duration_s: float,
     ) -> None:
-        with self._runs.run_lock("trial", trial_id), self._database.session() as session:
+        with self._jobs.run_lock("trial", trial_id), self._database.session() as session:
             trial = require(session, trial_id)
             row = self._store_step(session, trial, model, step, trajectory, duration_s)
             session.commit()
@@ -556,7 +560,7 @@ class TrialService:
 
     def _fail(self, trial_id: int, reason: str, status: str = "failed") -> None:
         """End a trial that is still active (a stop request may have ended it already)."""
-        with self._runs.run_lock("trial", trial_id), self._database.session() as session:
+        with self._jobs.run_lock("trial", trial_id), self._database.session() as session:
             trial = crud.get_trial(session, trial_id)
             if trial is None or trial.status not in states.ACTIVE:
                 return

@@ -18,7 +18,7 @@ from app.services.touch import Touch, TouchSource
 from core.types import ManifoldModel
 from core.validation import FloatArray
 from core.worlds import Experiment1World, World, random_experiment2_world
-from hardware.rig import RigState
+from hardware.rig import RigLease
 
 __all__ = ["Touch", "TouchSource", "WorldFactory", "WorldTouchSource", "make_world"]
 
@@ -131,8 +131,14 @@ class WorldFactory:
         target: str | None,
         target_slot: int | None,
         owner: str,
+        lease: RigLease | None = None,
     ) -> TouchSource:
-        """The touch source for a trial (checked by :meth:`check` at creation)."""
+        """The touch source for a trial (checked by :meth:`check` at creation).
+
+        ``owner`` names the trial to a simulated rig; a ``rig`` trial drives this server's rig
+        through ``lease``, taken when the trial was created (the source's ``close`` gives it
+        back).
+        """
         self.check(mode, simulation, model, target, target_slot)
         if mode == "simulated":
             options = simulation or SimulationOptions()
@@ -141,7 +147,7 @@ class WorldFactory:
                 return WorldTouchSource(world, _target_index(world.object_names, target))
             handle = open_rig(
                 simulate=SimulationMode.in_process,
-                objects=self._rig.sim_table,
+                objects=self._rig.simulated_table.slots,
                 seed=options.world_seed,
             )
             try:
@@ -153,14 +159,9 @@ class WorldFactory:
                 raise
             return RigTouchSource(lease, self._rig.actions(), slot, release=handle.close)
         assert target_slot is not None
-        rig = self._rig.handle().rig
-        lease = rig.acquire(owner, timeout_s=30.0)
-        try:
-            if rig.state is RigState.DISCONNECTED:
-                lease.connect()
-        except BaseException:
-            lease.release()
-            raise
+        if lease is None:
+            raise ValueError("a rig trial drives the rig through the lease it was created with.")
+        self._rig.ensure_connected(lease)
         return RigTouchSource(lease, self._rig.actions(), target_slot)
 
     def halt(self) -> None:

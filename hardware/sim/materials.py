@@ -263,11 +263,12 @@ block, a soft open-cell foam sponge)."""
 
 @dataclass(frozen=True)
 class Table:
-    """A named set of objects for the simulated turntable.
+    """A set of objects for the simulated turntable: a named one, or one read from a file
+    (:mod:`hardware.sim.table_file`).
 
     Attributes:
         name: Table name (``--table NAME``).
-        objects: Preset object names, slot 0 first.
+        slots: What stands on the turntable, slot 0 first (slots 0..n-1 are filled).
         description: What the table is for.
         action_std: Spread (std per action component) of a random collection design suited to
             the table: wide enough that random touches show what separates its objects, narrow
@@ -275,9 +276,30 @@ class Table:
     """
 
     name: str
-    objects: tuple[str, ...]
-    description: str
+    slots: tuple[TactileObject, ...]
+    description: str = ""
     action_std: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not self.slots:
+            raise ConfigurationError(f"table {self.name!r}: no objects.")
+        names = self.objects
+        repeated = sorted({n for n in names if names.count(n) > 1})
+        if repeated:
+            raise ConfigurationError(f"table {self.name!r}: objects {repeated} appear twice.")
+        if not (math.isfinite(self.action_std) and self.action_std > 0):
+            raise ConfigurationError(
+                f"table {self.name!r}: action_std must be positive, received {self.action_std}."
+            )
+
+    @property
+    def objects(self) -> tuple[str, ...]:
+        """The objects' names, slot 0 first."""
+        return tuple(item.name for item in self.slots)
+
+
+def _presets(names: tuple[str, ...]) -> tuple[TactileObject, ...]:
+    return tuple(OBJECTS[name] for name in names)
 
 
 TABLES: dict[str, Table] = {
@@ -285,13 +307,13 @@ TABLES: dict[str, Table] = {
     for table in (
         Table(
             "default",
-            DEFAULT_TABLE,
+            _presets(DEFAULT_TABLE),
             "The paper's four cups, a glazed mug, a wooden block and a foam sponge: objects that "
             "differ in kind (any touch tells them apart).",
         ),
         Table(
             "paper",
-            PAPER_CUPS,
+            _presets(PAPER_CUPS),
             "The paper's four cups (Fig. 6a: O1..O4).",
             # At 1, an active touch at the corner of the action box pressed deep enough into
             # the rigid cups to overload the simulated FFJ3 servo.
@@ -299,14 +321,14 @@ TABLES: dict[str, Table] = {
         ),
         Table(
             "lookalike_cups",
-            ("pet_cup", "pet_cup_stiff", "pet_cup_waxed", "pet_cup_water"),
+            _presets(("pet_cup", "pet_cup_stiff", "pet_cup_waxed", "pet_cup_water")),
             "One clear plastic cup and three look-alikes, each changed in one property: a "
             "thicker wall (stiffness), a wax film (friction, not heat), water behind the wall "
             "(heat, felt after ~3 s of contact).",
         ),
         Table(
             "cushions",
-            ("cushion_plain", "cushion_rubber", "cushion_cork", "cushion_wood"),
+            _presets(("cushion_plain", "cushion_rubber", "cushion_cork", "cushion_wood")),
             "Four cushions with one foam cover: plain, or with a rubber sheet, a cork board or "
             "a wooden board 5.5 mm under the surface. Only a press deep enough to reach the "
             "insert tells them apart.",
@@ -315,7 +337,7 @@ TABLES: dict[str, Table] = {
         ),
         Table(
             "textures",
-            ("texture_20um", "texture_30um", "texture_45um", "texture_70um"),
+            _presets(("texture_20um", "texture_30um", "texture_45um", "texture_70um")),
             "One micro-textured steel plate at four pitches: the same material, relief and "
             "heat; only the vibration's frequency (sliding speed / pitch) differs.",
             action_std=0.75,  # rigid plates: deeper presses overload FFJ3 (docs/simulation.md)
@@ -327,23 +349,30 @@ TABLES: dict[str, Table] = {
 DEFAULT_TABLE_NAME = "default"
 
 
-def get_table(name: str) -> Table:
-    """A named table.
+def get_table(table: str | Table) -> Table:
+    """A named table, or ``table`` itself when it is one already (read from a file).
 
     Raises:
         ConfigurationError: Unknown name (the message lists the tables).
     """
+    if isinstance(table, Table):
+        return table
     try:
-        return TABLES[name]
+        return TABLES[table]
     except KeyError:
-        raise ConfigurationError(f"unknown table {name!r}; tables: {', '.join(TABLES)}.") from None
+        raise ConfigurationError(f"unknown table {table!r}; tables: {', '.join(TABLES)}.") from None
 
 
-def design_std(table: str, given: float | None = None) -> float:
+def table_name(table: str | Table) -> str:
+    """The name of a table given by name or as itself."""
+    return table.name if isinstance(table, Table) else table
+
+
+def design_std(table: str | Table, given: float | None = None) -> float:
     """The spread (std per action component) of a random collection design on a table.
 
     Args:
-        table: Table name.
+        table: Table name, or a table read from a file.
         given: The spread asked for; ``None`` takes the table's own :attr:`Table.action_std`.
 
     Raises:

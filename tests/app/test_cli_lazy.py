@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 from app.cli.bench import bench_command
 from app.cli.demo import demo_command
 from app.cli.main import app
-from app.cli.rig import SimulationName
+from app.cli.options import SimulationName
 from app.cli.serve import serve_command
 from app.rig_factory import SimulationMode
 from tests.app.conftest import experiment1_csv

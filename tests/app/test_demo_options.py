@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import json
+from dataclasses import replace
+from pathlib import Path
+
 from app.cli.demo import DEMO_DATASET_NAME, DemoOptions, DemoServer
 from hardware.sim.materials import get_table
+from hardware.sim.table_file import table_document
 
 
 def test_the_demo_collects_the_cushions_at_their_own_action_spread() -> None:
@@ -23,3 +28,13 @@ def test_a_given_spread_or_table_wins() -> None:
     assert paper.action_scale == 0.75
     default = DemoServer(DemoOptions(table="default", open_browser=False))
     assert default.dataset_name == DEMO_DATASET_NAME
+
+
+def test_a_table_file_gives_the_demo_its_objects_and_spread(tmp_path: Path) -> None:
+    path = tmp_path / "shelf.json"
+    path.write_text(json.dumps({**table_document(get_table("cushions")), "name": "shelf"}))
+    server = DemoServer(DemoOptions(table_file=path, open_browser=False))
+    assert server.settings.sim_table_file == path
+    assert server.table == replace(get_table("cushions"), name="shelf")
+    assert server.action_scale == 1.5
+    assert server.dataset_name == f"{DEMO_DATASET_NAME} (shelf)"

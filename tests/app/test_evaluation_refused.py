@@ -10,7 +10,7 @@ import pytest
 
 from app.errors import DeviceUnavailableError
 from app.evaluation import runner as evaluation_runner
-from app.evaluation.context import TrialContext, TrialKey, rig_tables
+from app.evaluation.context import TrialContext, TrialKey, rig_table
 from app.evaluation.rig_trial import RigTrial
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
@@ -66,7 +66,7 @@ class RefusingContext(TrialContext):
     def open_rig_trial(self, key: TrialKey, rig_seed: int) -> RigTrial:
         if key not in REFUSED_KEYS:
             return super().open_rig_trial(key, rig_seed)
-        objects = rig_tables()[self.spec.table or "default"]
+        objects = rig_table(self.spec.table).slots
         return self.trial_type(self._rig_actions(), objects, key[1], rig_seed)
 
 

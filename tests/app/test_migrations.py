@@ -71,12 +71,9 @@ def test_models_of_revision_0001_upgrade_and_load_as_before(tmp_path: Path) -> N
     try:
         upgrade_to_head(database.engine, settings.migrations_dir)
         store = ModelStore(database, EventBus(database))
-        try:
-            with database.session() as session:
-                document = json.loads(json.dumps(model_to_document(sparse)))
-                model_id = store.import_document(session, document).id
-        finally:
-            store.close()
+        with database.session() as session:
+            document = json.loads(json.dumps(model_to_document(sparse)))
+            model_id = store.import_document(session, document).id
         # Back to 0001 (the column goes, the row stays), then up again: the row has no record.
         migrate(database, settings.migrations_dir, "0001", down=True)
         assert revision_of(database) == "0001"
@@ -87,15 +84,12 @@ def test_models_of_revision_0001_upgrade_and_load_as_before(tmp_path: Path) -> N
         assert revision_of(database) == head_revision(settings.migrations_dir)
         assert "posterior" in model_columns(database)
         store = ModelStore(database, EventBus(database))
-        try:
-            with database.session() as session:
-                row = session.get(ModelRecord, model_id)
-                assert row is not None
-                assert row.status == "ready"
-                assert row.posterior is None
-                old = store.load(session, model_id)
-        finally:
-            store.close()
+        with database.session() as session:
+            row = session.get(ModelRecord, model_id)
+            assert row is not None
+            assert row.status == "ready"
+            assert row.posterior is None
+            old = store.load(session, model_id)
     finally:
         database.dispose()
     assert old.posterior.structure == auto.posterior.structure == "dense"

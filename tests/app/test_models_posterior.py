@@ -95,18 +95,15 @@ def test_evicted_model_predicts_as_imported(client: TestClient, which: str) -> N
     context = client.app.state.context  # type: ignore[attr-defined]
     # A store with an empty cache of one model: the second load evicts the first.
     store = ModelStore(context.database, EventBus(context.database), cache_size=1)
-    try:
-        other_id = import_document(client, condition(random_data(), LATENTS, HYPER))
-        with context.database.session() as session:
-            row = session.get(ModelRecord, model_id)
-            assert row is not None
-            assert row.posterior == posterior_field(original.posterior)
-            first = store.load(session, model_id)
-            store.load(session, other_id)  # evicts model_id
-            rebuilt = store.load(session, model_id)
-            exported = store.export_document(session, model_id)
-    finally:
-        store.close()
+    other_id = import_document(client, condition(random_data(), LATENTS, HYPER))
+    with context.database.session() as session:
+        row = session.get(ModelRecord, model_id)
+        assert row is not None
+        assert row.posterior == posterior_field(original.posterior)
+        first = store.load(session, model_id)
+        store.load(session, other_id)  # evicts model_id
+        rebuilt = store.load(session, model_id)
+        exported = store.export_document(session, model_id)
     assert rebuilt is not first  # really rebuilt from the row
     for model in (first, rebuilt):
         assert model.posterior.structure == original.posterior.structure
@@ -175,14 +172,11 @@ def test_a_corrupted_row_is_a_server_error_naming_the_model(client: TestClient) 
         row.posterior = {"structure": "kronecker"}  # random data: not a shared design
         session.commit()
     store = ModelStore(context.database, EventBus(context.database))
-    try:
-        with (
-            context.database.session() as session,
-            pytest.raises(StoredModelError, match=f"Model {model_id} cannot be rebuilt") as info,
-        ):
-            store.load(session, model_id)
-    finally:
-        store.close()
+    with (
+        context.database.session() as session,
+        pytest.raises(StoredModelError, match=f"Model {model_id} cannot be rebuilt") as info,
+    ):
+        store.load(session, model_id)
     assert "model row: " in str(info.value)  # the recorded structure does not fit the data
 
 

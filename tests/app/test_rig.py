@@ -282,7 +282,7 @@ def test_a_collection_seen_ended_no_longer_holds_the_rig(
     finish = CollectionService._finish
 
     def finish_and_note(self: CollectionService, *args: Any) -> None:
-        holders.append(self._runs.rig_holder)  # who holds the rig as the run is ended
+        holders.append(self._rig.holder)  # who holds the rig as the run is ended
         finish(self, *args)
 
     monkeypatch.setattr(CollectionService, "_finish", finish_and_note)

@@ -60,7 +60,7 @@ def test_a_coated_surface_feels_like_its_coating_then_like_its_body() -> None:
 def test_open_rig_takes_a_table_name() -> None:
     handle = open_rig(simulate=SimulationMode.in_process, table="lookalike_cups")
     try:
-        assert handle.table == "lookalike_cups"
+        assert handle.table is TABLES["lookalike_cups"]
         assert handle.object_names == list(TABLES["lookalike_cups"].objects)
     finally:
         handle.close()

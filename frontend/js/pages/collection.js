@@ -6,8 +6,8 @@ import { compactNumber, lineChart } from "../charts.js";
 import { etaSeconds, formatDuration, normalizeTrace } from "../lib/analysis.js";
 import * as store from "../store.js";
 import { $, badge, el, fill, guarded, throttle, toast, vec } from "../ui.js";
+import { ACTIVE } from "../states.js";
 
-const ACTIVE = ["queued", "running", "paused"];
 let run = null; // the collection on show
 
 // What each action design (the API's action_design) does, shown under the select.

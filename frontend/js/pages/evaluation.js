@@ -7,8 +7,8 @@ import { api, apiList } from "../api.js";
 import { colorOf, compactNumber, renderChart } from "../charts.js";
 import * as store from "../store.js";
 import { $, badge, el, fill, guarded, num, setOptions, throttle, toast } from "../ui.js";
+import { ACTIVE } from "../states.js";
 
-const ACTIVE = ["queued", "running", "paused"];
 const SHOWN_TRIALS = 500; // finished trials listed (the newest)
 const POLICY_COLORS = { active: "#1f5fbf", discriminative: "#2e9e5b", passive: "#d9822b" };
 let evaluation = null; // GET /evaluations/{id}

@@ -5,10 +5,10 @@
 import { api, apiList, download } from "../api.js";
 import { lineChart } from "../charts.js";
 import { accuracyByTouches, isotropicCov, toCSV, trialRow } from "../lib/analysis.js";
+import { FINISHED } from "../states.js";
 import * as store from "../store.js";
 import { $, badge, el, fill, guarded, setOptions, throttle, timeOf, toast } from "../ui.js";
 
-const FINISHED = ["completed", "stopped", "aborted", "failed"];
 const POLICY_COLORS = { active: "#1f5fbf", passive: "#d9822b", fixed: "#7f7f7f" };
 const detailCache = new Map(); // finished trials never change
 let shown = []; // trial details currently listed

@@ -1,9 +1,11 @@
-// Models: fit a manifold (latent dim or auto, noise model, optimizer, restarts), its progress, the manifold plot with
-// object labels, the hyperparameters, export and import of the model document.
+// Models: fit a manifold (latent dim or auto, noise model, optimizer, restarts), its progress (or its
+// place in the queue of fits) and a stop, the manifold plot with object labels, the
+// hyperparameters, export and import of the model document.
 
 import { api } from "../api.js";
 import { manifoldChart } from "../charts.js";
 import { formatDuration } from "../lib/analysis.js";
+import { MODEL_ACTIVE } from "../states.js";
 import * as store from "../store.js";
 import { $, badge, el, fill, guarded, num, setOptions, throttle, timeOf, toast } from "../ui.js";
 
@@ -16,6 +18,18 @@ function progressText(model) {
   if (p.iteration !== undefined) parts.push(`iteration ${p.iteration}`);
   if (p.best_log_likelihood !== undefined && p.best_log_likelihood !== null) parts.push(`best log-lik ${num(p.best_log_likelihood, 6)}`);
   return parts.join(" · ") || "starting…";
+}
+
+function statusText(model) {
+  if (model.status === "queued" && model.queue_position) return `queued: number ${model.queue_position} in the queue of fits`;
+  if (model.status === "fitting") return `fitting: ${progressText(model)}`;
+  return model.status;
+}
+
+async function stopFit(id) {
+  await api(`/models/${id}/stop`, { method: "POST" });
+  toast(`Fit of model #${id} stopped.`, "ok");
+  await refreshList();
 }
 
 function progressFraction(model) {
@@ -44,22 +58,28 @@ async function refreshList() {
         },
         el("td", {}, m.id),
         el("td", {}, `#${m.dataset_id}`),
-        el("td", {}, m.status === "fitting" && m.latent_dim === 0 ? "auto" : m.latent_dim),
-        el("td", {}, badge(m.status)),
+        el("td", {}, MODEL_ACTIVE.includes(m.status) && m.latent_dim === 0 ? "auto" : m.latent_dim),
+        el("td", {}, badge(m.status), m.status === "queued" && m.queue_position ? el("span", { class: "small muted", "data-testid": "queue-position" }, ` #${m.queue_position}`) : ""),
         el("td", {}, num(m.log_likelihood, 6)),
         el("td", {}, m.fit_seconds !== null && m.fit_seconds !== undefined ? formatDuration(m.fit_seconds) : "—"),
       ),
     ),
   );
-  const fitting = models.filter((m) => m.status === "fitting");
+  // Fits not ended: the running ones with their progress, the queued ones with their place.
+  const active = models.filter((m) => MODEL_ACTIVE.includes(m.status)).sort((a, b) => a.id - b.id);
   fill(
     $("fit-progress"),
-    fitting.map((m) =>
+    active.map((m) =>
       el(
         "div",
-        { "data-testid": "fit-running" },
-        el("p", { class: "small" }, `Model #${m.id} fitting: ${progressText(m)}`),
-        el("div", { class: "progress" }, el("div", { class: "progress-bar", style: `width:${100 * progressFraction(m)}%` })),
+        { "data-testid": m.status === "fitting" ? "fit-running" : "fit-queued" },
+        el(
+          "p",
+          { class: "small" },
+          `Model #${m.id} ${statusText(m)} `,
+          el("button", { type: "button", class: "small", "data-testid": "fit-stop", onclick: (e) => guarded(() => stopFit(m.id), e.currentTarget) }, "Stop"),
+        ),
+        m.status === "fitting" ? el("div", { class: "progress" }, el("div", { class: "progress-bar", style: `width:${100 * progressFraction(m)}%` })) : "",
       ),
     ),
   );
@@ -112,7 +132,7 @@ export async function select(id) {
   fill(
     $("model-facts"),
     [
-      ["status", model.status + (model.reason ? ` — ${model.reason}` : "")],
+      ["status", statusText(model) + (model.reason ? ` — ${model.reason}` : "")],
       ["objects", model.objects.map((o) => o.name).join(", ")],
       ["optimizer", `${model.optimizer}, ${model.restarts} restarts, seed ${model.seed ?? "—"}`],
       ["log-likelihood", num(model.log_likelihood, 8)],
@@ -160,7 +180,7 @@ async function fit() {
   };
   if ($("fit-seed").value !== "") body.seed = Number($("fit-seed").value);
   const created = await api("/models", { method: "POST", body });
-  toast(`Model #${created.id} is fitting in the background.`, "ok");
+  toast(created.status === "queued" ? `Model #${created.id} is queued: number ${created.queue_position} in the queue of fits.` : `Model #${created.id} is fitting in the background.`, "ok");
   selected = created.id;
   await refreshList();
 }

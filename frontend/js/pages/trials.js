@@ -11,8 +11,8 @@ import { formatDuration, isotropicCov, normalizeTrajectory, rankedProbabilities 
 import * as store from "../store.js";
 import { fact, renderEvaluationTrial } from "./evaluation_trial.js";
 import { $, badge, el, fill, guarded, num, setOptions, throttle, toast, vec } from "../ui.js";
+import { ACTIVE } from "../states.js";
 
-const ACTIVE = ["queued", "running", "paused"];
 let trial = null; // GET /trials/{id}
 let trialModel = null; // GET /models/{id} of that trial
 let plannedTrajectory = null; // from a plan event, if the server sends one
