@@ -65,6 +65,7 @@ from core.noise_model import standardised_residuals as loo_residuals
 from core.posterior import predict_model_space
 from core.types import ManifoldModel
 from core.validation import FloatArray
+from hardware.sim.materials import TactileObject
 
 # ---------------------------------------------------------------------------------------------
 # Pure statistics (tested in tests/bench/test_diagnose_gap.py)
@@ -265,7 +266,7 @@ class TouchSequence:
 
 def touch_sequences(
     model: ManifoldModel,
-    table_objects: tuple[str, ...],
+    table_objects: tuple[str | TactileObject, ...],
     sequences: Sequence[TouchSequence],
     *,
     replace_each_touch: bool,
@@ -483,14 +484,15 @@ def fitted_model(args: argparse.Namespace, workdir: Path) -> ManifoldModel:
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
     """Every figure of the diagnosis, as a JSON-ready dict."""
-    from app.evaluation.context import rig_tables
+    from app.evaluation.context import rig_table
 
     started = time.perf_counter()
-    table_objects = rig_tables()[args.table]
+    table = rig_table(args.table)
+    table_objects = table.slots
     policies = tuple(args.policies.split(","))
     with tempfile.TemporaryDirectory() as tmp:
         model = fitted_model(args, Path(tmp))
-    missing = [n for n in model.object_names if n not in table_objects]
+    missing = [n for n in model.object_names if n not in table.objects]
     if missing:
         raise SystemExit(f"--model: objects {missing} are not on the table {args.table!r}.")
     out: dict[str, Any] = {
