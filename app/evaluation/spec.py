@@ -6,10 +6,14 @@ from dataclasses import dataclass
 from typing import Literal, cast, get_args
 
 from app.errors import BadInputError
-from core.evaluation_trial import POLICIES, TrialSettings
+from core.planning import EVALUATION_POLICIES
+from core.trial_engine import TrialSettings
 from core.types import ManifoldModel, TrainingData
+from core.worlds import WorldName as SyntheticWorld
 
-WorldName = Literal["exp1", "exp2", "rig", "model", "replay"]
+#: The synthetic worlds of :func:`core.worlds.make_world` (``exp1``, ``exp2``), the simulated rig,
+#: the learned GP's samples and a replay of recorded touches.
+WorldName = Literal[SyntheticWorld, "rig", "model", "replay"]
 Placement = Literal["trial", "touch"]
 
 #: How often a ``rig`` trial places its object anew.
@@ -28,7 +32,7 @@ class EvaluationSpec:
             drawn from ``world_seed``), ``rig`` (the simulated rig, in process, virtual time),
             ``model`` (samples of the learned GP at the target's latent), ``replay`` (recorded
             held-out touches, without replacement).
-        policies: Policy names (see :data:`core.evaluation_trial.POLICIES`).
+        policies: Policy names (see :data:`core.planning.EVALUATION_POLICIES`).
         trials_per_target: Trials per (policy, target).
         steps: T, touches per trial at most (capped by the replay pool).
         confidence: Threshold of "touches to confidence" and of the compared accuracy level.
@@ -36,7 +40,8 @@ class EvaluationSpec:
         targets: Objects to recognise (model objects); every model object when ``None``.
         table: Simulated rig table by name (``rig``; the default table when ``None``).
         world_seed: Seed that draws the ``exp2`` world (as the server's simulated trials do).
-        noise_std: Observation noise of ``exp1``/``exp2`` (0.1 / 0.05 when ``None``).
+        noise_std: Observation noise of ``exp1``/``exp2`` (their
+            :data:`core.worlds.DEFAULT_NOISE_STD` when ``None``).
         tolerance: Stop when the belief mean moves less (normalised latent units; 0 disables).
         stop_at_confidence: Also stop a trial when the answer's probability reaches
             ``confidence`` (answers are carried forward to T).
@@ -98,13 +103,14 @@ class EvaluationSpec:
             )
         if not self.policies:
             raise BadInputError(
-                f"policies: name at least one of {sorted(POLICIES)}.", field="policies"
+                f"policies: name at least one of {sorted(EVALUATION_POLICIES)}.", field="policies"
             )
-        unknown = [p for p in self.policies if p not in POLICIES]
+        unknown = [p for p in self.policies if p not in EVALUATION_POLICIES]
         if unknown or len(set(self.policies)) != len(self.policies):
+            allowed = sorted(EVALUATION_POLICIES)
             raise BadInputError(
                 f"policies: {unknown or list(self.policies)} "
-                f"{'unknown' if unknown else 'repeated'}; choose from {sorted(POLICIES)}.",
+                f"{'unknown' if unknown else 'repeated'}; choose from {allowed}.",
                 field="policies",
             )
         for name, value in (("trials_per_target", self.trials_per_target), ("steps", self.steps)):

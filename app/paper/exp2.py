@@ -26,8 +26,8 @@ from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec, Placement
 from app.rig_factory import SimulationMode, TouchActions, open_rig
 from core.designs import random_design
-from core.evaluation_trial import POLICIES
 from core.manifold import FitOptions, fit_manifold
+from core.planning import EVALUATION_POLICIES
 from core.types import ManifoldModel, TrainingData
 
 #: Observation sources of the recognition trials: the learned GP (the paper's) and the rig.
@@ -82,7 +82,7 @@ class Experiment2Settings:
     prior_variance: float = 5.0
     policies: tuple[str, ...] = field(
         default_factory=lambda: tuple(
-            p for p in ("active", "discriminative", "passive") if p in POLICIES
+            p for p in ("active", "discriminative", "passive") if p in EVALUATION_POLICIES
         )
     )
     sources: tuple[str, ...] = SOURCES
