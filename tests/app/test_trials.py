@@ -338,3 +338,16 @@ def test_simulated_worlds_have_the_cli_names_and_the_old_ones_as_aliases(
     assert unknown.status_code == 422
     assert "exp1" in unknown.text
     assert "exp2" in unknown.text
+
+
+def test_the_api_names_the_policies_and_worlds_of_the_registries() -> None:
+    """The schemas list them without loading the numerics; they must agree with the registries."""
+    from typing import get_args
+
+    from app.schemas import SimulationOptions, TrialCreate
+    from core.planning import POLICY_NAMES
+    from core.worlds import WORLD_NAMES
+
+    assert get_args(TrialCreate.model_fields["policy"].annotation) == POLICY_NAMES
+    worlds = get_args(SimulationOptions.model_fields["world"].annotation)
+    assert worlds == (*WORLD_NAMES, "rig")
