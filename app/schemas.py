@@ -9,7 +9,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Generic, Literal, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, StringConstraints
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, FiniteFloat, StringConstraints
 
 from app.states import ModelStatus, RunStatus
 
@@ -257,17 +257,32 @@ class ActionBounds(BaseModel):
     upper: Vector
 
 
+#: Older spellings of the simulated worlds, still accepted (and read from stored trials) as the
+#: names of :data:`core.worlds.WORLD_NAMES` they stand for.
+WORLD_ALIASES: dict[str, str] = {"experiment1": "exp1", "experiment2": "exp2"}
+
+
+def _world_alias(value: Any) -> Any:
+    return WORLD_ALIASES.get(value, value) if isinstance(value, str) else value
+
+
 class SimulationOptions(BaseModel):
     """How a ``simulated`` trial's world is made.
 
-    ``experiment1``: the paper's Experiment 1 (objects O1..O4, dx=1, dy=3); ``experiment2``: an
+    ``exp1``: the paper's Experiment 1 (objects O1..O4, dx=1, dy=3); ``exp2``: an
     Experiment-2-like random world drawn from ``world_seed`` (dx=6, dy=5); ``rig``: the simulated
-    rig (mock hardware).
+    rig (mock hardware) — the names of ``activetouch`` and of the evaluations. The older
+    spellings ``experiment1`` and ``experiment2`` are accepted as aliases of ``exp1`` and
+    ``exp2``.
     """
 
     model_config = ConfigDict(extra="forbid")
 
-    world: Literal["experiment1", "experiment2", "rig"] = "experiment1"
+    world: Annotated[
+        Literal["exp1", "exp2", "rig"],
+        BeforeValidator(_world_alias),
+        Field(description="exp1, exp2 or rig (aliases: experiment1 → exp1, experiment2 → exp2)."),
+    ] = "exp1"
     noise_std: Annotated[float, Field(ge=0.0, le=10.0)] | None = None
     world_seed: Seed = 0
     step_interval_s: Annotated[float, Field(ge=0.0, le=60.0)] = 0.0

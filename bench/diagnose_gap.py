@@ -59,10 +59,10 @@ from app.evaluation.spec import EvaluationSpec
 from core.calibration import calibration
 from core.errors import TouchRefused
 from core.evaluation_records import RefusedTrial, TrialRecord
-from core.evaluation_trial import model_observer
 from core.noise_model import loo_log_likelihoods
 from core.noise_model import standardised_residuals as loo_residuals
 from core.posterior import predict_model_space
+from core.trial_engine import ModelTouches, Touch
 from core.types import ManifoldModel
 from core.validation import FloatArray
 from hardware.sim.materials import TactileObject
@@ -291,12 +291,12 @@ def touch_sequences(
             seq.seed,
             replace_each_touch=replace_each_touch,
         )
-        draw = model_observer(model, seq.target)
+        draw = ModelTouches(model, seq.target)
         rng = np.random.default_rng(seq.seed)
         try:
             for action in seq.actions:
-                rig_touches.add(obj, action, rig.observe(action, rng), g)
-                model_touches.add(obj, action, draw(action, rng), g)
+                rig_touches.add(obj, action, rig.touch(action, rng).observation, g)
+                model_touches.add(obj, action, draw.touch(action, rng).observation, g)
         except TouchRefused:
             refused += 1
         finally:
@@ -338,14 +338,14 @@ class CapturingContext(TrialContext):
     def open_rig_trial(self, key: TrialKey, seed: int) -> RigTrial:
         rig = super().open_rig_trial(key, seed)
         touches = self.captured.setdefault(key, [])
-        touch = rig.observe
+        touch = rig.touch
 
-        def observe(action: FloatArray, rng: np.random.Generator) -> FloatArray:
-            y = touch(action, rng)
-            touches.append((np.array(action, dtype=np.float64), y))
-            return y
+        def captured(action: FloatArray, rng: np.random.Generator) -> Touch:
+            done = touch(action, rng)
+            touches.append((np.array(action, dtype=np.float64), done.observation))
+            return done
 
-        rig.observe = observe  # type: ignore[method-assign]
+        rig.touch = captured  # type: ignore[method-assign]
         return rig
 
 
@@ -386,11 +386,11 @@ def planner_touches(
     keys = [k for k in captured if k[0] == policy]
     for g, key in enumerate(keys):
         obj = model.object_names.index(key[1])
-        draw = model_observer(model, key[1])
+        draw = ModelTouches(model, key[1])
         rng = np.random.default_rng([seed, g])
         for action, y in captured[key]:
             rig_t.add(obj, action, y, g)
-            model_t.add(obj, action, draw(action, rng), g)
+            model_t.add(obj, action, draw.touch(action, rng).observation, g)
     return rig_t, model_t
 
 

@@ -14,10 +14,10 @@ five tactile channels):
 2. **Recognition** (``--part trials``): a training set as ``activetouch collect --sim --table
    NAME --touches N --design random`` makes it (x ~ N(0, scale² I) afresh per touch), a ds = 2
    fit, then recognition trials for the active, discriminative and passive policies, and the
-   accuracy after each touch, overall and per object. The trials run on the evaluation engine's
-   pieces (:func:`policy_records`): every observation is a real touch of a fresh simulated rig
-   per trial (:class:`app.evaluation.rig_trial.RigTrial`, as ``activetouch evaluate --world
-   rig``), or with ``--source gp`` a draw from the learned GP.
+   accuracy after each touch, overall and per object. The trials are an evaluation's
+   (:func:`policy_records`, on :class:`app.evaluation.context.TrialContext`): every observation
+   is a real touch of a fresh simulated rig per trial (as ``activetouch evaluate --world rig``),
+   or with ``--source gp`` a draw from the learned GP.
 
 Run: ``.venv/bin/python -m bench.sim_tables --table lookalike_cups [--part both]
 [--touches 100] [--action-scale 1] [--trials 10] [--steps 10] [--seed 0] [--json]``
@@ -37,14 +37,14 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from app.evaluation.rig_trial import RigTrial, rig_seed
+from app.evaluation.context import TrialContext
+from app.evaluation.spec import EvaluationSpec
 from app.rig_factory import TouchActions
 from core.designs import random_design
-from core.evaluation_records import TrialOutcome, TrialRecord, trial_seed
+from core.evaluation_records import TrialOutcome, TrialRecord
 from core.evaluation_summary import summarise
-from core.evaluation_trial import Observe, TrialSettings, model_observer, run_trial
 from core.manifold import FitOptions, fit_manifold
-from core.planning import ActionBox, Planner, make_policy
+from core.planning import EVALUATION_POLICIES, ActionBox
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray
 from hardware.rig import RigConfig
@@ -61,8 +61,6 @@ QUIET = NoiseModel(
     object_temperature_std_c=0.0,
 )
 """No noise at all: the mean responses (up to the heat history of earlier touches)."""
-
-POLICIES = ("active", "discriminative", "passive")
 
 CONFIDENCE = 0.95
 """The confidence level handed to :func:`core.evaluation_summary.summarise` (its accuracies do
@@ -185,7 +183,6 @@ def collect_training(
 
 def policy_records(
     model: ManifoldModel,
-    planner: Planner,
     policy: str,
     n_trials: int,
     steps: int,
@@ -193,62 +190,35 @@ def policy_records(
     *,
     source: str,
     table: str,
-    actions: TouchActions,
+    box: ActionBox | None = None,
     noise: NoiseModel | None = None,
     reseat_each_touch: bool = False,
 ) -> list[TrialOutcome]:
-    """``n_trials`` trials of every model object, through the evaluation engine's pieces.
+    """``n_trials`` trials of every model object, run by the evaluation engine.
 
-    Each trial has its own seed (:func:`core.evaluation_records.trial_seed` of ``seed``, the
-    target and the index; the same under every policy) and runs
-    :func:`core.evaluation_trial.run_trial`. Observations are touches of a fresh simulated rig
-    seeded from the trial (:class:`app.evaluation.rig_trial.RigTrial`, as ``activetouch evaluate
-    --world rig`` makes them; with ``reseat_each_touch`` the object is placed anew before every
-    touch, else once per trial) or, with ``source="gp"``, draws from the learned GP
-    (:func:`core.evaluation_trial.model_observer`, the paper's protocol).
+    An evaluation of world ``rig`` (every observation a touch of a fresh simulated rig seeded
+    from the trial, as ``activetouch evaluate --world rig``; with ``reseat_each_touch`` the object
+    is placed anew before every touch, else once per trial) or, with ``source="gp"``, of world
+    ``model`` (draws from the learned GP, the paper's protocol), T = ``steps``, no early stop,
+    seed ``seed``. ``box`` narrows where the planner acts, ``noise`` the simulated rig's noise
+    model; both are the evaluation's defaults when ``None``.
     """
-    settings = TrialSettings(steps=steps, tolerance=0.0)
-    objects = get_table(table).objects
-    records: list[TrialOutcome] = []
-    for target in model.object_names:
-        for index in range(n_trials):
-            trial = trial_seed(seed, target, index)
-            rig: RigTrial | None = None
-            observe: Observe
-            if source == "gp":
-                observe = model_observer(model, target)
-            else:
-                rig = RigTrial(
-                    actions,
-                    objects,
-                    target,
-                    rig_seed(trial),
-                    replace_each_touch=reseat_each_touch,
-                    noise=noise,
-                )
-                observe = rig.observe
-            try:
-                records.append(
-                    run_trial(
-                        model,
-                        planner,
-                        policy=policy,
-                        target=target,
-                        trial=index,
-                        seed=trial,
-                        observe=observe,
-                        settings=settings,
-                    )
-                )
-            finally:
-                if rig is not None:
-                    rig.close()
-    return records
+    spec = EvaluationSpec(
+        world="model" if source == "gp" else "rig",
+        trials_per_target=n_trials,
+        steps=steps,
+        policies=(policy,),
+        seed=seed,
+        table=table if source != "gp" else None,
+        tolerance=0.0,
+        placement="touch" if reseat_each_touch else "trial",
+    )
+    context = TrialContext(model, spec, box=box, rig_noise=noise)
+    return context.run_many(context.trial_keys())
 
 
 def trials(
     table: str,
-    actions: TouchActions,
     data: TrainingData,
     n_trials: int,
     steps: int,
@@ -266,23 +236,21 @@ def trials(
     fit_s = time.perf_counter() - start
     log(f"fit: {fit_s:.1f} s, log-likelihood {model.log_likelihood:.1f}")
     results: dict[str, Any] = {"fit_s": fit_s, "log_likelihood": model.log_likelihood}
-    for name in POLICIES:
-        box = None
-        if box_std > 0:
-            centre, spread = data.actions.mean(axis=0), data.actions.std(axis=0)
-            box = ActionBox(centre - box_std * spread, centre + box_std * spread)
-        planner = Planner(model, make_policy(name), box=box)
+    box = None
+    if box_std > 0:
+        centre, spread = data.actions.mean(axis=0), data.actions.std(axis=0)
+        box = ActionBox(centre - box_std * spread, centre + box_std * spread)
+    for name in EVALUATION_POLICIES:
         begin = time.perf_counter()
         outcomes = policy_records(
             model,
-            planner,
             name,
             n_trials,
             steps,
             seed + 100,
             source=source,
             table=table,
-            actions=actions,
+            box=box,
             noise=noise,
             reseat_each_touch=reseat_each_touch,
         )
@@ -420,7 +388,6 @@ def main(argv: list[str] | None = None) -> None:
             log(f"collected {data.n_touches:d} touches in {time.perf_counter() - start:.0f} s")
             report["trials"] = trials(
                 args.table,
-                actions,
                 data,
                 args.trials,
                 args.steps,

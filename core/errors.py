@@ -33,8 +33,8 @@ class ConvergenceError(CoreError):
 class TouchRefused(CoreError):  # noqa: N818
     """The observation source refused to perform one action (a device refused the touch).
 
-    Raised by an ``Observe`` function of an evaluation trial (e.g. the rig's, when a servo
-    overloads); :func:`core.evaluation_trial.run_trial` ends only that trial and records it as
+    Raised by a touch source of an evaluation trial (e.g. the rig's, when a servo
+    overloads); :func:`core.trial_engine.run_trial` ends only that trial and records it as
     refused. Anything else an observation source raises ends the whole evaluation.
 
     Attributes:

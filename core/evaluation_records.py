@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import zlib
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal, get_args
 
 import numpy as np
 
@@ -53,6 +53,19 @@ def trial_generators(seed: tuple[int, ...]) -> tuple[np.random.Generator, np.ran
     return np.random.default_rng(policy), np.random.default_rng(world)
 
 
+#: Why a trial ended: its T-th touch (``"max_steps"``), the confidence rule (``"confident"``: the
+#: object posterior's largest probability reached the threshold), the tolerance (``"converged"``:
+#: the belief's mean moved less than it), or a touch the world refused (``"refused"``, only
+#: :class:`RefusedTrial`).
+StopReason = Literal["max_steps", "converged", "confident", "refused"]
+
+#: Every :data:`StopReason`.
+STOP_REASONS: tuple[StopReason, ...] = get_args(StopReason)
+
+#: ``stop_reason`` of a refused trial (:class:`RefusedTrial`).
+REFUSED: StopReason = "refused"
+
+
 @dataclass(frozen=True)
 class TrialRecord:
     """What one evaluation trial did, touch by touch.
@@ -68,7 +81,8 @@ class TrialRecord:
         actions: The action of each touch. ``touches`` tuples of length dx.
         mutual_information: U1 of each action under the belief it was chosen for, in nats.
         touches: Touches performed (≤ T; fewer after an early stop).
-        stop_reason: ``"max_steps"``, ``"converged"``, ``"confident"`` or ``"pool_exhausted"``.
+        stop_reason: Why the trial ended (:data:`StopReason`, never ``"refused"``); ``None``
+            when a document written without it is read.
         correct: Whether the final answer is the target.
         nearest: The object whose learned latent is nearest the Gaussian belief's mean after
             each touch (the paper's decision rule), when recorded; empty otherwise.
@@ -83,7 +97,7 @@ class TrialRecord:
     actions: tuple[tuple[float, ...], ...]
     mutual_information: tuple[float, ...]
     touches: int
-    stop_reason: str
+    stop_reason: StopReason | None
     correct: bool
     nearest: tuple[str, ...] = ()
 
@@ -103,6 +117,18 @@ class TrialRecord:
                 f"TrialRecord: touches={n} must be ≥ 1 and equal the length of every per-touch "
                 f"field; received lengths {lengths}."
             )
+        if self.stop_reason is not None and (
+            self.stop_reason not in STOP_REASONS or self.stop_reason == REFUSED
+        ):
+            completed = [r for r in STOP_REASONS if r != REFUSED]
+            raise InvalidInputError(
+                f"TrialRecord: stop_reason {self.stop_reason!r} is not one of {completed}."
+            )
+
+    @property
+    def stopped_by_confidence(self) -> bool:
+        """Whether the confidence rule ended the trial (before its T-th touch or at it)."""
+        return self.stop_reason == "confident"
 
     @property
     def key(self) -> tuple[str, str, int]:
@@ -146,16 +172,18 @@ class TrialRecord:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> TrialRecord:
-        """The record of a :meth:`to_dict` document.
+        """The record of a :meth:`to_dict` document (one without ``stop_reason``, as older
+        documents may be, reads with ``stop_reason=None``).
 
         Raises:
             InvalidInputError: A field is missing or of the wrong kind.
         """
         try:
+            reason = d.get("stop_reason")
             return cls(
                 **_touch_fields_from_dict(d, required=True),
                 touches=int(d["touches"]),
-                stop_reason=str(d["stop_reason"]),
+                stop_reason=None if reason is None else _stop_reason(reason),
                 correct=bool(d["correct"]),
                 nearest=tuple(str(n) for n in d.get("nearest", ())),
             )
@@ -163,8 +191,11 @@ class TrialRecord:
             raise InvalidInputError(f"trial record: missing or malformed field ({exc}).") from None
 
 
-#: ``stop_reason`` of a refused trial's document (:meth:`RefusedTrial.to_dict`).
-REFUSED = "refused"
+def _stop_reason(value: Any) -> StopReason:
+    for reason in STOP_REASONS:
+        if value == reason:
+            return reason
+    raise ValueError(f"stop_reason {value!r} is not one of {list(STOP_REASONS)}")
 
 
 @dataclass(frozen=True)
@@ -234,6 +265,16 @@ class RefusedTrial:
         """Always false: a refused trial is never counted as right."""
         return False
 
+    @property
+    def stop_reason(self) -> StopReason:
+        """``"refused"``: the world refused a touch."""
+        return REFUSED
+
+    @property
+    def stopped_by_confidence(self) -> bool:
+        """Always false: the refusal ended the trial."""
+        return False
+
     def describe(self) -> str:
         """ "touch 2 of active/paper_cup #0, action [0.10, …]: ServoHardwareError: …"."""
         action = ", ".join(f"{v:.3g}" for v in self.action)
@@ -279,7 +320,8 @@ class RefusedTrial:
             ) from None
 
 
-#: What one evaluation trial ends as: completed, or refused by the world.
+#: What one trial ends as (the one outcome type of :mod:`core.trial_engine`): completed, with why
+#: it stopped, or refused by the world.
 TrialOutcome = TrialRecord | RefusedTrial
 
 

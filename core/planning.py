@@ -9,11 +9,14 @@ object* it is, under the current object probabilities (:mod:`core.object_informa
 passive policy draws from the action prior and the fixed policy repeats one action; every policy
 reports the mutual information of its action under the belief it was given.
 
-:func:`make_policy` is the one place a policy is built from its name (CLI, API, evaluation).
+:data:`POLICIES` is the one registry of policies by name (CLI, API, evaluations, benchmarks): how a
+policy plans (its :class:`Policy`) and how it picks among recorded touches in a replay trial. A new
+policy is one entry there.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -37,7 +40,7 @@ from core.validation import FloatArray, as_float_array
 
 PolicyName = Literal["active", "passive", "fixed", "discriminative"]
 
-#: Every policy name, in the order user interfaces list them.
+#: Every policy name, in the order user interfaces list them (the keys of :data:`POLICIES`).
 POLICY_NAMES: tuple[PolicyName, ...] = ("active", "discriminative", "passive", "fixed")
 
 
@@ -200,34 +203,6 @@ class DiscriminativePolicy:
 
 
 Policy = ActivePolicy | PassivePolicy | FixedPolicy | DiscriminativePolicy
-
-
-def make_policy(name: str, fixed_action: FloatArray | None = None) -> Policy:
-    """The policy called ``name`` (one of :data:`POLICY_NAMES`).
-
-    Args:
-        name: ``"active"``, ``"discriminative"``, ``"passive"`` or ``"fixed"``.
-        fixed_action: The action of ``"fixed"``. Shape (dx,).
-
-    Raises:
-        InvalidInputError: Unknown name, or ``"fixed"`` without an action.
-    """
-    if name == "active":
-        return ActivePolicy()
-    if name == "discriminative":
-        return DiscriminativePolicy()
-    if name == "passive":
-        return PassivePolicy()
-    if name == "fixed":
-        if fixed_action is None or np.asarray(fixed_action).size == 0:
-            raise InvalidInputError(
-                "policy 'fixed': needs the fixed action to repeat, dx numbers "
-                "(--action on the command line, fixed_action in the API)."
-            )
-        return FixedPolicy(np.asarray(fixed_action, dtype=np.float64))
-    raise InvalidInputError(
-        f"policy: expected one of {', '.join(POLICY_NAMES)}, received {name!r}."
-    )
 
 
 @dataclass(frozen=True)
@@ -442,3 +417,114 @@ class Planner:
                 best_value = value
                 best_action = self.box.clip(np.asarray(result.x, dtype=np.float64))
         return PlannedAction(action=best_action, mutual_information=best_value, policy="active")
+
+
+# --- the policy registry ----------------------------------------------------------------------
+
+#: How a policy scores the unused recorded actions (C, dx) of a replay trial, given the planner,
+#: the belief to plan under and the current object posterior (L,); the largest score is touched
+#: next. Shape (C,).
+ReplayScore = Callable[[Planner, GaussianBelief, FloatArray, FloatArray], FloatArray]
+
+
+def information_score(
+    planner: Planner, belief: GaussianBelief, probabilities: FloatArray, actions: FloatArray
+) -> FloatArray:
+    """U1 of each recorded action under the belief (METHOD.md (M4)); the posterior is unused."""
+    return planner.mutual_information(belief, actions)
+
+
+def label_information_score(
+    planner: Planner, belief: GaussianBelief, probabilities: FloatArray, actions: FloatArray
+) -> FloatArray:
+    """Estimated I(l; y | x) of each recorded action under the object posterior.
+
+    The discriminative policy's score (:mod:`core.object_information`), evaluated at the
+    recorded actions instead of the planner's candidates, with fixed standard-normal draws
+    seeded by the planner's candidate seed (common random numbers: deterministic).
+    """
+    policy = planner.policy
+    n_draws = policy.n_draws if isinstance(policy, DiscriminativePolicy) else 128
+    mean, variance = object_predictives(planner.model, action_statistics(planner.model, actions))
+    draws = np.random.default_rng(planner.candidate_seed).standard_normal(
+        (n_draws, planner.model.hyperparameters.observation_dim)
+    )
+    return label_information_mc(probabilities, mean, variance, draws)
+
+
+def _fixed_policy(action: FloatArray | None) -> Policy:
+    if action is None or np.asarray(action).size == 0:
+        raise InvalidInputError(
+            "policy 'fixed': needs the fixed action to repeat, dx numbers "
+            "(--action on the command line, fixed_action in the API)."
+        )
+    return FixedPolicy(np.asarray(action, dtype=np.float64))
+
+
+@dataclass(frozen=True)
+class PolicyEntry:
+    """How a policy is run, by name.
+
+    Attributes:
+        build: Builds the planner's policy from the policy's action parameter (the fixed
+            action; ``None`` for the policies that take none).
+        replay_score: Scores unused recorded touches in a replay trial (largest first);
+            ``None`` picks one at random (from the trial's policy generator).
+        needs_action: Whether the policy needs an action parameter (the fixed policy). Such a
+            policy cannot be named in an evaluation, which gives none.
+    """
+
+    build: Callable[[FloatArray | None], Policy]
+    replay_score: ReplayScore | None
+    needs_action: bool = False
+
+    def make(self, action: FloatArray | None = None) -> Policy:
+        """The planner's policy (``action``: the fixed policy's action, shape (dx,))."""
+        return self.build(action)
+
+
+#: Every policy by name, in the order user interfaces list them. Add a policy here, in one line.
+POLICIES: dict[PolicyName, PolicyEntry] = {
+    "active": PolicyEntry(lambda _: ActivePolicy(), information_score),
+    "discriminative": PolicyEntry(lambda _: DiscriminativePolicy(), label_information_score),
+    "passive": PolicyEntry(lambda _: PassivePolicy(), None),
+    "fixed": PolicyEntry(_fixed_policy, None, needs_action=True),
+}
+
+#: The policies an evaluation (and a benchmark) may name: those that need no parameter.
+EVALUATION_POLICIES: tuple[PolicyName, ...] = tuple(
+    name for name, entry in POLICIES.items() if not entry.needs_action
+)
+
+
+def policy_entry(name: str, allowed: tuple[str, ...] = POLICY_NAMES) -> PolicyEntry:
+    """The registry entry of a policy name.
+
+    Args:
+        name: The policy's name.
+        allowed: The names the caller accepts (e.g. :data:`EVALUATION_POLICIES`).
+
+    Raises:
+        InvalidInputError: Unknown or not allowed name (the message lists the allowed ones).
+    """
+    for known, entry in POLICIES.items():
+        if known == name and name in allowed:
+            return entry
+    raise InvalidInputError(f"policy: {name!r} is not a policy; choose from {sorted(allowed)}.")
+
+
+def make_policy(name: str, fixed_action: FloatArray | None = None) -> Policy:
+    """The policy called ``name`` (one of :data:`POLICY_NAMES`).
+
+    Args:
+        name: ``"active"``, ``"discriminative"``, ``"passive"`` or ``"fixed"``.
+        fixed_action: The action of ``"fixed"``. Shape (dx,).
+
+    Raises:
+        InvalidInputError: Unknown name, or ``"fixed"`` without an action.
+    """
+    if name not in POLICY_NAMES:
+        raise InvalidInputError(
+            f"policy: expected one of {', '.join(POLICY_NAMES)}, received {name!r}."
+        )
+    return policy_entry(name).make(fixed_action)

@@ -18,13 +18,13 @@ alone under the mixture, keeping the Gaussian as updated, is the ``"replan"`` op
 Gaussian's nearest object wrong in some trials where the posterior was right.) The answer defaults
 to the posterior's best object (see :class:`RecognitionSettings`).
 
-:class:`RecognitionSession` is a step-wise state machine (for scripted trials where the caller owns
-the robot), :func:`iter_recognize` the loop around it as a generator.
+:class:`RecognitionSession` is a step-wise state machine: a scripted trial (the caller owns the
+robot) drives it one observation at a time; :func:`core.trial_engine.iter_trial` is the one loop
+around it for every other trial.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Literal
 
@@ -339,30 +339,3 @@ class RecognitionSession:
             raise RecognitionFinishedError(
                 f"The session stopped after step {len(self._steps)} ({reason}); start a new one."
             )
-
-
-def iter_recognize(
-    model: ManifoldModel,
-    observe: Callable[[FloatArray], FloatArray],
-    planner: Planner,
-    prior: GaussianBelief | None,
-    settings: RecognitionSettings | None,
-    rng: np.random.Generator,
-) -> Iterator[RecognitionStep]:
-    """Run a recognition trial, yielding every step; stop iterating to cancel.
-
-    Args:
-        model: A conditioned model.
-        observe: Performs an action (dx,) on the object and returns the observation (dy,).
-        planner: Chooses the actions.
-        prior: Initial belief; :func:`default_prior` when ``None``.
-        settings: Stopping and decision rules; defaults when ``None``.
-        rng: Source of randomness for the planner.
-
-    Yields:
-        One :class:`RecognitionStep` per touch; the last has ``done`` set.
-    """
-    session = RecognitionSession(model, planner, prior, settings)
-    while not session.done:
-        planned = session.suggest(rng)
-        yield session.observe(planned.action, observe(planned.action))

@@ -3,12 +3,16 @@
 A world maps (object, action) to a noisy observation. It knows the ground truth (the true object
 parameter θ, or a true latent), so a recognition run can be scored. Pure maths: randomness comes in
 as an ``np.random.Generator``.
+
+:func:`make_world` is the one registry of the worlds by name (:data:`WORLD_NAMES`, with their noise
+defaults :data:`DEFAULT_NOISE_STD`): the command line, the API's simulated trials and the
+evaluations name worlds with it.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Literal, Protocol
 
 import numpy as np
 
@@ -397,4 +401,42 @@ def correlated_noise_world(
         action_scale=action_scale,
         noise_std=base.noise_std * scales,
         noise_correlation=np.asarray(TACTILE_NOISE_CORRELATION, dtype=np.float64),
+    )
+
+
+#: The synthetic worlds by name: ``exp1``, the paper's Experiment 1 (objects O1..O4, dx = 1,
+#: dy = 3); ``exp2``, an Experiment-2-like random world drawn from a seed (dx = 6, dy = 5).
+WorldName = Literal["exp1", "exp2"]
+
+#: Every :data:`WorldName`.
+WORLD_NAMES: tuple[WorldName, ...] = ("exp1", "exp2")
+
+#: The observation noise standard deviation of each world when none is given (the paper's 0.1
+#: for Experiment 1).
+DEFAULT_NOISE_STD: dict[WorldName, float] = {"exp1": 0.1, "exp2": 0.05}
+
+
+def make_world(name: str, *, world_seed: int = 0, noise_std: float | None = None) -> World:
+    """The synthetic world called ``name``.
+
+    Args:
+        name: One of :data:`WORLD_NAMES`.
+        world_seed: Seed that draws the ``exp2`` world (unused by ``exp1``).
+        noise_std: Observation noise standard deviation; :data:`DEFAULT_NOISE_STD` of the
+            world when ``None``.
+
+    Raises:
+        InvalidInputError: Unknown name (the message lists the worlds), or a bad noise.
+    """
+    if name == "exp1":
+        return Experiment1World(
+            noise_std=DEFAULT_NOISE_STD["exp1"] if noise_std is None else noise_std
+        )
+    if name == "exp2":
+        return random_experiment2_world(
+            np.random.default_rng(world_seed),
+            noise_std=DEFAULT_NOISE_STD["exp2"] if noise_std is None else noise_std,
+        )
+    raise InvalidInputError(
+        f"world: {name!r} is not a synthetic world; choose from {list(WORLD_NAMES)}."
     )

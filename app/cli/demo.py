@@ -10,7 +10,7 @@ script would make):
 3. a model: if no ready model of that dataset exists, a manifold is fitted (progress likewise).
 
 A second start reuses the dataset and the model in the database, so it is ready in seconds.
-The newcomer then opens the dashboard and clicks **Start trial**. With ``world="experiment1"``
+The newcomer then opens the dashboard and clicks **Start trial**. With ``world="exp1"``
 the rig is left out: the paper's Experiment 1 training set is uploaded instead and trials run
 against that synthetic world.
 
@@ -81,7 +81,8 @@ class DemoOptions:
         viz_port: Port of the viser view (0: a free one).
         database_url: SQLite database (created and migrated if missing).
         world: ``rig``: the simulated rig (collection + trials on mock hardware);
-            ``experiment1``: the paper's Experiment 1 synthetic world, no rig.
+            ``exp1``: the paper's Experiment 1 synthetic world, no rig (``experiment1``, its
+            older name, is accepted too).
         objects: Objects to collect on the simulated rig; ``None``: the rig's own catalogue.
         table: The simulated rig's table (:data:`DEMO_TABLE` by default).
         table_file: A table file of your own objects, used instead of ``table``.
@@ -102,7 +103,7 @@ class DemoOptions:
     port: int = 8000
     viz_port: int = 8081
     database_url: str = "sqlite:///data/demo.db"
-    world: Literal["rig", "experiment1"] = "rig"
+    world: Literal["rig", "exp1", "experiment1"] = "rig"
     objects: tuple[DemoObject, ...] | None = None
     table: str = DEMO_TABLE
     table_file: Path | None = None
@@ -324,9 +325,9 @@ class DemoServer:
 
     def prepare(self) -> DemoState:
         """Make sure a dataset and a ready model exist (collect and fit if needed)."""
-        if self.options.world == "experiment1":
+        if self.options.world in ("exp1", "experiment1"):
             dataset = self._experiment1_dataset()
-            mode, world = "simulated", "experiment1"
+            mode, world = "simulated", "exp1"
         else:
             dataset = self._rig_dataset()
             mode, world = "rig", "rig"
@@ -568,7 +569,8 @@ def demo_command(
     viz_port: Annotated[int, typer.Option(min=0, max=65535, help="3D view port.")] = 8081,
     database_url: Annotated[str, typer.Option(help="SQLite URL.")] = "sqlite:///data/demo.db",
     world: Annotated[
-        str, typer.Option(help="rig (simulated rig) or experiment1 (the paper's world).")
+        str,
+        typer.Option(help="rig (simulated rig) or exp1 (the paper's world; alias experiment1)."),
     ] = "rig",
     table: TableName = None,
     table_file: TableFile = None,
@@ -588,10 +590,8 @@ def demo_command(
     browser: Annotated[bool, typer.Option(help="Open the dashboard in a browser.")] = True,
 ) -> None:
     """Start everything on the simulated rig: dashboard, 3D view, a trained model."""
-    if world not in ("rig", "experiment1"):
-        raise typer.BadParameter(
-            f"expected rig or experiment1, received {world!r}", param_hint="--world"
-        )
+    if world not in ("rig", "exp1", "experiment1"):
+        raise typer.BadParameter(f"expected rig or exp1, received {world!r}", param_hint="--world")
     from hardware.sim.materials import TABLES
 
     table_choice(table, table_file)  # exit 2 naming what is wrong with a table file
@@ -606,7 +606,7 @@ def demo_command(
         port=port,
         viz_port=viz_port,
         database_url=database_url,
-        world="rig" if world == "rig" else "experiment1",
+        world="rig" if world == "rig" else "exp1",
         table=table,
         table_file=table_file,
         touches_per_object=touches_per_object,

@@ -54,14 +54,16 @@ class Optimizer(StrEnum):
 
 
 class WorldName(StrEnum):
-    """Simulated worlds a trial or a dataset can come from."""
+    """Simulated worlds a trial or a dataset can come from (:data:`core.worlds.WORLD_NAMES`,
+    listed here so that ``--help`` does not load the numerics)."""
 
     exp1 = "exp1"
     exp2 = "exp2"
 
 
 class Policy(StrEnum):
-    """Action policies of a recognition trial."""
+    """Action policies of a recognition trial (:data:`core.planning.POLICY_NAMES`, listed here
+    so that ``--help`` does not load the numerics)."""
 
     active = "active"
     discriminative = "discriminative"
@@ -281,16 +283,10 @@ def load_model(path: Path) -> ManifoldModel:
 
 
 def make_world(world: WorldName, world_seed: int, noise_std: float | None) -> World:
-    """The simulated world named on the command line."""
-    import numpy as np
+    """The simulated world named on the command line (:func:`core.worlds.make_world`)."""
+    from core.worlds import make_world as make_named_world
 
-    from core.worlds import Experiment1World, random_experiment2_world
-
-    if world is WorldName.exp1:
-        return Experiment1World(noise_std=0.1 if noise_std is None else noise_std)
-    return random_experiment2_world(
-        np.random.default_rng(world_seed), noise_std=0.05 if noise_std is None else noise_std
-    )
+    return make_named_world(world.value, world_seed=world_seed, noise_std=noise_std)
 
 
 @app.command()
@@ -349,9 +345,9 @@ def recognize(
     import numpy as np
 
     from core.errors import CoreError
-    from core.evaluation import iter_simulated_trial
     from core.planning import Planner, make_policy
-    from core.recognition import RecognitionSettings, default_prior
+    from core.recognition import RecognitionSession, RecognitionSettings, default_prior
+    from core.trial_engine import PlannedTouches, WorldTouches, iter_trial
 
     model = load_model(model_path)
     if target not in model.object_names:
@@ -363,18 +359,12 @@ def recognize(
             max_steps=steps, tolerance=tolerance, confidence_threshold=confidence
         )
         prior = default_prior(model, prior_variance)
-        trial = iter_simulated_trial(
-            model,
-            make_world(world, world_seed, noise_std),
-            model.object_names.index(target),
-            planner,
-            prior,
-            settings,
-            np.random.default_rng(seed),
-        )
+        touches = WorldTouches(make_world(world, world_seed, noise_std), target)
+        session = RecognitionSession(model, planner, prior, settings)
+        rng = np.random.default_rng(seed)  # one stream for the planner and the noise
         records = []
         names = model.object_names
-        for step in trial:
+        for step, _ in iter_trial(session, PlannedTouches(touches), rng, rng):
             record = {
                 "step": step.step,
                 "action": step.action.tolist(),

@@ -14,33 +14,32 @@ it happened in, and ends the evaluation.
 
 from __future__ import annotations
 
+import functools
 import threading
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
 from threadpoolctl import threadpool_limits
 
 from app.evaluation.rig_trial import RigTrial, rig_seed
 from core.evaluation_records import TrialOutcome, trial_seed
-from core.evaluation_trial import (
-    Observe,
+from core.planning import EVALUATION_POLICIES, ActionBox, Planner, policy_entry
+from core.trial_engine import (
+    ModelTouches,
     ReplayPool,
-    model_observer,
-    policy_entry,
+    TouchSource,
+    WorldTouches,
     replay_pools,
-    run_replay_trial,
     run_trial,
-    world_observer,
 )
-from core.planning import Planner
 from core.types import ManifoldModel, TrainingData
-from core.worlds import Experiment1World, World, random_experiment2_world
+from core.worlds import World, make_world
 from hardware.errors import HardwareError
 
 if TYPE_CHECKING:
     from app.evaluation.spec import EvaluationSpec
     from app.rig_factory import TouchActions
     from hardware.sim.materials import Table
+    from hardware.sim.noise import NoiseModel
 
 #: Key of one trial: (policy, target, trial index).
 TrialKey = tuple[str, str, int]
@@ -65,11 +64,9 @@ def rig_table(table: str | Table | None) -> Table:
 
 
 def synthetic_world(spec: EvaluationSpec) -> World:
-    """The ``exp1`` or ``exp2`` world of a spec (as the server's simulated trials make them)."""
-    if spec.world == "exp1":
-        return Experiment1World(noise_std=0.1 if spec.noise_std is None else spec.noise_std)
-    noise = 0.05 if spec.noise_std is None else spec.noise_std
-    return random_experiment2_world(np.random.default_rng(spec.world_seed), noise_std=noise)
+    """The ``exp1`` or ``exp2`` world of a spec (:func:`core.worlds.make_world`, as the server's
+    simulated trials and the command line make them)."""
+    return make_world(spec.world, world_seed=spec.world_seed, noise_std=spec.noise_std)
 
 
 class TrialContext:
@@ -79,15 +76,27 @@ class TrialContext:
         model: The model.
         spec: The evaluation (already checked).
         replay: Held-out touches of a ``replay`` evaluation.
+        box: Where the planners choose actions (the range of the training actions when
+            ``None``, as every evaluation has it; a benchmark may narrow it).
+        rig_noise: Noise model of the ``rig`` world's simulation (the simulator's default when
+            ``None``, as every evaluation has it; a benchmark may quieten it).
     """
 
     def __init__(
-        self, model: ManifoldModel, spec: EvaluationSpec, replay: TrainingData | None = None
+        self,
+        model: ManifoldModel,
+        spec: EvaluationSpec,
+        replay: TrainingData | None = None,
+        *,
+        box: ActionBox | None = None,
+        rig_noise: NoiseModel | None = None,
     ) -> None:
         self.model = model
         self.spec = spec
         self.pools: dict[str, ReplayPool] = {} if replay is None else replay_pools(replay)
         self.steps = spec.steps_used(model, replay)
+        self.box = box
+        self.rig_noise = rig_noise
         self._reset_caches()
 
     def _reset_caches(self) -> None:
@@ -117,7 +126,8 @@ class TrialContext:
         planners: dict[str, Planner] = getattr(self._local, "planners", None) or {}
         self._local.planners = planners
         if policy not in planners:
-            planners[policy] = Planner(self.model, policy_entry(policy).make())
+            entry = policy_entry(policy, EVALUATION_POLICIES)
+            planners[policy] = Planner(self.model, entry.make(), box=self.box)
         return planners[policy]
 
     def _world(self) -> World:
@@ -169,48 +179,36 @@ class TrialContext:
             target,
             seed,
             replace_each_touch=self.spec.placement == "touch",
+            noise=self.rig_noise,
         )
 
     def _run_trial(self, key: TrialKey) -> TrialOutcome:
         policy, target, trial = key
         seed = trial_seed(self.spec.seed, target, trial)
-        planner = self.planner(policy)
-        settings = self.spec.trial_settings()
+        run = functools.partial(
+            run_trial,
+            self.model,
+            self.planner(policy),
+            policy=policy,
+            target=target,
+            trial=trial,
+            seed=seed,
+            settings=self.spec.trial_settings(),
+        )
         if self.spec.world == "replay":
-            return run_replay_trial(
-                self.model,
-                planner,
-                policy=policy,
-                target=target,
-                trial=trial,
-                seed=seed,
-                pool=self.pools[target],
-                settings=settings,
-                steps=self.steps,
-            )
-        rig: RigTrial | None = None
-        observe: Observe
+            return run(replay=self.pools[target], steps=self.steps)
+        touches: TouchSource
         if self.spec.world == "model":
-            observe = model_observer(self.model, target)
+            touches = ModelTouches(self.model, target)
         elif self.spec.world == "rig":
             rig = self.open_rig_trial(key, rig_seed(seed))
-            observe = rig.observe
-        else:
-            observe = world_observer(self._world(), target)
-        try:
-            return run_trial(
-                self.model,
-                planner,
-                policy=policy,
-                target=target,
-                trial=trial,
-                seed=seed,
-                observe=observe,
-                settings=settings,
-            )
-        finally:
-            if rig is not None:
+            try:
+                return run(touches=rig)
+            finally:
                 rig.close()
+        else:
+            touches = WorldTouches(self._world(), target)
+        return run(touches=touches)
 
 
 def run_trials_task(context: TrialContext, keys: list[TrialKey]) -> list[TrialOutcome]:

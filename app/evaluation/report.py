@@ -71,9 +71,9 @@ class EvaluationReport:
                 f"recorded touches of a target has {self.steps}."
             )
         if self.spec.world == "replay" and self.spec.trials_per_target > 1:
-            from core.evaluation_trial import POLICIES
+            from core.planning import policy_entry
 
-            fixed = [p for p in self.spec.policies if POLICIES[p].replay_score is not None]
+            fixed = [p for p in self.spec.policies if policy_entry(p).replay_score is not None]
             if fixed:
                 notes.append(
                     f"replay: {', '.join(fixed)} choose(s) the recorded touch deterministically, "
@@ -214,7 +214,7 @@ class EvaluationReport:
                         answer == record.target,
                         record.mutual_information[touch],
                         *record.actions[touch],
-                        record.stop_reason
+                        (record.stop_reason or "")
                         if isinstance(record, TrialRecord) and touch + 1 == record.touches
                         else "",
                     ]

@@ -17,6 +17,7 @@ import numpy as np
 
 from core.errors import TouchRefused
 from core.evaluation_records import seed_sequence
+from core.trial_engine import Touch
 from core.validation import FloatArray
 from hardware.errors import (
     HardwareError,
@@ -98,9 +99,9 @@ class RigTrial:
         self._slot: int | None = self._target_slot
         self.touched = 0  # touches asked for so far (the refused one included)
 
-    def observe(self, action: FloatArray, rng: np.random.Generator) -> FloatArray:
-        """Touch the target with ``action`` (dx,); the observation (dy,). ``rng`` is unused:
-        the simulation's own randomness makes the noise.
+    def touch(self, action: FloatArray, rng: np.random.Generator) -> Touch:
+        """Touch the target with ``action`` (dx,) (a :class:`core.trial_engine.TouchSource`).
+        ``rng`` is unused: the simulation's own randomness makes the noise.
 
         Raises:
             TouchRefused: The hardware refused this touch (:func:`is_refusal`).
@@ -114,7 +115,7 @@ class RigTrial:
                 raise TouchRefused(type(exc).__name__, str(exc)) from exc
             exc.add_note(f"at touch {self.touched} of the trial")
             raise
-        return np.asarray(record.observation, dtype=np.float64)
+        return Touch(action=action, observation=np.asarray(record.observation, dtype=np.float64))
 
     def _touch(self, action: FloatArray) -> TouchRecord:
         target = self._target_slot

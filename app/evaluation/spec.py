@@ -6,13 +6,17 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal, cast, get_args
 
 from app.errors import BadInputError
-from core.evaluation_trial import POLICIES, TrialSettings
+from core.planning import EVALUATION_POLICIES
+from core.trial_engine import TrialSettings
 from core.types import ManifoldModel, TrainingData
+from core.worlds import WorldName as SyntheticWorld
 
 if TYPE_CHECKING:
     from hardware.sim.materials import Table
 
-WorldName = Literal["exp1", "exp2", "rig", "model", "replay"]
+#: The synthetic worlds of :func:`core.worlds.make_world` (``exp1``, ``exp2``), the simulated rig,
+#: the learned GP's samples and a replay of recorded touches.
+WorldName = Literal[SyntheticWorld, "rig", "model", "replay"]
 Placement = Literal["trial", "touch"]
 
 #: How often a ``rig`` trial places its object anew.
@@ -31,7 +35,7 @@ class EvaluationSpec:
             drawn from ``world_seed``), ``rig`` (the simulated rig, in process, virtual time),
             ``model`` (samples of the learned GP at the target's latent), ``replay`` (recorded
             held-out touches, without replacement).
-        policies: Policy names (see :data:`core.evaluation_trial.POLICIES`).
+        policies: Policy names (see :data:`core.planning.EVALUATION_POLICIES`).
         trials_per_target: Trials per (policy, target).
         steps: T, touches per trial at most (capped by the replay pool).
         confidence: Threshold of "touches to confidence" and of the compared accuracy level.
@@ -40,7 +44,8 @@ class EvaluationSpec:
         table: Simulated rig table (``rig``): a name, or a table read from a file
             (:mod:`hardware.sim.table_file`); the default table when ``None``.
         world_seed: Seed that draws the ``exp2`` world (as the server's simulated trials do).
-        noise_std: Observation noise of ``exp1``/``exp2`` (0.1 / 0.05 when ``None``).
+        noise_std: Observation noise of ``exp1``/``exp2`` (their
+            :data:`core.worlds.DEFAULT_NOISE_STD` when ``None``).
         tolerance: Stop when the belief mean moves less (normalised latent units; 0 disables).
         stop_at_confidence: Also stop a trial when the answer's probability reaches
             ``confidence`` (answers are carried forward to T).
@@ -102,13 +107,14 @@ class EvaluationSpec:
             )
         if not self.policies:
             raise BadInputError(
-                f"policies: name at least one of {sorted(POLICIES)}.", field="policies"
+                f"policies: name at least one of {sorted(EVALUATION_POLICIES)}.", field="policies"
             )
-        unknown = [p for p in self.policies if p not in POLICIES]
+        unknown = [p for p in self.policies if p not in EVALUATION_POLICIES]
         if unknown or len(set(self.policies)) != len(self.policies):
+            allowed = sorted(EVALUATION_POLICIES)
             raise BadInputError(
                 f"policies: {unknown or list(self.policies)} "
-                f"{'unknown' if unknown else 'repeated'}; choose from {sorted(POLICIES)}.",
+                f"{'unknown' if unknown else 'repeated'}; choose from {allowed}.",
                 field="policies",
             )
         for name, value in (("trials_per_target", self.trials_per_target), ("steps", self.steps)):

@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 from app.errors import BadInputError
 from app.evaluation.context import rig_tables, synthetic_world
 from core.types import ManifoldModel, TrainingData
+from core.worlds import WORLD_NAMES
 from hardware.sim.materials import table_name
 
 if TYPE_CHECKING:
@@ -56,7 +57,7 @@ def check_world(spec: EvaluationSpec, model: ManifoldModel, replay: TrainingData
         raise BadInputError(
             f"data: held-out touches are for the replay world, not {spec.world!r}.", field="data"
         )
-    if spec.world in ("exp1", "exp2"):
+    if spec.world in WORLD_NAMES:
         world = synthetic_world(spec)
         if (world.action_dim, world.observation_dim) != (h.action_dim, h.observation_dim):
             raise _dims_error(

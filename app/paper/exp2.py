@@ -27,8 +27,8 @@ from app.evaluation.spec import EvaluationSpec, Placement
 from app.paper.calibration import calibration_text
 from app.rig_factory import SimulationMode, TouchActions, open_rig
 from core.designs import random_design
-from core.evaluation_trial import POLICIES
 from core.manifold import FitOptions, fit_manifold
+from core.planning import EVALUATION_POLICIES
 from core.types import ManifoldModel, TrainingData
 from hardware.sim.materials import Table as SimTable
 from hardware.sim.materials import table_name
@@ -86,7 +86,7 @@ class Experiment2Settings:
     prior_variance: float = 5.0
     policies: tuple[str, ...] = field(
         default_factory=lambda: tuple(
-            p for p in ("active", "discriminative", "passive") if p in POLICIES
+            p for p in ("active", "discriminative", "passive") if p in EVALUATION_POLICIES
         )
     )
     sources: tuple[str, ...] = SOURCES

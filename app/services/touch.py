@@ -2,25 +2,19 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 
+from core.trial_engine import Touch
 from core.validation import FloatArray
 
-
-@dataclass(frozen=True)
-class Touch:
-    """One touch: the action performed (dx,), the observation (dy,), optional trajectory."""
-
-    action: FloatArray
-    observation: FloatArray
-    trajectory: dict[str, Any] | None = None
+__all__ = ["Touch", "TouchSource"]
 
 
 class TouchSource(Protocol):
-    """Something that touches the target object."""
+    """Something that touches the target object (a :class:`core.trial_engine.TouchSource` that
+    holds something to release)."""
 
     def touch(self, action: FloatArray, rng: np.random.Generator) -> Touch:
         """Perform ``action`` (dx,) and return the touch."""

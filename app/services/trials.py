@@ -1,5 +1,8 @@
 """Trials: scripted (the caller owns the robot), simulated and rig (the server drives).
 
+A server-driven trial runs the trial engine (:func:`core.trial_engine.iter_trial`) over its touch
+source; a scripted trial drives the engine's step-wise core, the
+:class:`~core.recognition.RecognitionSession`, one posted observation at a time.
 Every touch is committed as a :class:`app.models.TrialStep` the moment it happens, under the
 trial's run lock, so control requests (pause, resume, stop, abort) never interleave with a step.
 """
@@ -37,7 +40,7 @@ from app.services.jobs import INTERRUPTED, Job, JobCancelled, JobRunner
 from app.services.models import ModelStore
 from app.services.rig import RigService
 from app.services.trial_views import require, step_public, to_public, trial_result
-from app.services.worlds import Touch, TouchSource, WorldFactory
+from app.services.worlds import TouchSource, WorldFactory
 from core.errors import CoreError, InvalidInputError
 from core.planning import ActionBox, Planner, Policy, make_policy
 from core.recognition import (
@@ -46,6 +49,7 @@ from core.recognition import (
     RecognitionStep,
     default_prior,
 )
+from core.trial_engine import PlannedTouches, iter_trial
 from core.types import GaussianBelief, ManifoldModel
 from hardware.errors import HardwareError
 
@@ -477,7 +481,9 @@ class TrialService:
                     lease=handle.lease,
                 )
                 interval_s = options.step_interval_s if options is not None else 0.0
+                # One stream for the planner and the world's noise.
                 rng = np.random.default_rng(trial.seed)
+                steps = iter_trial(recognition, PlannedTouches(source), rng, rng)
                 with self._jobs.run_lock("trial", trial_id):
                     session.refresh(trial)
                     if trial.status != "queued":
@@ -488,9 +494,7 @@ class TrialService:
             while True:
                 handle.checkpoint()
                 started = time.perf_counter()
-                planned = recognition.suggest(rng)
-                touch: Touch = source.touch(planned.action, rng)
-                step = recognition.observe(touch.action, touch.observation)
+                step, touch = next(steps)  # plan, touch, update
                 record = functools.partial(
                     self._record_worker_step,
                     trial_id,

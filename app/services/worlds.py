@@ -6,50 +6,30 @@ what was felt.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
-import numpy as np
-
 from app.errors import BadInputError
 from app.rig_factory import SimulationMode, open_rig
 from app.schemas import SimulationOptions
 from app.services.rig import RigService, RigTouchSource
 from app.services.touch import Touch, TouchSource
+from core.errors import InvalidInputError
+from core.trial_engine import WorldTouches
 from core.types import ManifoldModel
-from core.validation import FloatArray
-from core.worlds import Experiment1World, World, random_experiment2_world
+from core.worlds import World, make_world
 from hardware.rig import RigLease
 
-__all__ = ["Touch", "TouchSource", "WorldFactory", "WorldTouchSource", "make_world"]
+__all__ = ["Touch", "TouchSource", "WorldFactory", "simulated_world"]
 
 
-@dataclass
-class WorldTouchSource:
-    """Touches object ``object_index`` of a synthetic world."""
+def simulated_world(options: SimulationOptions) -> World:
+    """The synthetic world of a simulated trial (:func:`core.worlds.make_world`).
 
-    world: World
-    object_index: int
-
-    def touch(self, action: FloatArray, rng: np.random.Generator) -> Touch:
-        """y = h(object, x) + noise."""
-        observation = self.world.observe(self.object_index, action[None, :], rng)[0]
-        return Touch(action=np.asarray(action, dtype=np.float64), observation=observation)
-
-    def close(self) -> None:
-        """Nothing to release."""
-
-
-def make_world(options: SimulationOptions) -> World:
-    """The synthetic world of a simulated trial."""
-    if options.world == "experiment1":
-        noise = 0.1 if options.noise_std is None else options.noise_std
-        return Experiment1World(noise_std=noise)
-    if options.world == "experiment2":
-        noise = 0.05 if options.noise_std is None else options.noise_std
-        return random_experiment2_world(np.random.default_rng(options.world_seed), noise_std=noise)
-    raise BadInputError(
-        f"simulation.world: {options.world!r} is not a synthetic world.", field="simulation.world"
-    )
+    Raises:
+        BadInputError: Not a synthetic world (the field is named).
+    """
+    try:
+        return make_world(options.world, world_seed=options.world_seed, noise_std=options.noise_std)
+    except InvalidInputError as exc:
+        raise BadInputError(f"simulation.{exc}", field="simulation.world") from exc
 
 
 def _check_dims(world: World, model: ManifoldModel, what: str) -> None:
@@ -111,7 +91,7 @@ class WorldFactory:
                 self._check_rig_dims(model, "simulation.world")
                 _target_index(self._rig.sim_table, target)
                 return
-            world = make_world(options)
+            world = simulated_world(options)
             _check_dims(world, model, "simulation.world")
             _target_index(world.object_names, target)
             return
@@ -143,8 +123,10 @@ class WorldFactory:
         if mode == "simulated":
             options = simulation or SimulationOptions()
             if options.world != "rig":
-                world = make_world(options)
-                return WorldTouchSource(world, _target_index(world.object_names, target))
+                world = simulated_world(options)
+                return WorldTouches(
+                    world, world.object_names[_target_index(world.object_names, target)]
+                )
             handle = open_rig(
                 simulate=SimulationMode.in_process,
                 objects=self._rig.simulated_table.slots,

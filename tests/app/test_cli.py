@@ -196,3 +196,13 @@ def test_messages_show_bracketed_names_verbatim(tmp_path, csv_path):
     fitted = runner.invoke(app, ["fit", str(renamed), "--latent-dim", "1", "--restarts", "0"])
     assert fitted.exit_code == 0, fitted.output
     assert "cup[red]  s = " in fitted.stdout
+
+
+def test_the_cli_names_the_policies_and_worlds_of_the_registries() -> None:
+    """The command line lists them itself (``--help`` loads no numerics); they must agree."""
+    from app.cli.main import Policy, WorldName
+    from core.planning import POLICY_NAMES
+    from core.worlds import WORLD_NAMES
+
+    assert tuple(p.value for p in Policy) == POLICY_NAMES
+    assert tuple(w.value for w in WorldName) == WORLD_NAMES

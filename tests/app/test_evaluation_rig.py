@@ -117,7 +117,7 @@ def test_a_rig_trial_places_its_object_once_or_before_every_touch(
     )
     try:
         for _ in range(3):
-            trial.observe(np.zeros(6), np.random.default_rng(0))
+            trial.touch(np.zeros(6), np.random.default_rng(0))
         devices = trial._handle.simulation.devices  # type: ignore[union-attr]
         assert devices.plant.events.placements == placements
         assert devices.plant.events.touched == {"paper_cup": 3}
@@ -185,7 +185,6 @@ def test_a_rig_trial_simulates_the_noise_model_it_is_given() -> None:
 def test_the_sim_tables_bench_runs_the_engines_trials(rig_model, source: str, world: str) -> None:
     """bench/sim_tables.py's trials are the engine's: the same records as ``run_evaluation``."""
     from bench.sim_tables import policy_records
-    from core.planning import Planner, make_policy
 
     placement = "touch" if world == "rig" else "trial"
     engine = run_evaluation(
@@ -203,14 +202,12 @@ def test_the_sim_tables_bench_runs_the_engines_trials(rig_model, source: str, wo
     )
     bench = policy_records(
         rig_model,
-        Planner(rig_model, make_policy("active")),
         "active",
         1,
         3,
         4,
         source=source,
         table="default",
-        actions=TouchActions.from_teaching(),
         reseat_each_touch=placement == "touch",
     )
     assert len(bench) == len(rig_model.object_names) == 3

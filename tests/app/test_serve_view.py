@@ -58,7 +58,7 @@ def test_serve_runs_the_view_and_it_follows_a_trial(served: ServedApp) -> None:
             json={
                 "model_id": imported.json()["id"], "mode": "simulated", "target": "O2",
                 "seed": 4, "max_steps": 4,
-                "simulation": {"world": "experiment1", "step_interval_s": 0.0},
+                "simulation": {"world": "exp1", "step_interval_s": 0.0},
             },
         )  # fmt: skip
         assert created.status_code == 201, created.text

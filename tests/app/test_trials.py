@@ -344,3 +344,45 @@ def test_model_export_import_round_trip(client: TestClient, model_id: int) -> No
     broken = client.post(f"{API}/models/import", json={"format": "activetouch-model/1"})
     assert broken.status_code == 422
     assert "objects" in broken.json()["detail"]
+
+
+def test_simulated_worlds_have_the_cli_names_and_the_old_ones_as_aliases(
+    client: TestClient, model_id: int
+) -> None:
+    """``exp1`` as ``activetouch`` and the evaluations say; ``experiment1`` still means it."""
+    results = []
+    for world in ("exp1", "experiment1"):
+        created = client.post(
+            f"{API}/trials",
+            json={
+                "model_id": model_id, "mode": "simulated", "target": "O2", "seed": 8,
+                "max_steps": 3, "tolerance": 0.0, "simulation": {"world": world},
+            },
+        )  # fmt: skip
+        assert created.status_code == 201, created.text
+        done = wait_for(client, created.json()["id"], lambda t: t["status"] == "completed")
+        results.append([(s["action"], s["observation"]) for s in done["steps"]])
+    assert results[0] == results[1]
+    unknown = client.post(
+        f"{API}/trials",
+        json={
+            "model_id": model_id, "mode": "simulated", "target": "O2",
+            "simulation": {"world": "experiment3"},
+        },
+    )  # fmt: skip
+    assert unknown.status_code == 422
+    assert "exp1" in unknown.text
+    assert "exp2" in unknown.text
+
+
+def test_the_api_names_the_policies_and_worlds_of_the_registries() -> None:
+    """The schemas list them without loading the numerics; they must agree with the registries."""
+    from typing import get_args
+
+    from app.schemas import SimulationOptions, TrialCreate
+    from core.planning import POLICY_NAMES
+    from core.worlds import WORLD_NAMES
+
+    assert get_args(TrialCreate.model_fields["policy"].annotation) == POLICY_NAMES
+    worlds = get_args(SimulationOptions.model_fields["world"].annotation)
+    assert worlds == (*WORLD_NAMES, "rig")

@@ -12,7 +12,7 @@ from bench.diagnose_gap import (
     standardised_residuals,
     summarise,
 )
-from core.evaluation_trial import model_observer
+from core.trial_engine import ModelTouches
 from core.object_posterior import touch_log_likelihoods
 from core.reference_model import experiment1_at_true_latents
 
@@ -71,7 +71,7 @@ def test_residuals_of_the_models_own_draws_are_standard_normal() -> None:
     actions = rng.normal(0, 1, (n, model.hyperparameters.action_dim))
     raw = np.array(
         [
-            model_observer(model, model.object_names[o])(a, rng)
+            ModelTouches(model, model.object_names[o]).touch(a, rng).observation
             for o, a in zip(objects, actions, strict=True)
         ]
     )
@@ -92,7 +92,7 @@ def test_a_shifted_observation_shows_as_a_biased_residual() -> None:
     objects = np.zeros(50, dtype=np.int64)
     actions = np.zeros((50, model.hyperparameters.action_dim))
     rng = np.random.default_rng(2)
-    raw = np.array([model_observer(model, model.object_names[0])(a, rng) for a in actions])
+    raw = np.array([ModelTouches(model, model.object_names[0]).touch(a, rng).observation for a in actions])
     z0, _, _ = standardised_residuals(model, objects, actions, raw)
     z1, _, _ = standardised_residuals(model, objects, actions, raw + 1.0)
     assert np.all(z1.mean(axis=0) > z0.mean(axis=0) + 1.0)

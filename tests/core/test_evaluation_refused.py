@@ -12,9 +12,9 @@ from core.evaluation_records import (
     outcome_from_dict,
     trial_seed,
 )
-from core.evaluation_trial import TrialSettings, policy_entry, run_trial, world_observer
-from core.planning import Planner
+from core.planning import Planner, policy_entry
 from core.reference_model import experiment1_at_true_latents
+from core.trial_engine import Touch, TouchSource, TrialSettings, WorldTouches, run_trial
 from core.types import ManifoldModel
 from core.validation import FloatArray
 from core.worlds import Experiment1World
@@ -30,19 +30,20 @@ def model() -> ManifoldModel:
 
 def refusing_at(touch: int, target: str):
     """Experiment 1's observations of ``target``, but touch ``touch`` (1-based) is refused."""
-    inner = world_observer(Experiment1World(), target)
+    inner = WorldTouches(Experiment1World(), target)
     count = [0]
 
-    def observe(action: FloatArray, rng: np.random.Generator) -> FloatArray:
-        count[0] += 1
-        if count[0] == touch:
-            raise TouchRefused("ServoHardwareError", "servo FFJ3 (ID 1): OVERLOAD")
-        return inner(action, rng)
+    class Refusing:
+        def touch(self, action: FloatArray, rng: np.random.Generator) -> Touch:
+            count[0] += 1
+            if count[0] == touch:
+                raise TouchRefused("ServoHardwareError", "servo FFJ3 (ID 1): OVERLOAD")
+            return inner.touch(action, rng)
 
-    return observe
+    return Refusing()
 
 
-def run(model: ManifoldModel, policy: str, observe) -> TrialRecord | RefusedTrial:
+def run(model: ManifoldModel, policy: str, touches: TouchSource) -> TrialRecord | RefusedTrial:
     return run_trial(
         model,
         Planner(model, policy_entry(policy).make()),
@@ -50,7 +51,7 @@ def run(model: ManifoldModel, policy: str, observe) -> TrialRecord | RefusedTria
         target="O2",
         trial=1,
         seed=trial_seed(4, "O2", 1),
-        observe=observe,
+        touches=touches,
         settings=SETTINGS,
     )
 
@@ -61,7 +62,7 @@ def test_a_refused_touch_ends_the_trial_keeping_the_touches_before(
     policy: str,
     touch: int,
 ) -> None:
-    whole = run(model, policy, world_observer(Experiment1World(), "O2"))
+    whole = run(model, policy, WorldTouches(Experiment1World(), "O2"))
     assert isinstance(whole, TrialRecord)
     assert whole.touches == 5
     refused = run(model, policy, refusing_at(touch, "O2"))
@@ -84,11 +85,12 @@ def test_a_refused_touch_ends_the_trial_keeping_the_touches_before(
 
 
 def test_any_other_error_of_the_world_propagates(model: ManifoldModel) -> None:
-    def broken(action: FloatArray, rng: np.random.Generator) -> FloatArray:
-        raise ConnectionError("the finger's port went away")
+    class Broken:
+        def touch(self, action: FloatArray, rng: np.random.Generator) -> Touch:
+            raise ConnectionError("the finger's port went away")
 
     with pytest.raises(ConnectionError, match="port went away"):
-        run(model, "active", broken)
+        run(model, "active", Broken())
 
 
 def test_a_refused_trial_checks_its_lengths() -> None:

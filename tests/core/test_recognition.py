@@ -22,8 +22,8 @@ from core.recognition import (
     RecognitionSession,
     RecognitionSettings,
     default_prior,
-    iter_recognize,
 )
+from core.trial_engine import PlannedTouches, WorldTouches, iter_trial
 from core.types import GaussianBelief, Hyperparameters, ManifoldModel
 from core.worlds import EXPERIMENT1_THETAS, Experiment1World, sample_experiment1
 
@@ -79,16 +79,9 @@ def test_each_experiment1_object_is_recognised_within_ten_active_touches(
     settings = RecognitionSettings(max_steps=10, tolerance=0.0)
     for trial in range(3):
         rng = np.random.default_rng(100 * obj + trial)
-        steps = list(
-            iter_recognize(
-                model,
-                lambda x, rng=rng: WORLD.observe(obj, x[None, :], rng)[0],
-                active,
-                default_prior(model, variance=5.0),
-                settings,
-                rng,
-            )
-        )
+        session = RecognitionSession(model, active, default_prior(model, variance=5.0), settings)
+        touches = PlannedTouches(WorldTouches(WORLD, WORLD.object_names[obj]))
+        steps = [s.step for s in iter_trial(session, touches, rng, rng)]
         assert len(steps) == 10
         assert steps[-1].done
         assert steps[-1].stop_reason == "max_steps"
@@ -148,11 +141,9 @@ def test_stops_after_max_steps_and_refuses_more(model: ManifoldModel) -> None:
 def test_stops_when_confident(model: ManifoldModel, active: Planner) -> None:
     settings = RecognitionSettings(max_steps=10, tolerance=0.0, confidence_threshold=0.999)
     rng = np.random.default_rng(3)
-    steps = list(
-        iter_recognize(
-            model, lambda x: WORLD.observe(0, x[None, :], rng)[0], active, None, settings, rng
-        )
-    )
+    session = RecognitionSession(model, active, None, settings)
+    touches = PlannedTouches(WorldTouches(WORLD, WORLD.object_names[0]))
+    steps = [s.step for s in iter_trial(session, touches, rng, rng)]
     assert steps[-1].stop_reason == "confident"
     assert steps[-1].probabilities.max() >= 0.999
     assert all(s.probabilities.max() < 0.999 for s in steps[:-1])

@@ -37,7 +37,7 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Demo]:
     with running_demo(
         tmp_path_factory.mktemp("signin"),
         settings_overrides={"require_auth_for_reads": True},
-        world="experiment1",
+        world="exp1",
         latent_dim=1,
         api_token=TOKEN,
     ) as running:
@@ -154,7 +154,7 @@ def test_the_demo_login_link_signs_in_once_and_leaves_the_address(page: Any, dem
 def local_demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Demo]:
     """On loopback with a token: reads open, changes need the sign-in (as before)."""
     with running_demo(
-        tmp_path_factory.mktemp("local"), world="experiment1", latent_dim=1, api_token=TOKEN
+        tmp_path_factory.mktemp("local"), world="exp1", latent_dim=1, api_token=TOKEN
     ) as running:
         yield running
 
@@ -196,7 +196,7 @@ def strict_demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Demo]:
     with running_demo(
         tmp_path_factory.mktemp("strict"),
         settings_overrides={"require_auth_for_reads": True, "auth_max_failures": 2},
-        world="experiment1",
+        world="exp1",
         latent_dim=1,
         api_token=TOKEN,
     ) as running:

@@ -133,7 +133,7 @@ async function runBatch() {
   if (!modelId) throw new Error("Fit a model first.");
   const model = await store.model(modelId);
   const perPolicy = Number($("batch-n").value);
-  const world = model.action_dim === 1 && model.observation_dim === 3 ? "experiment1" : "rig";
+  const world = model.action_dim === 1 && model.observation_dim === 3 ? "exp1" : "rig";
   batchRunning = true;
   let done = 0;
   const total = 2 * perPolicy;
@@ -144,7 +144,7 @@ async function runBatch() {
         $("batch-status").textContent = `Running ${done + 1} of ${total} (${policy}, target ${target})…`;
         const body = {
           model_id: modelId,
-          mode: world === "experiment1" ? "simulated" : "rig",
+          mode: world === "exp1" ? "simulated" : "rig",
           policy,
           max_steps: 10,
           prior_cov: isotropicCov(model.latent_dim, 5),

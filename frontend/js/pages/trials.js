@@ -23,7 +23,7 @@ let evaluationTrial = null; // GET /evaluations/{id}/trials/{n}, shown read-only
 let stepsHead = null; // the steps table's own header, restored after an evaluation trial
 
 function worldFor(model) {
-  if (model.action_dim === 1 && model.observation_dim === 3) return "experiment1";
+  if (model.action_dim === 1 && model.observation_dim === 3) return "exp1";
   return "rig";
 }
 
@@ -57,7 +57,7 @@ async function modelChosen() {
   // (the simulated one in the demo).
   const world = worldFor(model);
   $("trial-world").value = world;
-  $("trial-mode").value = world === "experiment1" ? "simulated" : "rig";
+  $("trial-mode").value = world === "exp1" ? "simulated" : "rig";
   modeChanged();
   if (!trial && !evaluationTrial) drawManifold(model, null);
 }

@@ -1,4 +1,4 @@
-"""One evaluation trial: seeds, worlds, the model-sampled world and replay without replacement."""
+"""The trial engine: seeds, worlds, the model-sampled world and replay without replacement."""
 
 from __future__ import annotations
 
@@ -6,24 +6,36 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
-from core.evaluation_records import trial_seed
-from core.evaluation_trial import (
+from core.evaluation_records import TrialRecord, outcome_from_dict, trial_seed
+from core.planning import (
+    EVALUATION_POLICIES,
     POLICIES,
+    POLICY_NAMES,
+    Planner,
+    label_information_score,
+    policy_entry,
+)
+from core.posterior import predict
+from core.recognition import RecognitionSession, RecognitionSettings, default_prior
+from core.reference_model import experiment1_at_true_latents
+from core.trial_engine import (
+    ModelTouches,
+    PlannedTouches,
     ReplayPool,
     TrialSettings,
-    model_observer,
-    policy_entry,
+    WorldTouches,
+    iter_trial,
     replay_pools,
-    run_replay_trial,
     run_trial,
-    world_observer,
 )
-from core.planning import Planner
-from core.posterior import predict
-from core.recognition import default_prior
-from core.reference_model import experiment1_at_true_latents
 from core.types import ManifoldModel
-from core.worlds import Experiment1World, sample_experiment1
+from core.worlds import (
+    DEFAULT_NOISE_STD,
+    WORLD_NAMES,
+    Experiment1World,
+    make_world,
+    sample_experiment1,
+)
 
 
 @pytest.fixture(scope="module")
@@ -43,7 +55,7 @@ def trial(model, planner, policy, target, index, seed=0):
         target=target,
         trial=index,
         seed=trial_seed(seed, target, index),
-        observe=world_observer(Experiment1World(), target),
+        touches=WorldTouches(Experiment1World(), target),
         settings=SETTINGS,
     )
 
@@ -82,10 +94,10 @@ def test_record_holds_every_touch(model):
 
 
 def test_model_world_samples_the_predictive_distribution(model):
-    observe = model_observer(model, "O3")
+    touches = ModelTouches(model, "O3")
     action = np.array([0.4])
     rng = np.random.default_rng(3)
-    draws = np.array([observe(action, rng) for _ in range(4000)])
+    draws = np.array([touches.touch(action, rng).observation for _ in range(4000)])
     mean, variance = predict(model, model.latents[2][None, :], action[None, :])
     # Standard error of a mean of 4000 draws: sqrt(v / 4000); 5 standard errors.
     assert np.all(np.abs(draws.mean(axis=0) - mean[0]) < 5 * np.sqrt(variance[0] / 4000))
@@ -95,11 +107,11 @@ def test_model_world_samples_the_predictive_distribution(model):
 def test_unknown_policy_and_target_are_named(model):
     allowed = r"\['active', 'discriminative', 'passive'\]"
     with pytest.raises(InvalidInputError, match=rf"'greedy'.*{allowed}"):
-        policy_entry("greedy")
+        policy_entry("greedy", EVALUATION_POLICIES)
     with pytest.raises(InvalidInputError, match="'O9'"):
-        world_observer(Experiment1World(), "O9")
+        WorldTouches(Experiment1World(), "O9")
     with pytest.raises(InvalidInputError, match="'O9'"):
-        model_observer(model, "O9")
+        ModelTouches(model, "O9")
     assert set(POLICIES) >= {"active", "passive"}
 
 
@@ -110,14 +122,14 @@ def held_out():
 
 def replay(model, held_out, policy, target="O2", index=0, steps=None):
     pool = replay_pools(held_out)[target]
-    return pool, run_replay_trial(
+    return pool, run_trial(
         model,
         Planner(model, policy_entry(policy).make()),
         policy=policy,
         target=target,
         trial=index,
         seed=trial_seed(0, target, index),
-        pool=pool,
+        replay=pool,
         settings=TrialSettings(steps=8, tolerance=0.0),
         steps=steps,
     )
@@ -154,21 +166,19 @@ def test_replay_cap_and_dimensions_are_checked(model, held_out):
         replay(model, held_out, "active", steps=9)
     wrong = ReplayPool(actions=np.zeros((4, 2)), observations=np.zeros((4, 3)))
     with pytest.raises(InvalidInputError, match="dx=2, dy=3; the model has dx=1, dy=3"):
-        run_replay_trial(
+        run_trial(
             model,
             Planner(model, policy_entry("active").make()),
             policy="active",
             target="O1",
             trial=0,
             seed=trial_seed(0, "O1", 0),
-            pool=wrong,
+            replay=wrong,
             settings=TrialSettings(steps=2),
         )
 
 
 def test_discriminative_replay_picks_the_most_label_informative_touch_first(model, held_out):
-    from core.evaluation_trial import label_information_score
-
     pool, record = replay(model, held_out, "discriminative")
     planner = Planner(model, policy_entry("discriminative").make())
     uniform = np.full(4, 0.25)
@@ -182,3 +192,112 @@ def test_discriminative_trials_run_in_a_world(model):
     record = trial(model, planner, "discriminative", "O2", 0)
     assert record.policy == "discriminative"
     assert trial(model, planner, "discriminative", "O2", 0) == record
+
+
+# --- the engine's loop and the outcome's stop reason -------------------------------------------
+
+
+def test_the_loop_yields_each_touch_and_stops_when_the_caller_stops(model):
+    asked = []
+
+    class Counting:
+        def touch(self, action, rng):
+            asked.append(action)
+            return WorldTouches(Experiment1World(), "O2").touch(action, rng)
+
+    session = RecognitionSession(
+        model, Planner(model, policy_entry("passive").make()), None, RecognitionSettings(8, 0.0)
+    )
+    rng = np.random.default_rng(0)
+    steps = iter_trial(session, PlannedTouches(Counting()), rng, rng)
+    first = next(steps)
+    assert (first.step.step, len(asked)) == (1, 1)  # nothing is touched ahead of the caller
+    np.testing.assert_array_equal(first.touch.action, first.step.action)
+    steps.close()
+    assert len(session.steps) == 1
+    rest = list(iter_trial(session, PlannedTouches(Counting()), rng, rng))  # resumes the session
+    assert [s.step.step for s in rest] == list(range(2, 9))
+    assert rest[-1].step.stop_reason == "max_steps"
+
+
+@pytest.mark.parametrize(
+    ("settings", "reason"),
+    [
+        (TrialSettings(steps=3, tolerance=0.0), "max_steps"),
+        (TrialSettings(steps=10, tolerance=0.0, stop_confidence=0.9), "confident"),
+        (TrialSettings(steps=10, tolerance=10.0), "converged"),
+    ],
+)
+def test_the_outcome_records_why_the_trial_stopped(model, settings, reason):
+    record = run_trial(
+        model,
+        Planner(model, policy_entry("active").make()),
+        policy="active",
+        target="O2",
+        trial=0,
+        seed=trial_seed(0, "O2", 0),
+        settings=settings,
+        touches=WorldTouches(Experiment1World(), "O2"),
+    )
+    assert isinstance(record, TrialRecord)
+    assert record.stop_reason == reason
+    assert record.stopped_by_confidence == (reason == "confident")
+    if reason == "confident":
+        assert max(record.probabilities[-1]) >= 0.9
+        assert all(max(p) < 0.9 for p in record.probabilities[:-1])
+    assert TrialRecord.from_dict(record.to_dict()) == record
+
+
+def test_a_record_written_without_a_stop_reason_still_reads(model):
+    record = trial(model, Planner(model, policy_entry("active").make()), "active", "O2", 0)
+    document = record.to_dict()
+    del document["stop_reason"]
+    old = outcome_from_dict(document)
+    assert isinstance(old, TrialRecord)
+    assert old.stop_reason is None
+    assert not old.stopped_by_confidence
+    assert old.answers == record.answers
+    with pytest.raises(InvalidInputError, match="stop_reason"):
+        TrialRecord.from_dict({**record.to_dict(), "stop_reason": "bored"})
+
+
+def test_a_trial_has_exactly_one_observation_source(model, held_out):
+    planner = Planner(model, policy_entry("active").make())
+    common = {"policy": "active", "target": "O1", "trial": 0, "seed": trial_seed(0, "O1", 0)}
+    with pytest.raises(InvalidInputError, match="exactly one"):
+        run_trial(model, planner, settings=SETTINGS, **common)
+    with pytest.raises(InvalidInputError, match="exactly one"):
+        run_trial(
+            model,
+            planner,
+            settings=SETTINGS,
+            touches=WorldTouches(Experiment1World(), "O1"),
+            replay=replay_pools(held_out)["O1"],
+            **common,
+        )
+
+
+# --- the registries ----------------------------------------------------------------------------
+
+
+def test_one_registry_names_the_policies_evaluations_may_run():
+    assert tuple(POLICIES) == POLICY_NAMES
+    assert EVALUATION_POLICIES == ("active", "discriminative", "passive")
+    assert POLICIES["fixed"].needs_action
+    with pytest.raises(InvalidInputError, match=r"'fixed'.*\['active', 'discriminative'"):
+        policy_entry("fixed", EVALUATION_POLICIES)
+    assert POLICIES["passive"].replay_score is None  # a replay picks at random
+
+
+def test_one_registry_makes_the_worlds_with_their_noise_defaults():
+    exp1 = make_world("exp1")
+    assert isinstance(exp1, Experiment1World)
+    assert exp1.noise_std == DEFAULT_NOISE_STD["exp1"] == 0.1
+    assert make_world("exp1", noise_std=0.3).noise_std == 0.3
+    exp2 = make_world("exp2", world_seed=3)
+    assert (exp2.action_dim, exp2.observation_dim) == (6, 5)
+    np.testing.assert_array_equal(exp2.noise_std, np.full(5, DEFAULT_NOISE_STD["exp2"]))
+    np.testing.assert_array_equal(exp2.truth, make_world("exp2", world_seed=3).truth)
+    assert set(WORLD_NAMES) == set(DEFAULT_NOISE_STD)
+    with pytest.raises(InvalidInputError, match=r"'experiment1'.*\['exp1', 'exp2'\]"):
+        make_world("experiment1")
