@@ -12,9 +12,9 @@ from bench.diagnose_gap import (
     standardised_residuals,
     summarise,
 )
-from core.trial_engine import ModelTouches
 from core.object_posterior import touch_log_likelihoods
 from core.reference_model import experiment1_at_true_latents
+from core.trial_engine import ModelTouches
 
 
 def test_icc_balanced_by_hand() -> None:
@@ -92,7 +92,9 @@ def test_a_shifted_observation_shows_as_a_biased_residual() -> None:
     objects = np.zeros(50, dtype=np.int64)
     actions = np.zeros((50, model.hyperparameters.action_dim))
     rng = np.random.default_rng(2)
-    raw = np.array([ModelTouches(model, model.object_names[0]).touch(a, rng).observation for a in actions])
+    raw = np.array(
+        [ModelTouches(model, model.object_names[0]).touch(a, rng).observation for a in actions]
+    )
     z0, _, _ = standardised_residuals(model, objects, actions, raw)
     z1, _, _ = standardised_residuals(model, objects, actions, raw + 1.0)
     assert np.all(z1.mean(axis=0) > z0.mean(axis=0) + 1.0)
