@@ -9,7 +9,6 @@ how ``--latent-dim auto`` chose ds.
 
 from __future__ import annotations
 
-import math
 import reprlib
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -18,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from app.documents.errors import DocumentError
+from app.documents.json_values import check_json_values
 from app.documents.noise_model import noise_model_field, read_noise_model_field
 from app.documents.posterior import condition_as_recorded, posterior_field
 from app.documents.training_csv import MAX_NAME_CHARACTERS
@@ -116,54 +116,6 @@ def model_to_document(
             "hyperparameters_at_bounds": list(d.hyperparameters_at_bounds),
         }
     return document
-
-
-def _check_values(document: Mapping[str, Any]) -> None:
-    """Every value of a document is plain, finite and of a size a model document has.
-
-    Walks the whole document (fields the reader ignores too, as they are stored or exported
-    again), without recursion: a document nested deeper than any Python stack is refused like
-    one nested five levels deep.
-
-    Raises:
-        DocumentError: A number that is not finite (``NaN``, ``Infinity``, ``1e400`` in the
-            JSON), text over :data:`MAX_TEXT_CHARACTERS`, or nesting deeper than
-            :data:`MAX_DOCUMENT_DEPTH`; the message names the field.
-    """
-    pending: list[tuple[tuple[str | int, ...], Mapping[str, Any] | list[Any]]] = [((), document)]
-    while pending:
-        path, container = pending.pop()
-        if len(path) > MAX_DOCUMENT_DEPTH:
-            raise DocumentError(
-                f"model document: {_dotted(path)} is nested deeper than a model document is "
-                f"({MAX_DOCUMENT_DEPTH} levels).",
-                column=_dotted(path),
-            )
-        items = container.items() if isinstance(container, Mapping) else enumerate(container)
-        for key, value in items:
-            if isinstance(value, float):
-                if not math.isfinite(value):
-                    where = _dotted((*path, key))
-                    raise DocumentError(
-                        f"model document: {where} is a non-finite number ({value}).",
-                        column=where,
-                    )
-            elif isinstance(value, str):
-                if len(value) > MAX_TEXT_CHARACTERS:
-                    where = _dotted((*path, key))
-                    raise DocumentError(
-                        f"model document: {where} has {len(value)} characters; at most "
-                        f"{MAX_TEXT_CHARACTERS} are allowed.",
-                        column=where,
-                    )
-            elif isinstance(value, Mapping | list):
-                pending.append(((*path, key), value))
-
-
-def _dotted(path: tuple[str | int, ...]) -> str:
-    """A field's path as ``training_data.actions[3][0]``."""
-    text = "".join(f"[{key}]" if isinstance(key, int) else f".{key}" for key in path)
-    return text.removeprefix(".")
 
 
 def _check_number(document: Mapping[str, Any], name: str, minimum: float | None = None) -> None:
@@ -317,7 +269,9 @@ def model_from_document(document: Any) -> ManifoldModel:
     """
     if not isinstance(document, Mapping):
         raise DocumentError("model document: expected a JSON object.")
-    _check_values(document)
+    check_json_values(
+        document, "model document", max_depth=MAX_DOCUMENT_DEPTH, max_text=MAX_TEXT_CHARACTERS
+    )
     if _field(document, "format") != MODEL_FORMAT:
         raise DocumentError(
             f"model document: format must be {MODEL_FORMAT!r}, found "
