@@ -8,11 +8,12 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from datetime import datetime
-from typing import Any
+from typing import Any, TypeVar
 
 from sqlalchemy import delete, func, select, update
 from sqlalchemy.orm import Session
 
+from app.errors import NotFoundError
 from app.models import (
     Dataset,
     Evaluation,
@@ -29,6 +30,35 @@ from app.models import (
     utc_now,
 )
 from app.states import ACTIVE, MODEL_ACTIVE
+
+RowT = TypeVar("RowT", Dataset, ModelRecord, Trial, Run, Evaluation)
+
+#: What a 404 calls a row of each table it answers for (a run is called by its kind).
+_NOUNS: dict[type[Any], str] = {
+    Dataset: "dataset",
+    ModelRecord: "model",
+    Trial: "trial",
+    Evaluation: "evaluation",
+}
+
+
+def require(table: type[RowT], session: Session, row_id: int, kind: str | None = None) -> RowT:
+    """The row of ``table`` with this id (a run: of this ``kind``), or a 404 naming it.
+
+    The services bind ``table`` (``require = partial(crud.require, Dataset)``), so every
+    missing id is answered alike: ``{"detail": "Dataset 7 does not exist.", "dataset_id": 7}``.
+
+    Raises:
+        NotFoundError: No such row (or a run of another kind).
+    """
+    row = session.get(table, row_id)
+    if row is None or (kind is not None and getattr(row, "kind", None) != kind):
+        noun = kind or _NOUNS[table]
+        raise NotFoundError(
+            f"{noun.capitalize()} {row_id} does not exist.", **{f"{noun}_id": row_id}
+        )
+    return row
+
 
 # --- objects ----------------------------------------------------------------------------------
 
@@ -254,14 +284,6 @@ def create_run(session: Session, **fields: Any) -> Run:
     run = Run(**fields)
     session.add(run)
     session.flush()
-    return run
-
-
-def get_run(session: Session, run_id: int, kind: str | None = None) -> Run | None:
-    """The run with this id (and kind, if given), if any."""
-    run = session.get(Run, run_id)
-    if run is None or (kind is not None and run.kind != kind):
-        return None
     return run
 
 

@@ -7,14 +7,13 @@ from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 
 from fastapi import APIRouter, Depends, FastAPI
-from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from app.config import Settings
 from app.deps import require_token
-from app.errors import PayloadTooLargeError, install_error_handlers
+from app.errors import PayloadTooLargeError, error_response, install_error_handlers
 from app.routes import audit as audit_routes
 from app.routes import collections, datasets, events, health, models, objects, rig, trials
 from app.routes import session as session_routes
@@ -48,7 +47,8 @@ class BodySizeLimit:
     """Answer a JSON 413 to a request body over the limit.
 
     A declared Content-Length over the limit is refused before reading; a chunked body is
-    counted as it is read and cut with :class:`PayloadTooLargeError`.
+    counted as it is read and cut with :class:`PayloadTooLargeError` (also when FastAPI reads
+    it for a JSON body: :func:`app.errors.error_response` answers the 413 it wraps).
     """
 
     def __init__(self, app: ASGIApp, max_body_size: int) -> None:
@@ -59,15 +59,12 @@ class BodySizeLimit:
         if scope["type"] == "http":
             declared = Headers(scope=scope).get("content-length", "")
             if declared.isdigit() and int(declared) > self.max_body_size:
-                response = JSONResponse(
-                    {
-                        "detail": f"Request body of {declared} bytes is over the limit of "
-                        f"{self.max_body_size} bytes.",
-                        "limit_bytes": self.max_body_size,
-                    },
-                    status_code=413,
+                refusal = PayloadTooLargeError(
+                    f"Request body of {declared} bytes is over the limit of "
+                    f"{self.max_body_size} bytes.",
+                    limit_bytes=self.max_body_size,
                 )
-                await response(scope, receive, send)
+                await error_response(refusal)(scope, receive, send)
                 return
             received = 0
 

@@ -9,13 +9,35 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Generic, Literal, TypeVar
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, FiniteFloat, StringConstraints
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    FiniteFloat,
+    StringConstraints,
+)
 
+from app.documents.json_values import check_json_values
+from app.documents.training_csv import MAX_NAME_CHARACTERS
 from app.states import ModelStatus, RunStatus
 
 T = TypeVar("T")
 
-Name = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=200)]
+
+def _plain_record(value: dict[str, Any]) -> dict[str, Any]:
+    """A free-form record a client sends is stored as JSON and read back: finite numbers,
+    valid text under 10 000 characters, nested at most 8 levels."""
+    check_json_values(value, "record", max_depth=8, max_text=10_000)
+    return value
+
+
+Name = Annotated[
+    str, StringConstraints(strip_whitespace=True, min_length=1, max_length=MAX_NAME_CHARACTERS)
+]
+#: A free-form JSON object a client records (a touch's trajectory).
+Record = Annotated[dict[str, Any], AfterValidator(_plain_record)]
 Vector = Annotated[list[FiniteFloat], Field(min_length=1, max_length=64)]
 Matrix = Annotated[list[Vector], Field(min_length=1, max_length=64)]
 Seed = Annotated[int, Field(ge=0, le=2**32 - 1)]
@@ -57,7 +79,7 @@ class DatasetCreate(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    name: Annotated[str, Field(max_length=200)] = ""
+    name: Annotated[str, Field(max_length=MAX_NAME_CHARACTERS)] = ""
     samples: Annotated[list[SampleIn], Field(min_length=1, max_length=200_000)]
 
 
@@ -389,7 +411,7 @@ class ObservationIn(BaseModel):
 
     action: Vector
     observation: Vector
-    trajectory: dict[str, Any] | None = None
+    trajectory: Record | None = None
 
 
 class ObservationResult(BaseModel):
@@ -452,7 +474,7 @@ class CollectionCreate(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    name: Annotated[str, Field(max_length=200)] = ""
+    name: Annotated[str, Field(max_length=MAX_NAME_CHARACTERS)] = ""
     objects: Annotated[list[CollectionObject], Field(min_length=2, max_length=100)]
     samples_per_object: Annotated[int, Field(ge=2, le=1000)] = 20
     action_design: Literal["random", "shared", "teaching"] = "random"

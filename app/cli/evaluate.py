@@ -46,6 +46,7 @@ from rich.table import Table
 
 from app.cli.options import PlacementOption, TableFile, TableName, table_choice
 from app.cli.output import messages as stderr
+from app.cli.output import read_text
 from app.cli.output import results as stdout
 
 if TYPE_CHECKING:
@@ -77,10 +78,7 @@ def read_data(path: Path) -> TrainingData:
     from app.documents.training_csv import read_training_csv
     from core.errors import CoreError
 
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise fail(f"--data: cannot read {path}: {exc.strerror}") from None
+    text = read_text(path, "--data")
     try:
         return read_training_csv(text)
     except CoreError as exc:

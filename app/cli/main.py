@@ -26,7 +26,7 @@ from rich.markup import escape
 from app.cli.collect import collect_command
 from app.cli.evaluate import evaluate_command
 from app.cli.export import export_app
-from app.cli.output import fail, progress_bar
+from app.cli.output import fail, progress_bar, read_text, write_text
 from app.cli.output import messages as stderr
 from app.cli.output import results as stdout
 from app.cli.paper import paper_app
@@ -215,10 +215,7 @@ def fit(
     from core.manifold import FitOptions
 
     requested_dim = _parse_latent_dim(latent_dim)
-    try:
-        text = data_csv.read_text()
-    except OSError as exc:
-        raise fail(f"cannot read {data_csv}: {exc.strerror}") from None
+    text = read_text(data_csv)
     selection = None
     try:
         data = read_training_csv(text)
@@ -239,7 +236,7 @@ def fit(
         latent_selection=None if selection is None else latent_selection_dict(selection),
     )
     if out is not None:
-        out.write_text(json.dumps(document, indent=1))
+        write_text(out, json.dumps(document, indent=1), "--out")
     if as_json:
         sys.stdout.write(json.dumps(document) + "\n")
         return
@@ -270,12 +267,15 @@ def load_model(path: Path) -> ManifoldModel:
     from app.documents.model import model_from_document
     from core.errors import CoreError
 
+    text = read_text(path)
     try:
-        document = json.loads(path.read_text())
-    except OSError as exc:
-        raise fail(f"cannot read {path}: {exc.strerror}") from None
+        document = json.loads(text)
     except json.JSONDecodeError as exc:
         raise fail(f"{path} is not JSON: {exc}") from None
+    except RecursionError:
+        raise fail(f"{path} is not a model document: it is nested too deeply") from None
+    except ValueError as exc:  # an integer over Python's digit limit
+        raise fail(f"{path} is not JSON this program reads: {exc}") from None
     try:
         return model_from_document(document)
     except CoreError as exc:
@@ -307,7 +307,7 @@ def dataset(
     data = sample_dataset(
         make_world(world, world_seed, noise_std), np.random.default_rng(seed), touches
     )
-    out.write_text(write_training_csv(data))
+    write_text(out, write_training_csv(data), "--out")
     stderr.print(
         f"wrote {data.n_touches:d} touches of {data.n_objects:d} objects to {escape(str(out))}"
     )

@@ -2,7 +2,8 @@
 
 * :data:`results` — stdout: what a command produces, when it is not ``--json``.
 * :data:`messages` — stderr: progress, status lines, warnings and errors.
-* :func:`progress_bar` and :func:`fail` — a progress bar and a one-line error, both on stderr.
+* :func:`progress_bar` and :func:`fail` — a progress bar and a one-line error, both on stderr;
+  :func:`read_text` and :func:`write_text` — a file, or that one-line error saying why not.
 
 Both soft-wrap (a long path or action is never folded mid-word when redirected). Redirected,
 Rich would draw tables 80 columns wide and fold every row, so :data:`results` is 120 wide then.
@@ -15,6 +16,7 @@ checks every f-string handed to Rich in ``app/``.
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import typer
 from rich.console import Console
@@ -43,3 +45,28 @@ def fail(message: str, code: int = 2) -> typer.Exit:
     """Print a one-line error to stderr and return the exit to raise (2: bad usage)."""
     messages.print(f"[red]error:[/red] {escape(message)}")
     return typer.Exit(code=code)
+
+
+def read_text(path: Path, option: str = "") -> str:
+    """The UTF-8 text of ``path``, or a one-line error (exit 2) saying why it cannot be read.
+
+    Args:
+        path: The file.
+        option: The option that named it (``"--data"``), to start the message.
+    """
+    where = f"{option}: " if option else ""
+    try:
+        return path.read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise fail(f"{where}cannot read {path}: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise fail(f"{where}{path} is not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+
+
+def write_text(path: Path, text: str, option: str = "") -> None:
+    """Write ``text`` to ``path`` (UTF-8), or a one-line error (exit 2) saying why not."""
+    where = f"{option}: " if option else ""
+    try:
+        path.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise fail(f"{where}cannot write {path}: {exc.strerror}") from None

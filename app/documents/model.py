@@ -9,19 +9,31 @@ how ``--latent-dim auto`` chose ds.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import reprlib
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from app.documents.errors import DocumentError
+from app.documents.json_values import check_json_values
 from app.documents.noise_model import noise_model_field, read_noise_model_field
 from app.documents.posterior import condition_as_recorded, posterior_field
+from app.documents.training_csv import MAX_NAME_CHARACTERS
 from core.errors import InvalidInputError
 from core.latent_selection import LatentSelection
 from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
 
 MODEL_FORMAT = "activetouch-model/1"
+
+#: Deepest nesting of a list or object a model document has (the document is level 0,
+#: ``latent_selection.candidates[i].fold_scores`` level 4), and its longest text (an
+#: optimizer's message, the latent-selection explanation).
+MAX_DOCUMENT_DEPTH = 4
+MAX_TEXT_CHARACTERS = 2000
+#: Longest list in ``diagnostics`` or ``latent_selection`` (one item a restart or a fold).
+MAX_RECORD_ITEMS = 1000
 
 
 def latent_selection_dict(selection: LatentSelection) -> dict[str, Any]:
@@ -106,6 +118,142 @@ def model_to_document(
     return document
 
 
+def _check_number(document: Mapping[str, Any], name: str, minimum: float | None = None) -> None:
+    """``document[name]``, when present and not null, is a number (≥ ``minimum``)."""
+    value = document.get(name)
+    if value is None:
+        return
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise DocumentError(
+            f"model document: {name} must be a number, found {type(value).__name__}.",
+            column=name,
+        )
+    if minimum is not None and value < minimum:
+        raise DocumentError(
+            f"model document: {name} must be ≥ {minimum}, found {value}.", column=name
+        )
+
+
+def _name(value: Any, where: str) -> str:
+    """An object or model name: a non-empty string of at most :data:`MAX_NAME_CHARACTERS`."""
+    if not isinstance(value, str) or not value.strip() or len(value) > MAX_NAME_CHARACTERS:
+        raise DocumentError(
+            f"model document: {where} must be a non-empty name of at most "
+            f"{MAX_NAME_CHARACTERS} characters.",
+            column=where,
+        )
+    return value
+
+
+def _names(values: Any, where: str) -> list[str]:
+    """A list of names (:func:`_name`)."""
+    if not isinstance(values, list):
+        raise DocumentError(f"model document: {where} must be a list of names.", column=where)
+    return [_name(value, f"{where}[{i}]") for i, value in enumerate(values)]
+
+
+def _is_integer(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _is_text(value: Any) -> bool:
+    return isinstance(value, str)
+
+
+def _list_of(check: Callable[[Any], bool]) -> Callable[[Any], bool]:
+    return lambda value: (
+        isinstance(value, list)
+        and len(value) <= MAX_RECORD_ITEMS
+        and all(check(item) for item in value)
+    )
+
+
+#: The fields of the document's ``diagnostics``, ``latent_selection`` and its candidates, as
+#: :func:`model_to_document` writes them: name → (what it must be, check).
+_Fields = dict[str, tuple[str, Callable[[Any], bool]]]
+_DIAGNOSTICS_FIELDS: _Fields = {
+    "starts_log_likelihood": (
+        f"a list of at most {MAX_RECORD_ITEMS} numbers",
+        _list_of(_is_number),
+    ),
+    "best_start": ("an integer", _is_integer),
+    "iterations": ("an integer", _is_integer),
+    "converged": ("true or false", lambda value: isinstance(value, bool)),
+    "message": ("text", _is_text),
+    "jitter_used": ("a number", _is_number),
+    "hyperparameters_at_bounds": (
+        f"a list of at most {MAX_RECORD_ITEMS} texts",
+        _list_of(_is_text),
+    ),
+}
+_LATENT_SELECTION_FIELDS: _Fields = {
+    "chosen": ("an integer", _is_integer),
+    "best": ("an integer", _is_integer),
+    "n_folds": ("an integer", _is_integer),
+    "candidates": (
+        f"a list of at most {MAX_RECORD_ITEMS}",
+        lambda value: isinstance(value, list) and len(value) <= MAX_RECORD_ITEMS,
+    ),
+    "explanation": ("text", _is_text),
+}
+_CANDIDATE_FIELDS: _Fields = {
+    "latent_dim": ("an integer", _is_integer),
+    "mean": ("a number", _is_number),
+    "standard_error": ("a number", _is_number),
+    "difference": ("a number", _is_number),
+    "difference_standard_error": ("a number", _is_number),
+    "fold_scores": (f"a list of at most {MAX_RECORD_ITEMS} numbers", _list_of(_is_number)),
+}
+
+
+def _check_object(
+    value: Any, where: str, fields: _Fields, required: bool = False
+) -> Mapping[str, Any]:
+    """``value`` is an object whose ``fields`` are of their kind (and all present, when
+    ``required``); other fields are left alone."""
+    if not isinstance(value, Mapping):
+        raise DocumentError(f"model document: {where} must be an object.", column=where)
+    for name, (kind, check) in fields.items():
+        if name not in value:
+            if required:
+                raise DocumentError(
+                    f"model document: {where} has no field {name!r}.", column=f"{where}.{name}"
+                )
+        elif not check(value[name]):
+            raise DocumentError(
+                f"model document: {where}.{name} must be {kind}.", column=f"{where}.{name}"
+            )
+    return value
+
+
+def _objects(value: Any, where: str) -> list[Mapping[str, Any]]:
+    """A list of objects (``objects``, ``hyperparameters``)."""
+    if not isinstance(value, list):
+        raise DocumentError(f"model document: {where} must be a list.", column=where)
+    for i, item in enumerate(value):
+        if not isinstance(item, Mapping):
+            raise DocumentError(
+                f"model document: {where}[{i}] must be an object.", column=f"{where}[{i}]"
+            )
+    return value
+
+
+def _array(where: str, values: Any) -> npt.NDArray[np.float64]:
+    """``values`` as a float array, or an error naming the field ``where``."""
+    try:
+        return np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise DocumentError(
+            f"model document: {where} must be numbers in arrays of matching lengths "
+            f"({type(exc).__name__}: {reprlib.repr(str(exc))}).",
+            column=where,
+        ) from exc
+
+
 def _field(document: Mapping[str, Any], name: str, where: str = "model document") -> Any:
     if name not in document:
         raise DocumentError(f"{where}: missing field {name!r}.", column=name)
@@ -116,53 +264,70 @@ def model_from_document(document: Any) -> ManifoldModel:
     """Rebuild a :class:`ManifoldModel` from its document (re-conditioning the GP).
 
     Raises:
-        DocumentError: Wrong format tag, missing fields, or inconsistent dimensions (the
-            message names the field).
+        DocumentError: Wrong format tag, missing fields, values that are not finite numbers,
+            names or text too long, or inconsistent dimensions (the message names the field).
     """
     if not isinstance(document, Mapping):
         raise DocumentError("model document: expected a JSON object.")
+    check_json_values(
+        document, "model document", max_depth=MAX_DOCUMENT_DEPTH, max_text=MAX_TEXT_CHARACTERS
+    )
     if _field(document, "format") != MODEL_FORMAT:
         raise DocumentError(
-            f"model document: format must be {MODEL_FORMAT!r}, found {document['format']!r}.",
+            f"model document: format must be {MODEL_FORMAT!r}, found "
+            f"{reprlib.repr(document['format'])}.",
             column="format",
         )
-    objects = _field(document, "objects")
-    training = _field(document, "training_data")
-    hyper = _field(document, "hyperparameters")
+    _check_number(document, "log_likelihood")
+    _check_number(document, "fit_seconds", minimum=0.0)
+    if "name" in document:
+        _name(document["name"], "name")
+    objects = _objects(_field(document, "objects"), "objects")
+    hyper = _objects(_field(document, "hyperparameters"), "hyperparameters")
+    training = _check_object(_field(document, "training_data"), "training_data", {})
+    names = [
+        _name(_field(o, "name", f"objects[{i}]"), f"objects[{i}].name")
+        for i, o in enumerate(objects)
+    ]
+    touch_objects = _names(_field(training, "objects", "training_data"), "training_data.objects")
+    unknown = sorted(set(touch_objects) - set(names))
+    if unknown:
+        raise DocumentError(
+            f"training_data.objects: names {reprlib.repr(unknown)} are not in 'objects'.",
+            column="training_data.objects",
+        )
     try:
-        names = [str(o["name"]) for o in objects]
-        latents = np.asarray([o["latent"] for o in objects], dtype=np.float64)
-        touch_objects = [str(n) for n in _field(training, "objects", "training_data")]
-        unknown = sorted(set(touch_objects) - set(names))
-        if unknown:
-            raise DocumentError(
-                f"training_data.objects: names {unknown} are not in 'objects'.",
-                column="training_data.objects",
-            )
         data = TrainingData(
             object_names=tuple(names),
             object_index=np.asarray([names.index(n) for n in touch_objects], dtype=np.int64),
-            actions=np.asarray(_field(training, "actions", "training_data"), dtype=np.float64),
-            observations=np.asarray(
-                _field(training, "observations", "training_data"), dtype=np.float64
+            actions=_array("training_data.actions", _field(training, "actions", "training_data")),
+            observations=_array(
+                "training_data.observations", _field(training, "observations", "training_data")
             ),
         )
+        per_feature = {
+            name: [_field(f, name, f"hyperparameters[{a}]") for a, f in enumerate(hyper)]
+            for name in (
+                "signal_variance",
+                "noise_variance",
+                "latent_lengthscales",
+                "action_lengthscales",
+            )
+        }
         hyperparameters = Hyperparameters(
-            signal_variance=np.asarray([f["signal_variance"] for f in hyper], dtype=np.float64),
-            noise_variance=np.asarray([f["noise_variance"] for f in hyper], dtype=np.float64),
-            latent_lengthscales=np.asarray(
-                [f["latent_lengthscales"] for f in hyper], dtype=np.float64
-            ),
-            action_lengthscales=np.asarray(
-                [f["action_lengthscales"] for f in hyper], dtype=np.float64
-            ),
+            **{
+                name: _array(f"hyperparameters[].{name}", values)
+                for name, values in per_feature.items()
+            }
+        )
+        latents = _array(
+            "objects[].latent",
+            [_field(o, "latent", f"objects[{i}]") for i, o in enumerate(objects)],
         )
     except DocumentError:
         raise
     except InvalidInputError as exc:
         raise DocumentError(f"model document: {exc}") from exc
-    except (KeyError, TypeError, ValueError) as exc:
-        raise DocumentError(f"model document: malformed field ({exc!r}).") from exc
     for name, expected, actual in (
         ("latent_dim", hyperparameters.latent_dim, document.get("latent_dim")),
         ("action_dim", data.action_dim, document.get("action_dim")),
@@ -170,27 +335,27 @@ def model_from_document(document: Any) -> ManifoldModel:
     ):
         if actual is not None and actual != expected:
             raise DocumentError(
-                f"model document: {name} is {actual} but the arrays say {expected}.", column=name
+                f"model document: {name} is {reprlib.repr(actual)} but the arrays say {expected}.",
+                column=name,
             )
     diagnostics = None
-    if isinstance(document.get("diagnostics"), Mapping):
-        d = document["diagnostics"]
-        try:
-            diagnostics = FitDiagnostics(
-                starts_log_likelihood=tuple(float(v) for v in d.get("starts_log_likelihood", [])),
-                best_start=int(d.get("best_start", 0)),
-                iterations=int(d.get("iterations", 0)),
-                converged=bool(d.get("converged", False)),
-                message=str(d.get("message", "")),
-                jitter_used=float(d.get("jitter_used", 0.0)),
-                hyperparameters_at_bounds=tuple(
-                    str(v) for v in d.get("hyperparameters_at_bounds", [])
-                ),
-            )
-        except (TypeError, ValueError) as exc:
-            raise DocumentError(
-                f"model document: malformed field 'diagnostics' ({exc}).", column="diagnostics"
-            ) from exc
+    if document.get("diagnostics") is not None:
+        d = _check_object(document["diagnostics"], "diagnostics", _DIAGNOSTICS_FIELDS)
+        diagnostics = FitDiagnostics(
+            starts_log_likelihood=tuple(float(v) for v in d.get("starts_log_likelihood", [])),
+            best_start=int(d.get("best_start", 0)),
+            iterations=int(d.get("iterations", 0)),
+            converged=bool(d.get("converged", False)),
+            message=str(d.get("message", "")),
+            jitter_used=float(d.get("jitter_used", 0.0)),
+            hyperparameters_at_bounds=tuple(d.get("hyperparameters_at_bounds", [])),
+        )
+    if document.get("latent_selection") is not None:
+        selection = _check_object(
+            document["latent_selection"], "latent_selection", _LATENT_SELECTION_FIELDS, True
+        )
+        for i, candidate in enumerate(selection["candidates"]):
+            _check_object(candidate, f"latent_selection.candidates[{i}]", _CANDIDATE_FIELDS, True)
     transform = read_noise_model_field(document.get("noise_model"), data.observation_dim)
     return condition_as_recorded(
         data, latents, hyperparameters, diagnostics, document.get("posterior"), transform=transform

@@ -11,6 +11,7 @@ import csv
 import io
 import math
 import re
+from collections.abc import Iterator
 from typing import TextIO
 
 import numpy as np
@@ -22,6 +23,35 @@ from core.types import TrainingData
 
 _ACTION_COLUMN = re.compile(r"^x_(\d+)$")
 _OBSERVATION_COLUMN = re.compile(r"^y_(\d+)$")
+
+#: Longest object or dataset name, in characters (the API's limit too).
+MAX_NAME_CHARACTERS = 200
+#: How much of a cell an error message quotes.
+_QUOTED_CHARACTERS = 40
+
+
+def _quote(cell: str) -> str:
+    """``repr`` of a cell for an error message, shortened when long."""
+    if len(cell) <= _QUOTED_CHARACTERS:
+        return repr(cell)
+    return f"{cell[:_QUOTED_CHARACTERS]!r}… ({len(cell)} characters)"
+
+
+def _oversized_field(text: str, line_number: int, columns: list[str]) -> DocumentError:
+    """The error for a field over the ``csv`` module's size limit, naming its line and (when the
+    line splits plainly on commas) its column."""
+    limit = csv.field_size_limit()
+    lines = io.StringIO(text, newline="").readlines()
+    cells = lines[line_number - 1].split(",") if line_number <= len(lines) else []
+    index = next((i for i, cell in enumerate(cells) if len(cell) > limit), None)
+    column = columns[index] if index is not None and index < len(columns) else None
+    where = f"CSV row {line_number}" + (f", column {column}" if column else "")
+    return DocumentError(
+        f"{where}: a field is longer than {limit} characters; a training CSV holds object "
+        "names and numbers.",
+        row=line_number,
+        column=column,
+    )
 
 
 def _check_header(header: list[str]) -> tuple[int, int]:
@@ -64,19 +94,31 @@ def read_training_csv(text: str) -> TrainingData:
 
     Raises:
         DocumentError: Unknown or misordered columns, ragged rows, values that are not finite
-            numbers (the message names row and column), or too few objects / touches.
+            numbers, names over :data:`MAX_NAME_CHARACTERS`, fields over the ``csv`` module's
+            size limit (the message names row and column), or too few objects / touches.
     """
-    reader = csv.reader(io.StringIO(text))
+    reader = csv.reader(io.StringIO(text, newline=""))
+    columns: list[str] = []
     try:
         header = next(reader)
     except StopIteration:
         raise DocumentError("CSV: the file is empty; expected a header line.", row=1) from None
+    except csv.Error:
+        raise _oversized_field(text, reader.line_num, columns) from None
     dx, dy = _check_header(header)
     columns = [h.strip() for h in header]
+    try:
+        return _read_rows(reader, columns, dx, dy)
+    except csv.Error:
+        raise _oversized_field(text, reader.line_num, columns) from None
+
+
+def _read_rows(rows: Iterator[list[str]], columns: list[str], dx: int, dy: int) -> TrainingData:
+    """The data rows after the header (line 2 on), checked."""
     names: list[str] = []
     index: list[int] = []
     values: list[list[float]] = []
-    for line_number, row in enumerate(reader, start=2):
+    for line_number, row in enumerate(rows, start=2):
         if not row or all(not cell.strip() for cell in row):
             continue
         if len(row) != len(columns):
@@ -91,19 +133,26 @@ def read_training_csv(text: str) -> TrainingData:
                 row=line_number,
                 column="object",
             )
+        if len(name) > MAX_NAME_CHARACTERS:
+            raise DocumentError(
+                f"CSV row {line_number}, column object: the name {_quote(name)} is longer than "
+                f"{MAX_NAME_CHARACTERS} characters.",
+                row=line_number,
+                column="object",
+            )
         numbers = []
         for column, cell in zip(columns[1:], row[1:], strict=True):
             try:
                 number = float(cell)
             except ValueError:
                 raise DocumentError(
-                    f"CSV row {line_number}, column {column}: {cell!r} is not a number.",
+                    f"CSV row {line_number}, column {column}: {_quote(cell)} is not a number.",
                     row=line_number,
                     column=column,
                 ) from None
             if not math.isfinite(number):
                 raise DocumentError(
-                    f"CSV row {line_number}, column {column}: {cell!r} is not finite.",
+                    f"CSV row {line_number}, column {column}: {_quote(cell)} is not finite.",
                     row=line_number,
                     column=column,
                 )

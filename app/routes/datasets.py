@@ -9,6 +9,7 @@ from pydantic import ValidationError
 from starlette.concurrency import run_in_threadpool
 
 from app.deps import ContextDep, IdPath, Limit, Offset, SessionDep
+from app.documents.training_csv import MAX_NAME_CHARACTERS
 from app.errors import BadInputError
 from app.schemas import DatasetCreate, DatasetPublic, Page
 from app.services import datasets
@@ -26,7 +27,7 @@ _UPLOAD_BODY: dict[str, Any] = {
                     "type": "object",
                     "properties": {
                         "file": {"type": "string", "format": "binary"},
-                        "name": {"type": "string", "maxLength": 200},
+                        "name": {"type": "string", "maxLength": MAX_NAME_CHARACTERS},
                     },
                     "required": ["file"],
                 }
@@ -42,7 +43,7 @@ async def create_dataset(
 ) -> DatasetPublic:
     """Upload touches as CSV (``object,x_1..x_dx,y_1..y_dy``) or JSON ``{"name", "samples"}``."""
     content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
-    name = request.query_params.get("name", "")[:200]
+    name = request.query_params.get("name", "")[:MAX_NAME_CHARACTERS]
     if content_type in ("text/csv", "text/plain", "application/csv"):
         text = _decode(await request.body(), "body")
         return await run_in_threadpool(
@@ -96,7 +97,7 @@ async def _read_multipart(request: Request, name: str) -> tuple[str, str]:
     text = _decode(await upload.read(), "file")
     form_name = form.get("name")
     if isinstance(form_name, str) and form_name:
-        name = form_name[:200]
+        name = form_name[:MAX_NAME_CHARACTERS]
     return text, name
 
 

@@ -16,6 +16,7 @@ import dataclasses
 import logging
 from collections import Counter
 from collections.abc import Iterator, Mapping
+from functools import partial
 from typing import Literal
 
 import numpy as np
@@ -23,7 +24,7 @@ from sqlalchemy.orm import Session
 
 from app import crud, states
 from app.db import Database
-from app.errors import AppError, BadInputError, ConflictError, NotFoundError
+from app.errors import AppError, BadInputError, ConflictError
 from app.models import Run
 from app.rig_factory import CollectedTouch, TouchActions, iter_collect
 from app.schemas import CollectionCreate, Page, RunPublic
@@ -139,12 +140,7 @@ def to_public(run: Run) -> RunPublic:
     )
 
 
-def require(session: Session, run_id: int) -> Run:
-    """The collection run, or a 404."""
-    run = crud.get_run(session, run_id, KIND)
-    if run is None:
-        raise NotFoundError(f"Collection {run_id} does not exist.", collection_id=run_id)
-    return run
+require = partial(crud.require, Run, kind=KIND)
 
 
 def get(session: Session, run_id: int) -> RunPublic:

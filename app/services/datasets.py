@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import io
+from functools import partial
 
 import numpy as np
 from sqlalchemy.orm import Session
 
 from app import crud
 from app.documents.training_csv import TrainingCsvWriter, read_training_csv
-from app.errors import BadInputError, ConflictError, NotFoundError
+from app.errors import BadInputError, ConflictError
 from app.models import Dataset
 from app.schemas import DatasetCreate, DatasetPublic, Page, SampleIn
 from app.services.events import EventBus
@@ -121,12 +122,7 @@ def create_from_json(session: Session, events: EventBus, body: DatasetCreate) ->
     return _commit_and_announce(session, events, data, body.name, "upload")
 
 
-def require(session: Session, dataset_id: int) -> Dataset:
-    """The dataset, or a 404."""
-    dataset = crud.get_dataset(session, dataset_id)
-    if dataset is None:
-        raise NotFoundError(f"Dataset {dataset_id} does not exist.", dataset_id=dataset_id)
-    return dataset
+require = partial(crud.require, Dataset)
 
 
 def get(session: Session, dataset_id: int) -> DatasetPublic:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import csv
 import io
+from functools import partial
 from typing import Any
 
 from sqlalchemy.orm import Session
@@ -56,14 +57,7 @@ def build_spec(body: EvaluationCreate) -> EvaluationSpec:
         raise BadInputError(f"evaluation: {exc}", field="body") from exc
 
 
-def require(session: Session, evaluation_id: int) -> Evaluation:
-    """The evaluation row, or a 404."""
-    row = crud.get_evaluation(session, evaluation_id)
-    if row is None:
-        raise NotFoundError(
-            f"Evaluation {evaluation_id} does not exist.", evaluation_id=evaluation_id
-        )
-    return row
+require = partial(crud.require, Evaluation)
 
 
 def to_public(row: Evaluation, summary: dict[str, Any] | None = None) -> EvaluationPublic:

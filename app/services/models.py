@@ -15,6 +15,7 @@ import logging
 import threading
 from collections import OrderedDict
 from collections.abc import Callable
+from functools import partial
 from typing import Any, get_args
 
 import numpy as np
@@ -27,7 +28,7 @@ from app.documents.errors import DocumentError
 from app.documents.model import model_from_document, model_to_document
 from app.documents.noise_model import noise_model_field, read_noise_model_field
 from app.documents.posterior import condition_as_recorded, posterior_field
-from app.errors import AppError, BadInputError, ConflictError, NotFoundError
+from app.errors import AppError, BadInputError, ConflictError
 from app.models import ModelRecord, utc_now
 from app.schemas import (
     FeatureHyperparameters,
@@ -212,12 +213,7 @@ def to_public(row: ModelRecord, queue_position: int | None = None) -> ModelPubli
     )
 
 
-def require(session: Session, model_id: int) -> ModelRecord:
-    """The model row, or a 404."""
-    row = crud.get_model(session, model_id)
-    if row is None:
-        raise NotFoundError(f"Model {model_id} does not exist.", model_id=model_id)
-    return row
+require = partial(crud.require, ModelRecord)
 
 
 def get(session: Session, model_id: int) -> ModelPublic:

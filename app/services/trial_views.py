@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
+from functools import partial
 from typing import Any
 
 from sqlalchemy.orm import Session
 
 from app import crud
 from app.db import Database
-from app.errors import NotFoundError
 from app.models import Trial, TrialStep
 from app.schemas import (
     ActionBounds,
@@ -144,12 +144,7 @@ class TrialViews:
         return f'{summary[:-1]},"steps":[{steps}]}}'.encode()
 
 
-def require(session: Session, trial_id: int) -> Trial:
-    """The trial, or a 404."""
-    trial = crud.get_trial(session, trial_id)
-    if trial is None:
-        raise NotFoundError(f"Trial {trial_id} does not exist.", trial_id=trial_id)
-    return trial
+require = partial(crud.require, Trial)
 
 
 def get(session: Session, trial_id: int) -> TrialPublic:

@@ -94,4 +94,4 @@ def test_model_document_malformed_diagnostics_is_a_document_error(data):
     document["diagnostics"] = {"best_start": "first", "starts_log_likelihood": 3}
     with pytest.raises(DocumentError, match="diagnostics") as info:
         model_from_document(document)
-    assert info.value.column == "diagnostics"
+    assert info.value.column == "diagnostics.starts_log_likelihood"

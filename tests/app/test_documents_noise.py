@@ -83,7 +83,7 @@ def test_latent_selection_is_written_as_given() -> None:
     [
         ({"kind": "sideways"}, "noise_model.kind"),
         ({"scale": [1.0, 2.0]}, "noise_model.scale"),
-        ({"offset": [0.0, float("nan"), 1.0]}, "noise_model.offset"),
+        ({"offset": [0.0, float("nan"), 1.0]}, "noise_model.offset[1]"),
         ({"whitening": [[1.0, 0, 0], [1.0, 0, 0], [0, 0, 1.0]]}, "noise_model"),
         ({"scale": [1.0, -1.0, 1.0]}, "noise_model"),
     ],

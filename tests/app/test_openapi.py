@@ -53,9 +53,14 @@ schema = schemathesis.openapi.from_asgi("/api/v1/openapi.json", APP).exclude(pat
 def no_internal_server_error(
     ctx: schemathesis.CheckContext, response: schemathesis.Response, case: schemathesis.Case
 ) -> None:
-    """500 means a bug; 503/504 (device unavailable / timeout) are answers the API documents."""
+    """500 means a bug; 503/504 (device unavailable / timeout) are answers the API documents.
+    A refusal (4xx) says why in a JSON ``detail``."""
     if response.status_code == 500:
         raise AssertionError(f"500 Internal Server Error: {response.text[:500]}")
+    if 400 <= response.status_code < 500:
+        body = response.json()
+        if not (isinstance(body, dict) and body.get("detail")):
+            raise AssertionError(f"{response.status_code} without a detail: {response.text[:500]}")
 
 
 @schema.parametrize()
