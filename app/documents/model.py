@@ -4,11 +4,15 @@ be reloaded and used to predict, plan and recognise.
 The training data are included; β and K⁻¹ are recomputed on load, conditioned as the
 ``posterior`` field recorded (:mod:`app.documents.posterior`) in the observation transform of the
 ``noise_model`` field (:mod:`app.documents.noise_model`). ``latent_selection`` (optional) reports
-how ``--latent-dim auto`` chose ds.
+how ``--latent-dim auto`` chose ds. ``placement_effect`` (optional) holds σ_b², the variance of
+the offset shared by one placement's touches (docs/calibration.md), estimated at fit time from
+``training_data.placements`` (optional, the placement number of every touch); a document without
+it scores a trial's touches as independent (σ_b² = 0).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from typing import Any
 
@@ -19,6 +23,7 @@ from app.documents.noise_model import noise_model_field, read_noise_model_field
 from app.documents.posterior import condition_as_recorded, posterior_field
 from core.errors import InvalidInputError
 from core.latent_selection import LatentSelection
+from core.placement_effect import check_placement_variance
 from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
 
 MODEL_FORMAT = "activetouch-model/1"
@@ -87,6 +92,14 @@ def model_to_document(
             "observations": data.observations.tolist(),
         },
     }
+    if data.placement_index is not None:
+        document["training_data"]["placements"] = data.placement_index.tolist()
+    if model.placement_variance is not None:
+        document["placement_effect"] = {
+            "variance": [float(v) for v in model.placement_variance],
+            "space": "model",
+            "estimator": "leave-one-placement-out method of moments (docs/calibration.md)",
+        }
     noise = noise_model_field(model.transform)
     if noise is not None:
         document["noise_model"] = noise
@@ -146,6 +159,11 @@ def model_from_document(document: Any) -> ManifoldModel:
             observations=np.asarray(
                 _field(training, "observations", "training_data"), dtype=np.float64
             ),
+            placement_index=(
+                None
+                if training.get("placements") is None
+                else np.asarray(training["placements"], dtype=np.int64)
+            ),
         )
         hyperparameters = Hyperparameters(
             signal_variance=np.asarray([f["signal_variance"] for f in hyper], dtype=np.float64),
@@ -192,6 +210,21 @@ def model_from_document(document: Any) -> ManifoldModel:
                 f"model document: malformed field 'diagnostics' ({exc}).", column="diagnostics"
             ) from exc
     transform = read_noise_model_field(document.get("noise_model"), data.observation_dim)
-    return condition_as_recorded(
+    model = condition_as_recorded(
         data, latents, hyperparameters, diagnostics, document.get("posterior"), transform=transform
     )
+    effect = document.get("placement_effect")
+    if effect is None:
+        return model
+    try:
+        variance = check_placement_variance(
+            model, np.asarray(_field(effect, "variance", "placement_effect"), dtype=np.float64)
+        )
+    except InvalidInputError as exc:
+        raise DocumentError(f"model document: {exc}", column="placement_effect") from exc
+    except (TypeError, ValueError) as exc:
+        raise DocumentError(
+            f"model document: malformed field 'placement_effect' ({exc}).",
+            column="placement_effect",
+        ) from exc
+    return dataclasses.replace(model, placement_variance=variance)
