@@ -255,10 +255,16 @@ def fit(
     noise_note = model.transform.note if model.transform is not None else "none"
     stdout.print(f"noise model: {escape(noise_note)}")
     if placement is not None:
-        share = placement.variance / model.hyperparameters.noise_variance
+        noise = model.hyperparameters.noise_variance
+        share = placement.variance / noise
+        clipped = [
+            f"feature {a + 1}: {placement.raw_variance[a] / noise[a]:.3g}"
+            for a in np.flatnonzero(placement.raw_variance != placement.variance)
+        ]
         stdout.print(
             f"placement effect from {placement.groups:d} placements: σ_b² / σ_n² = "
             f"{escape(np.array2string(share, precision=2))} per feature"
+            + (f" (clipped from {escape(', '.join(clipped))})" if clipped else "")
         )
     stdout.print(
         f"fitted {len(model.object_names):d} objects, ds={model.latent_dim:d}, "

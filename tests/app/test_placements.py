@@ -97,3 +97,40 @@ def test_model_document_keeps_the_placement_effect() -> None:
     document["placement_effect"]["variance"] = [-1.0, 0.0, 0.0]
     with pytest.raises(DocumentError, match="placement_variance"):
         model_from_document(document)
+
+
+def test_fit_estimates_the_placement_effect_into_the_document(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    base = experiment1_at_true_latents(seed=1, touches_per_object=20).data
+    placement = np.tile(np.repeat(np.arange(4), 5), 4)
+    observations = base.observations.copy()
+    for obj in range(4):
+        for p in range(4):
+            rows = (base.object_index == obj) & (placement == p)
+            observations[rows] += rng.normal(0.0, 0.1, size=3)
+    data = TrainingData(base.object_names, base.object_index, base.actions, observations, placement)
+    csv_path, out = tmp_path / "placed.csv", tmp_path / "model.json"
+    csv_path.write_text(write_training_csv(data))
+    result = runner.invoke(
+        app,
+        [
+            "fit",
+            str(csv_path),
+            "--latent-dim",
+            "1",
+            "--restarts",
+            "0",
+            "--noise-model",
+            "independent",
+            "--out",
+            str(out),
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    assert "placement effect from 16 placements" in " ".join(result.output.split())
+    document = json.loads(out.read_text())
+    assert document["training_data"]["placements"] == placement.tolist()
+    variance = np.asarray(document["placement_effect"]["variance"])
+    assert variance.shape == (3,)
+    assert np.any(variance > 0)
+    assert model_from_document(document).placement_variance is not None
