@@ -61,7 +61,7 @@ def check_objects(objects: Mapping[str, int] | list[tuple[str, int]]) -> None:
             )
 
 
-def placement_groups(n_touches: int, placements: int) -> list[range]:
+def placement_runs(n_touches: int, placements: int) -> list[range]:
     """Split an object's ``n_touches`` touches (in design order) into ``placements`` runs.
 
     The runs differ in length by at most one (the first ones take the remainder).
@@ -145,7 +145,7 @@ def iter_collection(
             )
     total, done = design.n_touches, 0
     if placements is not None:
-        groups = [placement_groups(len(r), placements) for r in rows]
+        groups = [placement_runs(len(r), placements) for r in rows]
         for p in range(placements):
             for name, object_rows, object_groups in zip(names, rows, groups, strict=True):
                 for k, position in enumerate(object_groups[p]):
