@@ -14,6 +14,8 @@ from app.cli.main import app
 from app.documents.errors import DocumentError
 from app.documents.model import model_from_document, model_to_document
 from app.documents.training_csv import read_training_csv, write_training_csv
+from app.errors import BadInputError
+from app.services.collections import placement_runs
 from core.reference_model import experiment1_at_true_latents
 from core.types import TrainingData
 
@@ -134,3 +136,10 @@ def test_fit_estimates_the_placement_effect_into_the_document(tmp_path: Path) ->
     assert variance.shape == (3,)
     assert np.any(variance > 0)
     assert model_from_document(document).placement_variance is not None
+
+
+def test_placement_runs_split_unevenly_and_refuse_empty_placements() -> None:
+    assert placement_runs(7, 3) == [range(0, 3), range(3, 5), range(5, 7)]
+    assert placement_runs(4, 4) == [range(k, k + 1) for k in range(4)]
+    with pytest.raises(BadInputError, match="placements"):
+        placement_runs(2, 3)
