@@ -271,6 +271,8 @@ class CollectedTouch:
         slot: Its slot.
         action: x. Shape (dx,).
         record: What the rig recorded; ``record.observation`` is y.
+        placement: Which placement of its object the touch met (0, 1, …), when the collection
+            recorded placements; ``None`` when every touch met its own.
     """
 
     index: int
@@ -279,6 +281,7 @@ class CollectedTouch:
     slot: int
     action: FloatArray
     record: TouchRecord
+    placement: int | None = None
 
 
 def iter_collect(

@@ -4,6 +4,12 @@ Kept alongside the Gaussian belief of METHOD.md (M5): the Gaussian is a local, m
 approximation that can settle near the wrong object; this posterior uses the exact GP predictive
 likelihood of every touch under every learned object and does not (METHOD.md, "A known failure
 mode" and "Recommended defaults: Decision").
+
+A model with a placement effect (``model.placement_variance`` with a value > 0, estimated from a
+collection that recorded placements: :mod:`core.placement_effect`) scores the touches of a trial
+as one joint Gaussian per object instead of a product of independent touches
+(docs/calibration.md). Every caller — the recognition session's answer, stop rule and the
+discriminative policy's probabilities — goes through :func:`object_log_likelihoods`.
 """
 
 from __future__ import annotations
@@ -12,6 +18,7 @@ import numpy as np
 import scipy.special
 
 from core.errors import InvalidInputError
+from core.placement_effect import trial_log_likelihoods
 from core.posterior import predict_model_space
 from core.types import ManifoldModel
 from core.validation import FloatArray, IntArray, as_float_array
@@ -20,15 +27,24 @@ from core.validation import FloatArray, IntArray, as_float_array
 def object_log_likelihoods(
     model: ManifoldModel, actions: FloatArray, observations: FloatArray
 ) -> FloatArray:
-    """log p(D_t | l) = Σ_t [Σ_a log N(y'_ta; m_a(s_l, x_t), v_a(s_l, x_t) + σ_n,a²) + log|det M|].
+    """log p(D_t | l) of one trial's touches D_t under every learned object l.
+
+    Without a placement effect (``model.placement_variance`` ``None`` or zero), the touches are
+    independent given the object:
+
+        log p(D_t | l) = Σ_t [Σ_a log N(y'_ta; m_a(s_l, x_t), v_a(s_l, x_t) + σ_n,a²) + log|det M|].
 
     The observations come in raw units and are mapped to the model space y' = M (y - c) of the
     model's observation transform (the identity for a model without one); m_a and v_a are the
     GP predictive mean and variance of f_a at the learned latent s_l and action x_t
     (:func:`core.posterior.predict_model_space`, which adds the noise variance). The features of
     y' are independent given (s, x); the Jacobian log|det M| (= -½ log det Σ_ε, METHOD.md "Real
-    tactile data") makes the value a log-density of the raw observations. The touches are
-    treated as independent given the object.
+    tactile data") makes the value a log-density of the raw observations.
+
+    With a placement effect the touches are the ones of one placement (a trial) and share its
+    offset: the value is the joint Gaussian of :func:`core.placement_effect.trial_log_likelihoods`
+    (equal to the above for one touch; it is not a sum over touches, so pass all of a trial's
+    touches at once).
 
     Args:
         model: A conditioned model.
@@ -42,11 +58,20 @@ def object_log_likelihoods(
     n_objects = model.latents.shape[0]
     if x.shape[0] == 0:
         return np.zeros(n_objects)
+    if has_placement_effect(model):
+        assert model.placement_variance is not None  # has_placement_effect checked it
+        return trial_log_likelihoods(model, x, y, model.placement_variance)
     # Queries ordered (touch, object): every touch under every learned latent.
     latents = np.tile(model.latents, (x.shape[0], 1))
     queries = np.repeat(x, n_objects, axis=0)
     per_touch = _log_densities(model, latents, queries, np.repeat(y, n_objects, axis=0))
     return np.asarray(per_touch.reshape(x.shape[0], n_objects).sum(axis=0), dtype=np.float64)
+
+
+def has_placement_effect(model: ManifoldModel) -> bool:
+    """Whether the model scores a trial's touches jointly (a placement variance > 0)."""
+    variance = model.placement_variance
+    return variance is not None and bool(np.any(np.asarray(variance) > 0))
 
 
 def touch_log_likelihoods(
@@ -116,9 +141,9 @@ def normalise_log_probabilities(log_weights: FloatArray) -> FloatArray:
 def object_posterior(
     model: ManifoldModel, actions: FloatArray, observations: FloatArray
 ) -> FloatArray:
-    """Posterior probability of each learned object given the touches so far.
+    """Posterior probability of each learned object given the touches so far (one trial).
 
-    With a uniform prior over the L objects,
+    With a uniform prior over the L objects and no placement effect,
 
         p(l | D_t) ∝ Π_t Π_a N(y'_ta; m_a(s_l, x_t), v_a(s_l, x_t) + σ_n,a²),
 
@@ -128,6 +153,8 @@ def object_posterior(
     (:func:`core.posterior.predict_model_space`), and σ_n,a² is the feature's noise variance.
     In raw units this is a Gaussian with the full covariance M⁻¹ diag(v + σ_n²) M⁻ᵀ.
     It is computed in log space and normalised with log-sum-exp. With no touches it is uniform.
+    With a placement effect the product over touches is replaced by the trial's joint Gaussian
+    (:func:`object_log_likelihoods`).
 
     Args:
         model: A conditioned model.

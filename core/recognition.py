@@ -5,7 +5,8 @@ Two beliefs are carried side by side:
 * the **Gaussian belief** s ~ N(μ, Σ) over the object latent (the paper's), updated by moment
   matching after every touch; it drives the choice of actions;
 * the **object posterior** p(l | D_t) over the L learned objects (:mod:`core.object_posterior`),
-  the exact GP likelihood of all touches so far under each object.
+  the exact GP likelihood of all touches so far under each object (jointly, when the model has a
+  placement effect: the trial's touches share one placement).
 
 The Gaussian is a local approximation and can settle near the wrong object; the most informative
 actions under that wrong belief then need not dislodge it (METHOD.md, "A known failure mode").
@@ -32,7 +33,11 @@ import numpy as np
 
 from core.errors import CoreError, InvalidInputError
 from core.moments import action_statistics, mutual_information, predictive_moments, update_belief
-from core.object_posterior import normalise_log_probabilities, object_log_likelihoods
+from core.object_posterior import (
+    has_placement_effect,
+    normalise_log_probabilities,
+    object_log_likelihoods,
+)
 from core.planning import PlannedAction, Planner
 from core.types import GaussianBelief, ManifoldModel
 from core.validation import FloatArray, as_float_array
@@ -217,6 +222,7 @@ class RecognitionSession:
         self._belief = prior
         self._log_likelihoods = np.zeros(model.data.n_objects)
         self._steps: list[RecognitionStep] = []
+        self._joint = has_placement_effect(model)
 
     @property
     def belief(self) -> GaussianBelief:
@@ -287,9 +293,19 @@ class RecognitionSession:
         y_model = self.model.to_model_space(y[None, :])[0]
         after = update_belief(before, moments, 0, y_model)  # METHOD.md eq. (M5)
         self._belief = after
-        self._log_likelihoods = self._log_likelihoods + object_log_likelihoods(
-            self.model, x[None, :], y[None, :]
-        )
+        if self._joint:
+            # The touches share the trial's placement: score them jointly, all at once (exact;
+            # T is small, so the joint Gaussian is recomputed rather than extended).
+            touched = [(s.action, s.observation) for s in self._steps] + [(x, y)]
+            self._log_likelihoods = object_log_likelihoods(
+                self.model,
+                np.stack([a for a, _ in touched]),
+                np.stack([o for _, o in touched]),
+            )
+        else:
+            self._log_likelihoods = self._log_likelihoods + object_log_likelihoods(
+                self.model, x[None, :], y[None, :]
+            )
         probabilities = self.probabilities
         recentred = self.settings.on_disagreement == "recentre" and self.disagrees()
         if recentred:

@@ -26,12 +26,17 @@ class TrainingData:
             ``0..L-1``.
         actions: Action parameters x_i. Shape (N, dx).
         observations: Observed features y_i. Shape (N, dy).
+        placement_index: Which placement of its object each touch met (the object was set
+            down once and touched several times), or ``None`` when not recorded (every touch
+            then counts as its own placement). Touches share a placement when they share both
+            object and placement number. Shape (N,), values ≥ 0.
     """
 
     object_names: tuple[str, ...]
     object_index: IntArray
     actions: FloatArray
     observations: FloatArray
+    placement_index: IntArray | None = None
 
     def __post_init__(self) -> None:
         names = tuple(str(n) for n in self.object_names)
@@ -73,6 +78,20 @@ class TrainingData:
         object.__setattr__(self, "observations", observations)
         for array in (self.object_index, self.actions, self.observations):
             array.flags.writeable = False
+        if self.placement_index is not None:
+            placement = np.asarray(self.placement_index)
+            if placement.shape != (n,) or not np.issubdtype(placement.dtype, np.integer):
+                raise InvalidInputError(
+                    f"placement_index: expected {n} integers, received dtype {placement.dtype} "
+                    f"with shape {placement.shape}."
+                )
+            if n and placement.min() < 0:
+                raise InvalidInputError(
+                    f"placement_index: values must be ≥ 0, received {placement.min()}."
+                )
+            placement = placement.astype(np.int64)
+            placement.flags.writeable = False
+            object.__setattr__(self, "placement_index", placement)
 
     @property
     def n_objects(self) -> int:
@@ -398,6 +417,10 @@ class ManifoldModel:
             transformed observations, :attr:`raw_data` the raw ones.
         source_data: The raw training touches when ``transform`` is not ``None`` (``None``
             otherwise: ``data`` is raw).
+        placement_variance: σ_b,a², the variance of the offset shared by the touches of one
+            placement, per model-space feature (:mod:`core.placement_effect`); ``None`` (or all
+            zero) when not estimated: the touches of a trial are then independent given the
+            object. Shape (dy,).
     """
 
     data: TrainingData
@@ -408,6 +431,7 @@ class ManifoldModel:
     diagnostics: FitDiagnostics | None = None
     transform: ObservationTransform | None = None
     source_data: TrainingData | None = None
+    placement_variance: FloatArray | None = None
 
     @property
     def raw_data(self) -> TrainingData:

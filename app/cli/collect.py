@@ -226,6 +226,15 @@ def collect_command(
         typer.Option(help="Also write each touch's raw tactile and joint series (JSON lines)."),
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Replace existing output files.")] = False,
+    placements: Annotated[
+        int | None,
+        typer.Option(
+            "--placements",
+            help="Place each object P times and touch it touches/P times per placement "
+            "(recorded in a 'placement' column; fit then estimates the placement effect). "
+            "Default: a fresh placement for every touch.",
+        ),
+    ] = None,
     as_json: AsJson = False,
 ) -> None:
     """Collect a training set on the rig: touch each object, write the training CSV."""
@@ -233,6 +242,12 @@ def collect_command(
     sim, sim_transport = options.sim, options.sim_transport
     if not action_scale > 0:
         raise fail(f"--action-scale: must be > 0, received {action_scale}.", 2)
+    if placements is not None and not 1 <= placements <= touches:
+        raise fail(
+            f"--placements: must lie in 1..{touches} (--touches, the touches per object), "
+            f"received {placements}.",
+            2,
+        )
     parsed = parse_objects(objects or [], simulated=sim)
     if not sim and len(parsed) < 2:
         raise fail("give at least two --object NAME=SLOT (or use --sim).", 2)
@@ -257,9 +272,10 @@ def collect_command(
             "observation_dim": len(channels),
             "channels": channels,
             "planned": plan.n_touches,
+            "placements": placements,
         }
         recorded, error, code, seconds = _collect(
-            handle, lease, actions, slots, plan, out, raw, force
+            handle, lease, actions, slots, plan, out, raw, force, placements
         )
         summary["rig_state"] = str(handle.rig.state)
     counts = Counter(touch.object_name for touch in recorded)
@@ -286,6 +302,7 @@ def _collect(
     out: Path,
     raw: Path | None,
     force: bool,
+    placements: int | None = None,
 ) -> tuple[list[CollectedTouch], str | None, int, float]:
     """Run the collection into the files; return the touches, the error, exit code, seconds."""
     from app.cli.output import progress_bar
@@ -302,19 +319,28 @@ def _collect(
     raw_file = None if raw is None else _open_new(raw, force, "--raw")
     try:
         writer = TrainingCsvWriter(
-            csv_file, actions.action_dim, len(handle.rig.tactile.config.channel_names)
+            csv_file,
+            actions.action_dim,
+            len(handle.rig.tactile.config.channel_names),
+            placements=placements is not None,
         )
         _sync(csv_file)
         with progress_bar() as bar:
             task = bar.add_task("collect", total=plan.n_touches, status="connected")
             try:
-                for touch in iter_collection(lease, actions, slots, plan):
-                    writer.write(touch.object_name, touch.action, touch.record.observation)
+                for touch in iter_collection(lease, actions, slots, plan, placements):
+                    writer.write(
+                        touch.object_name,
+                        touch.action,
+                        touch.record.observation,
+                        touch.placement,
+                    )
                     _sync(csv_file)
                     if raw_file is not None:
                         line = {
                             "index": touch.index,
                             "object": touch.object_name,
+                            "placement": touch.placement,
                             "action": touch.action.tolist(),
                             "observation": touch.record.observation.tolist(),
                             **raw_series(touch.record),

@@ -213,6 +213,7 @@ def fit(
     from app.documents.training_csv import read_training_csv
     from core.errors import CoreError
     from core.manifold import FitOptions
+    from core.placement_effect import with_placement_effect
 
     requested_dim = _parse_latent_dim(latent_dim)
     text = read_text(data_csv)
@@ -228,6 +229,7 @@ def fit(
         model, seconds = fit_with_progress(
             data, requested_dim, options, seed, quiet=False, noise_model=noise_model
         )
+        model, placement = with_placement_effect(model)
     except CoreError as exc:
         raise fail(str(exc)) from None
     document = model_to_document(
@@ -251,6 +253,18 @@ def fit(
         stdout.print(escape(selection.explanation))
     noise_note = model.transform.note if model.transform is not None else "none"
     stdout.print(f"noise model: {escape(noise_note)}")
+    if placement is not None:
+        noise = model.hyperparameters.noise_variance
+        share = placement.variance / noise
+        clipped = [
+            f"feature {a + 1}: {placement.raw_variance[a] / noise[a]:.3g}"
+            for a in np.flatnonzero(placement.raw_variance != placement.variance)
+        ]
+        stdout.print(
+            f"placement effect from {placement.groups:d} placements: σ_b² / σ_n² = "
+            f"{escape(np.array2string(share, precision=2))} per feature"
+            + (f" (clipped from {escape(', '.join(clipped))})" if clipped else "")
+        )
     stdout.print(
         f"fitted {len(model.object_names):d} objects, ds={model.latent_dim:d}, "
         f"log-likelihood {model.log_likelihood:.3f} in {seconds:.2f} s"

@@ -4,11 +4,15 @@ be reloaded and used to predict, plan and recognise.
 The training data are included; β and K⁻¹ are recomputed on load, conditioned as the
 ``posterior`` field recorded (:mod:`app.documents.posterior`) in the observation transform of the
 ``noise_model`` field (:mod:`app.documents.noise_model`). ``latent_selection`` (optional) reports
-how ``--latent-dim auto`` chose ds.
+how ``--latent-dim auto`` chose ds. ``placement_effect`` (optional) holds σ_b², the variance of
+the offset shared by one placement's touches (docs/calibration.md), estimated at fit time from
+``training_data.placements`` (optional, the placement number of every touch); a document without
+it scores a trial's touches as independent (σ_b² = 0).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import reprlib
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -23,6 +27,7 @@ from app.documents.posterior import condition_as_recorded, posterior_field
 from app.documents.training_csv import MAX_NAME_CHARACTERS
 from core.errors import InvalidInputError
 from core.latent_selection import LatentSelection
+from core.placement_effect import check_placement_variance
 from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
 
 MODEL_FORMAT = "activetouch-model/1"
@@ -99,6 +104,14 @@ def model_to_document(
             "observations": data.observations.tolist(),
         },
     }
+    if data.placement_index is not None:
+        document["training_data"]["placements"] = data.placement_index.tolist()
+    if model.placement_variance is not None:
+        document["placement_effect"] = {
+            "variance": [float(v) for v in model.placement_variance],
+            "space": "model",
+            "estimator": "leave-one-placement-out method of moments (docs/calibration.md)",
+        }
     noise = noise_model_field(model.transform)
     if noise is not None:
         document["noise_model"] = noise
@@ -304,6 +317,11 @@ def model_from_document(document: Any) -> ManifoldModel:
             observations=_array(
                 "training_data.observations", _field(training, "observations", "training_data")
             ),
+            placement_index=(
+                None
+                if training.get("placements") is None
+                else np.asarray(training["placements"], dtype=np.int64)
+            ),
         )
         per_feature = {
             name: [_field(f, name, f"hyperparameters[{a}]") for a, f in enumerate(hyper)]
@@ -357,6 +375,21 @@ def model_from_document(document: Any) -> ManifoldModel:
         for i, candidate in enumerate(selection["candidates"]):
             _check_object(candidate, f"latent_selection.candidates[{i}]", _CANDIDATE_FIELDS, True)
     transform = read_noise_model_field(document.get("noise_model"), data.observation_dim)
-    return condition_as_recorded(
+    model = condition_as_recorded(
         data, latents, hyperparameters, diagnostics, document.get("posterior"), transform=transform
     )
+    effect = document.get("placement_effect")
+    if effect is None:
+        return model
+    try:
+        variance = check_placement_variance(
+            model, np.asarray(_field(effect, "variance", "placement_effect"), dtype=np.float64)
+        )
+    except InvalidInputError as exc:
+        raise DocumentError(f"model document: {exc}", column="placement_effect") from exc
+    except (TypeError, ValueError) as exc:
+        raise DocumentError(
+            f"model document: malformed field 'placement_effect' ({exc}).",
+            column="placement_effect",
+        ) from exc
+    return dataclasses.replace(model, placement_variance=variance)

@@ -1,5 +1,9 @@
 """The training CSV (DESIGN.md): header ``object,x_1,...,x_dx,y_1,...,y_dy``, one touch per row.
 
+An optional ``placement`` column after ``object`` (integers ≥ 0) records which placement of its
+object each touch met (``activetouch collect --placements``); the fit estimates the placement
+effect from it (docs/calibration.md).
+
 :func:`read_training_csv` parses and checks a file; :class:`TrainingCsvWriter` appends rows as
 touches arrive (a collection keeps what it recorded); :func:`write_training_csv` renders a whole
 data set.
@@ -54,8 +58,12 @@ def _oversized_field(text: str, line_number: int, columns: list[str]) -> Documen
     )
 
 
-def _check_header(header: list[str]) -> tuple[int, int]:
-    """Validate the CSV header; return (dx, dy)."""
+#: The optional column of placement numbers.
+PLACEMENT_COLUMN = "placement"
+
+
+def _check_header(header: list[str]) -> tuple[int, int, bool]:
+    """Validate the CSV header; return (dx, dy, whether it has the placement column)."""
     names = [h.strip() for h in header]
     if not names or names[0] != "object":
         raise DocumentError(
@@ -63,6 +71,9 @@ def _check_header(header: list[str]) -> tuple[int, int]:
             row=1,
             column=names[0] if names else None,
         )
+    placed = len(names) > 1 and names[1] == PLACEMENT_COLUMN
+    if placed:
+        names = [names[0], *names[2:]]
     unknown = [
         n for n in names[1:] if not (_ACTION_COLUMN.match(n) or _OBSERVATION_COLUMN.match(n))
     ]
@@ -86,7 +97,7 @@ def _check_header(header: list[str]) -> tuple[int, int]:
             else "object,x_1..x_dx,y_1..y_dy with at least one x and one y"
         )
         raise DocumentError(f"CSV header: expected {wanted}, found {','.join(names)}.", row=1)
-    return len(actions), len(observations)
+    return len(actions), len(observations), placed
 
 
 def read_training_csv(text: str) -> TrainingData:
@@ -105,18 +116,21 @@ def read_training_csv(text: str) -> TrainingData:
         raise DocumentError("CSV: the file is empty; expected a header line.", row=1) from None
     except csv.Error:
         raise _oversized_field(text, reader.line_num, columns) from None
-    dx, dy = _check_header(header)
+    dx, dy, placed = _check_header(header)
     columns = [h.strip() for h in header]
     try:
-        return _read_rows(reader, columns, dx, dy)
+        return _read_rows(reader, columns, dx, dy, placed)
     except csv.Error:
         raise _oversized_field(text, reader.line_num, columns) from None
 
 
-def _read_rows(rows: Iterator[list[str]], columns: list[str], dx: int, dy: int) -> TrainingData:
-    """The data rows after the header (line 2 on), checked."""
+def _read_rows(
+    rows: Iterator[list[str]], columns: list[str], dx: int, dy: int, placed: bool
+) -> TrainingData:
+    """The data rows after the header (line 2 on), checked; ``placed``: a placement column."""
     names: list[str] = []
     index: list[int] = []
+    placements: list[int] = []
     values: list[list[float]] = []
     for line_number, row in enumerate(rows, start=2):
         if not row or all(not cell.strip() for cell in row):
@@ -140,8 +154,20 @@ def _read_rows(rows: Iterator[list[str]], columns: list[str], dx: int, dy: int) 
                 row=line_number,
                 column="object",
             )
+        first = 1
+        if placed:
+            first = 2
+            cell = row[1].strip()
+            if not cell.isdigit():
+                raise DocumentError(
+                    f"CSV row {line_number}, column {PLACEMENT_COLUMN}: {cell!r} is not an "
+                    "integer ≥ 0.",
+                    row=line_number,
+                    column=PLACEMENT_COLUMN,
+                )
+            placements.append(int(cell))
         numbers = []
-        for column, cell in zip(columns[1:], row[1:], strict=True):
+        for column, cell in zip(columns[first:], row[first:], strict=True):
             try:
                 number = float(cell)
             except ValueError:
@@ -170,6 +196,7 @@ def _read_rows(rows: Iterator[list[str]], columns: list[str], dx: int, dy: int) 
             object_index=np.asarray(index, dtype=np.int64),
             actions=array[:, :dx],
             observations=array[:, dx : dx + dy],
+            placement_index=np.asarray(placements, dtype=np.int64) if placed else None,
         )
     except DocumentError:
         raise
@@ -177,10 +204,13 @@ def _read_rows(rows: Iterator[list[str]], columns: list[str], dx: int, dy: int) 
         raise DocumentError(f"CSV: {exc}") from exc
 
 
-def training_csv_header(action_dim: int, observation_dim: int) -> list[str]:
-    """The CSV header ``object,x_1..x_dx,y_1..y_dy``."""
+def training_csv_header(
+    action_dim: int, observation_dim: int, placements: bool = False
+) -> list[str]:
+    """The CSV header ``object,x_1..x_dx,y_1..y_dy`` (``object,placement,…`` with placements)."""
     return (
         ["object"]
+        + ([PLACEMENT_COLUMN] if placements else [])
         + [f"x_{i + 1}" for i in range(action_dim)]
         + [f"y_{i + 1}" for i in range(observation_dim)]
     )
@@ -197,25 +227,45 @@ class TrainingCsvWriter:
         stream: Text stream to write to (opened with ``newline=""`` for a file).
         action_dim: dx.
         observation_dim: dy.
+        placements: Write the ``placement`` column (every :meth:`write` then gives one).
     """
 
-    def __init__(self, stream: TextIO, action_dim: int, observation_dim: int) -> None:
+    def __init__(
+        self, stream: TextIO, action_dim: int, observation_dim: int, placements: bool = False
+    ) -> None:
         if action_dim < 1 or observation_dim < 1:
             raise DocumentError(
                 f"CSV: needs dx ≥ 1 and dy ≥ 1, received dx={action_dim}, dy={observation_dim}."
             )
         self.action_dim = int(action_dim)
         self.observation_dim = int(observation_dim)
+        self.placements = bool(placements)
         self.rows = 0
         self._writer = csv.writer(stream, lineterminator="\n")
-        self._writer.writerow(training_csv_header(self.action_dim, self.observation_dim))
+        self._writer.writerow(
+            training_csv_header(self.action_dim, self.observation_dim, self.placements)
+        )
 
-    def write(self, name: str, action: npt.ArrayLike, observation: npt.ArrayLike) -> None:
-        """Append one touch: object ``name``, action (dx,), observation (dy,).
+    def write(
+        self,
+        name: str,
+        action: npt.ArrayLike,
+        observation: npt.ArrayLike,
+        placement: int | None = None,
+    ) -> None:
+        """Append one touch: object ``name``, action (dx,), observation (dy,), its placement.
 
         Raises:
-            DocumentError: An empty name, wrong lengths or values that are not finite.
+            DocumentError: An empty name, wrong lengths, values that are not finite, or a
+                placement missing (or given) against the header.
         """
+        if self.placements != (placement is not None) or (placement is not None and placement < 0):
+            raise DocumentError(
+                f"CSV: placement of {name!r}: "
+                + ("an integer ≥ 0 is needed" if self.placements else "this file has no column")
+                + f", received {placement!r}.",
+                column=PLACEMENT_COLUMN,
+            )
         x = np.asarray(action, dtype=np.float64).reshape(-1)
         y = np.asarray(observation, dtype=np.float64).reshape(-1)
         if not name.strip():
@@ -230,14 +280,23 @@ class TrainingCsvWriter:
                 )
             if not np.all(np.isfinite(values)):
                 raise DocumentError(f"CSV: {what} of {name!r} is not finite: {values.tolist()}.")
-        self._writer.writerow([name, *map(repr, map(float, x)), *map(repr, map(float, y))])
+        lead = [name] if placement is None else [name, str(int(placement))]
+        self._writer.writerow([*lead, *map(repr, map(float, x)), *map(repr, map(float, y))])
         self.rows += 1
 
 
 def write_training_csv(data: TrainingData) -> str:
     """Render training data as CSV text (floats written with ``repr``, so they round-trip)."""
     out = io.StringIO()
-    writer = TrainingCsvWriter(out, data.action_dim, data.observation_dim)
-    for obj, x, y in zip(data.object_index, data.actions, data.observations, strict=True):
-        writer.write(data.object_names[obj], x, y)
+    placed = data.placement_index is not None
+    writer = TrainingCsvWriter(out, data.action_dim, data.observation_dim, placed)
+    placements: list[int | None] = (
+        data.placement_index.tolist()
+        if data.placement_index is not None
+        else [None] * data.n_touches
+    )
+    for obj, x, y, p in zip(
+        data.object_index, data.actions, data.observations, placements, strict=True
+    ):
+        writer.write(data.object_names[obj], x, y, p)
     return out.getvalue()

@@ -62,11 +62,36 @@ def check_objects(objects: Mapping[str, int] | list[tuple[str, int]]) -> None:
             )
 
 
+def placement_runs(n_touches: int, placements: int) -> list[range]:
+    """Split an object's ``n_touches`` touches (in design order) into ``placements`` runs.
+
+    The runs differ in length by at most one (the first ones take the remainder).
+
+    Raises:
+        BadInputError: ``placements`` < 1 or larger than ``n_touches`` (a placement needs a
+            touch).
+    """
+    if placements < 1 or placements > n_touches:
+        raise BadInputError(
+            f"placements: must lie in 1..{n_touches} (the touches per object), received "
+            f"{placements}.",
+            field="placements",
+        )
+    size, extra = divmod(n_touches, placements)
+    groups, start = [], 0
+    for p in range(placements):
+        stop = start + size + (1 if p < extra else 0)
+        groups.append(range(start, stop))
+        start = stop
+    return groups
+
+
 def iter_collection(
     lease: RigLease,
     actions: TouchActions,
     slots: Mapping[str, int],
     design: CollectionDesign,
+    placements: int | None = None,
 ) -> Iterator[CollectedTouch]:
     """Touch the objects on the rig as ``design`` says, one event per touch as it is recorded.
 
@@ -79,19 +104,28 @@ def iter_collection(
     mean pressure by 0.1, as much as a deep press separates two cushions). An interrupted
     collection keeps whole rounds.
 
+    With ``placements`` = P, each object is instead placed P times and touched N_l / P times in
+    a row at each placement (the table stays put), placement by placement in rounds over the
+    objects; every touch records its placement (0..P-1). A recognition trial touches one
+    placement several times, so such a collection shows how much a placement (and the drift
+    over its touches) shifts them alike: the fit estimates that variance from it
+    (docs/calibration.md). With a shared design every object still gets the same actions.
+
     Args:
         lease: A lease on a connected rig.
         actions: Action → trajectory map.
         slots: Object name → slot; object l of the design is the l-th entry.
         design: Which action touches which object (``object_index`` indexes ``slots``).
+        placements: P, placements per object (1..N_l); ``None``: a fresh placement per touch.
 
     Yields:
         One :class:`~app.rig_factory.CollectedTouch` per touch (``index``/``total`` count the
         whole design).
 
     Raises:
-        BadInputError: The design touches an object that is not in ``slots``, or a shared
-            design gives the objects different numbers of actions.
+        BadInputError: The design touches an object that is not in ``slots``, a shared
+            design gives the objects different numbers of actions, or ``placements`` is
+            outside 1..N_l for some object.
     """
     names = list(slots)
     index = np.asarray(design.object_index)
@@ -110,9 +144,24 @@ def iter_collection(
                 f"have {sorted(counts)} actions.",
                 field="action_design",
             )
+    total, done = design.n_touches, 0
+    if placements is not None:
+        groups = [placement_runs(len(r), placements) for r in rows]
+        for p in range(placements):
+            for name, object_rows, object_groups in zip(names, rows, groups, strict=True):
+                for k, position in enumerate(object_groups[p]):
+                    row = object_rows[position]
+                    record = actions.touch(
+                        lease, design.actions[row], slot=slots[name] if k == 0 else None
+                    )
+                    yield CollectedTouch(
+                        done, total, name, slots[name], design.actions[row].copy(), record, p
+                    )
+                    done += 1
+        return
+    if design.shared:
         yield from iter_collect(lease, actions, dict(slots), design.actions[rows[0]])
         return
-    total, done = design.n_touches, 0
     for turn in range(max(len(r) for r in rows)):
         for name, object_rows in zip(names, rows, strict=True):
             if turn >= object_rows.size:

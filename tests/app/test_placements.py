@@ -1,0 +1,145 @@
+"""Collections that record placements: ``collect --placements``, the CSV column, the document."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from app.cli.main import app
+from app.documents.errors import DocumentError
+from app.documents.model import model_from_document, model_to_document
+from app.documents.training_csv import read_training_csv, write_training_csv
+from app.errors import BadInputError
+from app.services.collections import placement_runs
+from core.reference_model import experiment1_at_true_latents
+from core.types import TrainingData
+
+runner = CliRunner()
+OBJECTS = ["--object", "paper_cup", "--object", "stainless_cup"]
+
+
+def test_collect_with_placements_touches_each_placement_in_a_row(tmp_path: Path) -> None:
+    out = tmp_path / "placed.csv"
+    result = runner.invoke(
+        app,
+        [
+            "collect",
+            "--sim",
+            "--duration",
+            "5",
+            *OBJECTS,
+            "--touches",
+            "4",
+            "--placements",
+            "2",
+            "--seed",
+            "3",
+            "--out",
+            str(out),
+            "--json",
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["placements"] == 2
+    assert out.read_text().splitlines()[0].startswith("object,placement,x_1")
+    data = read_training_csv(out.read_text())
+    assert data.placement_index is not None
+    # Placement by placement in rounds over the objects, two touches in a row at each.
+    np.testing.assert_array_equal(data.object_index, [0, 0, 1, 1, 0, 0, 1, 1])
+    np.testing.assert_array_equal(data.placement_index, [0, 0, 0, 0, 1, 1, 1, 1])
+
+
+def test_more_placements_than_touches_is_bad_usage(tmp_path: Path) -> None:
+    out = tmp_path / "x.csv"
+    result = runner.invoke(
+        app,
+        ["collect", "--sim", *OBJECTS, "--touches", "3", "--placements", "4", "--out", str(out)],
+    )
+    assert result.exit_code == 2
+    assert "--placements" in " ".join(result.output.split())
+    assert not out.exists()
+
+
+def test_csv_placement_column_round_trips_and_is_checked() -> None:
+    model = experiment1_at_true_latents(seed=0, touches_per_object=4)
+    base = model.data
+    placed = dataclasses.replace(base, placement_index=np.arange(base.n_touches) % 2)
+    text = write_training_csv(placed)
+    back = read_training_csv(text)
+    np.testing.assert_array_equal(back.placement_index, placed.placement_index)
+    assert read_training_csv(write_training_csv(base)).placement_index is None
+    broken = text.replace("\nO1,0,", "\nO1,-1,", 1)
+    with pytest.raises(DocumentError, match="placement"):
+        read_training_csv(broken)
+
+
+def test_model_document_keeps_the_placement_effect() -> None:
+    model = experiment1_at_true_latents(seed=0, touches_per_object=6)
+    data = model.data
+    placed_data = TrainingData(
+        data.object_names,
+        data.object_index,
+        data.actions,
+        data.observations,
+        np.arange(data.n_touches) // 3,
+    )
+    variance = 0.3 * model.hyperparameters.noise_variance
+    placed = dataclasses.replace(model, data=placed_data, placement_variance=variance)
+    document = json.loads(json.dumps(model_to_document(placed)))
+    loaded = model_from_document(document)
+    np.testing.assert_array_equal(loaded.placement_variance, variance)
+    np.testing.assert_array_equal(loaded.raw_data.placement_index, placed_data.placement_index)
+    # An older document (no field) means no placement effect.
+    assert model_from_document(model_to_document(model)).placement_variance is None
+    document["placement_effect"]["variance"] = [-1.0, 0.0, 0.0]
+    with pytest.raises(DocumentError, match="placement_variance"):
+        model_from_document(document)
+
+
+def test_fit_estimates_the_placement_effect_into_the_document(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    base = experiment1_at_true_latents(seed=1, touches_per_object=20).data
+    placement = np.tile(np.repeat(np.arange(4), 5), 4)
+    observations = base.observations.copy()
+    for obj in range(4):
+        for p in range(4):
+            rows = (base.object_index == obj) & (placement == p)
+            observations[rows] += rng.normal(0.0, 0.1, size=3)
+    data = TrainingData(base.object_names, base.object_index, base.actions, observations, placement)
+    csv_path, out = tmp_path / "placed.csv", tmp_path / "model.json"
+    csv_path.write_text(write_training_csv(data))
+    result = runner.invoke(
+        app,
+        [
+            "fit",
+            str(csv_path),
+            "--latent-dim",
+            "1",
+            "--restarts",
+            "0",
+            "--noise-model",
+            "independent",
+            "--out",
+            str(out),
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    assert "placement effect from 16 placements" in " ".join(result.output.split())
+    document = json.loads(out.read_text())
+    assert document["training_data"]["placements"] == placement.tolist()
+    variance = np.asarray(document["placement_effect"]["variance"])
+    assert variance.shape == (3,)
+    assert np.any(variance > 0)
+    assert model_from_document(document).placement_variance is not None
+
+
+def test_placement_runs_split_unevenly_and_refuse_empty_placements() -> None:
+    assert placement_runs(7, 3) == [range(0, 3), range(3, 5), range(5, 7)]
+    assert placement_runs(4, 4) == [range(k, k + 1) for k in range(4)]
+    with pytest.raises(BadInputError, match="placements"):
+        placement_runs(2, 3)

@@ -1,0 +1,179 @@
+"""The placement effect: joint trial likelihood, its estimator, and its use in recognition."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import scipy.stats
+
+from core.errors import InvalidInputError
+from core.kernels import squared_exponential
+from core.object_posterior import object_log_likelihoods, object_posterior
+from core.placement_effect import (
+    estimate_placement_variance,
+    placement_groups,
+    predictive_covariance,
+    trial_log_likelihoods,
+    with_placement_effect,
+)
+from core.planning import PassivePolicy, Planner
+from core.posterior import condition, predict_model_space
+from core.recognition import RecognitionSession, RecognitionSettings
+from core.reference_model import experiment1_at_true_latents
+from core.types import Hyperparameters, ManifoldModel, TrainingData
+from core.worlds import EXPERIMENT1_THETAS, Experiment1World, sample_experiment1
+
+
+@pytest.fixture(scope="module")
+def model() -> ManifoldModel:
+    return experiment1_at_true_latents(seed=0, touches_per_object=15)
+
+
+def _trial(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(n, 1))
+    y = Experiment1World().observe(1, x, rng)
+    return x, y
+
+
+def test_one_touch_equals_the_independent_density(model: ManifoldModel) -> None:
+    x, y = _trial(1, 1)
+    variance = 0.5 * model.hyperparameters.noise_variance
+    joint = trial_log_likelihoods(model, x, y, variance)
+    np.testing.assert_allclose(joint, object_log_likelihoods(model, x, y), rtol=1e-10)
+
+
+def test_zero_placement_variance_keeps_todays_posterior_exactly(model: ManifoldModel) -> None:
+    x, y = _trial(6, 2)
+    zero = dataclasses.replace(model, placement_variance=np.zeros(3))
+    assert np.array_equal(object_posterior(zero, x, y), object_posterior(model, x, y))
+    assert np.array_equal(object_log_likelihoods(zero, x, y), object_log_likelihoods(model, x, y))
+
+
+def test_predictive_covariance_diagonal_is_the_predictive_variance(model: ManifoldModel) -> None:
+    x, _ = _trial(4, 3)
+    cov = predictive_covariance(model, model.latents[2], x)
+    _, variance = predict_model_space(model, np.tile(model.latents[2], (4, 1)), x)
+    diagonal = np.stack([np.diag(c) for c in cov], axis=1)
+    np.testing.assert_allclose(diagonal + model.hyperparameters.noise_variance, variance, rtol=1e-9)
+
+
+def test_joint_likelihood_matches_a_dense_gaussian_built_from_the_kernel(
+    model: ManifoldModel,
+) -> None:
+    """Brute force: condition the joint Gaussian of [training y; trial y] directly."""
+    x, y = _trial(5, 4)
+    h = model.hyperparameters
+    data = model.data
+    variance = np.array([0.004, 0.0, 0.008])
+    expected = np.zeros(data.n_objects)
+    for obj in range(data.n_objects):
+        for a in range(3):
+            z_train = np.hstack([model.latents[data.object_index], data.actions])
+            z_trial = np.hstack([np.tile(model.latents[obj], (5, 1)), x])
+            scales = np.concatenate([h.latent_lengthscales[a], h.action_lengthscales[a]])
+            everything = np.vstack([z_train, z_trial])
+            prior = h.signal_variance[a] * squared_exponential(everything, everything, scales)
+            n = data.n_touches
+            noise = np.zeros_like(prior)
+            noise[:n, :n] = h.noise_variance[a] * np.eye(n)
+            noise[n:, n:] = variance[a] * np.ones((5, 5)) + (
+                h.noise_variance[a] - variance[a]
+            ) * np.eye(5)
+            joint = prior + noise
+            gain = np.linalg.solve(joint[:n, :n], joint[:n, n:]).T
+            centred = data.observations[:, a] - data.observation_mean[a]
+            mean = data.observation_mean[a] + gain @ centred
+            cov = joint[n:, n:] - gain @ joint[:n, n:]
+            expected[obj] += scipy.stats.multivariate_normal(mean, cov).logpdf(y[:, a])
+    np.testing.assert_allclose(trial_log_likelihoods(model, x, y, variance), expected, rtol=1e-7)
+
+
+def test_shared_offset_evidence_saturates(model: ManifoldModel) -> None:
+    """The same touch repeated: independent evidence grows linearly, with σ_b² it levels off."""
+    x, y = _trial(1, 5)
+    variance = 0.8 * model.hyperparameters.noise_variance
+    gaps_independent, gaps_joint = [], []
+    for t in (1, 4, 16):
+        xs, ys = np.repeat(x, t, axis=0), np.repeat(y, t, axis=0)
+        independent = object_log_likelihoods(model, xs, ys)
+        joint = trial_log_likelihoods(model, xs, ys, variance)
+        gaps_independent.append(np.ptp(independent))
+        gaps_joint.append(np.ptp(joint))
+    np.testing.assert_allclose(gaps_independent[2], 16 * gaps_independent[0], rtol=1e-9)
+    assert gaps_joint[2] < 2.0 * gaps_joint[0]
+    assert gaps_joint[2] - gaps_joint[1] < gaps_joint[1] - gaps_joint[0]
+
+
+def test_negative_or_too_large_variance_is_refused(model: ManifoldModel) -> None:
+    x, y = _trial(2, 6)
+    for bad in (np.array([-1e-3, 0.0, 0.0]), model.hyperparameters.noise_variance):
+        with pytest.raises(InvalidInputError, match="placement_variance"):
+            trial_log_likelihoods(model, x, y, bad)
+
+
+def _placed(offset_std: float, seed: int) -> tuple[ManifoldModel, np.ndarray]:
+    """Experiment 1, 100 touches per object in placements of 5, each sharing an offset."""
+    rng = np.random.default_rng(seed)
+    base = sample_experiment1(rng, touches_per_object=100, noise_std=0.1)
+    placement = np.zeros(base.n_touches, dtype=np.int64)
+    observations = base.observations.copy()
+    for obj in range(base.n_objects):
+        rows = np.flatnonzero(base.object_index == obj)
+        placement[rows] = np.arange(rows.size) // 5
+        for p in range(20):
+            observations[rows[placement[rows] == p]] += rng.normal(0.0, offset_std, size=3)
+    data = TrainingData(base.object_names, base.object_index, base.actions, observations, placement)
+    theta = np.asarray(EXPERIMENT1_THETAS)[:, None]
+    centred = theta - theta.mean()
+    hyper = Hyperparameters(
+        signal_variance=np.array([0.18, 0.2, 0.27]),
+        noise_variance=np.full(3, 0.01 + offset_std**2),
+        latent_lengthscales=np.array([[1.9], [100.0], [8.0]]),
+        action_lengthscales=np.array([[0.84], [0.88], [0.92]]),
+    )
+    return condition(data, centred / np.sqrt(np.mean(centred**2)), hyper), placement
+
+
+def test_estimator_recovers_the_placement_variance() -> None:
+    model, placement = _placed(0.1, 7)
+    estimate = estimate_placement_variance(model, placement)
+    assert estimate.groups == 80
+    assert estimate.pairs == 80 * 5 * 4
+    # σ_b² = 0.01 per feature; 80 placements give a relative standard error of about 0.2.
+    assert np.all(estimate.variance > 0.005)
+    assert np.all(estimate.variance < 0.016)
+
+
+def test_estimator_finds_no_effect_without_offsets() -> None:
+    model, placement = _placed(0.0, 8)
+    estimate = estimate_placement_variance(model, placement)
+    assert np.all(np.abs(estimate.raw_variance) < 0.002)
+
+
+def test_with_placement_effect_uses_the_recorded_placements(model: ManifoldModel) -> None:
+    unchanged, none = with_placement_effect(model)
+    assert unchanged is model
+    assert none is None
+    placed, placement = _placed(0.1, 9)
+    fitted, estimate = with_placement_effect(placed)
+    assert estimate is not None
+    np.testing.assert_array_equal(fitted.placement_variance, estimate.variance)
+    assert len(placement_groups(placed.data.object_index, placement)) == 80
+
+
+def test_session_scores_a_trials_touches_jointly_at_every_step(model: ManifoldModel) -> None:
+    placed = dataclasses.replace(
+        model, placement_variance=0.5 * model.hyperparameters.noise_variance
+    )
+    x, y = _trial(5, 10)
+    session = RecognitionSession(
+        placed, Planner(placed, PassivePolicy()), settings=RecognitionSettings(max_steps=5)
+    )
+    for t in range(5):
+        step = session.observe(x[t], y[t])
+        np.testing.assert_allclose(
+            step.probabilities, object_posterior(placed, x[: t + 1], y[: t + 1]), rtol=1e-12
+        )
