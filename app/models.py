@@ -257,7 +257,7 @@ class EventRecord(Base):
 
 
 class Evaluation(Base):
-    """A policy evaluation job (issue 12): its request, state, progress and final summary.
+    """A policy evaluation job: its request, state, progress and final summary.
 
     ``spec`` is the request as the API received it (``EvaluationCreate``); ``steps`` the T
     actually run (fewer than asked when a replay pool caps it); ``summary`` is the

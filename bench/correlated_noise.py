@@ -1,6 +1,6 @@
 """Benchmark: correlated channel noise — recognition, held-out likelihood and calibration.
 
-Issue 15's acceptance. On the correlated-noise world (:func:`core.worlds.correlated_noise_world`:
+On the correlated-noise world (:func:`core.worlds.correlated_noise_world`:
 five tactile-like channels on scales 100…1 whose noise correlates up to 0.8, noise comparable to
 the differences between objects) and on Experiment-2-like worlds (independent noise), every model
 is fitted on training touches and judged on fresh held-out touches of the same objects:

@@ -1,4 +1,4 @@
-"""Acceptance of issue 13: on a simulated table, does active recognition beat passive on the rig?
+"""Experiment 2 acceptance: on a simulated table, does active recognition beat passive on the rig?
 
 Runs the evaluation engine (world ``rig``: every observation is a touch of the simulated rig) for
 the given policies with a model fitted on a rig collection of that table, and prints per touch

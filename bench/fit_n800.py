@@ -1,4 +1,4 @@
-"""Benchmark: the manifold fit on a real-sized random design (issue 15, item 4).
+"""Benchmark: the manifold fit on a real-sized random design (N = 800).
 
 20 objects × 40 touches (N = 800), a fresh action per touch (dx = 1), dy = 5, drawn from
 :func:`core.worlds.random_experiment2_world` (true ds = 3). For each fitted ds it runs the

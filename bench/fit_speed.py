@@ -1,10 +1,10 @@
-"""Benchmark: manifold fitting on Experiment 1 (issue 2 acceptance) and one-start cost.
+"""Benchmark: manifold fitting on Experiment 1 (|corr| over data seeds) and one-start cost.
 
 For each data seed of Experiment 1 (4 objects × 100 touches, dx=1, dy=3, ds=1) it fits the
 manifold with the default :class:`core.manifold.FitOptions` and prints |corr(θ, s)|, the fit
 time and the log-likelihood, beside the log-likelihood with the true θ as fixed latents
 (hyperparameters fitted); then the paper's random-latent baseline (random S_w held fixed,
-hyperparameters fitted with :func:`core.manifold.fit_hyperparameters`). With ``--issue3`` it
+hyperparameters fitted with :func:`core.manifold.fit_hyperparameters`). With ``--one-start`` it
 also times one L-BFGS start on all the data at L=4, N=400, dx=6, dy=5, ds=2.
 
 Wall-clock seconds depend on what else runs on the machine; the CPU seconds of the process
@@ -12,7 +12,7 @@ Wall-clock seconds depend on what else runs on the machine; the CPU seconds of t
 ``--threads`` (default 1): on 2 shared cores, threaded LAPACK
 (``dpotri`` in particular) slows down by 10-100x whenever the other core is busy.
 
-Run: ``.venv/bin/python -m bench.fit_speed [--seeds 10] [--noise-std 0.1] [--issue3]``
+Run: ``.venv/bin/python -m bench.fit_speed [--seeds 10] [--noise-std 0.1] [--one-start]``
 """
 
 from __future__ import annotations
@@ -99,7 +99,7 @@ def _fit_from(data: TrainingData, start: ManifoldModel, options: FitOptions) -> 
     return log_likelihood, abs_correlation(np.array(EXPERIMENT1_THETAS), latents)
 
 
-def issue3_one_start(seed: int = 0) -> None:
+def one_start(seed: int = 0) -> None:
     """One fit start (``restarts=0``) on all the data at L=4, N=400, dx=6, dy=5, ds=2."""
     rng = np.random.default_rng(seed)
     world = random_experiment2_world(rng)
@@ -116,7 +116,7 @@ def issue3_one_start(seed: int = 0) -> None:
     elapsed = time.perf_counter() - start
     iterations = model.diagnostics.iterations if model.diagnostics else 0
     print(
-        f"Issue 3 shape (L=4, N=400, dx=6, dy=5, ds=2): value+gradient median "
+        f"Benchmark shape (L=4, N=400, dx=6, dy=5, ds=2): value+gradient median "
         f"{1e3 * np.median(ts):.1f} ms; one start {elapsed:.2f} s, {iterations} iterations, "
         f"log_lik {model.log_likelihood:.2f}, Procrustes R² to the true latents "
         f"{procrustes_r2(world.truth, model.latents):.4f}"
@@ -130,7 +130,7 @@ def main() -> None:
     parser.add_argument("--restarts", type=int, default=FitOptions().restarts)
     parser.add_argument("--optimizer", choices=("lbfgs", "de"), default="lbfgs")
     parser.add_argument("--threads", type=int, default=1, help="BLAS threads")
-    parser.add_argument("--issue3", action="store_true", help="also time one start at N=400")
+    parser.add_argument("--one-start", action="store_true", help="also time one start at N=400")
     parser.add_argument("--stall-relative", type=float, default=FitOptions().stall_relative)
     args = parser.parse_args()
     options = FitOptions(
@@ -138,8 +138,8 @@ def main() -> None:
     )
     with threadpool_limits(limits=args.threads):
         experiment1(args.seeds, args.noise_std, options)
-        if args.issue3:
-            issue3_one_start()
+        if args.one_start:
+            one_start()
 
 
 if __name__ == "__main__":

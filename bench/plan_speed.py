@@ -1,6 +1,6 @@
 """Benchmark: choosing one action, and the structured moments against the direct formula.
 
-Target (issue 2): one active action at L = 4, N = 400, dx = 6, dy = 5, ds = 2 in ≤ 50 ms median,
+Target: one active action at L = 4, N = 400, dx = 6, dy = 5, ds = 2 in ≤ 50 ms median,
 single-threaded. The model is conditioned on an Experiment-2-like world (``core.worlds``) with
 the true latents, normalised, and fixed hyperparameters, so the figure does not depend on fitting.
 

@@ -1,4 +1,4 @@
-"""``activetouch bench``: every performance figure of issue 3 in one run, side by side.
+"""``activetouch bench``: every performance figure in one run, side by side.
 
 Sections (Experiment-2-like world: ds = 2, dx = 6, dy = 5; see :mod:`bench.scenarios`):
 
@@ -560,7 +560,7 @@ def section_sparse(options: Options) -> dict[str, Any]:
 
 
 def headline(figures: dict[str, Any]) -> dict[str, Any]:
-    """The JSON keys of issue 3 (``None`` when not measured in this run)."""
+    """The JSON keys of the figures (``None`` when not measured in this run)."""
 
     def get(*path: str) -> Any:
         node: Any = figures

@@ -1,4 +1,4 @@
-"""``activetouch bench``: the performance figures (issue 3), printed side by side with ratios.
+"""``activetouch bench``: the performance figures, printed side by side with ratios.
 
 Register with ``app.command("bench")(bench_command)``.
 """

@@ -1,6 +1,6 @@
 """evaluations and their finished trials
 
-An evaluation is a job (issue 12): a model, a world, policies, trials per target and T, run
+An evaluation is a job: a model, a world, policies, trials per target and T, run
 as many recognition trials; ``evaluation_trials`` keeps one row per finished trial (its
 ``TrialRecord`` as JSON), written the moment the trial finishes, so a stopped or interrupted
 evaluation keeps them.
