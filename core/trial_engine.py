@@ -153,11 +153,7 @@ class WorldTouches:
     target: str
 
     def __post_init__(self) -> None:
-        if self.target not in self.world.object_names:
-            raise InvalidInputError(
-                f"target: {self.target!r} is not an object of the world "
-                f"{list(self.world.object_names)}."
-            )
+        _check_target(self.world.object_names, self.target, "world")
 
     def touch(self, action: FloatArray, rng: np.random.Generator) -> Touch:
         """y = h(target, x) + noise."""
@@ -188,11 +184,7 @@ class ModelTouches:
     target: str
 
     def __post_init__(self) -> None:
-        if self.target not in self.model.object_names:
-            raise InvalidInputError(
-                f"target: {self.target!r} is not an object of the model "
-                f"{list(self.model.object_names)}."
-            )
+        _check_target(self.model.object_names, self.target, "model")
 
     def touch(self, action: FloatArray, rng: np.random.Generator) -> Touch:
         """One draw at ``action`` (dx,)."""
@@ -318,10 +310,11 @@ class TrialSettings:
         return default_prior(model, self.prior_variance)
 
 
-def _check_target(model: ManifoldModel, target: str) -> None:
-    if target not in model.object_names:
+def _check_target(names: Sequence[str], target: str, where: str) -> None:
+    """Raise :class:`InvalidInputError` unless ``target`` is one of ``names`` (of the ``where``)."""
+    if target not in names:
         raise InvalidInputError(
-            f"target: {target!r} is not an object of the model {list(model.object_names)}."
+            f"target: {target!r} is not an object of the {where} {list(names)}."
         )
 
 
@@ -377,7 +370,7 @@ def run_trial(
     """
     if (touches is None) == (replay is None):
         raise InvalidInputError("run_trial: give exactly one of touches and replay.")
-    _check_target(model, target)
+    _check_target(model.object_names, target, "model")
     limit = settings.steps if steps is None else steps
     source: ObservationSource
     planned: PlannedTouches | None = None
