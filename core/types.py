@@ -12,6 +12,7 @@ from typing import Literal
 import numpy as np
 
 from core.errors import CoreError, InvalidInputError
+from core.features.pipeline import FeaturePipeline
 from core.observation_transform import ObservationTransform
 from core.validation import FloatArray, IntArray, as_float_array, require_positive
 
@@ -398,6 +399,8 @@ class ManifoldModel:
             transformed observations, :attr:`raw_data` the raw ones.
         source_data: The raw training touches when ``transform`` is not ``None`` (``None``
             otherwise: ``data`` is raw).
+        features: The feature pipeline that turns a raw touch into y
+            (:mod:`core.features.pipeline`); ``None``: y is given as it is (the channel means).
     """
 
     data: TrainingData
@@ -408,6 +411,7 @@ class ManifoldModel:
     diagnostics: FitDiagnostics | None = None
     transform: ObservationTransform | None = None
     source_data: TrainingData | None = None
+    features: FeaturePipeline | None = None
 
     @property
     def raw_data(self) -> TrainingData:

@@ -4,17 +4,20 @@ be reloaded and used to predict, plan and recognise.
 The training data are included; β and K⁻¹ are recomputed on load, conditioned as the
 ``posterior`` field recorded (:mod:`app.documents.posterior`) in the observation transform of the
 ``noise_model`` field (:mod:`app.documents.noise_model`). ``latent_selection`` (optional) reports
-how ``--latent-dim auto`` chose ds.
+how ``--latent-dim auto`` chose ds. ``features`` (optional, :mod:`app.documents.features`) is the
+pipeline that turns a raw touch into y; without it y is the channel means.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from app.documents.errors import DocumentError
+from app.documents.features import features_field, read_features_field
 from app.documents.noise_model import noise_model_field, read_noise_model_field
 from app.documents.posterior import condition_as_recorded, posterior_field
 from core.errors import InvalidInputError
@@ -92,6 +95,8 @@ def model_to_document(
         document["noise_model"] = noise
     if latent_selection is not None:
         document["latent_selection"] = dict(latent_selection)
+    if model.features is not None:
+        document["features"] = features_field(model.features)
     if model.diagnostics is not None:
         d = model.diagnostics
         document["diagnostics"] = {
@@ -192,6 +197,8 @@ def model_from_document(document: Any) -> ManifoldModel:
                 f"model document: malformed field 'diagnostics' ({exc}).", column="diagnostics"
             ) from exc
     transform = read_noise_model_field(document.get("noise_model"), data.observation_dim)
-    return condition_as_recorded(
+    features = read_features_field(document.get("features"), data.observation_dim)
+    model = condition_as_recorded(
         data, latents, hyperparameters, diagnostics, document.get("posterior"), transform=transform
     )
+    return model if features is None else dataclasses.replace(model, features=features)
