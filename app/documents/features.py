@@ -31,7 +31,9 @@ def feature_selection_dict(selection: FeatureSelection) -> dict[str, Any]:
     """How dy was chosen, as JSON."""
     return {
         "chosen": selection.chosen,
+        "projection": selection.projection,
         "best": selection.best,
+        "best_projection": selection.best_projection,
         "n_folds": selection.n_folds,
         "criterion": "share of held-out touches recognised (pooled-covariance Gaussian)",
         "candidates": [dataclasses.asdict(c) for c in selection.candidates],
@@ -59,6 +61,7 @@ def features_field(pipeline: FeaturePipeline) -> dict[str, Any]:
         assert pipeline.center is not None and pipeline.scale is not None  # noqa: PT018
         assert pipeline.components is not None and pipeline.explained_variance is not None  # noqa: PT018
         field.update(
+            projection=pipeline.projection,
             settings=dataclasses.asdict(pipeline.settings),
             center=pipeline.center.tolist(),
             scale=pipeline.scale.tolist(),
@@ -75,11 +78,14 @@ def _selection(value: Any) -> FeatureSelection | None:
         return None
     return FeatureSelection(
         chosen=int(value["chosen"]),
+        projection=value["projection"],
         best=int(value["best"]),
+        best_projection=value["best_projection"],
         n_folds=int(value["n_folds"]),
         candidates=tuple(
             FeatureDimScore(
                 feature_dim=int(c["feature_dim"]),
+                projection=c["projection"],
                 fold_scores=tuple(float(v) for v in c["fold_scores"]),
                 mean=float(c["mean"]),
                 standard_error=float(c["standard_error"]),
@@ -122,8 +128,11 @@ def read_features_field(value: Any, observation_dim: int) -> FeaturePipeline | N
         if value["kind"] == "whole":
             settings = FeatureSettings(**value["settings"])
             arrays = {
-                name: np.asarray(value[name], dtype=np.float64)
-                for name in ("center", "scale", "components", "explained_variance")
+                "projection": value.get("projection", "pca"),
+                **{
+                    name: np.asarray(value[name], dtype=np.float64)
+                    for name in ("center", "scale", "components", "explained_variance")
+                },
             }
         pipeline = FeaturePipeline(
             value["kind"],

@@ -16,8 +16,12 @@ according to its role, decided from the first training touch:
 - any other scalar channel: mean, RMS, standard deviation and slope.
 
 The reduced features are standardised with the training touches' mean and standard deviation,
-and projected on their first dy principal components (PCA by SVD). dy is chosen by
-cross-validated recognition (:func:`select_feature_dim`) unless given.
+and projected on their first dy principal components (PCA by SVD) or, when it measurably
+recognises better, on their first dy linear discriminants (LDA: between-object against pooled
+within-object scatter, dy ≤ L − 1). The projection and dy are chosen by cross-validated
+recognition (:func:`select_feature_dim`) unless given. PCA keeps what varies most, including what
+varies with the action; LDA keeps what separates the objects on average, and sees the action's
+effect as spread — so PCA is kept unless LDA does better by more than the folds' noise.
 
 Pure maths: the touches come in as arrays, randomness as a seed.
 """
@@ -39,6 +43,8 @@ from core.validation import FloatArray, IntArray
 FeatureKind = Literal["means", "whole"]
 FEATURE_KINDS: tuple[FeatureKind, ...] = ("means", "whole")
 ChannelRole = Literal["scalar", "vibration", "array"]
+Projection = Literal["pca", "lda"]
+PROJECTIONS: tuple[Projection, ...] = ("pca", "lda")
 
 #: Candidate feature dimensions tried by :func:`select_feature_dim` (those ≤ the largest allowed).
 FEATURE_DIM_CANDIDATES: tuple[int, ...] = (1, 2, 3, 4, 5, 6, 8, 10, 12, 15, 20, 25, 30)
@@ -102,6 +108,7 @@ class FeatureDimScore:
 
     Attributes:
         feature_dim: dy.
+        projection: ``"pca"`` or ``"lda"``.
         fold_scores: Share of held-out touches recognised in each fold.
         mean: Mean of ``fold_scores``.
         standard_error: Standard error of ``mean`` over the folds.
@@ -110,6 +117,7 @@ class FeatureDimScore:
     """
 
     feature_dim: int
+    projection: Projection
     fold_scores: tuple[float, ...]
     mean: float
     standard_error: float
@@ -122,15 +130,19 @@ class FeatureSelection:
     """How dy was chosen: the candidates' scores, the choice and why.
 
     Attributes:
-        chosen: The dy kept (smallest within one standard error of the best).
+        chosen: The dy kept (smallest within one standard error of the best, PCA first).
+        projection: The projection kept.
         best: The dy with the best mean score.
+        best_projection: Its projection.
         n_folds: Folds used.
         candidates: Score of each candidate, increasing dy.
         explanation: One sentence on the choice.
     """
 
     chosen: int
+    projection: Projection
     best: int
+    best_projection: Projection
     n_folds: int
     candidates: tuple[FeatureDimScore, ...]
     explanation: str
@@ -147,9 +159,12 @@ class FeaturePipeline:
         settings: Settings of the ``"whole"`` pipeline.
         center: Mean of each reduced feature over the training touches. Shape (R,) (``"whole"``).
         scale: Their standard deviation (1 where it was 0). Shape (R,) (``"whole"``).
-        components: Principal axes of the standardised features. Shape (R, dy) (``"whole"``).
+        components: Projection axes of the standardised features. Shape (R, dy)
+            (``"whole"``): orthonormal principal axes, or discriminant axes scaled to unit
+            pooled within-object variance.
         explained_variance: Variance of the standardised training features along each axis.
             Shape (dy,) (``"whole"``).
+        projection: ``"pca"`` or ``"lda"`` (``"whole"``).
         selection: How dy was chosen, if it was.
     """
 
@@ -162,8 +177,13 @@ class FeaturePipeline:
     components: FloatArray | None = None
     explained_variance: FloatArray | None = None
     selection: FeatureSelection | None = None
+    projection: Projection = "pca"
 
     def __post_init__(self) -> None:
+        if self.projection not in PROJECTIONS:
+            raise InvalidInputError(
+                f"projection: expected one of {PROJECTIONS}, received {self.projection!r}."
+            )
         if self.kind not in FEATURE_KINDS:
             raise InvalidInputError(
                 f"kind: expected one of {FEATURE_KINDS}, received {self.kind!r}."
@@ -407,6 +427,59 @@ def principal_axes(standardised: FloatArray, dim: int) -> tuple[FloatArray, Floa
     return np.asarray(axes, dtype=np.float64), np.asarray(variance, dtype=np.float64)
 
 
+def discriminant_axes(
+    standardised: FloatArray, object_index: IntArray, dim: int
+) -> tuple[FloatArray, FloatArray]:
+    """The first ``dim`` linear discriminants (Fisher's LDA) of standardised rows.
+
+    Solves S_b v = λ S_w v (:func:`scipy.linalg.eigh`) for the between-object scatter S_b of the
+    object means and the pooled within-object covariance S_w, shrunk by 5 % of its mean
+    variance towards a multiple of the identity so that it stays invertible with many
+    features; each axis v has vᵀ S_w v = 1 (unit within-object variance). S_w is shrunk towards
+    its mean variance times the identity by R / (R + N − L): much when there are few touches
+    per feature, little when there are many, so that it stays invertible and does not fit noise.
+
+    Args:
+        standardised: Centred rows. Shape (N, R).
+        object_index: Object of each row. Shape (N,).
+        dim: Axes kept, ≤ L − 1 and ≤ R.
+
+    Returns:
+        Axes, shape (R, dim); the variance of the rows along each, shape (dim,).
+    """
+    from scipy import linalg
+
+    classes = np.unique(object_index)
+    if not 1 <= dim <= min(len(classes) - 1, standardised.shape[1]):
+        raise InvalidInputError(
+            f"LDA: dy must be between 1 and L − 1 = {len(classes) - 1}, received {dim}."
+        )
+    means = np.stack([standardised[object_index == c].mean(axis=0) for c in classes])
+    counts = np.array([np.sum(object_index == c) for c in classes], dtype=np.float64)
+    residuals = standardised - means[np.searchsorted(classes, object_index)]
+    within = residuals.T @ residuals / max(1, len(standardised) - len(classes))
+    dof = max(1, len(standardised) - len(classes))
+    shrinkage = within.shape[0] / (within.shape[0] + dof)
+    target = float(np.trace(within)) / within.shape[0] * np.eye(within.shape[0])
+    within = (1.0 - shrinkage) * within + shrinkage * target
+    between = (means * counts[:, None]).T @ means / counts.sum()
+    values, vectors = linalg.eigh(between, within)
+    axes = vectors[:, np.argsort(values)[::-1][:dim]]
+    signs = np.sign(axes[np.argmax(np.abs(axes), axis=0), np.arange(dim)])
+    axes = axes * np.where(signs == 0, 1.0, signs)
+    variance = np.var(standardised @ axes, axis=0)
+    return np.asarray(axes, dtype=np.float64), np.asarray(variance, dtype=np.float64)
+
+
+def projection_axes(
+    projection: Projection, standardised: FloatArray, object_index: IntArray, dim: int
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`principal_axes` or :func:`discriminant_axes`."""
+    if projection == "lda":
+        return discriminant_axes(standardised, object_index, dim)
+    return principal_axes(standardised, dim)
+
+
 def largest_feature_dim(settings: FeatureSettings, n_touches: int, n_reduced: int) -> int:
     """The largest dy the data allow: ≤ max_feature_dim, R and N − 1."""
     return max(1, min(settings.max_feature_dim, n_reduced, n_touches - 1))
@@ -419,6 +492,7 @@ def fit_features(
     settings: FeatureSettings | None = None,
     feature_dim: int | None = None,
     seed: int = 0,
+    projection: Projection | None = None,
 ) -> FeaturePipeline:
     """Fit the feature pipeline on training touches.
 
@@ -427,8 +501,10 @@ def fit_features(
         object_index: Object of each touch (for choosing dy). Shape (N,).
         kind: ``"means"`` or ``"whole"``.
         settings: Settings of the ``"whole"`` pipeline.
-        feature_dim: dy; ``None`` chooses it by :func:`select_feature_dim`.
+        feature_dim: dy; ``None`` chooses it (and the projection, unless given) by
+            :func:`select_feature_dim`.
         seed: Seed of the cross-validation folds.
+        projection: ``"pca"`` or ``"lda"``; ``None``: chosen with dy, or PCA when dy is given.
 
     Raises:
         InvalidInputError: Touches of different channel layouts, a series shorter than the
@@ -463,17 +539,29 @@ def fit_features(
     largest = largest_feature_dim(settings, len(touches), len(names))
     selection = None
     if feature_dim is None:
-        selection = select_feature_dim(reduced, object_index, settings, seed)
-        feature_dim = selection.chosen
+        selection = select_feature_dim(reduced, object_index, settings, seed, projection)
+        feature_dim, projection = selection.chosen, selection.projection
+    projection = projection or "pca"
     if not 1 <= feature_dim <= largest:
         raise InvalidInputError(
             f"feature_dim: must be between 1 and {largest} (max_feature_dim, {len(names)} reduced "
             f"features, {len(touches)} touches − 1), received {feature_dim}."
         )
     center, scale = standardise(reduced)
-    components, variance = principal_axes((reduced - center) / scale, feature_dim)
+    components, variance = projection_axes(
+        projection, (reduced - center) / scale, object_index, feature_dim
+    )
     return FeaturePipeline(
-        "whole", plans, names, settings, center, scale, components, variance, selection
+        "whole",
+        plans,
+        names,
+        settings,
+        center,
+        scale,
+        components,
+        variance,
+        selection,
+        projection,
     )
 
 
@@ -517,30 +605,32 @@ def select_feature_dim(
     object_index: IntArray,
     settings: FeatureSettings | None = None,
     seed: int = 0,
+    projection: Projection | None = None,
 ) -> FeatureSelection:
-    """Choose dy by cross-validated recognition of held-out touches.
+    """Choose the projection and dy by cross-validated recognition of held-out touches.
 
-    Each object's touches are dealt to K folds; for each fold the standardisation and PCA are
-    fitted on the other folds, and each held-out touch is recognised by a Gaussian classifier
-    with one pooled covariance (:func:`gaussian_classify`) on its first dy components. The score
-    of dy is the share recognised. The choice is the smallest dy whose fold-by-fold difference
-    to the best candidate is ≥ −1 standard error (the one-standard-error rule, as
-    :mod:`core.latent_selection` uses for ds).
+    Each object's touches are dealt to K folds; for each fold the standardisation and the
+    projection are fitted on the other folds, and each held-out touch is recognised by a
+    Gaussian classifier with one pooled covariance (:func:`gaussian_classify`) on its first dy
+    features. The score of a candidate is the share recognised. The choice is the smallest dy
+    whose fold-by-fold difference to the best candidate is ≥ −1 standard error (the
+    one-standard-error rule, as :mod:`core.latent_selection` uses for ds), looking at PCA first:
+    LDA is chosen only when no PCA candidate comes within that margin.
 
     Args:
         reduced: Reduced features of the training touches. Shape (N, R).
         object_index: Object of each touch. Shape (N,).
         settings: Supplies ``folds`` and ``max_feature_dim``.
         seed: Seed of the folds.
+        projection: Consider only this projection (``None``: both).
 
     Raises:
-        InvalidInputError: Fewer than two objects, or an object with fewer touches than folds.
+        InvalidInputError: Fewer than two objects, or an object with fewer than two touches.
     """
     settings = settings or FeatureSettings()
     object_index = np.asarray(object_index, dtype=np.int64)
-    counts = np.bincount(object_index)
-    counts = counts[counts > 0]
-    if len(counts) < 2:
+    classes, counts = np.unique(object_index, return_counts=True)
+    if len(classes) < 2:
         raise InvalidInputError("choosing dy needs touches of at least two objects.")
     folds = min(settings.folds, int(counts.min()))
     if folds < 2:
@@ -548,43 +638,53 @@ def select_feature_dim(
             "choosing dy needs at least 2 touches of every object (one to hold out)."
         )
     fold = _fold_of_each_touch(object_index, folds, seed)
-    largest = largest_feature_dim(
-        settings, int(min(np.sum(fold != f) for f in range(folds))), reduced.shape[1]
-    )
-    candidates = [d for d in FEATURE_DIM_CANDIDATES if d <= largest] or [1]
+    smallest_train = int(min(np.sum(fold != f) for f in range(folds)))
+    largest = largest_feature_dim(settings, smallest_train, reduced.shape[1])
+    candidates: list[tuple[Projection, int]] = []
+    for name in (projection,) if projection else PROJECTIONS:
+        top = largest if name == "pca" else min(largest, len(classes) - 1)
+        candidates += [(name, d) for d in FEATURE_DIM_CANDIDATES if d <= top] or [(name, 1)]
     scores = np.empty((len(candidates), folds))
     for f in range(folds):
         train, test = fold != f, fold == f
         center, scale = standardise(reduced[train])
-        axes, _ = principal_axes((reduced[train] - center) / scale, candidates[-1])
-        train_y = ((reduced[train] - center) / scale) @ axes
-        test_y = ((reduced[test] - center) / scale) @ axes
-        for c, dim in enumerate(candidates):
-            picked = gaussian_classify(train_y[:, :dim], object_index[train], test_y[:, :dim])
-            scores[c, f] = float(np.mean(picked == object_index[test]))
+        z_train = (reduced[train] - center) / scale
+        z_test = (reduced[test] - center) / scale
+        for name in {c[0] for c in candidates}:
+            widest = max(d for n, d in candidates if n == name)
+            axes, _ = projection_axes(name, z_train, object_index[train], widest)
+            train_y, test_y = z_train @ axes, z_test @ axes
+            for c, (n, dim) in enumerate(candidates):
+                if n == name:
+                    picked = gaussian_classify(
+                        train_y[:, :dim], object_index[train], test_y[:, :dim]
+                    )
+                    scores[c, f] = float(np.mean(picked == object_index[test]))
     means = scores.mean(axis=1)
     best = int(np.argmax(means))
     differences = scores - scores[best]
     diff_se = differences.std(axis=1, ddof=1) / np.sqrt(folds)
-    chosen = next(
-        c for c in range(len(candidates)) if differences[c].mean() >= -diff_se[c] or c == best
-    )
+    within = [c for c in range(len(candidates)) if differences[c].mean() >= -diff_se[c]]
+    chosen = min(within, key=lambda c: (candidates[c][0] != "pca", candidates[c][1]))
     table = tuple(
         FeatureDimScore(
             feature_dim=dim,
+            projection=name,
             fold_scores=tuple(float(v) for v in scores[c]),
             mean=float(means[c]),
             standard_error=float(scores[c].std(ddof=1) / np.sqrt(folds)),
             difference=float(differences[c].mean()),
             difference_standard_error=float(diff_se[c]),
         )
-        for c, dim in enumerate(candidates)
+        for c, (name, dim) in enumerate(candidates)
     )
+    (chosen_name, chosen_dim), (best_name, best_dim) = candidates[chosen], candidates[best]
     explanation = (
-        f"dy = {candidates[chosen]}: the smallest within one standard error of the best "
-        f"({candidates[best]}: {means[best]:.1%} of held-out touches recognised, {folds}-fold)."
-        if chosen != best
-        else f"dy = {candidates[best]}: the best ({means[best]:.1%} of held-out touches "
+        f"{chosen_name.upper()} to dy = {chosen_dim}: the smallest within one standard error of "
+        f"the best ({best_name.upper()} to {best_dim}: {means[best]:.1%} of held-out touches "
         f"recognised, {folds}-fold)."
+        if chosen != best
+        else f"{best_name.upper()} to dy = {best_dim}: the best ({means[best]:.1%} of held-out "
+        f"touches recognised, {folds}-fold)."
     )
-    return FeatureSelection(candidates[chosen], candidates[best], folds, table, explanation)
+    return FeatureSelection(chosen_dim, chosen_name, best_dim, best_name, folds, table, explanation)

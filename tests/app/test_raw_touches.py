@@ -24,14 +24,17 @@ from core.manifold import FitOptions, fit_manifold
 from hardware.records import TouchRecord
 
 
+PATTERNS = {"fine": [1.0, 2.0, 3.0], "coarse": [3.0, 2.0, 1.0], "medium": [2.0, 2.0, 2.0]}
+
+
 def touch_line(rng: np.random.Generator, name: str, frequency_hz: float, n_fast: int = 600) -> str:
-    """One touch: 40 Hz pressure, 3 electrodes, a 1 kHz vibration at ``frequency_hz``."""
+    """One touch: 40 Hz pressure, 3 electrodes (pattern by object), a 1 kHz vibration."""
     x = rng.normal(size=2)
     t = np.arange(n_fast) / 1000.0
     touch = raw_touch(
         {
             "pressure_kpa": (40.0, 2.0 + 0.3 * x[0] + 0.05 * rng.normal(size=20)),
-            "electrode": (40.0, [1.0, 2.0, 3.0] + 0.05 * rng.normal(size=(20, 3))),
+            "electrode": (40.0, PATTERNS[name] + 0.05 * rng.normal(size=(20, 3))),
             "vibration": (
                 1000.0,
                 np.sin(2 * np.pi * frequency_hz * (1 + 0.1 * x[1]) * t)

@@ -9,6 +9,7 @@ from core.errors import InvalidInputError
 from core.features import reducers
 from core.features.pipeline import (
     FeatureSettings,
+    discriminant_axes,
     fit_features,
     gaussian_classify,
     principal_axes,
@@ -171,3 +172,25 @@ def test_pipeline_refuses_short_series_and_other_channels_naming_them() -> None:
         fit_features([touches[0], RawTouch(touches[1].channels[:2])], index[:2], "whole")
     with pytest.raises(InvalidInputError, match="feature_dim"):
         fit_features(touches, index, "whole", feature_dim=40)
+
+
+def test_lda_axis_of_two_objects_is_fishers_direction() -> None:
+    rng = np.random.default_rng(2)
+    within = np.array([[1.0, 0.8], [0.8, 1.0]])
+    chol = np.linalg.cholesky(within)
+    shift = np.array([1.0, 0.0])
+    rows = np.concatenate(
+        [rng.normal(size=(4000, 2)) @ chol.T, shift + rng.normal(size=(4000, 2)) @ chol.T]
+    )
+    index = np.repeat([0, 1], 4000)
+    rows = rows - rows.mean(axis=0)
+    axes, _ = discriminant_axes(rows, index, 1)
+    fisher = np.linalg.solve(within, shift)
+    cosine = abs(axes[:, 0] @ fisher) / np.linalg.norm(axes[:, 0]) / np.linalg.norm(fisher)
+    assert cosine > 0.999
+    residuals = rows - np.where(
+        index[:, None] == 0, rows[index == 0].mean(0), rows[index == 1].mean(0)
+    )
+    assert np.var(residuals @ axes[:, 0]) == pytest.approx(1.0, rel=0.01)
+    with pytest.raises(InvalidInputError, match="L − 1 = 1"):
+        discriminant_axes(rows, index, 2)
