@@ -135,8 +135,10 @@ def evaluate_command(
     ],
     data: Annotated[
         Path | None,
-        typer.Option(help="Held-out touches of a replay, never used to fit: a training CSV, or a raw-touch "
-            "file (docs/raw-touches.md) featurised by the model's own pipeline."),
+        typer.Option(
+            help="Held-out touches of a replay, never used to fit: a training CSV, or a raw-touch "
+            "file (docs/raw-touches.md) featurised by the model's own pipeline."
+        ),
     ] = None,
     targets: Annotated[
         str | None, typer.Option(help="Objects to recognise, a,b (default: every object).")

@@ -157,6 +157,7 @@ class TrialContext:
             target,
             seed,
             replace_each_touch=self.spec.placement == "touch",
+            features=self.model.features,
         )
 
     def _run_trial(self, key: TrialKey) -> TrialOutcome:

@@ -151,7 +151,9 @@ class WorldFactory:
             except BaseException:
                 handle.close()
                 raise
-            return RigTouchSource(lease, self._rig.actions(), slot, release=handle.close)
+            return RigTouchSource(
+                lease, self._rig.actions(), slot, release=handle.close, features=model.features
+            )
         assert target_slot is not None
         rig = self._rig.handle().rig
         lease = rig.acquire(owner, timeout_s=30.0)
@@ -161,7 +163,7 @@ class WorldFactory:
         except BaseException:
             lease.release()
             raise
-        return RigTouchSource(lease, self._rig.actions(), target_slot)
+        return RigTouchSource(lease, self._rig.actions(), target_slot, features=model.features)
 
     def halt(self) -> None:
         """Stop the rig at once (abort of a rig trial)."""
