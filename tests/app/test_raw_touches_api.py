@@ -1,0 +1,66 @@
+"""The API and raw touches: a model's features shown, scripted trials fed raw touches."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+
+from app.documents.model import model_to_document
+from app.documents.raw_touches import featurise, read_raw_touches
+from core.features.pipeline import fit_features
+from core.manifold import FitOptions, fit_manifold
+from tests.app.conftest import TestClient
+from tests.app.test_raw_touches import raw_file, touch_line
+
+API = "/api/v1"
+
+
+def whole_touch_model(client: TestClient) -> int:
+    touches = read_raw_touches(raw_file(8))
+    pipeline = fit_features(touches.touches, touches.object_index, "whole")
+    model = fit_manifold(
+        featurise(touches, pipeline), 2, np.random.default_rng(0), FitOptions(restarts=0)
+    )
+    document = model_to_document(dataclasses.replace(model, features=pipeline))
+    response = client.post(f"{API}/models/import", json=json.loads(json.dumps(document)))
+    assert response.status_code == 201, response.text
+    model_id: int = response.json()["id"]
+    return model_id
+
+
+def test_a_model_shows_its_features_and_a_scripted_trial_takes_raw_touches(
+    client: TestClient,
+) -> None:
+    model_id = whole_touch_model(client)
+    features = client.get(f"{API}/models/{model_id}").json()["features"]
+    assert features["kind"] == "whole"
+    assert features["channels"] == ["pressure_kpa", "electrode", "vibration"]
+    assert features["reduced_features"] == 4 + 10 + 11
+    assert features["output_names"][0] == "pc_1"
+    assert "held-out touches recognised" in features["explanation"]
+    trial = client.post(
+        f"{API}/trials", json={"model_id": model_id, "mode": "scripted", "seed": 1}
+    ).json()
+    rng = np.random.default_rng(5)
+    for _ in range(2):
+        line = json.loads(touch_line(rng, "coarse", 50.0))
+        response = client.post(
+            f"{API}/trials/{trial['id']}/observations",
+            json={"action": line["action"], "channels": line["channels"]},
+        )
+        assert response.status_code == 200, response.text
+    assert response.json()["answer"] == "coarse"
+    line["channels"]["vibration"]["samples"] = line["channels"]["vibration"]["samples"][:100]
+    refused = client.post(
+        f"{API}/trials/{trial['id']}/observations",
+        json={"action": line["action"], "channels": line["channels"]},
+    )
+    assert refused.status_code == 422
+    assert "'vibration': 100 samples" in refused.text
+    both = client.post(
+        f"{API}/trials/{trial['id']}/observations",
+        json={"action": line["action"], "observation": [0.0], "channels": line["channels"]},
+    )
+    assert both.status_code == 422
