@@ -240,10 +240,27 @@ def raw_touch_from_record(record: TouchRecord) -> RawTouch:
     Raises:
         InvalidInputError: Fewer than two frames, or a group whose indices are not 0..K-1.
     """
-    rate = frame_rate_hz(record.tactile_times_s)
+    return raw_touch_from_frames(record.channel_names, record.tactile_times_s, record.tactile)
+
+
+def raw_touch_from_frames(
+    channel_names: Sequence[str], times_s: FloatArray, frames: FloatArray
+) -> RawTouch:
+    """Frames (n, C) of channels named as :func:`raw_touch_from_record` says, as a raw touch.
+
+    Raises:
+        InvalidInputError: Fewer than two frames, frames not (n, C), or a group whose indices
+            are not 0..K-1.
+    """
+    if frames.ndim != 2 or frames.shape != (len(times_s), len(channel_names)):
+        raise InvalidInputError(
+            f"frames: expected shape ({len(times_s)}, {len(channel_names)}), received "
+            f"{frames.shape}."
+        )
+    rate = frame_rate_hz(times_s)
     groups: dict[str, tuple[str, dict[int, int]]] = {}
     order: list[str] = []
-    for column, channel in enumerate(record.channel_names):
+    for column, channel in enumerate(channel_names):
         kind, name, position = _frame_group(channel)
         if name not in groups:
             groups[name] = (kind, {})
@@ -259,7 +276,7 @@ def raw_touch_from_record(record: TouchRecord) -> RawTouch:
                 f"frame channels of {name!r}: indices {sorted(columns)}, expected "
                 f"0..{len(columns) - 1}."
             )
-        block = record.tactile[:, [columns[i] for i in range(len(columns))]]
+        block = frames[:, [columns[i] for i in range(len(columns))]]
         if kind == "scalar":
             channels.append(raw_channel(name, rate, block[:, 0]))
         elif kind == "vector":

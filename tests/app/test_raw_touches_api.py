@@ -64,3 +64,37 @@ def test_a_model_shows_its_features_and_a_scripted_trial_takes_raw_touches(
         json={"action": line["action"], "observation": [0.0], "channels": line["channels"]},
     )
     assert both.status_code == 422
+
+
+def test_raw_touches_upload_and_come_back_to_be_featurised_again(client: TestClient) -> None:
+    text = raw_file(3)
+    response = client.post(
+        f"{API}/datasets?name=raw",
+        content=text.encode(),
+        headers={"Content-Type": "application/x-ndjson"},
+    )
+    assert response.status_code == 201, response.text
+    dataset = response.json()
+    assert dataset["n_samples"] == 9
+    assert dataset["observation_dim"] == 5  # pressure, 3 electrodes, vibration: their means
+    back = client.get(f"{API}/datasets/{dataset['id']}/raw-touches")
+    assert back.status_code == 200
+    assert back.headers["content-type"].startswith("application/x-ndjson")
+    again, original = read_raw_touches(back.text), read_raw_touches(text)
+    assert again.object_names == original.object_names
+    for a, b in zip(again.touches, original.touches, strict=True):
+        for ca, cb in zip(a.channels, b.channels, strict=True):
+            assert ca.rate_hz == cb.rate_hz
+            np.testing.assert_array_equal(ca.samples, cb.samples)
+    rows = text.splitlines()
+    rows[6] = rows[6].replace('"rate_hz": 1000.0, ', "")
+    before = client.get(f"{API}/datasets").json()["count"]
+    refused = client.post(
+        f"{API}/datasets",
+        content="\n".join(rows).encode(),
+        headers={"Content-Type": "application/x-ndjson"},
+    )
+    assert refused.status_code == 422
+    assert "line 7" in refused.text
+    assert "'vibration'" in refused.text
+    assert client.get(f"{API}/datasets").json()["count"] == before
