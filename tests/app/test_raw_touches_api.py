@@ -4,14 +4,16 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 
 from app.documents.model import model_to_document
 from app.documents.raw_touches import featurise, read_raw_touches
+from app.main import create_app
 from core.features.pipeline import fit_features
 from core.manifold import FitOptions, fit_manifold
-from tests.app.conftest import TestClient
+from tests.app.conftest import TestClient, make_settings
 from tests.app.test_raw_touches import raw_file, touch_line
 
 API = "/api/v1"
@@ -98,3 +100,21 @@ def test_raw_touches_upload_and_come_back_to_be_featurised_again(client: TestCli
     assert "line 7" in refused.text
     assert "'vibration'" in refused.text
     assert client.get(f"{API}/datasets").json()["count"] == before
+
+
+def test_a_stored_model_keeps_its_pipeline_after_a_restart(tmp_path: Path) -> None:
+    settings = make_settings(tmp_path)
+    with TestClient(create_app(settings)) as client:
+        model_id = whole_touch_model(client)
+    with TestClient(create_app(settings)) as client:  # a new server: the model is rebuilt
+        assert client.get(f"{API}/models/{model_id}").json()["features"]["kind"] == "whole"
+        trial = client.post(
+            f"{API}/trials", json={"model_id": model_id, "mode": "scripted", "seed": 1}
+        ).json()
+        line = json.loads(touch_line(np.random.default_rng(2), "fine", 200.0))
+        response = client.post(
+            f"{API}/trials/{trial['id']}/observations",
+            json={"action": line["action"], "channels": line["channels"]},
+        )
+        assert response.status_code == 200, response.text
+        assert response.json()["answer"] == "fine"
