@@ -23,7 +23,6 @@ from core.features.raw import raw_touch
 from core.manifold import FitOptions, fit_manifold
 from hardware.records import TouchRecord
 
-
 PATTERNS = {"fine": [1.0, 2.0, 3.0], "coarse": [3.0, 2.0, 1.0], "medium": [2.0, 2.0, 2.0]}
 
 

@@ -30,8 +30,10 @@ def test_fit_on_raw_touches_keeps_the_pipeline_and_replay_applies_it(tmp_path: P
     assert document["observation_dim"] == document["features"]["selection"]["chosen"]
     result = runner.invoke(
         app,
-        ["evaluate", "--model", str(model), "--world", "replay", "--data", str(held_out)]
-        + ["--trials", "1", "--steps", "1", "--policies", "passive", "--json"],
+        [
+            *("evaluate", "--model", str(model), "--world", "replay", "--data", str(held_out)),
+            *("--trials", "1", "--steps", "1", "--policies", "passive", "--json"),
+        ],
     )
     assert result.exit_code == 0, result.output
     report = json.loads(result.stdout)

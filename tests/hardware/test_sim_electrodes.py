@@ -27,7 +27,7 @@ def test_the_electrodes_share_the_force_and_the_patch_width_sets_their_spread() 
     edge = _run(SurfaceDetail(0.1, 0.6), 3.0, 8.0, 400)[:, :8]
     np.testing.assert_allclose(broad.sum(axis=1), 3.0, rtol=1e-12)
     np.testing.assert_allclose(edge.sum(axis=1), 3.0, rtol=1e-12)
-    # Sliding 32 mm takes the patch twice round the ring: each electrode's mean is about F / E on both.
+    # Sliding 32 mm takes the patch twice round the ring: each electrode's mean is F / E on both.
     np.testing.assert_allclose(broad.mean(axis=0), 3.0 / 8, rtol=0.02)
     np.testing.assert_allclose(edge.mean(axis=0), 3.0 / 8, rtol=0.02)
     assert edge.std(axis=0).min() > 2 * broad.std(axis=0).max()
