@@ -1,6 +1,6 @@
 """The simulated sensor's whole-touch channels: an electrode array and a high-rate vibration.
 
-A fingertip such as the one the issue of real sensors describes records more than five channel
+A multimodal fingertip sensor records more than five channel
 envelopes: an array of impedance electrodes under the skin and the raw vibration at kHz rates.
 :class:`WholeTouchSensor` adds both to every tactile frame (``docs/tactile-frames.md``):
 
