@@ -33,6 +33,11 @@ by about 15 busy processes, load average 14–17, so times are long):
 channel means the model is confidently wrong on three touches; from the whole touch the
 cross-validation chose PCA to dy = 5 (100 % of held-out training touches recognised), the
 collection of 400 six-second touches took 492 s and the pipeline 19 s.
+
+``--part fit --fit-dims 10 20 30`` (same loaded machine): the pipeline on the 800 touches, dy
+chosen by 5-fold cross-validation, took 27 s; the manifold fit at dy = 10 had not finished after
+51 min of wall time (19.6 min of CPU) and was stopped — the figures for dy = 10, 20 and 30 are
+still to be measured on an unloaded machine.
 """
 
 from __future__ import annotations
