@@ -172,6 +172,19 @@ def dataset_samples(session: Session, dataset_id: int) -> list[tuple[str, FloatA
     return [(str(name), action, observation) for name, action, observation in rows]
 
 
+def dataset_raw_samples(
+    session: Session, dataset_id: int
+) -> list[tuple[str, FloatArray, dict[str, Any] | None]]:
+    """``(object name, action, raw)`` of every sample, in upload order."""
+    rows = session.execute(
+        select(ObjectRecord.name, Sample.action, Sample.raw)
+        .join(ObjectRecord, Sample.object_id == ObjectRecord.id)
+        .where(Sample.dataset_id == dataset_id)
+        .order_by(Sample.position)
+    ).all()
+    return [(str(name), action, raw) for name, action, raw in rows]
+
+
 # --- models -----------------------------------------------------------------------------------
 
 

@@ -218,6 +218,21 @@ class LatentSelectionPublic(BaseModel):
     explanation: str
 
 
+class FeaturesPublic(BaseModel):
+    """How a model makes y of a raw touch (the model document's ``features``)."""
+
+    kind: Literal["means", "whole"] = Field(
+        description="means: each channel's mean over the touch; whole: per-channel reducers "
+        "(mean, RMS, std, slope, Welch band powers and centroid, electrode pattern), "
+        "standardised and projected to dy."
+    )
+    channels: list[str] = Field(description="The raw channels a touch must have.")
+    reduced_features: int = Field(description="Numbers per touch before the projection.")
+    projection: Literal["pca", "lda"] | None = Field(description="Projection of 'whole'.")
+    output_names: list[str] = Field(description="Names of the dy features of y.")
+    explanation: str | None = Field(description="How dy was chosen, when it was.")
+
+
 class ModelPublic(BaseModel):
     """``GET /models/{id}``."""
 
@@ -262,6 +277,11 @@ class ModelPublic(BaseModel):
     latent_selection: LatentSelectionPublic | None = Field(
         default=None,
         description="For latent_dim 'auto': every candidate's score and why ds was chosen.",
+    )
+    features: FeaturesPublic | None = Field(
+        default=None,
+        description="The feature pipeline that makes y of a raw touch; null: y is given as "
+        "recorded (a training CSV, or a rig touch's channel means).",
     )
     created_at: datetime
     finished_at: datetime | None
@@ -404,13 +424,25 @@ class NextAction(BaseModel):
     mutual_information: float | None
 
 
+class RawChannelIn(BaseModel):
+    """One channel of a raw touch (``docs/raw-touches.md``)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    rate_hz: float | None = Field(default=None, description="Sample rate in Hz (required).")
+    samples: list[Any] = Field(description="n numbers, or n vectors of one width.")
+
+
 class ObservationIn(BaseModel):
-    """``POST /trials/{id}/observations``: the action actually performed and what was felt."""
+    """``POST /trials/{id}/observations``: the action actually performed and what was felt —
+    either y itself (``observation``) or the raw touch (``channels``), which the model's own
+    feature pipeline turns into y (the channel means for a model without one)."""
 
     model_config = ConfigDict(extra="forbid")
 
     action: Vector
-    observation: Vector
+    observation: Vector | None = None
+    channels: dict[str, RawChannelIn] | None = None
     trajectory: Record | None = None
 
 

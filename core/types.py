@@ -12,6 +12,7 @@ from typing import Literal
 import numpy as np
 
 from core.errors import CoreError, InvalidInputError
+from core.features.pipeline import FeaturePipeline
 from core.observation_transform import ObservationTransform
 from core.validation import FloatArray, IntArray, as_float_array, require_positive
 
@@ -421,6 +422,8 @@ class ManifoldModel:
             placement, per model-space feature (:mod:`core.placement_effect`); ``None`` (or all
             zero) when not estimated: the touches of a trial are then independent given the
             object. Shape (dy,).
+        features: The feature pipeline that turns a raw touch into y
+            (:mod:`core.features.pipeline`); ``None``: y is given as it is (the channel means).
     """
 
     data: TrainingData
@@ -432,6 +435,7 @@ class ManifoldModel:
     transform: ObservationTransform | None = None
     source_data: TrainingData | None = None
     placement_variance: FloatArray | None = None
+    features: FeaturePipeline | None = None
 
     @property
     def raw_data(self) -> TrainingData:

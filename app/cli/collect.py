@@ -14,8 +14,9 @@ x ~ N(0, σ² I) for every touch (the paper's design; object by object), ``share
 object with the same M actions (a scrambled Sobol set of that prior; action by action), which
 lets the fit and the planner use the exact Kronecker path.
 
-Each touch is appended to the CSV (and, with ``--raw``, its raw tactile series to a JSON-lines
-file) and flushed to disk the moment it is recorded. A device fault stops the collection: the rig
+Each touch is appended to the CSV (and, with ``--raw``, its raw tactile series to a raw-touch
+file, JSON lines as ``docs/raw-touches.md`` describes, with the frame times and joint series
+added) and flushed to disk the moment it is recorded. A device fault stops the collection: the rig
 makes itself safe (feed hold, finger retracted or held), the files keep every touch recorded
 before it, the message names the fault and the exit code is 1. Ctrl-C emergency-stops the rig,
 keeps the files likewise and exits with 130. Exit code 2 is bad usage; every planned touch is
@@ -223,7 +224,10 @@ def collect_command(
     ] = 14.4,
     raw: Annotated[
         Path | None,
-        typer.Option(help="Also write each touch's raw tactile and joint series (JSON lines)."),
+        typer.Option(
+            help="Also write each touch's raw tactile series (raw-touch JSON lines, "
+            "docs/raw-touches.md) with its frame times and joint series."
+        ),
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Replace existing output files.")] = False,
     placements: Annotated[
@@ -306,9 +310,11 @@ def _collect(
 ) -> tuple[list[CollectedTouch], str | None, int, float]:
     """Run the collection into the files; return the touches, the error, exit code, seconds."""
     from app.cli.output import progress_bar
+    from app.documents.raw_touches import raw_touch_from_record, raw_touch_line
     from app.documents.training_csv import TrainingCsvWriter
     from app.services.collections import iter_collection
     from app.services.rig import raw_series
+    from core.errors import InvalidInputError
     from hardware.errors import HardwareError
 
     recorded: list[CollectedTouch] = []
@@ -337,14 +343,15 @@ def _collect(
                     )
                     _sync(csv_file)
                     if raw_file is not None:
-                        line = {
-                            "index": touch.index,
-                            "object": touch.object_name,
-                            "placement": touch.placement,
-                            "action": touch.action.tolist(),
-                            "observation": touch.record.observation.tolist(),
+                        line = raw_touch_line(
+                            touch.object_name,
+                            touch.action,
+                            raw_touch_from_record(touch.record),
+                            index=touch.index,
+                            placement=touch.placement,
+                            observation=touch.record.observation.tolist(),
                             **raw_series(touch.record),
-                        }
+                        )
                         raw_file.write(json.dumps(line) + "\n")
                         _sync(raw_file)
                     recorded.append(touch)
@@ -353,7 +360,7 @@ def _collect(
                         completed=len(recorded),
                         status=f"{escape(touch.object_name)} (slot {touch.slot:d})",
                     )
-            except HardwareError as exc:
+            except (HardwareError, InvalidInputError) as exc:
                 error, code = f"{type(exc).__name__}: {exc}", 1
                 bar.update(task, status="[red]stopped[/red]")
             except KeyboardInterrupt:

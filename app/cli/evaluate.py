@@ -46,11 +46,10 @@ from rich.table import Table
 
 from app.cli.options import PlacementOption, TableFile, TableName, table_choice
 from app.cli.output import messages as stderr
-from app.cli.output import read_text
 from app.cli.output import results as stdout
 
 if TYPE_CHECKING:
-    from core.types import TrainingData
+    pass
 
 
 def fail(message: str, code: int = 2) -> typer.Exit:
@@ -71,18 +70,6 @@ def split_names(value: str | None, option: str) -> tuple[str, ...] | None:
     if not names or any(not n for n in names):
         raise fail(f"{option}: expected comma-separated names, received {value!r}")
     return names
-
-
-def read_data(path: Path) -> TrainingData:
-    """The held-out touches of a replay (a training CSV)."""
-    from app.documents.training_csv import read_training_csv
-    from core.errors import CoreError
-
-    text = read_text(path, "--data")
-    try:
-        return read_training_csv(text)
-    except CoreError as exc:
-        raise fail(f"--data {path}: {exc}") from None
 
 
 def write_atomically(path: Path, write: Callable[[Path], None]) -> None:
@@ -175,7 +162,10 @@ def evaluate_command(
     ],
     data: Annotated[
         Path | None,
-        typer.Option(help="Held-out touches of a replay (training CSV, never used to fit)."),
+        typer.Option(
+            help="Held-out touches of a replay, never used to fit: a training CSV, or a raw-touch "
+            "file (docs/raw-touches.md) featurised by the model's own pipeline."
+        ),
     ] = None,
     targets: Annotated[
         str | None, typer.Option(help="Objects to recognise, a,b (default: every object).")
@@ -205,6 +195,7 @@ def evaluate_command(
     """Evaluate policies on a model: accuracy by touch with intervals, calibration, per object,
     confusion."""
     from app.cli.main import load_model
+    from app.cli.raw_data import replay_touches
     from app.errors import AppError, DeviceUnavailableError
     from app.evaluation.runner import run_evaluation
     from app.evaluation.spec import EvaluationSpec, Placement, world_name
@@ -216,7 +207,7 @@ def evaluate_command(
     check_output(plot, "--plot")
     chosen_table = table_choice(table, table_file)
     model = load_model(model_path)
-    replay = read_data(data) if data is not None else None
+    replay = replay_touches(data, model) if data is not None else None
     try:
         known_world = world_name(world)
     except AppError as exc:

@@ -4,6 +4,7 @@
 
     activetouch export list                              # what the database holds
     activetouch export dataset 3 --out data.csv          # the training CSV
+    activetouch export dataset 3 --raw --out raw.jsonl   # its raw touches (to featurise again)
     activetouch export model 2 --out model.json          # the model document
     activetouch export trial 7 --out steps.csv           # one row per step
     activetouch export trial 7 --json > trial.json       # the trial as GET /trials/7 returns it
@@ -256,14 +257,23 @@ def _print_listing(listing: dict[str, list[dict[str, Any]]]) -> None:
 def dataset_command(
     dataset_id: Annotated[int, typer.Argument(help="Dataset id (see export list).")],
     out: Out = None,
+    raw: Annotated[
+        bool,
+        typer.Option(
+            "--raw",
+            help="The raw touches (JSON lines, docs/raw-touches.md) instead of the CSV, to "
+            "featurise again with fit --features whole.",
+        ),
+    ] = False,
     db: Db = None,
 ) -> None:
-    """A dataset as a training CSV (object,x_1..x_dx,y_1..y_dy)."""
+    """A dataset as a training CSV (object,x_1..x_dx,y_1..y_dy) or its raw touches."""
     from app.services import datasets
 
     with open_session(db) as (_, session), _app_errors():
         summary = datasets.get(session, dataset_id)
-        text = datasets.export_csv(session, dataset_id)
+        export = datasets.export_raw if raw else datasets.export_csv
+        text = export(session, dataset_id)
     if summary.status != "ready":
         console.print(
             f"[yellow]note:[/yellow] dataset {dataset_id:d} is {escape(summary.status)}: "

@@ -11,6 +11,7 @@ import the module and hand it their arguments (:func:`_forward`).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import sys
@@ -30,6 +31,7 @@ from app.cli.output import fail, progress_bar, read_text, write_text
 from app.cli.output import messages as stderr
 from app.cli.output import results as stdout
 from app.cli.paper import paper_app
+from app.cli.raw_data import FeaturesName, features_summary
 from app.cli.rig import rig_app
 
 if TYPE_CHECKING:
@@ -172,7 +174,13 @@ def _parse_latent_dim(value: str) -> int | None:
 
 @app.command()
 def fit(
-    data_csv: Annotated[Path, typer.Argument(help="Training CSV: object,x_1..x_dx,y_1..y_dy.")],
+    data_csv: Annotated[
+        Path,
+        typer.Argument(
+            help="Training CSV (object,x_1..x_dx,y_1..y_dy) or raw-touch file (JSON lines, "
+            "docs/raw-touches.md)."
+        ),
+    ],
     latent_dim: Annotated[
         str,
         typer.Option(
@@ -203,23 +211,41 @@ def fit(
     inducing: Annotated[
         int, typer.Option(min=1, help="Inducing points of the sparse structure.")
     ] = 512,
+    features: Annotated[
+        FeaturesName | None,
+        typer.Option(
+            help="How y is made of a raw touch: means (each channel's mean, as the paper) or "
+            "whole (reducers of every series, standardised, PCA to dy). Default: whole for raw "
+            "touches; a training CSV already holds y."
+        ),
+    ] = None,
+    feature_dim: Annotated[
+        str,
+        typer.Option(
+            "--feature-dim",
+            help="dy of --features whole, or 'auto': by cross-validated recognition.",
+        ),
+    ] = "auto",
     out: Annotated[Path | None, typer.Option(help="Write the model document here.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the model document.")] = False,
 ) -> None:
-    """Learn the object manifold from a training CSV."""
+    """Learn the object manifold from a training CSV or raw touches."""
     import numpy as np
 
+    from app.cli.raw_data import training_touches
     from app.documents.model import latent_selection_dict, model_to_document
-    from app.documents.training_csv import read_training_csv
     from core.errors import CoreError
     from core.manifold import FitOptions
     from core.placement_effect import with_placement_effect
 
     requested_dim = _parse_latent_dim(latent_dim)
-    text = read_text(data_csv)
+    try:
+        dy = _parse_latent_dim(feature_dim)
+    except typer.BadParameter as exc:
+        raise fail(f"--feature-dim: {exc}") from None
+    data, pipeline = training_touches(data_csv, features, dy, seed)
     selection = None
     try:
-        data = read_training_csv(text)
         options = FitOptions(
             optimizer=optimizer.value, restarts=restarts, structure=structure, n_inducing=inducing
         )
@@ -232,6 +258,8 @@ def fit(
         model, placement = with_placement_effect(model)
     except CoreError as exc:
         raise fail(str(exc)) from None
+    if pipeline is not None:
+        model = dataclasses.replace(model, features=pipeline)
     document = model_to_document(
         model,
         fit_seconds=seconds,
@@ -251,6 +279,8 @@ def fit(
                 f"vs best {c.difference:+.3f} ± {c.difference_standard_error:.3f}{escape(mark)}"
             )
         stdout.print(escape(selection.explanation))
+    if pipeline is not None:
+        stdout.print(escape(features_summary(pipeline)))
     noise_note = model.transform.note if model.transform is not None else "none"
     stdout.print(f"noise model: {escape(noise_note)}")
     if placement is not None:

@@ -8,6 +8,8 @@ how ``--latent-dim auto`` chose ds. ``placement_effect`` (optional) holds σ_b²
 the offset shared by one placement's touches (docs/calibration.md), estimated at fit time from
 ``training_data.placements`` (optional, the placement number of every touch); a document without
 it scores a trial's touches as independent (σ_b² = 0).
+``features`` (optional, :mod:`app.documents.features`) is the
+pipeline that turns a raw touch into y; without it y is the channel means.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import numpy as np
 import numpy.typing as npt
 
 from app.documents.errors import DocumentError
+from app.documents.features import features_field, read_features_field
 from app.documents.json_values import check_json_values
 from app.documents.noise_model import noise_model_field, read_noise_model_field
 from app.documents.posterior import condition_as_recorded, posterior_field
@@ -117,6 +120,8 @@ def model_to_document(
         document["noise_model"] = noise
     if latent_selection is not None:
         document["latent_selection"] = dict(latent_selection)
+    if model.features is not None:
+        document["features"] = features_field(model.features)
     if model.diagnostics is not None:
         d = model.diagnostics
         document["diagnostics"] = {
@@ -375,9 +380,12 @@ def model_from_document(document: Any) -> ManifoldModel:
         for i, candidate in enumerate(selection["candidates"]):
             _check_object(candidate, f"latent_selection.candidates[{i}]", _CANDIDATE_FIELDS, True)
     transform = read_noise_model_field(document.get("noise_model"), data.observation_dim)
+    features = read_features_field(document.get("features"), data.observation_dim)
     model = condition_as_recorded(
         data, latents, hyperparameters, diagnostics, document.get("posterior"), transform=transform
     )
+    if features is not None:
+        model = dataclasses.replace(model, features=features)
     effect = document.get("placement_effect")
     if effect is None:
         return model

@@ -180,6 +180,7 @@ class TrialContext:
             seed,
             replace_each_touch=self.spec.placement == "touch",
             noise=self.rig_noise,
+            features=self.model.features,
         )
 
     def _run_trial(self, key: TrialKey) -> TrialOutcome:

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from app.documents.raw_touches import record_observation
 from core.errors import TouchRefused
 from core.evaluation_records import seed_sequence
 from core.trial_engine import Touch
@@ -29,6 +30,7 @@ from hardware.errors import (
 
 if TYPE_CHECKING:
     from app.rig_factory import TouchActions
+    from core.features.pipeline import FeaturePipeline
     from hardware.records import TouchRecord
     from hardware.sim.materials import TactileObject
     from hardware.sim.noise import NoiseModel
@@ -70,6 +72,8 @@ class RigTrial:
         rig_seed: World seed of the simulated rig (:func:`rig_seed`).
         replace_each_touch: Place the object anew before every touch, not once per trial.
         noise: Noise model of the simulated world (``None``: the simulator's default).
+        features: The model's feature pipeline, which makes y of each touch (``None``: the
+            channel means).
     """
 
     actions: TouchActions
@@ -78,6 +82,7 @@ class RigTrial:
     rig_seed: int
     replace_each_touch: bool = False
     noise: NoiseModel | None = None
+    features: FeaturePipeline | None = None
 
     def __post_init__(self) -> None:
         from app.rig_factory import SimulationMode, open_rig
@@ -115,7 +120,8 @@ class RigTrial:
                 raise TouchRefused(type(exc).__name__, str(exc)) from exc
             exc.add_note(f"at touch {self.touched} of the trial")
             raise
-        return Touch(action=action, observation=np.asarray(record.observation, dtype=np.float64))
+        observation = record_observation(record, self.features)
+        return Touch(action=action, observation=np.asarray(observation, dtype=np.float64))
 
     def _touch(self, action: FloatArray) -> TouchRecord:
         target = self._target_slot

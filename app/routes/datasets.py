@@ -22,6 +22,12 @@ _UPLOAD_BODY: dict[str, Any] = {
         "content": {
             "application/json": {"schema": {"$ref": "#/components/schemas/DatasetCreate"}},
             "text/csv": {"schema": {"type": "string"}},
+            "application/x-ndjson": {
+                "schema": {
+                    "type": "string",
+                    "description": "Raw touches, one JSON object per line (docs/raw-touches.md).",
+                }
+            },
             "multipart/form-data": {
                 "schema": {
                     "type": "object",
@@ -41,7 +47,9 @@ _UPLOAD_BODY: dict[str, Any] = {
 async def create_dataset(
     request: Request, session: SessionDep, context: ContextDep
 ) -> DatasetPublic:
-    """Upload touches as CSV (``object,x_1..x_dx,y_1..y_dy``) or JSON ``{"name", "samples"}``."""
+    """Upload touches as CSV (``object,x_1..x_dx,y_1..y_dy``), JSON ``{"name", "samples"}`` or
+    raw touches (``application/x-ndjson``, docs/raw-touches.md: y is each channel's mean and the
+    series are kept, ``GET /datasets/{id}/raw-touches`` gives them back)."""
     content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
     name = request.query_params.get("name", "")[:MAX_NAME_CHARACTERS]
     if content_type in ("text/csv", "text/plain", "application/csv"):
@@ -53,6 +61,11 @@ async def create_dataset(
         text, name = await _read_multipart(request, name)
         return await run_in_threadpool(
             datasets.create_from_csv, session, context.events, text, name
+        )
+    if content_type in ("application/x-ndjson", "application/jsonl"):
+        text = _decode(await request.body(), "body")
+        return await run_in_threadpool(
+            datasets.create_from_raw, session, context.events, text, name
         )
     if content_type in ("application/json", ""):
         try:
@@ -74,7 +87,8 @@ class UnsupportedMediaError(BadInputError):
     def __init__(self, content_type: str) -> None:
         super().__init__(
             f"Content-Type {content_type!r} is not supported; send text/csv, "
-            "multipart/form-data (field 'file') or application/json.",
+            "multipart/form-data (field 'file'), application/json or application/x-ndjson "
+            "(raw touches).",
             field="content-type",
         )
 
@@ -142,3 +156,18 @@ def export_dataset(
         media_type="text/csv",
         headers={"Content-Disposition": f'attachment; filename="dataset-{dataset_id}.csv"'},
     )
+
+
+@router.get(
+    "/{dataset_id}/raw-touches",
+    response_model=None,
+    responses={
+        200: {
+            "content": {"application/x-ndjson": {"schema": {"type": "string"}}},
+            "description": "The raw touches, one JSON object per line (docs/raw-touches.md).",
+        }
+    },
+)
+def export_raw_touches(dataset_id: IdPath, session: SessionDep) -> Response:
+    """The dataset's raw touches, to featurise again (``activetouch fit --features whole``)."""
+    return Response(datasets.export_raw(session, dataset_id), media_type="application/x-ndjson")

@@ -3,18 +3,26 @@
 from __future__ import annotations
 
 import io
+import json
 from functools import partial
 
 import numpy as np
 from sqlalchemy.orm import Session
 
 from app import crud
+from app.documents.raw_touches import (
+    channels_field,
+    featurise,
+    raw_touch_from_frames,
+    read_raw_touches,
+)
 from app.documents.training_csv import TrainingCsvWriter, read_training_csv
 from app.errors import BadInputError, ConflictError
 from app.models import Dataset
 from app.schemas import DatasetCreate, DatasetPublic, Page, SampleIn
 from app.services.events import EventBus
 from core.errors import InvalidInputError
+from core.features.pipeline import means_pipeline
 from core.types import TrainingData
 
 
@@ -114,6 +122,76 @@ def training_data_from_samples(samples: list[SampleIn]) -> TrainingData:
         )
     except InvalidInputError as exc:
         raise BadInputError(f"samples: {exc}", field="samples") from exc
+
+
+def create_from_raw(session: Session, events: EventBus, text: str, name: str) -> DatasetPublic:
+    """Store raw touches (``docs/raw-touches.md``): y is each channel's mean, and every touch's
+    channels are kept with its sample, so the dataset can be featurised again
+    (:func:`export_raw`) without touching the objects again.
+
+    Raises:
+        app.documents.errors.DocumentError: (→ 422) the message names the line and channel;
+            nothing is stored.
+    """
+    touches = read_raw_touches(text)
+    data = featurise(touches, means_pipeline(touches.touches[0]))
+    dataset = crud.create_dataset(
+        session,
+        name=name,
+        source="upload",
+        status="ready",
+        object_names=data.object_names,
+        action_dim=data.action_dim,
+        observation_dim=data.observation_dim,
+    )
+    crud.add_samples(
+        session,
+        dataset,
+        (
+            (data.object_names[obj], action, observation, {"channels": channels_field(touch)})
+            for obj, action, observation, touch in zip(
+                data.object_index, data.actions, data.observations, touches.touches, strict=True
+            )
+        ),
+    )
+    session.commit()
+    public = to_public(dataset)
+    events.publish(
+        "dataset.created",
+        {"dataset_id": public.id, "n_samples": public.n_samples, "objects": public.objects},
+    )
+    return public
+
+
+def export_raw(session: Session, dataset_id: int) -> str:
+    """The dataset's raw touches as a raw-touch file (JSON lines).
+
+    Samples uploaded as raw touches keep their channels; samples a rig collection recorded
+    keep their frames, regrouped into channels by name (``docs/raw-touches.md``).
+
+    Raises:
+        BadInputError: (→ 422) a sample without its raw series (uploaded as y only).
+    """
+    dataset = require(session, dataset_id)
+    lines = []
+    for k, (name, action, raw) in enumerate(crud.dataset_raw_samples(session, dataset.id)):
+        if raw is not None and "channels" in raw:
+            channels = raw["channels"]
+        elif raw is not None and "tactile" in raw:
+            touch = raw_touch_from_frames(
+                raw["channel_names"],
+                np.asarray(raw["tactile_times_s"], dtype=np.float64),
+                np.asarray(raw["tactile"], dtype=np.float64),
+            )
+            channels = channels_field(touch)
+        else:
+            raise BadInputError(
+                f"Dataset {dataset_id}: sample {k + 1} has no raw series (it was uploaded as "
+                "y only); only raw touches or rig collections can be exported raw.",
+                field="dataset_id",
+            )
+        lines.append(json.dumps({"object": name, "action": action.tolist(), "channels": channels}))
+    return "".join(line + "\n" for line in lines)
 
 
 def create_from_json(session: Session, events: EventBus, body: DatasetCreate) -> DatasetPublic:

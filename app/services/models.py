@@ -11,6 +11,7 @@ default, as they were then."""
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 from collections import OrderedDict
@@ -25,6 +26,7 @@ from sqlalchemy.orm import Session
 from app import crud
 from app.db import Database
 from app.documents.errors import DocumentError
+from app.documents.features import features_field, read_features_field
 from app.documents.model import model_from_document, model_to_document
 from app.documents.noise_model import noise_model_field, read_noise_model_field
 from app.documents.posterior import condition_as_recorded, posterior_field
@@ -32,6 +34,7 @@ from app.errors import AppError, BadInputError, ConflictError
 from app.models import ModelRecord, utc_now
 from app.schemas import (
     FeatureHyperparameters,
+    FeaturesPublic,
     LatentSelectionPublic,
     ModelPosterior,
     ModelPublic,
@@ -103,6 +106,8 @@ def store_fitted(
     noise = noise_model_field(model.transform)
     if noise is not None:
         record["noise_model"] = noise
+    if model.features is not None:
+        record["features"] = features_field(model.features)
     row.posterior = record
     row.signal_variance = h.signal_variance
     row.noise_variance = h.noise_variance
@@ -141,6 +146,26 @@ def _noise_model_public(row: ModelRecord) -> NoiseModelPublic | None:
         correlation=transform.correlation.tolist(),
         scale=transform.scale.tolist(),
         note=transform.note,
+    )
+
+
+def _features_public(row: ModelRecord) -> FeaturesPublic | None:
+    field = row.posterior.get("features") if isinstance(row.posterior, dict) else None
+    if field is None:
+        return None
+    try:
+        pipeline = read_features_field(field, row.dataset.observation_dim)
+    except DocumentError:  # changed behind the server's back; load() says so (500)
+        logger.warning("model %d: malformed features record", row.id)
+        return None
+    assert pipeline is not None
+    return FeaturesPublic(
+        kind=pipeline.kind,
+        channels=[p.name for p in pipeline.channels],
+        reduced_features=len(pipeline.reduced_names),
+        projection=pipeline.projection if pipeline.kind == "whole" else None,
+        output_names=list(pipeline.output_names),
+        explanation=None if pipeline.selection is None else pipeline.selection.explanation,
     )
 
 
@@ -208,6 +233,7 @@ def to_public(row: ModelRecord, queue_position: int | None = None) -> ModelPubli
         posterior=posterior,
         noise_model=_noise_model_public(row),
         latent_selection=_latent_selection_public(row),
+        features=_features_public(row),
         created_at=row.created_at,
         finished_at=row.finished_at,
     )
@@ -325,6 +351,10 @@ class ModelStore:
                 where="model row",
                 transform=read_noise_model_field(noise, data.observation_dim, where="model row"),
             )
+            features = row.posterior.get("features") if isinstance(row.posterior, dict) else None
+            pipeline = read_features_field(features, data.observation_dim)
+            if pipeline is not None:
+                model = dataclasses.replace(model, features=pipeline)
         except (CoreError, ValueError, KeyError, TypeError) as exc:
             raise StoredModelError(
                 f"Model {model_id} cannot be rebuilt from what is stored: "

@@ -21,12 +21,14 @@ from typing import Any
 import numpy as np
 
 from app.config import Settings
+from app.documents.raw_touches import record_observation
 from app.errors import ConflictError, DeviceUnavailableError
 from app.rig_factory import RigHandle, RigPorts, SimulationMode, TouchActions, open_rig
 from app.schemas import RigPublic
 from app.services.events import EventBus
 from app.services.jobs import JobRunner
 from app.services.touch import Touch
+from core.features.pipeline import FeaturePipeline
 from core.validation import FloatArray
 from hardware.errors import HardwareError, RigBusy
 from hardware.records import TouchRecord
@@ -320,11 +322,19 @@ class RigTouchSource:
         actions: Action → trajectory map.
         slot: Slot to touch.
         release: Called once at :meth:`close` (gives the rig back).
+        features: The model's feature pipeline, which makes y of each touch (``None``: the
+            channel means).
     """
 
     def __init__(
-        self, lease: RigLease, actions: TouchActions, slot: int, release: Any = None
+        self,
+        lease: RigLease,
+        actions: TouchActions,
+        slot: int,
+        release: Any = None,
+        features: FeaturePipeline | None = None,
     ) -> None:
+        self._features = features
         self._lease = lease
         self._actions = actions
         self._slot = slot
@@ -338,7 +348,7 @@ class RigTouchSource:
         self._at_slot = True
         return Touch(
             action=np.asarray(action, dtype=np.float64),
-            observation=record.observation,
+            observation=record_observation(record, self._features),
             trajectory=touch_trajectory(record),
         )
 

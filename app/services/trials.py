@@ -42,6 +42,8 @@ from app.services.rig import RigService
 from app.services.trial_views import require, step_public, to_public, trial_result
 from app.services.worlds import TouchSource, WorldFactory
 from core.errors import CoreError, InvalidInputError
+from core.features.pipeline import means_pipeline
+from core.features.raw import raw_touch
 from core.planning import ActionBox, Planner, Policy, make_policy
 from core.recognition import (
     RecognitionSession,
@@ -330,9 +332,10 @@ class TrialService:
             self._require_scripted_running(trial)
             live = self._live(session, trial)
             h = live.model.hyperparameters
+            observation = observation_of(body, live.model)
             for name, values, expected in (
                 ("action", body.action, h.action_dim),
-                ("observation", body.observation, h.observation_dim),
+                ("observation", observation, h.observation_dim),
             ):
                 if len(values) != expected:
                     raise BadInputError(
@@ -341,7 +344,7 @@ class TrialService:
                         field=name,
                     )
             started = time.perf_counter()
-            step = live.session.observe(np.asarray(body.action), np.asarray(body.observation))
+            step = live.session.observe(np.asarray(body.action), np.asarray(observation))
             row = self._store_step(
                 session, trial, live.model, step, body.trajectory, time.perf_counter() - started
             )
@@ -576,3 +579,26 @@ class TrialService:
                     self._set_result(trial, steps[-1].answer)
             session.commit()
         self._announce_status(trial)
+
+
+def observation_of(body: ObservationIn, model: ManifoldModel) -> list[float]:
+    """y of a posted observation: as given, or the raw touch through the model's pipeline.
+
+    Raises:
+        BadInputError: Neither or both of ``observation`` and ``channels``, or a raw touch the
+            pipeline refuses (the message names the channel).
+    """
+    if (body.observation is None) == (body.channels is None):
+        raise BadInputError(
+            "give either 'observation' (y) or 'channels' (the raw touch), not both or neither.",
+            field="observation",
+        )
+    if body.observation is not None:
+        return list(body.observation)
+    assert body.channels is not None
+    try:
+        touch = raw_touch({name: (c.rate_hz, c.samples) for name, c in body.channels.items()})
+        pipeline = model.features or means_pipeline(touch)
+        return [float(v) for v in pipeline.transform(touch)]
+    except InvalidInputError as exc:
+        raise BadInputError(f"channels: {exc}", field="channels") from None

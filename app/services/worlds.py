@@ -139,12 +139,14 @@ class WorldFactory:
             except BaseException:
                 handle.close()
                 raise
-            return RigTouchSource(lease, self._rig.actions(), slot, release=handle.close)
+            return RigTouchSource(
+                lease, self._rig.actions(), slot, release=handle.close, features=model.features
+            )
         assert target_slot is not None
         if lease is None:
             raise ValueError("a rig trial drives the rig through the lease it was created with.")
         self._rig.ensure_connected(lease)
-        return RigTouchSource(lease, self._rig.actions(), target_slot)
+        return RigTouchSource(lease, self._rig.actions(), target_slot, features=model.features)
 
     def halt(self) -> None:
         """Stop the rig at once (abort of a rig trial)."""

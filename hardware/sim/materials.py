@@ -14,6 +14,7 @@ import math
 from dataclasses import dataclass, replace
 
 from hardware.errors import ConfigurationError
+from hardware.sim.electrodes import TWINS
 
 
 @dataclass(frozen=True)
@@ -249,6 +250,12 @@ OBJECTS: dict[str, TactileObject] = {
         )
         for pitch in (0.02, 0.03, 0.045, 0.07)
     },
+    # One glazed ceramic for all: the twins differ only in what the whole touch feels
+    # (hardware.sim.electrodes.TWINS: fine texture period, contact width).
+    **{
+        name: TactileObject(name, replace(CERAMIC, name="glazed ceramic"), contact_angle_deg=20.0)
+        for name in TWINS
+    },
 }
 """Preset objects; the first four are the paper's (Fig. 6a: O1..O4)."""
 
@@ -341,6 +348,15 @@ TABLES: dict[str, Table] = {
             "One micro-textured steel plate at four pitches: the same material, relief and "
             "heat; only the vibration's frequency (sliding speed / pitch) differs.",
             action_std=0.75,  # rigid plates: deeper presses overload FFJ3 (docs/simulation.md)
+        ),
+        Table(
+            "twins",
+            _presets(tuple(TWINS)),
+            "Four glazed ceramic objects, one material, felt through the whole-touch sensor "
+            "(an electrode ring and a 1.6 kHz vibration, hardware/sim/electrodes.py): a fine "
+            "or coarse texture, a broad or edge contact. Every channel has the same mean on "
+            "all four; only the vibration's spectrum and the electrodes' spread differ.",
+            action_std=0.75,  # rigid like the textures: deeper presses overload FFJ3
         ),
     )
 }

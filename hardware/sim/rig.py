@@ -23,8 +23,10 @@ import numpy as np
 from hardware.clock import Clock, ScaledClock, VirtualClock
 from hardware.errors import ConfigurationError
 from hardware.finger import DYNAMIXEL_BAUDRATE, Finger, FingerConfig
+from hardware.frames import CHANNELS
 from hardware.rig import Rig, RigConfig
 from hardware.sim.dynamixel_device import DynamixelBus
+from hardware.sim.electrodes import WholeTouchSensor, surface_detail
 from hardware.sim.grbl_device import GrblDevice
 from hardware.sim.materials import DEFAULT_TABLE, TactileObject, get_object
 from hardware.sim.pty import PtyEmulator
@@ -55,6 +57,16 @@ class SimulatedDevices:
     sensor: TactileSource
     objects_by_slot: dict[int, TactileObject] = field(default_factory=dict)
 
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        """The tactile frame's channels: the five, then any whole-touch ones."""
+        whole = self.plant.whole_touch
+        return CHANNELS + (() if whole is None else whole.channel_names)
+
+    def tactile_config(self, given: TactileConfig | None) -> TactileConfig:
+        """``given``, or the default settings for this sensor's channels."""
+        return given or TactileConfig(channel_names=self.channel_names)
+
     def slot_of(self, name: str) -> int:
         """The slot holding the object called ``name``."""
         for slot, item in self.objects_by_slot.items():
@@ -76,6 +88,7 @@ def simulated_devices(
     grbl_settings: dict[int, float] | None = None,
     noise: NoiseModel | None = None,
     finger_model: FingerModel | None = None,
+    whole_touch: WholeTouchSensor | None = None,
 ) -> SimulatedDevices:
     """Build the world: objects in slots 0, 1, ... and the three devices.
 
@@ -88,6 +101,9 @@ def simulated_devices(
         grbl_settings: Overrides of the GRBL emulator's settings.
         noise: Noise model.
         finger_model: Finger constants.
+        whole_touch: Whole-touch channels of the sensor (:mod:`hardware.sim.electrodes`);
+            ``None`` adds them, with their default settings, when an object has a surface
+            detail (the ``twins`` table), and not otherwise.
     """
     if len(objects) > slot_count:
         raise ConfigurationError(f"{len(objects)} objects do not fit in {slot_count} slots.")
@@ -95,6 +111,13 @@ def simulated_devices(
         slot: (get_object(item) if isinstance(item, str) else item)
         for slot, item in enumerate(objects)
     }
+    details = {
+        item.name: detail
+        for item in placed.values()
+        if (detail := surface_detail(item.name)) is not None
+    }
+    if whole_touch is None and details:
+        whole_touch = WholeTouchSensor()
     plant = Plant(
         placed,
         clock,
@@ -102,6 +125,8 @@ def simulated_devices(
         slot_count=slot_count,
         finger=finger_model,
         noise=noise,
+        whole_touch=whole_touch,
+        details=details,
     )
     grbl = GrblDevice(clock, grbl_settings)
     plant.attach_table(grbl.position)
@@ -213,7 +238,12 @@ def in_process_rig(
         InProcessTransport(devices.sensor, sim_clock, "simulated tactile sensor"),
     )
     rig = _assemble(
-        transports, sim_clock, rig_config, turntable_config, finger_config, tactile_config
+        transports,
+        sim_clock,
+        rig_config,
+        turntable_config,
+        finger_config,
+        devices.tactile_config(tactile_config),
     )
     return SimulatedRig(devices, rig)
 
@@ -262,5 +292,12 @@ def pty_rig(
         SerialTransport(emulators["finger"].port, DYNAMIXEL_BAUDRATE),
         SerialTransport(emulators["tactile"].port, TACTILE_BAUDRATE),
     )
-    rig = _assemble(transports, clock, rig_config, turntable_config, finger_config, tactile_config)
+    rig = _assemble(
+        transports,
+        clock,
+        rig_config,
+        turntable_config,
+        finger_config,
+        devices.tactile_config(tactile_config),
+    )
     return SimulatedRig(devices, rig, list(emulators.values()))

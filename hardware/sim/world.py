@@ -39,6 +39,7 @@ import numpy as np
 
 from hardware.clock import Clock
 from hardware.errors import ConfigurationError, ServoHardwareErrorFlags
+from hardware.sim.electrodes import PLAIN, SurfaceDetail, WholeTouchChannels, WholeTouchSensor
 from hardware.sim.materials import Material, TactileObject
 from hardware.sim.noise import (
     DRIFT_AMBIENT_C,
@@ -54,7 +55,8 @@ TableState = Callable[[float], tuple[float, float]]
 """Table angle (deg) and angular velocity (deg/s) at a time."""
 
 Sampler = Callable[[float, tuple[float, ...]], None]
-"""Receives one tactile sample: time (s) and the five channel values."""
+"""Receives one tactile sample: time (s) and the channel values (the five, then any whole-touch
+channels of :mod:`hardware.sim.electrodes`)."""
 
 
 @dataclass(frozen=True)
@@ -261,6 +263,8 @@ class Plant:
         noise: Noise model.
         joint_count: Number of finger joints (joint 0 flexes, joint 1 abducts).
         slot_tolerance_deg: How far from a slot's angle its object is still under the finger.
+        whole_touch: Whole-touch channels appended to each sample (``None``: the five only).
+        details: What the whole touch feels of each object, by name (others: a plain surface).
     """
 
     def __init__(
@@ -273,6 +277,8 @@ class Plant:
         noise: NoiseModel | None = None,
         joint_count: int = 2,
         slot_tolerance_deg: float = 1.0,
+        whole_touch: WholeTouchSensor | None = None,
+        details: Mapping[str, SurfaceDetail] | None = None,
     ) -> None:
         for slot in objects_by_slot:
             if not 0 <= slot < slot_count:
@@ -308,6 +314,11 @@ class Plant:
         self._noise_rng = rng.spawn(1)[0]
         self._noise: NoiseProcess | None = None
         self._contact_offset: list[float] | None = None
+        self.whole_touch = whole_touch
+        self._details = dict(details or {})
+        self._whole = (
+            None if whole_touch is None else WholeTouchChannels(whole_touch, rng.spawn(1)[0])
+        )
 
     # -- wiring -------------------------------------------------------------------------------
 
@@ -443,7 +454,11 @@ class Plant:
         gain = 1.0 + self.noise.vibration_gain_per_n * touch.force_n
         noise[0] *= gain
         noise[1] *= gain
-        self._sampler(moment, tuple(c + n for c, n in zip(clean, noise, strict=True)))
+        sample = tuple(c + n for c, n in zip(clean, noise, strict=True))
+        if self._whole is not None:
+            detail = None if target is None else self._details.get(target.name, PLAIN)
+            sample += self._whole.sample(touch.force_n, touch.slide_speed_mm_s, detail, period)
+        self._sampler(moment, sample)
 
     def _update_currents(self, touch: Contact, target: TactileObject | None, period: float) -> None:
         finger = self.finger

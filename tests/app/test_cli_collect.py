@@ -13,11 +13,13 @@ from typer.testing import CliRunner
 
 from app import rig_factory
 from app.cli.main import app
+from app.documents.raw_touches import featurise, read_raw_touches
 from app.documents.training_csv import read_training_csv
 from app.errors import BadInputError
 from app.rig_factory import RigHandle
 from app.services.collections import check_objects, iter_collection
 from core.designs import CollectionDesign, random_design, shared_design
+from core.features.pipeline import means_pipeline
 from core.kronecker import find_shared_design
 from hardware.clock import VirtualClock
 from hardware.errors import ServoHardwareErrorFlags
@@ -81,6 +83,13 @@ def test_random_design_writes_the_csv_the_raw_series_and_a_summary(tmp_path: Pat
         assert tactile.shape == (line["n_frames"], DY)
         assert abs(line["n_frames"] - 500) <= 2  # 5 s at 100 frames/s
         np.testing.assert_allclose(tactile.mean(axis=0), y, rtol=1e-12)  # y = channel means
+    # The same file is a raw-touch file: the channel-means pipeline gives the CSV's y.
+    touches = read_raw_touches(raw.read_text())
+    assert touches.channel_names == tuple(summary["channels"])
+    assert abs(touches.touches[0].channels[0].rate_hz - 100.0) < 0.5
+    np.testing.assert_array_equal(touches.actions, data.actions)
+    means = featurise(touches, means_pipeline(touches.touches[0]))
+    np.testing.assert_allclose(means.observations, data.observations, rtol=1e-12)
 
 
 def test_shared_design_touches_every_object_with_the_same_actions(tmp_path: Path) -> None:

@@ -210,3 +210,11 @@ def test_without_db_it_reads_the_database_serve_would_use(
     result = runner.invoke(app, ["export", "list"])
     assert result.exit_code == 2
     assert "no database at activetouch.db" in said(result)
+
+
+def test_raw_export_of_a_dataset_uploaded_as_y_says_it_has_no_series(
+    stored: dict[str, Any],
+) -> None:
+    result = export(stored, "dataset", str(stored["dataset_id"]), "--raw")
+    assert result.exit_code == 2
+    assert "sample 1 has no raw series" in said(result)

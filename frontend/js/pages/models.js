@@ -136,6 +136,7 @@ export async function select(id) {
       ["objects", model.objects.map((o) => o.name).join(", ")],
       ["optimizer", `${model.optimizer}, ${model.restarts} restarts, seed ${model.seed ?? "—"}`],
       ["log-likelihood", num(model.log_likelihood, 8)],
+      ["features", featuresText(model.features)],
       ["noise model", noiseText(model.noise_model)],
       ["latent dim", latentText(model)],
       ["fit time", formatDuration(model.fit_seconds)],
@@ -144,6 +145,14 @@ export async function select(id) {
       ["finished", timeOf(model.finished_at)],
     ].flatMap(([k, v]) => [el("dt", {}, k), el("dd", {}, v)]),
   );
+}
+
+function featuresText(features) {
+  if (!features) return "as recorded (channel means of a rig touch)";
+  const channels = features.channels.join(", ");
+  if (features.kind === "means") return `channel means of ${channels} (dy = ${features.output_names.length})`;
+  const how = `${features.reduced_features} numbers of ${channels} → ${features.projection.toUpperCase()} to dy = ${features.output_names.length}`;
+  return `whole touch: ${how}${features.explanation ? ` — ${features.explanation}` : ""}`;
 }
 
 function noiseText(noise) {

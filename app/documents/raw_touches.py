@@ -1,0 +1,297 @@
+"""Raw touches as data (JSON lines, ``docs/raw-touches.md``): one touch per line.
+
+Each line is a JSON object::
+
+    {"object": "mug", "action": [0.1, -0.3],
+     "channels": {"pressure_kpa": {"rate_hz": 100, "samples": [1.2, 1.3, ...]},
+                  "electrode":    {"rate_hz": 100, "samples": [[0.1, 0.4, ...], ...]},
+                  "vibration":    {"rate_hz": 1600, "samples": [0.01, -0.02, ...]}}}
+
+A channel is a series of n samples, each a number or a vector of one common width (an
+electrode array), with its sample rate in Hz. Other keys (``collect --raw`` adds the frame
+times, joint series and the channel means) are kept by nobody and ignored here.
+
+:func:`read_raw_touches` parses a whole file and refuses it, naming the line and the channel,
+when touches have different channel sets, a sample rate is missing, a series holds NaN/inf or
+ragged vectors; :func:`featurise` applies a feature pipeline and refuses a series shorter than
+its window likewise. Nothing is half-read: either every touch is good or an error is raised.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from app.documents.errors import DocumentError
+from core.errors import InvalidInputError
+from core.features.pipeline import FeaturePipeline
+from core.features.raw import RawChannel, RawTouch, check_same_layout, raw_channel
+from core.types import TrainingData
+from core.validation import FloatArray, IntArray
+from hardware.records import TouchRecord
+
+#: A frame channel ``NAME[i]`` is element i of the vector channel NAME (an electrode array).
+_ELEMENT = re.compile(r"^(?P<name>.+)\[(?P<index>\d+)\]$")
+#: A frame channel ``NAME@k`` is the k-th of K samples of NAME taken within one frame period.
+_SUBSAMPLE = re.compile(r"^(?P<name>.+)@(?P<index>\d+)$")
+
+
+@dataclass(frozen=True)
+class RawTouchSet:
+    """Raw touches read from a file.
+
+    Attributes:
+        object_names: Distinct object names, in order of first appearance. Length L.
+        object_index: Object of each touch. Shape (N,).
+        actions: Action x of each touch. Shape (N, dx).
+        touches: The touches, one channel layout. Length N.
+        lines: Line of the file each touch came from. Length N.
+    """
+
+    object_names: tuple[str, ...]
+    object_index: IntArray
+    actions: FloatArray
+    touches: tuple[RawTouch, ...]
+    lines: tuple[int, ...]
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        """The channels every touch has."""
+        return self.touches[0].names
+
+
+def _line_error(line: int, message: str, column: str | None = None) -> DocumentError:
+    return DocumentError(f"raw touches, line {line}: {message}", row=line, column=column)
+
+
+def _read_channels(value: Any, line: int) -> RawTouch:
+    if not isinstance(value, Mapping) or not value:
+        raise _line_error(
+            line, "'channels' must be a non-empty object of name → series.", "channels"
+        )
+    channels = []
+    for name, spec in value.items():
+        if not isinstance(spec, Mapping):
+            raise _line_error(
+                line, f"channel {name!r}: expected {{'rate_hz': ..., 'samples': [...]}}.", name
+            )
+        if "samples" not in spec:
+            raise _line_error(line, f"channel {name!r}: the series ('samples') is missing.", name)
+        try:
+            channels.append(raw_channel(str(name), spec.get("rate_hz"), spec["samples"]))
+        except InvalidInputError as exc:
+            raise _line_error(line, str(exc), name) from None
+    return RawTouch(tuple(channels))
+
+
+def read_raw_touches(text: str) -> RawTouchSet:
+    """Parse and check a raw-touch file (JSON lines).
+
+    Raises:
+        DocumentError: A line that is not a JSON object, a missing or empty object name, an
+            action of another length than the first line's or not finite, a channel set or
+            width different from the first touch's, a missing sample rate, NaN/inf or ragged
+            series. The message names the line and the channel.
+    """
+    names: list[str] = []
+    index: list[int] = []
+    actions: list[list[float]] = []
+    touches: list[RawTouch] = []
+    lines: list[int] = []
+    for line, content in enumerate(text.splitlines(), start=1):
+        if not content.strip():
+            continue
+        try:
+            item = json.loads(content)
+        except json.JSONDecodeError as exc:
+            raise _line_error(line, f"not JSON ({exc.msg}).") from None
+        if not isinstance(item, Mapping):
+            raise _line_error(line, "expected a JSON object.")
+        name = item.get("object")
+        if not isinstance(name, str) or not name.strip():
+            raise _line_error(line, "'object' must be a non-empty name.", "object")
+        action = item.get("action")
+        if not isinstance(action, list) or not action:
+            raise _line_error(line, "'action' must be a non-empty list of numbers.", "action")
+        try:
+            x = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise _line_error(line, "'action' must be a list of numbers.", "action") from None
+        if x.ndim != 1 or not np.all(np.isfinite(x)):
+            raise _line_error(line, "'action' must be a list of finite numbers.", "action")
+        if actions and len(x) != len(actions[0]):
+            raise _line_error(
+                line,
+                f"'action' has {len(x)} components, the first touch's has {len(actions[0])}.",
+                "action",
+            )
+        if "channels" not in item:
+            raise _line_error(line, "'channels' is missing.", "channels")
+        touch = _read_channels(item["channels"], line)
+        if touches:
+            try:
+                check_same_layout(touches[0], touch)
+            except InvalidInputError as exc:
+                raise _line_error(line, str(exc), "channels") from None
+        name = name.strip()
+        if name not in names:
+            names.append(name)
+        index.append(names.index(name))
+        actions.append(x.tolist())
+        touches.append(touch)
+        lines.append(line)
+    if not touches:
+        raise DocumentError("raw touches: the file holds no touch.", row=1)
+    return RawTouchSet(
+        tuple(names),
+        np.asarray(index, dtype=np.int64),
+        np.asarray(actions, dtype=np.float64),
+        tuple(touches),
+        tuple(lines),
+    )
+
+
+def featurise(touches: RawTouchSet, pipeline: FeaturePipeline) -> TrainingData:
+    """The touches as training data: y of each touch through ``pipeline``.
+
+    Raises:
+        DocumentError: A touch the pipeline refuses (a series shorter than its window, another
+            channel set); the message names its line and channel.
+    """
+    rows = []
+    for line, touch in zip(touches.lines, touches.touches, strict=True):
+        try:
+            rows.append(pipeline.transform(touch))
+        except InvalidInputError as exc:
+            raise _line_error(line, str(exc)) from None
+    try:
+        return TrainingData(
+            object_names=touches.object_names,
+            object_index=touches.object_index,
+            actions=touches.actions,
+            observations=np.asarray(rows, dtype=np.float64),
+        )
+    except InvalidInputError as exc:
+        raise DocumentError(f"raw touches: {exc}") from exc
+
+
+def line_refusal(touches: RawTouchSet, error: InvalidInputError) -> DocumentError:
+    """An error of a pipeline fit (``touch k: …``) restated with the touch's line."""
+    match = re.match(r"^touch (\d+): (.*)$", str(error), flags=re.DOTALL)
+    if match is None:
+        return DocumentError(f"raw touches: {error}")
+    k = int(match.group(1))
+    line = touches.lines[k - 1] if 1 <= k <= len(touches.lines) else k
+    return _line_error(line, match.group(2))
+
+
+def channels_field(touch: RawTouch) -> dict[str, dict[str, Any]]:
+    """A touch's ``channels`` as written in a raw-touch line."""
+    return {c.name: {"rate_hz": c.rate_hz, "samples": c.samples.tolist()} for c in touch.channels}
+
+
+def raw_touch_line(
+    object_name: str, action: Sequence[float] | FloatArray, touch: RawTouch, **extra: Any
+) -> dict[str, Any]:
+    """One raw-touch line (a JSON-ready dict); ``extra`` keys are added as they are."""
+    return {
+        "object": object_name,
+        "action": [float(v) for v in action],
+        "channels": channels_field(touch),
+        **extra,
+    }
+
+
+def frame_rate_hz(times_s: FloatArray) -> float:
+    """Frame rate of a recorded stream: frames per second between its first and last frame.
+
+    Raises:
+        InvalidInputError: Fewer than two frames, or no time between them.
+    """
+    if len(times_s) < 2 or not times_s[-1] > times_s[0]:
+        raise InvalidInputError("the touch recorded fewer than two frames; no sample rate.")
+    return float((len(times_s) - 1) / (times_s[-1] - times_s[0]))
+
+
+def _frame_group(channel: str) -> tuple[str, str, int]:
+    """(kind, channel name, position) of a frame channel: vector, subsample or scalar."""
+    element = _ELEMENT.match(channel)
+    if element is not None:
+        return "vector", element.group("name"), int(element.group("index"))
+    subsample = _SUBSAMPLE.match(channel)
+    if subsample is not None:
+        return "subsample", subsample.group("name"), int(subsample.group("index"))
+    return "scalar", channel, 0
+
+
+def raw_touch_from_record(record: TouchRecord) -> RawTouch:
+    """A rig touch as a raw touch: frame channels grouped by name.
+
+    Frame channels named ``NAME[i]`` form the vector channel NAME (element i), those named
+    ``NAME@k`` the k-th of K samples of NAME within one frame period (a series at K times the
+    frame rate); any other frame channel is a scalar channel at the frame rate, estimated from
+    the frame times (:func:`frame_rate_hz`).
+
+    Raises:
+        InvalidInputError: Fewer than two frames, or a group whose indices are not 0..K-1.
+    """
+    return raw_touch_from_frames(record.channel_names, record.tactile_times_s, record.tactile)
+
+
+def raw_touch_from_frames(
+    channel_names: Sequence[str], times_s: FloatArray, frames: FloatArray
+) -> RawTouch:
+    """Frames (n, C) of channels named as :func:`raw_touch_from_record` says, as a raw touch.
+
+    Raises:
+        InvalidInputError: Fewer than two frames, frames not (n, C), or a group whose indices
+            are not 0..K-1.
+    """
+    if frames.ndim != 2 or frames.shape != (len(times_s), len(channel_names)):
+        raise InvalidInputError(
+            f"frames: expected shape ({len(times_s)}, {len(channel_names)}), received "
+            f"{frames.shape}."
+        )
+    rate = frame_rate_hz(times_s)
+    groups: dict[str, tuple[str, dict[int, int]]] = {}
+    order: list[str] = []
+    for column, channel in enumerate(channel_names):
+        kind, name, position = _frame_group(channel)
+        if name not in groups:
+            groups[name] = (kind, {})
+            order.append(name)
+        elif groups[name][0] != kind or kind == "scalar":
+            raise InvalidInputError(f"frame channel {channel!r}: mixes channel kinds of {name!r}.")
+        groups[name][1][position] = column
+    channels: list[RawChannel] = []
+    for name in order:
+        kind, columns = groups[name]
+        if sorted(columns) != list(range(len(columns))):
+            raise InvalidInputError(
+                f"frame channels of {name!r}: indices {sorted(columns)}, expected "
+                f"0..{len(columns) - 1}."
+            )
+        block = frames[:, [columns[i] for i in range(len(columns))]]
+        if kind == "scalar":
+            channels.append(raw_channel(name, rate, block[:, 0]))
+        elif kind == "vector":
+            channels.append(raw_channel(name, rate, block))
+        else:
+            channels.append(raw_channel(name, rate * len(columns), block.reshape(-1)))
+    return RawTouch(tuple(channels))
+
+
+def record_observation(record: TouchRecord, pipeline: FeaturePipeline | None) -> FloatArray:
+    """y of a rig touch: the model's feature pipeline, or the channel means without one.
+
+    Raises:
+        InvalidInputError: The pipeline refuses the touch (another channel set, too short).
+    """
+    if pipeline is None:
+        return record.observation
+    return pipeline.transform(raw_touch_from_record(record))

@@ -1,0 +1,302 @@
+"""Benchmark: recognition from the whole touch against channel means, and the fit's time.
+
+Two parts:
+
+1. **Twins** (``--part twins``): the simulated ``twins`` table (four objects of one material
+   whose every channel has the same mean; they differ in the vibration's spectrum and the spread
+   of the electrode ring, ``hardware/sim/electrodes.py``), ``--touches`` touches per object on
+   the in-process simulated rig (random design, x ~ N(0, 0.75² I), rounds over the objects as
+   ``activetouch collect`` does). The first ``--fit`` touches of each object train, the rest are
+   held out. For each feature pipeline (``means``: each channel's mean; ``whole``: reducers,
+   standardisation, PCA/LDA with dy by cross-validation) a manifold is fitted (ds =
+   ``--latent-dim``, noise model auto) and passive replay is scored: ``--trials`` groups per
+   object of 1 and of 3 distinct random held-out touches, the answer the most probable object
+   of the posterior (:func:`core.object_posterior.object_posterior`). Calibration: of the answers
+   given with p ≥ 0.95, the share that were right.
+2. **Fit time** (``--part fit``): 20 objects × 40 synthetic whole touches shaped like a
+   multimodal fingertip's (19 electrodes and pressure/thermal channels at 100 Hz, a vibration
+   at 2.2 kHz); the time to fit the feature pipeline (dy chosen by cross-validation), then the
+   manifold at ``--fit-dims`` features (ds = 3, noise model independent, 2 restarts).
+
+Run: ``.venv/bin/python -m bench.whole_touch [--part twins|fit|both] [--touches 100]
+[--fit 80] [--duration 6] [--trials 50] [--json]``
+
+Measured (one run, seed 0, ``--part twins --touches 100 --fit 80 --trials 50``; 2 cores shared
+by about 15 busy processes, load average 14–17, so times are long):
+
+* channel means (dy = 14): right after 1 touch 44.0 %, after 3 touches 39.5 %; answers given
+  with p ≥ 0.95: 8.5 % of them after 1 touch (all right), 43 % after 3 (64 % right); fit 360 s.
+* whole touch (PCA to dy = 5): 98.5 % and 100 %; answers with p ≥ 0.95: 95.5 % after 1 touch
+  and 100 % after 3, all right; fit 181 s.
+
+(200 groups each.) With
+channel means the model is confidently wrong on three touches; from the whole touch the
+cross-validation chose PCA to dy = 5 (100 % of held-out training touches recognised), the
+collection of 400 six-second touches took 492 s and the pipeline 19 s.
+
+``--part fit --fit-dims 10 20 30`` (same loaded machine): the pipeline on the 800 touches, dy
+chosen by 5-fold cross-validation, took 27 s; the manifold fit at dy = 10 had not finished after
+51 min of wall time (19.6 min of CPU) and was stopped — the figures for dy = 10, 20 and 30 are
+still to be measured on an unloaded machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from typing import Any
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from app.documents.raw_touches import raw_touch_from_record
+from app.rig_factory import SimulationMode, TouchActions, open_rig
+from app.services.collections import iter_collection
+from core.designs import random_design
+from core.features.pipeline import FeatureKind, fit_features
+from core.features.raw import RawTouch, raw_touch
+from core.manifold import FitOptions, fit_manifold
+from core.object_posterior import object_posterior
+from core.types import ManifoldModel, TrainingData
+from core.validation import FloatArray, IntArray
+from hardware.rig import RigConfig
+from hardware.sim.materials import get_table
+
+CONFIDENT = 0.95
+
+
+def collect_twins(
+    touches: int, duration_s: float, seed: int
+) -> tuple[tuple[str, ...], IntArray, FloatArray, list[RawTouch]]:
+    """Touch every object of the twins table ``touches`` times; the raw touches, in order."""
+    table = get_table("twins")
+    handle = open_rig(simulate=SimulationMode.in_process, table="twins", seed=seed)
+    actions = TouchActions.from_teaching(dt_s=RigConfig().control_period_s, duration_s=duration_s)
+    rng = np.random.default_rng(seed)
+    dx = actions.action_dim
+    plan = random_design(
+        len(table.objects), touches, np.zeros(dx), table.action_std**2 * np.eye(dx), rng
+    )
+    slots = {name: slot for slot, name in enumerate(table.objects)}
+    index, xs, raws = [], [], []
+    try:
+        with handle.rig.acquire("bench whole_touch") as lease:
+            lease.connect()
+            for touch in iter_collection(lease, actions, slots, plan):
+                index.append(table.objects.index(touch.object_name))
+                xs.append(touch.action)
+                raws.append(raw_touch_from_record(touch.record))
+    finally:
+        handle.close()
+    return table.objects, np.asarray(index), np.asarray(xs), raws
+
+
+def split(index: IntArray, first: int) -> tuple[IntArray, IntArray]:
+    """Rows of the first ``first`` touches of each object, and of the rest."""
+    fit_rows, held_rows = [], []
+    for obj in np.unique(index):
+        rows = np.flatnonzero(index == obj)
+        fit_rows += list(rows[:first])
+        held_rows += list(rows[first:])
+    return np.asarray(sorted(fit_rows)), np.asarray(sorted(held_rows))
+
+
+def passive_replay(
+    model: ManifoldModel,
+    index: IntArray,
+    actions: FloatArray,
+    observations: FloatArray,
+    group_sizes: tuple[int, ...],
+    trials: int,
+    seed: int,
+) -> dict[str, dict[str, float | int]]:
+    """Accuracy and calibration of the object posterior on random groups of held-out touches."""
+    rng = np.random.default_rng(seed)
+    result: dict[str, dict[str, float | int]] = {}
+    for size in group_sizes:
+        right = confident = confident_right = total = 0
+        for obj in np.unique(index):
+            pool = np.flatnonzero(index == obj)
+            for _ in range(trials):
+                rows = rng.choice(pool, size=size, replace=False)
+                p = object_posterior(model, actions[rows], observations[rows])
+                answer = int(np.argmax(p))
+                total += 1
+                right += answer == obj
+                if p[answer] >= CONFIDENT:
+                    confident += 1
+                    confident_right += answer == obj
+        result[f"{size}"] = {
+            "accuracy": right / total,
+            "confident_share": confident / total,
+            "confident_accuracy": confident_right / confident if confident else float("nan"),
+            "groups": total,
+        }
+    return result
+
+
+def run_twins(args: argparse.Namespace) -> dict[str, Any]:
+    """Part 1: means vs whole touch on the twins table."""
+    started = time.perf_counter()
+    names, index, actions, raws = collect_twins(args.touches, args.duration, args.seed)
+    collect_s = time.perf_counter() - started
+    fit_rows, held_rows = split(index, args.fit)
+    figures: dict[str, Any] = {
+        "objects": list(names),
+        "touches_per_object": args.touches,
+        "fit_per_object": args.fit,
+        "duration_s": args.duration,
+        "collect_s": collect_s,
+    }
+    kinds: tuple[FeatureKind, ...] = ("means", "whole")
+    for kind in kinds:
+        started = time.perf_counter()
+        pipeline = fit_features([raws[i] for i in fit_rows], index[fit_rows], kind, seed=args.seed)
+        features_s = time.perf_counter() - started
+        y = pipeline.transform_many(raws)
+        data = TrainingData(names, index[fit_rows], actions[fit_rows], y[fit_rows])
+        started = time.perf_counter()
+        model = fit_manifold(
+            data,
+            args.latent_dim,
+            np.random.default_rng(args.seed),
+            FitOptions(restarts=2),
+            noise_model="auto",
+        )
+        fit_s = time.perf_counter() - started
+        figures[kind] = {
+            "dy": pipeline.output_dim,
+            "projection": pipeline.projection if kind == "whole" else None,
+            "selection": None if pipeline.selection is None else pipeline.selection.explanation,
+            "features_s": features_s,
+            "fit_s": fit_s,
+            "noise_model": None if model.transform is None else model.transform.note,
+            "replay": passive_replay(
+                model,
+                index[held_rows],
+                actions[held_rows],
+                y[held_rows],
+                (1, 3),
+                args.trials,
+                args.seed,
+            ),
+        }
+    return figures
+
+
+def synthetic_fingertip(
+    n_objects: int, touches: int, seed: int
+) -> tuple[IntArray, FloatArray, list[RawTouch]]:
+    """Whole touches shaped like a multimodal fingertip's: 19 electrodes, pressure, heat flux
+    and temperature at 100 Hz over 1.5 s, a vibration at 2.2 kHz; each object has its own
+    electrode pattern, texture frequency and thermal response, the action its sliding speed."""
+    rng = np.random.default_rng(seed)
+    patterns = rng.uniform(0.5, 1.5, size=(n_objects, 19))
+    textures_hz = rng.uniform(40.0, 400.0, size=n_objects)
+    thermal = rng.uniform(0.5, 2.0, size=n_objects)
+    t_slow = np.arange(150) / 100.0
+    t_fast = np.arange(3300) / 2200.0
+    index, xs, raws = [], [], []
+    for _ in range(touches):
+        for obj in range(n_objects):
+            x = rng.normal(size=2)
+            speed = 1.0 + 0.2 * np.tanh(x[0])
+            force = 1.0 + 0.2 * np.tanh(x[1])
+            envelope = force * np.sin(np.pi * t_slow / t_slow[-1]) ** 0.5
+            raws.append(
+                raw_touch(
+                    {
+                        "electrodes": (
+                            100.0,
+                            envelope[:, None] * patterns[obj] + 0.05 * rng.normal(size=(150, 19)),
+                        ),
+                        "pressure": (100.0, envelope + 0.02 * rng.normal(size=150)),
+                        "heat_flux": (
+                            100.0,
+                            thermal[obj] * np.exp(-t_slow) + 0.05 * rng.normal(size=150),
+                        ),
+                        "temperature": (
+                            100.0,
+                            33.0 - 0.3 * thermal[obj] * t_slow + 0.02 * rng.normal(size=150),
+                        ),
+                        "vibration": (
+                            2200.0,
+                            force
+                            * np.sin(
+                                2 * np.pi * textures_hz[obj] * speed * t_fast + rng.uniform(0, 7)
+                            )
+                            + 0.3 * rng.normal(size=3300),
+                        ),
+                    }
+                )
+            )
+            index.append(obj)
+            xs.append(x)
+    return np.asarray(index), np.asarray(xs), raws
+
+
+def run_fit(args: argparse.Namespace) -> dict[str, Any]:
+    """Part 2: time of the pipeline and of the manifold fit at several dy, 20 × 40 touches."""
+    index, actions, raws = synthetic_fingertip(20, 40, args.seed)
+    names = tuple(f"material_{k:02d}" for k in range(20))
+    started = time.perf_counter()
+    chosen = fit_features(raws, index, "whole", seed=args.seed)
+    print(f"pipeline fitted in {time.perf_counter() - started:.1f} s", file=sys.stderr, flush=True)
+    figures: dict[str, Any] = {
+        "touches": len(raws),
+        "reduced_features": len(chosen.reduced_names),
+        "pipeline_s": time.perf_counter() - started,
+        "selection": chosen.selection.explanation if chosen.selection else None,
+        "fits": [],
+    }
+    for dy in args.fit_dims:
+        pipeline = fit_features(raws, index, "whole", feature_dim=dy, projection="pca")
+        data = TrainingData(names, index, actions, pipeline.transform_many(raws))
+        started = time.perf_counter()
+        model = fit_manifold(
+            data,
+            3,
+            np.random.default_rng(args.seed),
+            FitOptions(restarts=2),
+            noise_model="independent",
+        )
+        figures["fits"].append(
+            {
+                "dy": dy,
+                "fit_s": time.perf_counter() - started,
+                "log_likelihood": model.log_likelihood,
+            }
+        )
+        print(json.dumps(figures["fits"][-1]), file=sys.stderr, flush=True)
+    return figures
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    """Run the benchmark; print and return the figures."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--part", choices=("twins", "fit", "both"), default="both")
+    parser.add_argument("--touches", type=int, default=100, help="Touches per object.")
+    parser.add_argument("--fit", type=int, default=80, help="Touches per object used to fit.")
+    parser.add_argument("--duration", type=float, default=6.0, help="Touch duration (s).")
+    parser.add_argument("--latent-dim", type=int, default=2, help="ds of the twins models.")
+    parser.add_argument("--trials", type=int, default=50, help="Replay groups per object.")
+    parser.add_argument(
+        "--fit-dims", type=int, nargs="+", default=[10, 20, 30], help="dy of the timed fits."
+    )
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", action="store_true", help="Print the figures as JSON only.")
+    args = parser.parse_args(argv)
+    figures: dict[str, Any] = {"benchmark": "whole_touch"}
+    with threadpool_limits(limits=1):
+        if args.part in ("twins", "both"):
+            figures["twins"] = run_twins(args)
+        if args.part in ("fit", "both"):
+            figures["fit"] = run_fit(args)
+    sys.stdout.write(json.dumps(figures, indent=None if args.json else 1) + "\n")
+    return figures
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,151 @@
+"""Raw-touch files: reading, refusing bad input by line and channel, and the model's pipeline."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from app.documents.errors import DocumentError
+from app.documents.model import model_from_document, model_to_document
+from app.documents.raw_touches import (
+    featurise,
+    line_refusal,
+    raw_touch_from_record,
+    raw_touch_line,
+    read_raw_touches,
+)
+from core.errors import InvalidInputError
+from core.features.pipeline import fit_features
+from core.features.raw import raw_touch
+from core.manifold import FitOptions, fit_manifold
+from hardware.records import TouchRecord
+
+PATTERNS = {"fine": [1.0, 2.0, 3.0], "coarse": [3.0, 2.0, 1.0], "medium": [2.0, 2.0, 2.0]}
+
+
+def touch_line(rng: np.random.Generator, name: str, frequency_hz: float, n_fast: int = 600) -> str:
+    """One touch: 40 Hz pressure, 3 electrodes (pattern by object), a 1 kHz vibration."""
+    x = rng.normal(size=2)
+    t = np.arange(n_fast) / 1000.0
+    touch = raw_touch(
+        {
+            "pressure_kpa": (40.0, 2.0 + 0.3 * x[0] + 0.05 * rng.normal(size=20)),
+            "electrode": (40.0, PATTERNS[name] + 0.05 * rng.normal(size=(20, 3))),
+            "vibration": (
+                1000.0,
+                np.sin(2 * np.pi * frequency_hz * (1 + 0.1 * x[1]) * t)
+                + 0.1 * rng.normal(size=n_fast),
+            ),
+        }
+    )
+    return json.dumps(raw_touch_line(name, x, touch, note="ignored"))
+
+
+def raw_file(touches_per_object: int = 10) -> str:
+    rng = np.random.default_rng(3)
+    lines = [
+        touch_line(rng, name, frequency)
+        for _ in range(touches_per_object)
+        for name, frequency in (("fine", 200.0), ("coarse", 50.0), ("medium", 100.0))
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def test_a_raw_file_reads_into_touches_with_their_layout() -> None:
+    touches = read_raw_touches(raw_file(4))
+    assert touches.object_names == ("fine", "coarse", "medium")
+    assert touches.actions.shape == (12, 2)
+    assert touches.channel_names == ("pressure_kpa", "electrode", "vibration")
+    assert touches.touches[0].channel("electrode").width == 3
+    assert touches.lines == tuple(range(1, 13))
+
+
+def _edit(text: str, line: int, change: object) -> str:
+    rows = text.splitlines()
+    item = json.loads(rows[line - 1])
+    change(item)  # type: ignore[operator]
+    rows[line - 1] = json.dumps(item)
+    return "\n".join(rows)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda i: i["channels"].pop("electrode"), r"line 5: .*missing \['electrode'\]"),
+        (lambda i: i["channels"]["vibration"].pop("rate_hz"), "line 5: channel 'vibration'.*rate"),
+        (
+            lambda i: i["channels"]["pressure_kpa"]["samples"].__setitem__(3, float("nan")),
+            r"line 5: channel 'pressure_kpa': a NaN or inf sample at index \[3\]",
+        ),
+        (
+            lambda i: i["channels"]["electrode"]["samples"][2].pop(),
+            "line 5: channel 'electrode': ragged",
+        ),
+        (lambda i: i["action"].append(1.0), "line 5: 'action' has 3 components"),
+    ],
+)
+def test_bad_touches_are_refused_naming_the_line_and_the_channel(
+    change: object, message: str
+) -> None:
+    with pytest.raises(DocumentError, match=message):
+        read_raw_touches(_edit(raw_file(2), 5, change))
+
+
+def test_a_series_shorter_than_the_window_is_refused_by_line_and_channel() -> None:
+    rng = np.random.default_rng(0)
+    text = raw_file(3) + touch_line(rng, "fine", 200.0, n_fast=100) + "\n"
+    touches = read_raw_touches(text)
+    with pytest.raises(InvalidInputError) as caught:
+        fit_features(touches.touches, touches.object_index, "whole")
+    error = line_refusal(touches, caught.value)
+    assert "line 10" in str(error)
+    assert "'vibration': 100 samples, shorter than the pipeline's window of 256" in str(error)
+    pipeline = fit_features(touches.touches[:9], touches.object_index[:9], "whole", feature_dim=2)
+    with pytest.raises(DocumentError, match="line 10: channel 'vibration'"):
+        featurise(touches, pipeline)
+
+
+def test_the_pipeline_travels_in_the_model_document_and_gives_identical_features() -> None:
+    touches = read_raw_touches(raw_file(8))
+    pipeline = fit_features(touches.touches, touches.object_index, "whole")
+    data = featurise(touches, pipeline)
+    model = fit_manifold(data, 2, np.random.default_rng(0), FitOptions(restarts=0))
+    model = dataclasses.replace(model, features=pipeline)
+    document = json.loads(json.dumps(model_to_document(model)))
+    assert document["features"]["kind"] == "whole"
+    assert document["features"]["selection"]["chosen"] == pipeline.output_dim
+    loaded = model_from_document(document)
+    assert loaded.features is not None
+    again = np.stack([loaded.features.transform(t) for t in touches.touches])
+    np.testing.assert_array_equal(again, data.observations)
+    # A document without the field means channel means, as before.
+    del document["features"]
+    assert model_from_document(document).features is None
+
+
+def test_a_rig_record_becomes_a_raw_touch_by_its_channel_names() -> None:
+    n = 50
+    frames = np.arange(n * 5, dtype=np.float64).reshape(n, 5)
+    record = TouchRecord(
+        slot=0,
+        channel_names=("pressure_kpa", "electrode[0]", "electrode[1]", "vib@0", "vib@1"),
+        joint_names=("j",),
+        dt_s=0.01,
+        commanded_deg=np.zeros((3, 1)),
+        tactile_times_s=np.arange(n) / 100.0,
+        tactile=frames,
+        tactile_sequence=np.arange(n),
+        joint_times_s=np.zeros(0),
+        joint_positions_deg=np.zeros((0, 1)),
+        joint_currents_ma=np.zeros((0, 1)),
+    )
+    touch = raw_touch_from_record(record)
+    assert touch.names == ("pressure_kpa", "electrode", "vib")
+    assert touch.channel("pressure_kpa").rate_hz == pytest.approx(100.0)
+    np.testing.assert_array_equal(touch.channel("electrode").samples, frames[:, 1:3])
+    vib = touch.channel("vib")
+    assert vib.rate_hz == pytest.approx(200.0)
+    np.testing.assert_array_equal(vib.samples, frames[:, 3:5].reshape(-1))
