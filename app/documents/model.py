@@ -36,9 +36,9 @@ from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingD
 MODEL_FORMAT = "activetouch-model/1"
 
 #: Deepest nesting of a list or object a model document has (the document is level 0,
-#: ``latent_selection.candidates[i].fold_scores`` level 4), and its longest text (an
+#: ``features.selection.candidates[i].fold_scores`` level 5), and its longest text (an
 #: optimizer's message, the latent-selection explanation).
-MAX_DOCUMENT_DEPTH = 4
+MAX_DOCUMENT_DEPTH = 5
 MAX_TEXT_CHARACTERS = 2000
 #: Longest list in ``diagnostics`` or ``latent_selection`` (one item a restart or a fold).
 MAX_RECORD_ITEMS = 1000
