@@ -432,7 +432,9 @@ class CollectionCreate(BaseModel):
     paper's design; each object gets its own actions); ``shared`` draws ``samples_per_object``
     actions from the same prior (scrambled Sobol, :func:`core.designs.shared_design`) and touches
     every object with each of them (a shared design: fits and plans take the exact Kronecker
-    path); ``teaching`` repeats the teaching action x = 0.
+    path); ``teaching`` repeats the teaching action x = 0. ``action_scale`` left out: the simulated
+    table's own spread on the mock rig (its ``action_std``), 1.0 on a real rig; the run's
+    ``params`` record the spread used.
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -441,7 +443,7 @@ class CollectionCreate(BaseModel):
     objects: Annotated[list[CollectionObject], Field(min_length=2, max_length=100)]
     samples_per_object: Annotated[int, Field(ge=2, le=1000)] = 20
     action_design: Literal["random", "shared", "teaching"] = "random"
-    action_scale: Annotated[float, Field(gt=0.0, le=100.0)] = 1.0
+    action_scale: Annotated[float | None, Field(gt=0.0, le=100.0)] = None
     seed: Seed | None = None
 
 

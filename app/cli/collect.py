@@ -128,6 +128,22 @@ def resolve_slots(parsed: list[tuple[str, int | None]], handle: RigHandle) -> di
     return dict(pairs)
 
 
+def default_action_scale(options: RigOptions, given: float | None) -> float:
+    """The design's spread: ``given``, else the simulated table's ``action_std``, else 1.0.
+
+    A simulated table knows how far its objects' differences lie in the action space (a
+    cushion's insert is reached only by deep presses); a real rig's objects are not known, so
+    its default stays the unit spread.
+    """
+    if given is not None:
+        return given
+    if options.sim:
+        from hardware.sim.materials import design_std
+
+        return design_std(options.sim_table)
+    return 1.0
+
+
 def make_design(
     design: DesignName,
     n_objects: int,
@@ -213,8 +229,13 @@ def collect_command(
         ),
     ] = "random",
     action_scale: Annotated[
-        float, typer.Option(help="Standard deviation of each action component x_i (> 0).")
-    ] = 1.0,
+        float | None,
+        typer.Option(
+            help="Standard deviation of each action component x_i (> 0). Default: with --sim "
+            "the table's own spread (its action_std, which reaches where its objects differ), "
+            "else 1.0."
+        ),
+    ] = None,
     seed: Annotated[
         int, typer.Option(help="Seed of the actions (and of the simulated world with --sim).")
     ] = 0,
@@ -231,8 +252,9 @@ def collect_command(
     """Collect a training set on the rig: touch each object, write the training CSV."""
     options.check()
     sim, sim_transport = options.sim, options.sim_transport
-    if not action_scale > 0:
+    if action_scale is not None and not action_scale > 0:
         raise fail(f"--action-scale: must be > 0, received {action_scale}.", 2)
+    action_scale = default_action_scale(options, action_scale)
     parsed = parse_objects(objects or [], simulated=sim)
     if not sim and len(parsed) < 2:
         raise fail("give at least two --object NAME=SLOT (or use --sim).", 2)

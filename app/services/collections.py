@@ -172,6 +172,8 @@ class CollectionService:
     def create(self, session: Session, body: CollectionCreate) -> RunPublic:
         """Check a collection request, store the run and its (empty) dataset, start it."""
         check_objects([(o.name, o.slot) for o in body.objects])
+        if body.action_scale is None:
+            body = body.model_copy(update={"action_scale": self._rig.design_std})
         holder = self._rig.holder
         if holder is not None:
             raise ConflictError(f"The rig is in use by {holder}.", held_by=holder)
@@ -279,7 +281,8 @@ class CollectionService:
         """
         rng = np.random.default_rng(body.seed)
         dx, n_objects, per_object = self._rig.action_dim, len(body.objects), body.samples_per_object
-        mean, cov = np.zeros(dx), body.action_scale**2 * np.eye(dx)
+        scale = self._rig.design_std if body.action_scale is None else body.action_scale
+        mean, cov = np.zeros(dx), scale**2 * np.eye(dx)
         if body.action_design == "random":
             return random_design(n_objects, per_object, mean, cov, rng)
         if body.action_design == "shared":

@@ -101,6 +101,26 @@ def test_shared_design_touches_every_object_with_the_same_actions(tmp_path: Path
     assert find_shared_design(data) is not None  # the fit can take the Kronecker path
 
 
+def test_the_spread_defaults_to_the_simulated_tables_own(tmp_path: Path) -> None:
+    # cushions: action_std 1.5 (deep presses reach the inserts); --action-scale overrides it.
+    out = tmp_path / "c.csv"
+    base = ["--table", "cushions", "--touches", "2", "--seed", "4", "--json", "--force"]
+    result = collect(*base, "--out", str(out))
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["action_scale"] == 1.5
+    data = read_training_csv(out.read_text())
+    n = len(data.object_names)
+    expected = random_design(n, 2, np.zeros(DX), 2.25 * np.eye(DX), np.random.default_rng(4))
+    for obj in range(n):
+        np.testing.assert_array_equal(
+            data.actions[data.object_index == obj],
+            expected.actions[expected.object_index == obj],
+        )
+    given = collect(*base, "--action-scale", "0.5", "--out", str(out))
+    assert given.exit_code == 0, given.output
+    assert json.loads(given.stdout)["action_scale"] == 0.5
+
+
 def test_same_seed_same_file_and_no_silent_overwrite(tmp_path: Path) -> None:
     out = tmp_path / "a.csv"
     args = [*OBJECTS[:4], "--touches", "2", "--seed", "5", "--out", str(out)]

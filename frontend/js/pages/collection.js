@@ -160,8 +160,8 @@ async function startCollection(form) {
     objects,
     samples_per_object: Number($("col-samples").value),
     action_design: $("col-design").value,
-    action_scale: Number($("col-scale").value),
   };
+  if ($("col-scale").value !== "") body.action_scale = Number($("col-scale").value);
   if ($("col-seed").value !== "") body.seed = Number($("col-seed").value);
   const created = await api("/collections", { method: "POST", body });
   toast(`Collection #${created.id} started.`, "ok");
