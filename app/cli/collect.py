@@ -12,7 +12,11 @@ The touches come from :func:`app.services.collections.iter_collection`, the loop
 collection runs use, on a design of :mod:`core.designs`: ``random`` draws a fresh action
 x ~ N(0, σ² I) for every touch (the paper's design; object by object), ``shared`` touches every
 object with the same M actions (a scrambled Sobol set of that prior; action by action), which
-lets the fit and the planner use the exact Kronecker path.
+lets the fit and the planner use the exact Kronecker path. ``adaptive`` touches each object
+with the first half of its budget as ``random`` does, fits the model (ds = 2, ``fit``'s
+defaults), then in :data:`ADAPTIVE_ROUNDS` rounds touches every object at the actions the
+planners would choose from the current model (:func:`core.adaptive_design.planner_round`),
+refitting between rounds; the touch budget is the same.
 
 Each touch is appended to the CSV (and, with ``--raw``, its raw tactile series to a JSON-lines
 file) and flushed to disk the moment it is recorded. A device fault stops the collection: the rig
@@ -30,6 +34,7 @@ import os
 import sys
 import time
 from collections import Counter
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal, TextIO
 
@@ -47,7 +52,10 @@ if TYPE_CHECKING:
     from hardware.rig import RigLease
 
 #: Action designs of ``collect``.
-DesignName = Literal["random", "shared"]
+DesignName = Literal["random", "shared", "adaptive"]
+
+#: Adaptive design: rounds of planner-chosen touches after the initial random half.
+ADAPTIVE_ROUNDS = 2
 
 #: Exit code after Ctrl-C (128 + SIGINT), as a shell reports it.
 INTERRUPTED_EXIT = 130
@@ -144,8 +152,81 @@ def default_action_scale(options: RigOptions, given: float | None) -> float:
     return 1.0
 
 
+class NextRound:
+    """The adaptive design's rounds: fit the touches so far, plan the next round from the model.
+
+    Args:
+        touches: Touches per object in all.
+        sizes: Touches per object of each round after the initial random design.
+        check: Checks a round's touches against the joint limits (exit 2 if refused).
+        seed: Seeds the fits and the rounds' candidate sets.
+    """
+
+    def __init__(
+        self, touches: int, sizes: list[int], check: Callable[[CollectionDesign], None], seed: int
+    ) -> None:
+        import numpy as np
+
+        self.touches = touches
+        self.sizes = list(sizes)
+        self.check = check
+        self.seed = seed
+        self.rng = np.random.default_rng([seed, 1])
+
+    def __call__(self, recorded: list[CollectedTouch]) -> CollectionDesign | None:
+        """The next round's design (``None``: the budget is spent)."""
+        import numpy as np
+
+        from core.adaptive_design import planner_round
+        from core.manifold import fit_manifold
+        from core.types import TrainingData
+
+        if not self.sizes:
+            return None
+        names = tuple(dict.fromkeys(t.object_name for t in recorded))
+        data = TrainingData(
+            object_names=names,
+            object_index=np.array([names.index(t.object_name) for t in recorded]),
+            actions=np.array([t.action for t in recorded]),
+            observations=np.array([t.record.observation for t in recorded]),
+        )
+        model = fit_manifold(data, 2, np.random.default_rng(self.seed), noise_model="auto")
+        design = planner_round(model, self.sizes.pop(0), self.rng)
+        self.check(design)
+        return design
+
+
+def adaptive_plan(
+    touches: int,
+    actions: TouchActions,
+    handle: RigHandle,
+    names: list[str],
+    action_scale: float,
+    seed: int,
+) -> tuple[CollectionDesign, NextRound]:
+    """The adaptive design's initial random half and the planner of its later rounds.
+
+    Raises:
+        typer.Exit: (code 2) too few touches for an initial design and a round.
+    """
+    from core.adaptive_design import round_sizes
+    from core.errors import InvalidInputError
+
+    initial = max(2, touches // 2)
+    try:
+        sizes = round_sizes(touches, initial, min(ADAPTIVE_ROUNDS, touches - initial))
+    except InvalidInputError as exc:
+        raise fail(f"--touches: too few for --design adaptive ({exc})", 2) from None
+    plan = make_design("random", len(names), initial, actions.action_dim, action_scale, seed)
+
+    def check(design: CollectionDesign) -> None:
+        check_plan(design, actions, handle, names)
+
+    return plan, NextRound(touches, sizes, check, seed)
+
+
 def make_design(
-    design: DesignName,
+    design: Literal["random", "shared"],
     n_objects: int,
     touches: int,
     action_dim: int,
@@ -225,7 +306,9 @@ def collect_command(
         DesignName,
         typer.Option(
             help="random: a fresh action x ~ N(0, scale² I) per touch (the paper's); shared: "
-            "the same M actions (scrambled Sobol) on every object (Kronecker fit)."
+            "the same M actions (scrambled Sobol) on every object (Kronecker fit); adaptive: "
+            "half the touches random, then rounds at the actions the planners would choose "
+            "from a model fitted to the touches so far."
         ),
     ] = "random",
     action_scale: Annotated[
@@ -264,7 +347,13 @@ def collect_command(
     actions = touch_actions(duration_s)
     with connected_rig(options, "activetouch collect") as (handle, lease):
         slots = resolve_slots(parsed, handle)
-        plan = make_design(design, len(slots), touches, actions.action_dim, action_scale, seed)
+        next_round = None
+        if design == "adaptive":
+            plan, next_round = adaptive_plan(
+                touches, actions, handle, list(slots), action_scale, seed
+            )
+        else:
+            plan = make_design(design, len(slots), touches, actions.action_dim, action_scale, seed)
         check_plan(plan, actions, handle, list(slots))
         channels = list(handle.rig.tactile.config.channel_names)
         summary: dict[str, Any] = {
@@ -278,10 +367,10 @@ def collect_command(
             "action_dim": actions.action_dim,
             "observation_dim": len(channels),
             "channels": channels,
-            "planned": plan.n_touches,
+            "planned": touches * len(slots),
         }
         recorded, error, code, seconds = _collect(
-            handle, lease, actions, slots, plan, out, raw, force
+            handle, lease, actions, slots, plan, out, raw, force, next_round
         )
         summary["rig_state"] = str(handle.rig.state)
     counts = Counter(touch.object_name for touch in recorded)
@@ -308,11 +397,11 @@ def _collect(
     out: Path,
     raw: Path | None,
     force: bool,
+    next_round: NextRound | None = None,
 ) -> tuple[list[CollectedTouch], str | None, int, float]:
     """Run the collection into the files; return the touches, the error, exit code, seconds."""
     from app.cli.output import progress_bar
     from app.documents.training_csv import TrainingCsvWriter
-    from app.services.collections import iter_collection
     from app.services.rig import raw_series
     from hardware.errors import HardwareError
 
@@ -328,9 +417,10 @@ def _collect(
         )
         _sync(csv_file)
         with progress_bar() as bar:
-            task = bar.add_task("collect", total=plan.n_touches, status="connected")
+            total = plan.n_touches if next_round is None else len(slots) * next_round.touches
+            task = bar.add_task("collect", total=total, status="connected")
             try:
-                for touch in iter_collection(lease, actions, slots, plan):
+                for touch in _rounds(lease, actions, slots, plan, recorded, next_round, bar, task):
                     writer.write(touch.object_name, touch.action, touch.record.observation)
                     _sync(csv_file)
                     if raw_file is not None:
@@ -364,6 +454,28 @@ def _collect(
         if raw_file is not None:
             raw_file.close()
     return recorded, error, code, time.perf_counter() - started
+
+
+def _rounds(
+    lease: RigLease,
+    actions: TouchActions,
+    slots: dict[str, int],
+    plan: CollectionDesign,
+    recorded: list[CollectedTouch],
+    next_round: NextRound | None,
+    bar: Any,
+    task: Any,
+) -> Iterator[CollectedTouch]:
+    """The touches of ``plan``, then of each round ``next_round`` plans from ``recorded``."""
+    from app.services.collections import iter_collection
+
+    current: CollectionDesign | None = plan
+    while current is not None:
+        yield from iter_collection(lease, actions, slots, current)
+        if next_round is None:
+            return
+        bar.update(task, status="fitting the model to plan the next round")
+        current = next_round(recorded)
 
 
 def _report(summary: dict[str, Any], as_json: bool) -> None:
