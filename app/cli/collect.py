@@ -14,9 +14,9 @@ x ~ N(0, σ² I) for every touch (the paper's design; object by object), ``share
 object with the same M actions (a scrambled Sobol set of that prior; action by action), which
 lets the fit and the planner use the exact Kronecker path. ``adaptive`` touches each object
 with the first half of its budget as ``random`` does, fits the model (ds = 2, ``fit``'s
-defaults), then in :data:`ADAPTIVE_ROUNDS` rounds touches every object at the actions the
-planners would choose from the current model (:func:`core.adaptive_design.planner_round`),
-refitting between rounds; the touch budget is the same.
+defaults), then in rounds (:data:`app.services.collections.ADAPTIVE_ROUNDS`) touches every
+object at the actions the planners would choose from the current model
+(:func:`core.adaptive_design.planner_round`), refitting between rounds; the same budget.
 
 Each touch is appended to the CSV (and, with ``--raw``, its raw tactile series to a JSON-lines
 file) and flushed to disk the moment it is recorded. A device fault stops the collection: the rig
@@ -34,7 +34,7 @@ import os
 import sys
 import time
 from collections import Counter
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal, TextIO
 
@@ -48,14 +48,13 @@ from app.cli.rig import connected_rig, touch_actions
 
 if TYPE_CHECKING:
     from app.rig_factory import CollectedTouch, RigHandle, TouchActions
+    from app.services.collections import AdaptiveRounds as NextRound
     from core.designs import CollectionDesign
     from hardware.rig import RigLease
 
 #: Action designs of ``collect``.
 DesignName = Literal["random", "shared", "adaptive"]
 
-#: Adaptive design: rounds of planner-chosen touches after the initial random half.
-ADAPTIVE_ROUNDS = 2
 
 #: Exit code after Ctrl-C (128 + SIGINT), as a shell reports it.
 INTERRUPTED_EXIT = 130
@@ -152,50 +151,6 @@ def default_action_scale(options: RigOptions, given: float | None) -> float:
     return 1.0
 
 
-class NextRound:
-    """The adaptive design's rounds: fit the touches so far, plan the next round from the model.
-
-    Args:
-        touches: Touches per object in all.
-        sizes: Touches per object of each round after the initial random design.
-        check: Checks a round's touches against the joint limits (exit 2 if refused).
-        seed: Seeds the fits and the rounds' candidate sets.
-    """
-
-    def __init__(
-        self, touches: int, sizes: list[int], check: Callable[[CollectionDesign], None], seed: int
-    ) -> None:
-        import numpy as np
-
-        self.touches = touches
-        self.sizes = list(sizes)
-        self.check = check
-        self.seed = seed
-        self.rng = np.random.default_rng([seed, 1])
-
-    def __call__(self, recorded: list[CollectedTouch]) -> CollectionDesign | None:
-        """The next round's design (``None``: the budget is spent)."""
-        import numpy as np
-
-        from core.adaptive_design import planner_round
-        from core.manifold import fit_manifold
-        from core.types import TrainingData
-
-        if not self.sizes:
-            return None
-        names = tuple(dict.fromkeys(t.object_name for t in recorded))
-        data = TrainingData(
-            object_names=names,
-            object_index=np.array([names.index(t.object_name) for t in recorded]),
-            actions=np.array([t.action for t in recorded]),
-            observations=np.array([t.record.observation for t in recorded]),
-        )
-        model = fit_manifold(data, 2, np.random.default_rng(self.seed), noise_model="auto")
-        design = planner_round(model, self.sizes.pop(0), self.rng)
-        self.check(design)
-        return design
-
-
 def adaptive_plan(
     touches: int,
     actions: TouchActions,
@@ -209,6 +164,8 @@ def adaptive_plan(
     Raises:
         typer.Exit: (code 2) too few touches for an initial design and a round.
     """
+    from app.services.collections import ADAPTIVE_ROUNDS
+    from app.services.collections import AdaptiveRounds as NextRound
     from core.adaptive_design import round_sizes
     from core.errors import InvalidInputError
 
@@ -222,7 +179,7 @@ def adaptive_plan(
     def check(design: CollectionDesign) -> None:
         check_plan(design, actions, handle, names)
 
-    return plan, NextRound(touches, sizes, check, seed)
+    return plan, NextRound(names, touches, sizes, seed, check)
 
 
 def make_design(
