@@ -501,7 +501,12 @@ class CollectionCreate(BaseModel):
     paper's design; each object gets its own actions); ``shared`` draws ``samples_per_object``
     actions from the same prior (scrambled Sobol, :func:`core.designs.shared_design`) and touches
     every object with each of them (a shared design: fits and plans take the exact Kronecker
-    path); ``teaching`` repeats the teaching action x = 0.
+    path); ``teaching`` repeats the teaching action x = 0; ``adaptive`` touches the first half
+    as ``random`` does, then (``samples_per_object`` ≥ 3) rounds at the actions the planners
+    would choose from a model fitted to the touches so far (the same budget,
+    :mod:`core.adaptive_design`). ``action_scale`` left out: the simulated
+    table's own spread on the mock rig (its ``action_std``), 1.0 on a real rig; the run's
+    ``params`` record the spread used.
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -509,8 +514,8 @@ class CollectionCreate(BaseModel):
     name: Annotated[str, Field(max_length=MAX_NAME_CHARACTERS)] = ""
     objects: Annotated[list[CollectionObject], Field(min_length=2, max_length=100)]
     samples_per_object: Annotated[int, Field(ge=2, le=1000)] = 20
-    action_design: Literal["random", "shared", "teaching"] = "random"
-    action_scale: Annotated[float, Field(gt=0.0, le=100.0)] = 1.0
+    action_design: Literal["random", "shared", "teaching", "adaptive"] = "random"
+    action_scale: Annotated[float | None, Field(gt=0.0, le=100.0)] = None
     seed: Seed | None = None
 
 

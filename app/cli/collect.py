@@ -12,7 +12,11 @@ The touches come from :func:`app.services.collections.iter_collection`, the loop
 collection runs use, on a design of :mod:`core.designs`: ``random`` draws a fresh action
 x ~ N(0, σ² I) for every touch (the paper's design; object by object), ``shared`` touches every
 object with the same M actions (a scrambled Sobol set of that prior; action by action), which
-lets the fit and the planner use the exact Kronecker path.
+lets the fit and the planner use the exact Kronecker path. ``adaptive`` touches each object
+with the first half of its budget as ``random`` does, fits the model (ds = 2, ``fit``'s
+defaults), then in rounds (:data:`app.services.collections.ADAPTIVE_ROUNDS`) touches every
+object at the actions the planners would choose from the current model
+(:func:`core.adaptive_design.planner_round`), refitting between rounds; the same budget.
 
 Each touch is appended to the CSV (and, with ``--raw``, its raw tactile series to a raw-touch
 file, JSON lines as ``docs/raw-touches.md`` describes, with the frame times and joint series
@@ -31,6 +35,7 @@ import os
 import sys
 import time
 from collections import Counter
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal, TextIO
 
@@ -44,11 +49,13 @@ from app.cli.rig import connected_rig, touch_actions
 
 if TYPE_CHECKING:
     from app.rig_factory import CollectedTouch, RigHandle, TouchActions
+    from app.services.collections import AdaptiveRounds as NextRound
     from core.designs import CollectionDesign
     from hardware.rig import RigLease
 
 #: Action designs of ``collect``.
-DesignName = Literal["random", "shared"]
+DesignName = Literal["random", "shared", "adaptive"]
+
 
 #: Exit code after Ctrl-C (128 + SIGINT), as a shell reports it.
 INTERRUPTED_EXIT = 130
@@ -129,8 +136,55 @@ def resolve_slots(parsed: list[tuple[str, int | None]], handle: RigHandle) -> di
     return dict(pairs)
 
 
+def default_action_scale(options: RigOptions, given: float | None) -> float:
+    """The design's spread: ``given``, else the simulated table's ``action_std``, else 1.0.
+
+    A simulated table knows how far its objects' differences lie in the action space (a
+    cushion's insert is reached only by deep presses); a real rig's objects are not known, so
+    its default stays the unit spread.
+    """
+    if given is not None:
+        return given
+    if options.sim:
+        from hardware.sim.materials import design_std
+
+        return design_std(options.sim_table)
+    return 1.0
+
+
+def adaptive_plan(
+    touches: int,
+    actions: TouchActions,
+    handle: RigHandle,
+    names: list[str],
+    action_scale: float,
+    seed: int,
+) -> tuple[CollectionDesign, NextRound]:
+    """The adaptive design's initial random half and the planner of its later rounds.
+
+    Raises:
+        typer.Exit: (code 2) too few touches for an initial design and a round.
+    """
+    from app.services.collections import ADAPTIVE_ROUNDS
+    from app.services.collections import AdaptiveRounds as NextRound
+    from core.adaptive_design import round_sizes
+    from core.errors import InvalidInputError
+
+    initial = max(2, touches // 2)
+    try:
+        sizes = round_sizes(touches, initial, min(ADAPTIVE_ROUNDS, touches - initial))
+    except InvalidInputError as exc:
+        raise fail(f"--touches: too few for --design adaptive ({exc})", 2) from None
+    plan = make_design("random", len(names), initial, actions.action_dim, action_scale, seed)
+
+    def check(design: CollectionDesign) -> None:
+        check_plan(design, actions, handle, names)
+
+    return plan, NextRound(names, touches, sizes, seed, check)
+
+
 def make_design(
-    design: DesignName,
+    design: Literal["random", "shared"],
     n_objects: int,
     touches: int,
     action_dim: int,
@@ -210,12 +264,19 @@ def collect_command(
         DesignName,
         typer.Option(
             help="random: a fresh action x ~ N(0, scale² I) per touch (the paper's); shared: "
-            "the same M actions (scrambled Sobol) on every object (Kronecker fit)."
+            "the same M actions (scrambled Sobol) on every object (Kronecker fit); adaptive: "
+            "half the touches random, then rounds at the actions the planners would choose "
+            "from a model fitted to the touches so far."
         ),
     ] = "random",
     action_scale: Annotated[
-        float, typer.Option(help="Standard deviation of each action component x_i (> 0).")
-    ] = 1.0,
+        float | None,
+        typer.Option(
+            help="Standard deviation of each action component x_i (> 0). Default: with --sim "
+            "the table's own spread (its action_std, which reaches where its objects differ), "
+            "else 1.0."
+        ),
+    ] = None,
     seed: Annotated[
         int, typer.Option(help="Seed of the actions (and of the simulated world with --sim).")
     ] = 0,
@@ -244,7 +305,7 @@ def collect_command(
     """Collect a training set on the rig: touch each object, write the training CSV."""
     options.check()
     sim, sim_transport = options.sim, options.sim_transport
-    if not action_scale > 0:
+    if action_scale is not None and not action_scale > 0:
         raise fail(f"--action-scale: must be > 0, received {action_scale}.", 2)
     if placements is not None and not 1 <= placements <= touches:
         raise fail(
@@ -252,6 +313,13 @@ def collect_command(
             f"received {placements}.",
             2,
         )
+    if placements is not None and design == "adaptive":
+        raise fail(
+            "--placements: not with --design adaptive (its rounds touch each object once per "
+            "action, each touch at a fresh placement).",
+            2,
+        )
+    action_scale = default_action_scale(options, action_scale)
     parsed = parse_objects(objects or [], simulated=sim)
     if not sim and len(parsed) < 2:
         raise fail("give at least two --object NAME=SLOT (or use --sim).", 2)
@@ -261,7 +329,13 @@ def collect_command(
     actions = touch_actions(duration_s)
     with connected_rig(options, "activetouch collect") as (handle, lease):
         slots = resolve_slots(parsed, handle)
-        plan = make_design(design, len(slots), touches, actions.action_dim, action_scale, seed)
+        next_round = None
+        if design == "adaptive":
+            plan, next_round = adaptive_plan(
+                touches, actions, handle, list(slots), action_scale, seed
+            )
+        else:
+            plan = make_design(design, len(slots), touches, actions.action_dim, action_scale, seed)
         check_plan(plan, actions, handle, list(slots))
         channels = list(handle.rig.tactile.config.channel_names)
         summary: dict[str, Any] = {
@@ -275,11 +349,11 @@ def collect_command(
             "action_dim": actions.action_dim,
             "observation_dim": len(channels),
             "channels": channels,
-            "planned": plan.n_touches,
+            "planned": touches * len(slots),
             "placements": placements,
         }
         recorded, error, code, seconds = _collect(
-            handle, lease, actions, slots, plan, out, raw, force, placements
+            handle, lease, actions, slots, plan, out, raw, force, placements, next_round
         )
         summary["rig_state"] = str(handle.rig.state)
     counts = Counter(touch.object_name for touch in recorded)
@@ -307,12 +381,12 @@ def _collect(
     raw: Path | None,
     force: bool,
     placements: int | None = None,
+    next_round: NextRound | None = None,
 ) -> tuple[list[CollectedTouch], str | None, int, float]:
     """Run the collection into the files; return the touches, the error, exit code, seconds."""
     from app.cli.output import progress_bar
     from app.documents.raw_touches import raw_touch_from_record, raw_touch_line
     from app.documents.training_csv import TrainingCsvWriter
-    from app.services.collections import iter_collection
     from app.services.rig import raw_series
     from core.errors import InvalidInputError
     from hardware.errors import HardwareError
@@ -332,9 +406,12 @@ def _collect(
         )
         _sync(csv_file)
         with progress_bar() as bar:
-            task = bar.add_task("collect", total=plan.n_touches, status="connected")
+            total = plan.n_touches if next_round is None else len(slots) * next_round.touches
+            task = bar.add_task("collect", total=total, status="connected")
             try:
-                for touch in iter_collection(lease, actions, slots, plan, placements):
+                for touch in _rounds(
+                    lease, actions, slots, plan, recorded, next_round, bar, task, placements
+                ):
                     writer.write(
                         touch.object_name,
                         touch.action,
@@ -375,6 +452,30 @@ def _collect(
         if raw_file is not None:
             raw_file.close()
     return recorded, error, code, time.perf_counter() - started
+
+
+def _rounds(
+    lease: RigLease,
+    actions: TouchActions,
+    slots: dict[str, int],
+    plan: CollectionDesign,
+    recorded: list[CollectedTouch],
+    next_round: NextRound | None,
+    bar: Any,
+    task: Any,
+    placements: int | None = None,
+) -> Iterator[CollectedTouch]:
+    """The touches of ``plan`` (at ``placements`` per object, if given), then of each round
+    ``next_round`` plans from ``recorded``."""
+    from app.services.collections import iter_collection
+
+    current: CollectionDesign | None = plan
+    while current is not None:
+        yield from iter_collection(lease, actions, slots, current, placements)
+        if next_round is None:
+            return
+        bar.update(task, status="fitting the model to plan the next round")
+        current = next_round(recorded)
 
 
 def _report(summary: dict[str, Any], as_json: bool) -> None:

@@ -15,7 +15,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 from collections import Counter
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from functools import partial
 from typing import Literal
 
@@ -32,8 +32,11 @@ from app.services import objects
 from app.services.events import EventBus
 from app.services.jobs import INTERRUPTED, Job, JobCancelled, JobRunner
 from app.services.rig import RigService, raw_series, trace_preview
+from core.adaptive_design import planner_round, round_sizes
 from core.designs import CollectionDesign, random_design, shared_design
 from core.errors import CoreError
+from core.manifold import fit_manifold
+from core.types import TrainingData
 from core.validation import FloatArray
 from hardware.errors import HardwareError
 from hardware.records import TouchRecord
@@ -41,6 +44,9 @@ from hardware.rig import RigLease
 
 logger = logging.getLogger(__name__)
 KIND: Literal["collection"] = "collection"
+
+#: Rounds of planner-chosen touches of the adaptive design, after its initial random half.
+ADAPTIVE_ROUNDS = 2
 
 
 def check_objects(objects: Mapping[str, int] | list[tuple[str, int]]) -> None:
@@ -203,6 +209,52 @@ def list_page(session: Session, status: str | None, limit: int, offset: int) -> 
     return Page[RunPublic](data=[to_public(r) for r in rows], count=count)
 
 
+class AdaptiveRounds:
+    """The adaptive design's rounds: fit the touches so far, plan the next round from the model.
+
+    The fit is ``fit``'s default (ds = 2, noise model auto); the round's actions come from
+    :func:`core.adaptive_design.planner_round`, each on every object.
+
+    Args:
+        names: The objects, in the order of the design's object indices.
+        touches: Touches per object in all (initial design and rounds).
+        sizes: Touches per object of each round after the initial random design.
+        seed: Seeds the fits and the rounds' candidate sets.
+        check: Called with each round's design before it is touched (e.g. the joint limits).
+    """
+
+    def __init__(
+        self,
+        names: list[str],
+        touches: int,
+        sizes: list[int],
+        seed: int,
+        check: Callable[[CollectionDesign], None] | None = None,
+    ) -> None:
+        self.names = tuple(names)
+        self.touches = touches
+        self.sizes = list(sizes)
+        self.seed = seed
+        self.check = check
+        self.rng = np.random.default_rng([seed, 1])
+
+    def __call__(self, recorded: list[CollectedTouch]) -> CollectionDesign | None:
+        """The next round's design (``None``: the budget is spent)."""
+        if not self.sizes:
+            return None
+        data = TrainingData(
+            object_names=self.names,
+            object_index=np.array([self.names.index(t.object_name) for t in recorded]),
+            actions=np.array([t.action for t in recorded]),
+            observations=np.array([t.record.observation for t in recorded]),
+        )
+        model = fit_manifold(data, 2, np.random.default_rng(self.seed), noise_model="auto")
+        design = planner_round(model, self.sizes.pop(0), self.rng)
+        if self.check is not None:
+            self.check(design)
+        return design
+
+
 class CollectionService:
     """Starts, drives and controls collection runs on the rig."""
 
@@ -217,6 +269,14 @@ class CollectionService:
     def create(self, session: Session, body: CollectionCreate) -> RunPublic:
         """Check a collection request, store the run and its (empty) dataset, start it."""
         check_objects([(o.name, o.slot) for o in body.objects])
+        if body.action_design == "adaptive" and body.samples_per_object < 3:
+            raise BadInputError(
+                "samples_per_object: the adaptive design needs 3 or more (2 random touches per "
+                f"object, then at least one round), received {body.samples_per_object}.",
+                field="samples_per_object",
+            )
+        if body.action_scale is None:
+            body = body.model_copy(update={"action_scale": self._rig.design_std})
         holder = self._rig.holder
         if holder is not None:
             raise ConflictError(f"The rig is in use by {holder}.", held_by=holder)
@@ -280,6 +340,7 @@ class CollectionService:
                 run = require(session, run_id)
                 body = CollectionCreate.model_validate(run.params)
             design = self._design(body)
+            rounds = self._rounds(body)
             slots = {o.name: o.slot for o in body.objects}
             assert job.lease is not None
             with job.lease as lease:
@@ -292,10 +353,15 @@ class CollectionService:
                     crud.set_run_status(session, run, "running")
                     session.commit()
                 self._announce(run)
-                for touch in iter_collection(lease, self._rig.actions(), slots, design):
-                    self._store(run_id, touch.object_name, touch.action, touch.record)
-                    if touch.index + 1 < touch.total:
-                        job.checkpoint()
+                recorded: list[CollectedTouch] = []
+                current: CollectionDesign | None = design
+                while current is not None:
+                    for touch in iter_collection(lease, self._rig.actions(), slots, current):
+                        self._store(run_id, touch.object_name, touch.action, touch.record)
+                        recorded.append(touch)
+                        if touch.index + 1 < touch.total or rounds is not None:
+                            job.checkpoint()
+                    current = None if rounds is None else rounds(recorded)
             self._finish(run_id, "completed", None)
         except JobCancelled as cancelled:
             if cancelled.kind == "shutdown":
@@ -324,8 +390,11 @@ class CollectionService:
         """
         rng = np.random.default_rng(body.seed)
         dx, n_objects, per_object = self._rig.action_dim, len(body.objects), body.samples_per_object
-        mean, cov = np.zeros(dx), body.action_scale**2 * np.eye(dx)
-        if body.action_design == "random":
+        if body.action_design == "adaptive":  # its first, random half; then self._rounds
+            per_object = max(2, per_object // 2)
+        scale = self._rig.design_std if body.action_scale is None else body.action_scale
+        mean, cov = np.zeros(dx), scale**2 * np.eye(dx)
+        if body.action_design in ("random", "adaptive"):
             return random_design(n_objects, per_object, mean, cov, rng)
         if body.action_design == "shared":
             return shared_design(n_objects, per_object, mean, cov, rng)
@@ -334,6 +403,16 @@ class CollectionService:
             actions=np.zeros((n_objects * per_object, dx)),
             shared=True,
         )
+
+    def _rounds(self, body: CollectionCreate) -> AdaptiveRounds | None:
+        """The adaptive design's later rounds (``None`` for the other designs)."""
+        if body.action_design != "adaptive":
+            return None
+        touches = body.samples_per_object
+        initial = max(2, touches // 2)
+        sizes = round_sizes(touches, initial, min(ADAPTIVE_ROUNDS, touches - initial))
+        names = [o.name for o in body.objects]
+        return AdaptiveRounds(names, touches, sizes, 0 if body.seed is None else body.seed)
 
     def _store(self, run_id: int, name: str, action: FloatArray, record: TouchRecord) -> None:
         with self._jobs.run_lock(KIND, run_id), self._database.session() as session:

@@ -163,6 +163,15 @@ class RigService:
         return self.simulated_table.objects
 
     @property
+    def design_std(self) -> float:
+        """Default spread of a collection's actions: the simulated table's ``action_std``.
+
+        A simulated table (``mock`` hardware) knows how far out its objects differ; a real
+        rig's objects are not known, so its default is the unit spread.
+        """
+        return self.simulated_table.action_std if self._settings.hardware == "mock" else 1.0
+
+    @property
     def action_dim(self) -> int:
         """dx of rig actions."""
         return self.actions().action_dim

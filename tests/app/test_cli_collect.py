@@ -110,6 +110,53 @@ def test_shared_design_touches_every_object_with_the_same_actions(tmp_path: Path
     assert find_shared_design(data) is not None  # the fit can take the Kronecker path
 
 
+def test_the_spread_defaults_to_the_simulated_tables_own(tmp_path: Path) -> None:
+    # cushions: action_std 1.5 (deep presses reach the inserts); --action-scale overrides it.
+    out = tmp_path / "c.csv"
+    base = ["--table", "cushions", "--touches", "2", "--seed", "4", "--json", "--force"]
+    result = collect(*base, "--out", str(out))
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["action_scale"] == 1.5
+    data = read_training_csv(out.read_text())
+    n = len(data.object_names)
+    expected = random_design(n, 2, np.zeros(DX), 2.25 * np.eye(DX), np.random.default_rng(4))
+    for obj in range(n):
+        np.testing.assert_array_equal(
+            data.actions[data.object_index == obj],
+            expected.actions[expected.object_index == obj],
+        )
+    given = collect(*base, "--action-scale", "0.5", "--out", str(out))
+    assert given.exit_code == 0, given.output
+    assert json.loads(given.stdout)["action_scale"] == 0.5
+
+
+def test_adaptive_design_spends_the_same_budget_in_planned_rounds(tmp_path: Path) -> None:
+    out = tmp_path / "adaptive.csv"
+    result = collect(
+        *OBJECTS[:4], "--design", "adaptive", "--touches", "6", "--seed", "1", "--out", str(out),
+        "--json",
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.stdout)
+    assert summary["recorded"] == summary["planned"] == 12
+    data = read_training_csv(out.read_text())
+    assert np.bincount(data.object_index).tolist() == [6, 6]  # each object equally
+    # The first half: the random design; then rounds (2 and 1 actions), each action on both.
+    expected = random_design(2, 3, np.zeros(DX), np.eye(DX), np.random.default_rng(1))
+    for obj in range(2):
+        np.testing.assert_array_equal(
+            data.actions[data.object_index == obj][:3],
+            expected.actions[expected.object_index == obj],
+        )
+    rounds = [data.actions[data.object_index == obj][3:] for obj in range(2)]
+    np.testing.assert_array_equal(rounds[0], rounds[1])
+    too_few = collect(
+        *OBJECTS[:4], "--design", "adaptive", "--touches", "2", "--out", str(tmp_path / "b")
+    )
+    assert too_few.exit_code == 2
+    assert "too few for --design adaptive" in said(too_few)
+
+
 def test_same_seed_same_file_and_no_silent_overwrite(tmp_path: Path) -> None:
     out = tmp_path / "a.csv"
     args = [*OBJECTS[:4], "--touches", "2", "--seed", "5", "--out", str(out)]

@@ -8,15 +8,17 @@ each object its own actions); ``shared`` touches every object with the same M ac
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
 from app.documents.training_csv import read_training_csv
+from app.main import create_app
 from core.designs import random_design, shared_design
 from core.types import TrainingData
-from tests.app.conftest import TestClient
+from tests.app.conftest import TestClient, make_settings
 
 API = "/api/v1"
 CUPS = ["paper_cup", "bumpy_glass", "stainless_cup"]
@@ -27,18 +29,23 @@ SCALE = 0.5
 
 def collect(client: TestClient, design: str) -> TrainingData:
     """Run a collection of the three cups with ``design``; the stored dataset."""
+    return collect_with(client, design, TOUCHES)
+
+
+def collect_with(client: TestClient, design: str, touches: int) -> TrainingData:
+    """Run a collection of the three cups, ``touches`` each, with ``design``; the dataset."""
     created = client.post(
         f"{API}/collections",
         json={
             "objects": [{"name": n, "slot": i} for i, n in enumerate(CUPS)],
-            "samples_per_object": TOUCHES,
+            "samples_per_object": touches,
             "action_design": design,
             "action_scale": SCALE,
             "seed": SEED,
         },
     )
     assert created.status_code == 201, created.text
-    assert created.json()["total"] == len(CUPS) * TOUCHES
+    assert created.json()["total"] == len(CUPS) * touches
     deadline = time.monotonic() + 120
     run: dict[str, Any] = created.json()
     while run["status"] in ("queued", "running") and time.monotonic() < deadline:
@@ -48,7 +55,7 @@ def collect(client: TestClient, design: str) -> TrainingData:
     assert client.get(f"{API}/datasets/{run['dataset_id']}").json()["status"] == "ready"
     data = read_training_csv(client.get(f"{API}/datasets/{run['dataset_id']}/export").text)
     assert data.object_names == tuple(CUPS)
-    assert np.bincount(data.object_index).tolist() == [TOUCHES] * len(CUPS)
+    assert np.bincount(data.object_index).tolist() == [touches] * len(CUPS)
     return data
 
 
@@ -90,3 +97,54 @@ def test_shared_designs_give_every_object_the_same_actions(client: TestClient, d
         len(CUPS), TOUCHES, np.zeros(data.action_dim), cov, np.random.default_rng(SEED)
     )
     np.testing.assert_array_equal(actions[0], expected.actions[expected.object_index == 0])
+
+
+def test_the_spread_defaults_to_the_simulated_tables_own(tmp_path: Path) -> None:
+    # The mock rig on the cushions (action_std 1.5): no action_scale takes the table's spread,
+    # and the run's params record the spread used.
+    settings = make_settings(tmp_path, sim_table="cushions")
+    names = ["cushion_plain", "cushion_cork"]
+    with TestClient(create_app(settings)) as client:
+        created = client.post(
+            f"{API}/collections",
+            json={
+                "objects": [{"name": n, "slot": i} for i, n in enumerate(names)],
+                "samples_per_object": 2,
+                "seed": SEED,
+            },
+        )
+        assert created.status_code == 201, created.text
+        assert created.json()["params"]["action_scale"] == 1.5
+        run: dict[str, Any] = created.json()
+        deadline = time.monotonic() + 120
+        while run["status"] in ("queued", "running") and time.monotonic() < deadline:
+            time.sleep(0.05)
+            run = client.get(f"{API}/collections/{run['id']}").json()
+        assert run["status"] == "completed", run
+        data = read_training_csv(client.get(f"{API}/datasets/{run['dataset_id']}/export").text)
+    dx = data.action_dim
+    expected = random_design(2, 2, np.zeros(dx), 2.25 * np.eye(dx), np.random.default_rng(SEED))
+    for obj, mine in enumerate(per_object(data)):
+        np.testing.assert_array_equal(mine, expected.actions[expected.object_index == obj])
+
+
+def test_adaptive_design_spends_the_budget_in_planned_rounds(client: TestClient) -> None:
+    data = collect_with(client, "adaptive", touches=6)
+    # The first half is the random design's, touched in rounds; then rounds (2 and 1 actions)
+    # of planned actions, each on every object: every object touched 6 times.
+    dx = data.action_dim
+    cov = SCALE**2 * np.eye(dx)
+    expected = random_design(len(CUPS), 3, np.zeros(dx), cov, np.random.default_rng(SEED))
+    for obj, mine in enumerate(per_object(data)):
+        np.testing.assert_array_equal(mine[:3], expected.actions[expected.object_index == obj])
+        np.testing.assert_array_equal(mine[3:], per_object(data)[0][3:])
+    too_few = client.post(
+        f"{API}/collections",
+        json={
+            "objects": [{"name": n, "slot": i} for i, n in enumerate(CUPS)],
+            "samples_per_object": 2,
+            "action_design": "adaptive",
+        },
+    )
+    assert too_few.status_code == 422
+    assert "samples_per_object" in too_few.text

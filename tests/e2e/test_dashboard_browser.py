@@ -213,7 +213,10 @@ def test_collection_through_the_ui(page: Any, demo: Demo) -> None:
         "random",
         "shared",
         "teaching",
+        "adaptive",
     ]
+    design.select_option("adaptive")
+    expect(help_text).to_contain_text("rounds at the actions the planners would choose")
     design.select_option("shared")
     expect(help_text).to_contain_text("applied to every object")
     before = len(demo.get("/datasets")["data"])

@@ -17,6 +17,9 @@ const DESIGN_HELP = {
     "Shared: “touches per object” actions drawn once (Sobol points through N(0, σ²I)) and applied to " +
     "every object, action by action; fits and plans then take the exact Kronecker path.",
   teaching: "Teaching: the teaching action x = 0, repeated on every object.",
+  adaptive:
+    "Adaptive: the first half random, then rounds at the actions the planners would choose from a " +
+    "model fitted to the touches so far (same budget; 3 touches per object or more).",
 };
 
 function showDesignHelp() {
@@ -160,8 +163,8 @@ async function startCollection(form) {
     objects,
     samples_per_object: Number($("col-samples").value),
     action_design: $("col-design").value,
-    action_scale: Number($("col-scale").value),
   };
+  if ($("col-scale").value !== "") body.action_scale = Number($("col-scale").value);
   if ($("col-seed").value !== "") body.seed = Number($("col-seed").value);
   const created = await api("/collections", { method: "POST", body });
   toast(`Collection #${created.id} started.`, "ok");
