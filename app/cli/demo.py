@@ -422,7 +422,9 @@ class DemoServer:
                 "name": self.dataset_name,
                 "objects": [{"name": o.name, "slot": o.slot} for o in objects],
                 "samples_per_object": self.options.touches_per_object,
-                "action_design": "random",
+                # Rounds at the actions the planners choose (docs/calibration.md, "Adaptive
+                # training design"): the model is then right where the trials touch.
+                "action_design": "adaptive",
                 "action_scale": self.action_scale,
                 "seed": self.options.seed,
             },
