@@ -587,6 +587,11 @@ class EvaluationCreate(BaseModel):
         description="rig only: place the object once per trial, or anew before every touch "
         "(the table turns away and back, as in a collection).",
     )
+    trial_likelihood: Literal["joint", "independent"] = Field(
+        default="joint",
+        description="How the object posterior scores a trial's touches: one Gaussian with the "
+        "GP's full covariance (joint) or a product over touches (independent).",
+    )
     workers: Annotated[int, Field(ge=1, le=256)] | None = None
 
 

@@ -5,14 +5,20 @@ approximation that can settle near the wrong object; this posterior uses the exa
 likelihood of every touch under every learned object and does not (METHOD.md, "A known failure
 mode" and "Recommended defaults: Decision").
 
-A model with a placement effect (``model.placement_variance`` with a value > 0, estimated from a
-collection that recorded placements: :mod:`core.placement_effect`) scores the touches of a trial
-as one joint Gaussian per object instead of a product of independent touches
-(docs/calibration.md). Every caller — the recognition session's answer, stop rule and the
-discriminative policy's probabilities — goes through :func:`object_log_likelihoods`.
+By default the touches of a trial are scored as one joint Gaussian per object (``"joint"``,
+docs/calibration.md eq. (C3)): given s_l they share the same uncertain function f, so the GP
+posterior's full covariance V of f at the trial's actions enters once, not once per touch; a model
+with a placement effect (``model.placement_variance`` > 0, estimated from a collection that
+recorded placements: :mod:`core.placement_effect`) adds the placement's shared offset when the
+touches share one placement. ``"independent"`` keeps the product of independent per-touch
+densities (the base model of docs/method.md (M1)). Every caller — the recognition session's
+answer, stop rule, re-centring and the discriminative policy's probabilities — goes through
+:func:`object_log_likelihoods`.
 """
 
 from __future__ import annotations
+
+from typing import Literal
 
 import numpy as np
 import scipy.special
@@ -23,14 +29,33 @@ from core.posterior import predict_model_space
 from core.types import ManifoldModel
 from core.validation import FloatArray, IntArray, as_float_array
 
+TrialLikelihood = Literal["joint", "independent"]
+
+#: Every way of scoring a trial's touches (:func:`object_log_likelihoods`).
+TRIAL_LIKELIHOODS: tuple[TrialLikelihood, ...] = ("joint", "independent")
+
 
 def object_log_likelihoods(
-    model: ManifoldModel, actions: FloatArray, observations: FloatArray
+    model: ManifoldModel,
+    actions: FloatArray,
+    observations: FloatArray,
+    trial_likelihood: TrialLikelihood = "joint",
+    shared_placement: bool = True,
 ) -> FloatArray:
     """log p(D_t | l) of one trial's touches D_t under every learned object l.
 
-    Without a placement effect (``model.placement_variance`` ``None`` or zero), the touches are
-    independent given the object:
+    ``"joint"`` (default): under object l the touches are one Gaussian per model-space feature
+    (docs/calibration.md eq. (C3), :func:`core.placement_effect.trial_log_likelihoods`),
+
+        y'_·a ~ N(m_a(s_l, X), V_a(s_l, X) + σ_b,a² 11ᵀ + (σ_n,a² − σ_b,a²) I),
+
+    with V_a the GP posterior's full T × T covariance of f_a at (s_l, x_1..x_T) (GPML eq. 2.24):
+    the touches share the same uncertain f, so its uncertainty counts once, not once per touch.
+    σ_b² is the model's placement variance when it has one and ``shared_placement`` (the touches
+    met one placement of the object), else 0. It is not a sum over touches: pass all of a
+    trial's touches at once. For one touch it equals the independent density below.
+
+    ``"independent"``: the touches are independent given the object (the base model, (M1)):
 
         log p(D_t | l) = Σ_t [Σ_a log N(y'_ta; m_a(s_l, x_t), v_a(s_l, x_t) + σ_n,a²) + log|det M|].
 
@@ -41,26 +66,31 @@ def object_log_likelihoods(
     y' are independent given (s, x); the Jacobian log|det M| (= -½ log det Σ_ε, METHOD.md "Real
     tactile data") makes the value a log-density of the raw observations.
 
-    With a placement effect the touches are the ones of one placement (a trial) and share its
-    offset: the value is the joint Gaussian of :func:`core.placement_effect.trial_log_likelihoods`
-    (equal to the above for one touch; it is not a sum over touches, so pass all of a trial's
-    touches at once).
-
     Args:
         model: A conditioned model.
         actions: Actions x_t of the touches. Shape (t, dx).
         observations: Raw observations y_t. Shape (t, dy).
+        trial_likelihood: ``"joint"`` or ``"independent"``.
+        shared_placement: Whether the touches met one placement (σ_b² applies; ``"joint"`` only).
 
     Returns:
         Log-likelihood of the touches under each object. Shape (L,).
+
+    Raises:
+        InvalidInputError: Wrong shapes, non-finite values or an unknown ``trial_likelihood``.
     """
+    check_trial_likelihood(trial_likelihood)
     x, y = _check_touches(model, actions, observations)
     n_objects = model.latents.shape[0]
     if x.shape[0] == 0:
         return np.zeros(n_objects)
-    if has_placement_effect(model):
-        assert model.placement_variance is not None  # has_placement_effect checked it
-        return trial_log_likelihoods(model, x, y, model.placement_variance)
+    if trial_likelihood == "joint":
+        variance = (
+            model.placement_variance
+            if shared_placement and model.placement_variance is not None
+            else np.zeros(model.hyperparameters.observation_dim)
+        )
+        return trial_log_likelihoods(model, x, y, variance)
     # Queries ordered (touch, object): every touch under every learned latent.
     latents = np.tile(model.latents, (x.shape[0], 1))
     queries = np.repeat(x, n_objects, axis=0)
@@ -68,10 +98,13 @@ def object_log_likelihoods(
     return np.asarray(per_touch.reshape(x.shape[0], n_objects).sum(axis=0), dtype=np.float64)
 
 
-def has_placement_effect(model: ManifoldModel) -> bool:
-    """Whether the model scores a trial's touches jointly (a placement variance > 0)."""
-    variance = model.placement_variance
-    return variance is not None and bool(np.any(np.asarray(variance) > 0))
+def check_trial_likelihood(trial_likelihood: str) -> None:
+    """Raise :class:`InvalidInputError` unless ``trial_likelihood`` is one of TRIAL_LIKELIHOODS."""
+    if trial_likelihood not in TRIAL_LIKELIHOODS:
+        raise InvalidInputError(
+            f"trial_likelihood: expected one of {list(TRIAL_LIKELIHOODS)}, received "
+            f"{trial_likelihood!r}."
+        )
 
 
 def touch_log_likelihoods(
@@ -81,7 +114,8 @@ def touch_log_likelihoods(
 
     The held-out predictive log-density used to compare models (noise models, latent
     dimensions): touch t is scored under the learned latent of object ``object_index[t]``, with
-    the same density as :func:`object_log_likelihoods` (Jacobian included).
+    the per-touch density of :func:`object_log_likelihoods` with ``"independent"`` (Jacobian
+    included).
 
     Args:
         model: A conditioned model.
@@ -139,11 +173,17 @@ def normalise_log_probabilities(log_weights: FloatArray) -> FloatArray:
 
 
 def object_posterior(
-    model: ManifoldModel, actions: FloatArray, observations: FloatArray
+    model: ManifoldModel,
+    actions: FloatArray,
+    observations: FloatArray,
+    trial_likelihood: TrialLikelihood = "joint",
+    shared_placement: bool = True,
 ) -> FloatArray:
     """Posterior probability of each learned object given the touches so far (one trial).
 
-    With a uniform prior over the L objects and no placement effect,
+    With a uniform prior over the L objects, p(l | D_t) ∝ p(D_t | l) of
+    :func:`object_log_likelihoods` (by default the trial's joint Gaussian). With
+    ``trial_likelihood="independent"``,
 
         p(l | D_t) ∝ Π_t Π_a N(y'_ta; m_a(s_l, x_t), v_a(s_l, x_t) + σ_n,a²),
 
@@ -153,13 +193,13 @@ def object_posterior(
     (:func:`core.posterior.predict_model_space`), and σ_n,a² is the feature's noise variance.
     In raw units this is a Gaussian with the full covariance M⁻¹ diag(v + σ_n²) M⁻ᵀ.
     It is computed in log space and normalised with log-sum-exp. With no touches it is uniform.
-    With a placement effect the product over touches is replaced by the trial's joint Gaussian
-    (:func:`object_log_likelihoods`).
 
     Args:
         model: A conditioned model.
         actions: Actions of the touches so far. Shape (t, dx), t ≥ 0.
         observations: Their raw observations. Shape (t, dy).
+        trial_likelihood: ``"joint"`` (default) or ``"independent"``.
+        shared_placement: Whether the touches met one placement (:func:`object_log_likelihoods`).
 
     Returns:
         Probabilities summing to 1, in the model's object order. Shape (L,).
@@ -167,4 +207,6 @@ def object_posterior(
     Raises:
         InvalidInputError: Wrong shapes or non-finite values.
     """
-    return normalise_log_probabilities(object_log_likelihoods(model, actions, observations))
+    return normalise_log_probabilities(
+        object_log_likelihoods(model, actions, observations, trial_likelihood, shared_placement)
+    )

@@ -33,6 +33,7 @@ import scipy.linalg
 
 from core.errors import InvalidInputError
 from core.kernels import squared_exponential
+from core.kronecker import predictive_covariance_kronecker
 from core.linalg import cholesky_with_jitter
 from core.posterior import gram_matrix, predict_model_space, support_points
 from core.types import ManifoldModel
@@ -185,17 +186,20 @@ def predictive_covariance(
     V_a = σ_f,a² K^x_a(X, X) − k_a(Z*, Z) A_a k_a(Z, Z*) with Z* = (s, x_t) (the latent kernel
     is 1 between the touches: they share s) and A_a the posterior's matrix over its support
     points (K_a⁻¹ for dense and Kronecker posteriors). Its diagonal plus σ_n,a² is the variance of
-    :func:`core.posterior.predict_model_space`.
+    :func:`core.posterior.predict_model_space`. A Kronecker posterior whose K⁻¹ is not
+    materialised goes through its eigendecompositions instead
+    (:func:`core.kronecker.predictive_covariance_kronecker`), so K⁻¹ is never built for it here.
 
     Args:
-        model: A conditioned model (a Kronecker posterior materialises its K⁻¹, N ≤
-            :data:`core.types.DENSE_INVERSE_LIMIT`).
+        model: A conditioned model.
         latent: s. Shape (ds,).
         actions: x_1..x_T. Shape (T, dx).
 
     Returns:
         V_a for every feature. Shape (dy, T, T).
     """
+    if model.posterior.kronecker is not None and not model.posterior.has_dense_inverse:
+        return predictive_covariance_kronecker(model, latent, actions)
     h = model.hyperparameters
     s = as_float_array(latent, "latent", (h.latent_dim,))
     x = as_float_array(actions, "actions", (None, h.action_dim))

@@ -5,8 +5,9 @@ Two beliefs are carried side by side:
 * the **Gaussian belief** s ~ N(μ, Σ) over the object latent (the paper's), updated by moment
   matching after every touch; it drives the choice of actions;
 * the **object posterior** p(l | D_t) over the L learned objects (:mod:`core.object_posterior`),
-  the exact GP likelihood of all touches so far under each object (jointly, when the model has a
-  placement effect: the trial's touches share one placement).
+  the exact GP likelihood of all touches so far under each object, by default jointly (the
+  touches share one uncertain function f and, when the model has a placement effect, one
+  placement: docs/calibration.md eq. (C3)); ``trial_likelihood="independent"`` multiplies them.
 
 The Gaussian is a local approximation and can settle near the wrong object; the most informative
 actions under that wrong belief then need not dislodge it (METHOD.md, "A known failure mode").
@@ -34,7 +35,8 @@ import numpy as np
 from core.errors import CoreError, InvalidInputError
 from core.moments import action_statistics, mutual_information, predictive_moments, update_belief
 from core.object_posterior import (
-    has_placement_effect,
+    TrialLikelihood,
+    check_trial_likelihood,
     normalise_log_probabilities,
     object_log_likelihoods,
 )
@@ -82,6 +84,16 @@ class RecognitionSettings:
             reports ``recentred=True`` and its belief is the re-centred one. ``"replan"``: keep
             the Gaussian as updated, but plan the next action under that mixture-matched belief.
             ``"ignore"``: the paper, always the Gaussian.
+        trial_likelihood: How the object posterior scores the trial's touches
+            (:func:`core.object_posterior.object_log_likelihoods`). ``"joint"`` (default): one
+            Gaussian over all of them with the GP's full covariance of f (and the placement
+            variance σ_b², if the model has one and ``shared_placement``): the GP's uncertainty
+            at repeated or nearby actions counts once, not once per touch (docs/calibration.md,
+            "Fix 2"). ``"independent"``: the product of per-touch densities (the base model).
+        shared_placement: Whether the trial's touches meet one placement of the object (a rig
+            trial that places it once). ``False`` for touches that each met their own placement
+            (a replay of a collection's touches, a rig trial placing before every touch): σ_b²
+            is then left out; V still applies (the touches are of one object under the GP).
     """
 
     max_steps: int = 10
@@ -89,6 +101,8 @@ class RecognitionSettings:
     confidence_threshold: float | None = None
     decision: Decision = "posterior"
     on_disagreement: DisagreementRule = "recentre"
+    trial_likelihood: TrialLikelihood = "joint"
+    shared_placement: bool = True
 
     def __post_init__(self) -> None:
         if isinstance(self.max_steps, bool) or int(self.max_steps) != self.max_steps:
@@ -114,6 +128,7 @@ class RecognitionSettings:
                 f"on_disagreement: expected 'recentre', 'replan' or 'ignore', received "
                 f"{self.on_disagreement!r}."
             )
+        check_trial_likelihood(self.trial_likelihood)
 
 
 @dataclass(frozen=True)
@@ -222,7 +237,6 @@ class RecognitionSession:
         self._belief = prior
         self._log_likelihoods = np.zeros(model.data.n_objects)
         self._steps: list[RecognitionStep] = []
-        self._joint = has_placement_effect(model)
 
     @property
     def belief(self) -> GaussianBelief:
@@ -293,18 +307,21 @@ class RecognitionSession:
         y_model = self.model.to_model_space(y[None, :])[0]
         after = update_belief(before, moments, 0, y_model)  # METHOD.md eq. (M5)
         self._belief = after
-        if self._joint:
-            # The touches share the trial's placement: score them jointly, all at once (exact;
-            # T is small, so the joint Gaussian is recomputed rather than extended).
+        settings = self.settings
+        if settings.trial_likelihood == "joint":
+            # One joint Gaussian over every touch so far, recomputed (exact; T is small, so the
+            # joint Gaussian is recomputed rather than extended).
             touched = [(s.action, s.observation) for s in self._steps] + [(x, y)]
             self._log_likelihoods = object_log_likelihoods(
                 self.model,
                 np.stack([a for a, _ in touched]),
                 np.stack([o for _, o in touched]),
+                "joint",
+                settings.shared_placement,
             )
         else:
             self._log_likelihoods = self._log_likelihoods + object_log_likelihoods(
-                self.model, x[None, :], y[None, :]
+                self.model, x[None, :], y[None, :], "independent"
             )
         probabilities = self.probabilities
         recentred = self.settings.on_disagreement == "recentre" and self.disagrees()

@@ -32,6 +32,7 @@ import numpy as np
 
 from core.errors import InvalidInputError, TouchRefused
 from core.evaluation_records import RefusedTrial, TrialOutcome, TrialRecord, trial_generators
+from core.object_posterior import TrialLikelihood
 from core.planning import EVALUATION_POLICIES, Planner, ReplayScore, policy_entry
 from core.posterior import predict_model_space
 from core.recognition import (
@@ -290,12 +291,17 @@ class TrialSettings:
         stop_confidence: Stop when the object posterior's largest probability reaches it
             (``None``: never).
         prior_variance: Σ0 = prior_variance · I around the mean of the learned latents.
+        trial_likelihood: How the object posterior scores a trial's touches
+            (:class:`core.recognition.RecognitionSettings`): ``"joint"`` or ``"independent"``.
+        shared_placement: Whether a trial's touches meet one placement of the object.
     """
 
     steps: int
     tolerance: float = 1e-3
     stop_confidence: float | None = None
     prior_variance: float = 5.0
+    trial_likelihood: TrialLikelihood = "joint"
+    shared_placement: bool = True
 
     def recognition(self, steps: int | None = None) -> RecognitionSettings:
         """The recognition settings (``steps`` overrides T, e.g. capped by a replay pool)."""
@@ -303,6 +309,8 @@ class TrialSettings:
             max_steps=self.steps if steps is None else steps,
             tolerance=self.tolerance,
             confidence_threshold=self.stop_confidence,
+            trial_likelihood=self.trial_likelihood,
+            shared_placement=self.shared_placement,
         )
 
     def prior(self, model: ManifoldModel) -> GaussianBelief:

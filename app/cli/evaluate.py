@@ -44,7 +44,13 @@ from rich.progress import (
 )
 from rich.table import Table
 
-from app.cli.options import PlacementOption, TableFile, TableName, table_choice
+from app.cli.options import (
+    PlacementOption,
+    TableFile,
+    TableName,
+    TrialLikelihoodOption,
+    table_choice,
+)
 from app.cli.output import messages as stderr
 from app.cli.output import results as stdout
 
@@ -180,6 +186,7 @@ def evaluate_command(
     table: TableName = None,
     table_file: TableFile = None,
     placement: PlacementOption = "trial",
+    trial_likelihood: TrialLikelihoodOption = "joint",
     workers: Annotated[
         int | None, typer.Option(help="Run on a LocalCluster of K single-threaded processes.")
     ] = None,
@@ -200,6 +207,7 @@ def evaluate_command(
     from app.evaluation.runner import run_evaluation
     from app.evaluation.spec import EvaluationSpec, Placement, world_name
     from core.errors import CoreError
+    from core.object_posterior import TrialLikelihood
 
     if workers is not None and scheduler is not None:
         raise fail("--workers and --scheduler: give one (a local cluster or an existing one)")
@@ -222,6 +230,7 @@ def evaluate_command(
         targets=split_names(targets, "--targets"),
         table=chosen_table,
         placement=cast(Placement, placement),
+        trial_likelihood=cast(TrialLikelihood, trial_likelihood),
     )
     try:
         spec.check(model, replay)

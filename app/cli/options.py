@@ -34,6 +34,15 @@ PlacementOption = Annotated[
 ]
 """``--placement``: see :class:`app.evaluation.spec.EvaluationSpec` (``trial`` by default)."""
 
+TrialLikelihoodOption = Annotated[
+    str,
+    typer.Option(
+        help="How the object posterior scores a trial's touches: joint (one Gaussian with the "
+        "GP's full covariance, the default) or independent (a product over touches).",
+    ),
+]
+"""``--trial-likelihood``: see :class:`app.evaluation.spec.EvaluationSpec`."""
+
 #: How a simulated rig is wired (the values of :class:`app.rig_factory.SimulationMode`).
 SimulationName = Literal["in-process", "pty"]
 

@@ -14,7 +14,13 @@ from typing import Annotated, cast
 import typer
 from rich.markup import escape
 
-from app.cli.options import PlacementOption, TableFile, TableName, table_choice
+from app.cli.options import (
+    PlacementOption,
+    TableFile,
+    TableName,
+    TrialLikelihoodOption,
+    table_choice,
+)
 from app.cli.output import fail, progress_bar
 from app.cli.output import messages as stderr
 from app.cli.output import results as stdout
@@ -29,11 +35,18 @@ def paper_exp1(
     steps: Annotated[int, typer.Option(min=1, help="T")] = 10,
     noise_std: Annotated[float, typer.Option(help="0.1 (std) or 0.316 (variance 0.1)")] = 0.1,
     restarts: Annotated[int, typer.Option(min=0, help="Random restarts per fit.")] = 4,
+    trial_likelihood: TrialLikelihoodOption = "joint",
     as_json: Annotated[bool, typer.Option("--json", help="Print the figures as JSON.")] = False,
 ) -> None:
     """Experiment 1 end to end: manifold, random-latent baseline, recognition; vs the paper."""
     from app.paper.exp1 import run_experiment1
     from core.errors import CoreError
+    from core.object_posterior import TRIAL_LIKELIHOODS
+
+    if trial_likelihood not in TRIAL_LIKELIHOODS:
+        raise fail(
+            f"--trial-likelihood: {trial_likelihood!r} is not one of {list(TRIAL_LIKELIHOODS)}."
+        )
 
     try:
         with progress_bar() as bar:
@@ -48,6 +61,7 @@ def paper_exp1(
                 max_steps=steps,
                 noise_std=noise_std,
                 restarts=restarts,
+                trial_likelihood=trial_likelihood,
                 progress=report,
             )
     except CoreError as exc:

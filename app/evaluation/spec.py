@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal, cast, get_args
 
 from app.errors import BadInputError
+from core.object_posterior import TRIAL_LIKELIHOODS, TrialLikelihood
 from core.planning import EVALUATION_POLICIES
 from core.trial_engine import TrialSettings
 from core.types import ManifoldModel, TrainingData
@@ -53,6 +54,11 @@ class EvaluationSpec:
         placement: ``rig`` only: ``"trial"`` places the object once per trial (the table stays
             at it between touches); ``"touch"`` turns the table away and back before every
             touch, as a collection does, so every touch meets a fresh placement.
+        trial_likelihood: How the object posterior scores a trial's touches: ``"joint"``
+            (default; one Gaussian with the GP's full covariance, docs/calibration.md (C3)) or
+            ``"independent"`` (the product of per-touch densities). A model's placement
+            variance σ_b² enters only on the rig with ``placement="trial"``, the one world whose
+            trial touches share a placement (a replay's touches each met their own).
     """
 
     world: WorldName
@@ -69,6 +75,7 @@ class EvaluationSpec:
     stop_at_confidence: bool = False
     prior_variance: float = 5.0
     placement: Placement = "trial"
+    trial_likelihood: TrialLikelihood = "joint"
 
     def target_names(self, model: ManifoldModel) -> tuple[str, ...]:
         """The targets, in the model's object order."""
@@ -83,6 +90,8 @@ class EvaluationSpec:
             tolerance=self.tolerance,
             stop_confidence=self.confidence if self.stop_at_confidence else None,
             prior_variance=self.prior_variance,
+            trial_likelihood=self.trial_likelihood,
+            shared_placement=self.world == "rig" and self.placement == "trial",
         )
 
     def steps_used(self, model: ManifoldModel, replay: TrainingData | None) -> int:
@@ -131,6 +140,12 @@ class EvaluationSpec:
                 f"placement: {self.placement!r} is not a placement; choose from "
                 f"{list(PLACEMENTS)}.",
                 field="placement",
+            )
+        if self.trial_likelihood not in TRIAL_LIKELIHOODS:
+            raise BadInputError(
+                f"trial_likelihood: {self.trial_likelihood!r} is not one of "
+                f"{list(TRIAL_LIKELIHOODS)}.",
+                field="trial_likelihood",
             )
         if self.seed < 0:
             raise BadInputError(f"seed: must be ≥ 0, received {self.seed}.", field="seed")

@@ -23,6 +23,7 @@ from core.evaluation_records import TrialRecord
 from core.evaluation_summary import summarise, wilson_interval
 from core.manifold import FitOptions, fit_hyperparameters, fit_manifold
 from core.metrics import abs_correlation
+from core.object_posterior import TrialLikelihood
 from core.types import ManifoldModel
 from core.worlds import Experiment1World, sample_dataset
 
@@ -129,6 +130,7 @@ def run_experiment1(
     noise_std: float = 0.1,
     restarts: int = 4,
     prior_variance: float = 5.0,
+    trial_likelihood: TrialLikelihood = "joint",
     progress: Callable[[str, int], None] | None = None,
 ) -> Experiment1Figures:
     """Experiment 1 for data seeds 0..seeds-1.
@@ -139,7 +141,8 @@ def run_experiment1(
     passive policies on the learned model and the active policy on the baseline, observations
     from the true h, μ0 = mean of S, Σ0 = ``prior_variance``. The trials are an ``exp1``
     evaluation whose seed is the data seed (each trial has its own ``SeedSequence``; the two
-    policies see the same noise streams).
+    policies see the same noise streams). ``trial_likelihood`` scores each trial's touches
+    (:class:`app.evaluation.spec.EvaluationSpec`).
     """
     world = Experiment1World(noise_std=noise_std)
     truth = world.truth[:, 0]
@@ -182,6 +185,7 @@ def run_experiment1(
                 seed=seed,
                 noise_std=noise_std,
                 prior_variance=prior_variance,
+                trial_likelihood=trial_likelihood,
             )
             report = run_evaluation(used, spec)
             steps = sum(r.touches for r in report.records)

@@ -52,6 +52,7 @@ def build_spec(body: EvaluationCreate) -> EvaluationSpec:
             targets=tuple(body.targets) if body.targets is not None else None,
             table=body.table,
             placement=body.placement,
+            trial_likelihood=body.trial_likelihood,
         )
     except (CoreError, ValueError, TypeError) as exc:
         raise BadInputError(f"evaluation: {exc}", field="body") from exc

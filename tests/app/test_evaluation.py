@@ -171,6 +171,7 @@ def test_replay_world_caps_t_at_the_pool_and_says_so(exp1_model):
         ({"world": "rig"}, "the simulated rig has dx=6"),
         ({"world": "rig", "table": "moon"}, "table: 'moon'.*'default'"),
         ({"world": "replay"}, "data: the replay world needs held-out touches"),
+        ({"trial_likelihood": "product"}, r"trial_likelihood: 'product'.*'joint', 'independent'"),
     ],
 )
 def test_bad_specs_are_named(exp1_model, changes, message):
@@ -203,3 +204,15 @@ def test_report_sorts_records_and_survives_an_empty_run(exp1_model):
     )
     assert report.to_dict()["policies"] == {}
     assert report.csv_rows()[0][0] == "policy"
+
+
+@pytest.mark.parametrize(
+    ("world", "placement", "shared"),
+    [("rig", "trial", True), ("rig", "touch", False), ("replay", "trial", False)],
+)
+def test_the_placement_variance_enters_only_trials_that_share_a_placement(world, placement, shared):
+    settings = EvaluationSpec(
+        world=world, trials_per_target=1, steps=3, placement=placement
+    ).trial_settings()
+    assert settings.recognition().shared_placement is shared
+    assert settings.recognition().trial_likelihood == "joint"

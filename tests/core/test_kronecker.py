@@ -19,6 +19,7 @@ from core.kronecker import (
     condition_kronecker,
     find_shared_design,
     predict_kronecker,
+    predictive_covariance_kronecker,
     require_shared_design,
 )
 from core.likelihood import ManifoldLikelihood
@@ -29,6 +30,7 @@ from core.moments import (
     mutual_information,
     predictive_moments,
 )
+from core.placement_effect import predictive_covariance
 from core.planning import ActivePolicy, Planner
 from core.posterior import condition, predict, resolve_structure
 from core.recognition import RecognitionSession
@@ -317,6 +319,21 @@ def test_recognition_runs_on_a_large_kronecker_model_without_a_dense_inverse() -
     assert np.isfinite(step.mutual_information)
     assert step.mutual_information > 0
     assert not model.posterior.has_dense_inverse
+
+
+@pytest.mark.parametrize("case", CASES[:2], ids=lambda c: c.name)
+def test_spectral_predictive_covariance_equals_the_dense_one(case: Case) -> None:
+    data, latents, hyper = make_problem(case, seed=23)
+    model = condition(data, latents, hyper)
+    assert model.posterior.structure == "kronecker"
+    rng = np.random.default_rng(24)
+    s, x = rng.normal(size=case.latent_dim), rng.normal(size=(4, case.action_dim))
+    spectral = predictive_covariance_kronecker(model, s, x)
+    assert not model.posterior.has_dense_inverse
+    np.testing.assert_array_equal(predictive_covariance(model, s, x), spectral)
+    assert model.posterior.gram_inverse.shape[0] == case.observation_dim  # materialise K⁻¹
+    assert model.posterior.has_dense_inverse
+    np.testing.assert_allclose(spectral, predictive_covariance(model, s, x), atol=1e-9)
 
 
 def test_a_fit_on_a_shared_design_runs_through_kronecker_and_matches_the_dense_fit() -> None:

@@ -127,9 +127,11 @@ def test_object_posterior_matches_brute_force_in_raw_units() -> None:
     pick = rng.choice(data.n_touches, 3, replace=False)
     x, y = data.actions[pick], data.observations[pick]
     brute = brute_force_log_likelihoods(model, x, y)
-    np.testing.assert_allclose(object_log_likelihoods(model, x, y), brute, rtol=1e-9)
+    np.testing.assert_allclose(object_log_likelihoods(model, x, y, "independent"), brute, rtol=1e-9)
     expected = np.exp(brute - brute.max())
-    np.testing.assert_allclose(object_posterior(model, x, y), expected / expected.sum(), rtol=1e-9)
+    np.testing.assert_allclose(
+        object_posterior(model, x, y, "independent"), expected / expected.sum(), rtol=1e-9
+    )
     per_touch = touch_log_likelihoods(model, data.object_index[pick], x, y)
     assert per_touch.sum() == pytest.approx(
         sum(

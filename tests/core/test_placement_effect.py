@@ -1,4 +1,5 @@
-"""The placement effect: joint trial likelihood, its estimator, and its use in recognition."""
+"""The joint trial likelihood (GP covariance and placement effect), σ_b²'s estimator, and their use
+in recognition."""
 
 from __future__ import annotations
 
@@ -10,7 +11,11 @@ import scipy.stats
 
 from core.errors import InvalidInputError
 from core.kernels import squared_exponential
-from core.object_posterior import object_log_likelihoods, object_posterior
+from core.object_posterior import (
+    normalise_log_probabilities,
+    object_log_likelihoods,
+    object_posterior,
+)
 from core.placement_effect import (
     estimate_placement_variance,
     placement_groups,
@@ -40,16 +45,54 @@ def _trial(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 def test_one_touch_equals_the_independent_density(model: ManifoldModel) -> None:
     x, y = _trial(1, 1)
+    independent = object_log_likelihoods(model, x, y, "independent")
     variance = 0.5 * model.hyperparameters.noise_variance
     joint = trial_log_likelihoods(model, x, y, variance)
-    np.testing.assert_allclose(joint, object_log_likelihoods(model, x, y), rtol=1e-10)
+    np.testing.assert_allclose(joint, independent, rtol=1e-10)
+    np.testing.assert_allclose(object_log_likelihoods(model, x, y), independent, rtol=1e-10)
 
 
-def test_zero_placement_variance_keeps_todays_posterior_exactly(model: ManifoldModel) -> None:
+def test_joint_is_the_default_and_independent_is_the_product(model: ManifoldModel) -> None:
+    x, y = _trial(6, 2)
+    zero = np.zeros(3)
+    np.testing.assert_array_equal(
+        object_log_likelihoods(model, x, y), trial_log_likelihoods(model, x, y, zero)
+    )
+    per_touch = [object_log_likelihoods(model, x[t : t + 1], y[t : t + 1]) for t in range(6)]
+    np.testing.assert_allclose(
+        object_log_likelihoods(model, x, y, "independent"), np.sum(per_touch, axis=0), rtol=1e-12
+    )
+    assert not np.allclose(object_log_likelihoods(model, x, y), np.sum(per_touch, axis=0))
+    with pytest.raises(InvalidInputError, match="trial_likelihood"):
+        object_log_likelihoods(model, x, y, "product")  # type: ignore[arg-type]
+
+
+def test_zero_placement_variance_keeps_the_posterior_exactly(model: ManifoldModel) -> None:
     x, y = _trial(6, 2)
     zero = dataclasses.replace(model, placement_variance=np.zeros(3))
-    assert np.array_equal(object_posterior(zero, x, y), object_posterior(model, x, y))
-    assert np.array_equal(object_log_likelihoods(zero, x, y), object_log_likelihoods(model, x, y))
+    for setting in ("joint", "independent"):
+        assert np.array_equal(
+            object_posterior(zero, x, y, setting), object_posterior(model, x, y, setting)
+        )
+
+
+def test_placement_variance_only_when_the_touches_share_a_placement(
+    model: ManifoldModel,
+) -> None:
+    x, y = _trial(4, 11)
+    variance = 0.5 * model.hyperparameters.noise_variance
+    placed = dataclasses.replace(model, placement_variance=variance)
+    np.testing.assert_array_equal(
+        object_log_likelihoods(placed, x, y), trial_log_likelihoods(model, x, y, variance)
+    )
+    np.testing.assert_array_equal(
+        object_log_likelihoods(placed, x, y, shared_placement=False),
+        object_log_likelihoods(model, x, y),
+    )
+    np.testing.assert_array_equal(
+        object_log_likelihoods(placed, x, y, "independent"),
+        object_log_likelihoods(model, x, y, "independent"),
+    )
 
 
 def test_predictive_covariance_diagonal_is_the_predictive_variance(model: ManifoldModel) -> None:
@@ -98,13 +141,32 @@ def test_shared_offset_evidence_saturates(model: ManifoldModel) -> None:
     gaps_independent, gaps_joint = [], []
     for t in (1, 4, 16):
         xs, ys = np.repeat(x, t, axis=0), np.repeat(y, t, axis=0)
-        independent = object_log_likelihoods(model, xs, ys)
+        independent = object_log_likelihoods(model, xs, ys, "independent")
         joint = trial_log_likelihoods(model, xs, ys, variance)
         gaps_independent.append(np.ptp(independent))
         gaps_joint.append(np.ptp(joint))
     np.testing.assert_allclose(gaps_independent[2], 16 * gaps_independent[0], rtol=1e-9)
     assert gaps_joint[2] < 2.0 * gaps_joint[0]
     assert gaps_joint[2] - gaps_joint[1] < gaps_joint[1] - gaps_joint[0]
+
+
+def test_repeated_touches_far_from_the_data_saturate_without_a_placement_effect(
+    model: ManifoldModel,
+) -> None:
+    """V alone: k identical touches where the GP extrapolates are worth less than k touches."""
+    rng = np.random.default_rng(12)
+    x = np.array([[2.5]])  # the training actions are N(0, 1)
+    y = Experiment1World().observe(1, x, rng)
+    one = np.ptp(object_log_likelihoods(model, x, y))
+    np.testing.assert_allclose(one, np.ptp(object_log_likelihoods(model, x, y, "independent")))
+    gaps = []
+    for k in (4, 16):
+        xs, ys = np.repeat(x, k, axis=0), np.repeat(y, k, axis=0)
+        gaps.append(np.ptp(object_log_likelihoods(model, xs, ys)))
+        independent = np.ptp(object_log_likelihoods(model, xs, ys, "independent"))
+        np.testing.assert_allclose(independent, k * one, rtol=1e-9)
+        assert gaps[-1] < 0.75 * k * one
+    assert gaps[1] - gaps[0] < 3 * (gaps[0] - one)
 
 
 def test_negative_or_too_large_variance_is_refused(model: ManifoldModel) -> None:
@@ -177,3 +239,37 @@ def test_session_scores_a_trials_touches_jointly_at_every_step(model: ManifoldMo
         np.testing.assert_allclose(
             step.probabilities, object_posterior(placed, x[: t + 1], y[: t + 1]), rtol=1e-12
         )
+
+
+def test_session_posterior_is_the_batch_joint_at_every_step(model: ManifoldModel) -> None:
+    x, y = _trial(5, 13)
+    session = RecognitionSession(
+        model, Planner(model, PassivePolicy()), settings=RecognitionSettings(max_steps=5)
+    )
+    for t in range(5):
+        step = session.observe(x[t], y[t])
+        np.testing.assert_allclose(
+            step.probabilities, object_posterior(model, x[: t + 1], y[: t + 1]), rtol=1e-12
+        )
+
+
+def test_independent_setting_reproduces_the_product_posterior_bit_for_bit(
+    model: ManifoldModel,
+) -> None:
+    """The session's old update: add each touch's independent log-likelihoods, normalise."""
+    x, y = _trial(5, 14)
+    placed = dataclasses.replace(
+        model, placement_variance=0.5 * model.hyperparameters.noise_variance
+    )
+    settings = RecognitionSettings(max_steps=5, trial_likelihood="independent")
+    session = RecognitionSession(placed, Planner(placed, PassivePolicy()), settings=settings)
+    total = np.zeros(model.data.n_objects)
+    for t in range(5):
+        step = session.observe(x[t], y[t])
+        total = total + object_log_likelihoods(model, x[t : t + 1], y[t : t + 1], "independent")
+        assert np.array_equal(step.probabilities, normalise_log_probabilities(total))
+
+
+def test_unknown_trial_likelihood_is_refused() -> None:
+    with pytest.raises(InvalidInputError, match="trial_likelihood"):
+        RecognitionSettings(trial_likelihood="product")  # type: ignore[arg-type]

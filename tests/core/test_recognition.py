@@ -56,7 +56,7 @@ def _touches(obj: int, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return actions, WORLD.observe(obj, actions, rng)
 
 
-def test_object_posterior_is_the_normalised_gp_likelihood(model: ManifoldModel) -> None:
+def test_independent_object_posterior_is_the_normalised_gp_product(model: ManifoldModel) -> None:
     actions, observations = _touches(2, 4, seed=1)
     log_weights = np.zeros(4)
     for obj in range(4):
@@ -64,7 +64,7 @@ def test_object_posterior_is_the_normalised_gp_likelihood(model: ManifoldModel) 
         mean, variance = predict(model, latents, actions)
         log_weights[obj] = scipy.stats.norm.logpdf(observations, mean, np.sqrt(variance)).sum()
     expected = np.exp(log_weights - scipy.special.logsumexp(log_weights))
-    probabilities = object_posterior(model, actions, observations)
+    probabilities = object_posterior(model, actions, observations, "independent")
     np.testing.assert_allclose(probabilities, expected, rtol=1e-10, atol=1e-300)
     assert probabilities.sum() == pytest.approx(1.0, abs=1e-12)
     assert int(np.argmax(probabilities)) == 2
