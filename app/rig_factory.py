@@ -293,7 +293,7 @@ def iter_collect(
     """Touch every object with every action of a design, turning the table between touches.
 
     The order is action-major (each action on every object, as the turntable makes natural),
-    which also gives the shared-action-design (Kronecker) structure of METHOD.md.
+    which also gives the shared-action-design (Kronecker) structure of docs/method.md.
 
     Args:
         lease: A lease on a connected rig.

@@ -1,7 +1,7 @@
 """Request and response bodies of the REST API (``/api/v1``), as families per resource.
 
-Field names follow DESIGN.md. Arrays are lists of finite floats: NaN/inf in a JSON body is a 422
-naming the field.
+Field names follow the REST API of docs/usage.md. Arrays are lists of finite floats: NaN/inf in a
+JSON body is a 422 naming the field.
 """
 
 from __future__ import annotations

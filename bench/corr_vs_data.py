@@ -1,7 +1,7 @@
 """Benchmark: how close the maximum-likelihood latents of Experiment 1 get to θ as data grows.
 
 The target is a median |corr(θ, s)| ≥ 0.999 over 10 data seeds (the paper quotes 0.9995 for
-one data set). This script asks what the estimator of METHOD.md (M2: joint maximum likelihood
+one data set). This script asks what the estimator of docs/method.md (M2: joint maximum likelihood
 over S and γ) gives, independent of the optimiser: for each number of touches per object and
 each data seed it fits the hyperparameters with S = θ held fixed, then optimises S and γ jointly
 from there (:func:`bench.reference_fit.joint_optimum`, to convergence) and reports |corr(θ, s)|

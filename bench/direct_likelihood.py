@@ -1,8 +1,8 @@
 """The log-likelihood and its gradient by the textbook dense formulas, as a reference.
 
 For every feature a: build the full N × N Gram matrix K_a over the inputs z_i = [s_obj(i); x_i]
-(METHOD.md eq. (M1)), invert it with :func:`numpy.linalg.inv`, and take every partial derivative
-as ½ tr(W_a ∂K_a/∂θ) with W_a = K_a⁻¹ - β_a β_aᵀ, building one N × N matrix ∂K_a/∂θ per
+(docs/method.md (M1)), invert it with :func:`numpy.linalg.inv`, and take every partial
+derivative as ½ tr(W_a ∂K_a/∂θ) with W_a = K_a⁻¹ - β_a β_aᵀ, building one N × N matrix ∂K_a/∂θ per
 parameter θ (σ_f², σ_n², each length-scale and every latent coordinate s_kd). No use of the
 per-object structure or of the Cholesky factor: O(dy · P · N²) on top of the O(N³) inverse,
 P = 2 + ds + dx + L·ds parameters per feature.

@@ -1,4 +1,4 @@
-"""Benchmark: the cost of ONE evaluation of -log p and its gradient (METHOD.md eq. (M2)).
+"""Benchmark: the cost of ONE evaluation of -log p and its gradient (docs/method.md eq. (M2)).
 
 Cases (Experiment-2-like world, dx = 6, dy = 5, ds = 2, reference parameters):
 

@@ -1,7 +1,7 @@
 """The paper's appendix formula for U1 and U2, evaluated directly over all N touches.
 
 This is the reference the structured, batched implementation in :mod:`core.moments` is tested and
-benchmarked against. It follows the appendix (as restated in METHOD.md eq. (M3)–(M4)) term by
+benchmarked against. It follows the appendix (as restated in docs/method.md eq. (M3)–(M4)) term by
 term, with no use of the per-object structure: q_ai and Q_ab,ij are built for every touch i, j
 (vectorised over i and j, looped over the features a, b), β_a and K_a⁻¹ are recomputed from the
 Gram matrix, the cross-covariance comes from λ_a (C = Λ - μ mᵀ) and the mutual information from
@@ -55,7 +55,7 @@ def direct_moments(
     action: FloatArray,
     precomputed: tuple[list[FloatArray], list[FloatArray]] | None = None,
 ) -> DirectMoments:
-    """m, S, C and U1 of one action by the appendix formula (METHOD.md eq. (M3), (M4)).
+    """m, S, C and U1 of one action by the appendix formula (docs/method.md eq. (M3), (M4)).
 
     Args:
         model: A conditioned model.
@@ -113,7 +113,7 @@ def direct_moments(
             )
             cov[a, b] = betas[a] @ q_ab @ betas[b] - m_centred[a] * m_centred[b]
             if a == b:
-                # K_a here is the noisy Gram matrix: the noise is counted once (METHOD.md (M3)).
+                # K_a is the noisy Gram matrix: the noise is counted once (docs/method.md (M3)).
                 cov[a, b] += alpha_sq[a] - np.trace(inverses[a] @ q_ab) + h.noise_variance[a]
 
     big_lambda = np.empty((ds, dy))

@@ -5,7 +5,7 @@ entropy is the evaluation's seed and whose spawn key names the trial: (target, t
 enters the key through a stable hash of its name (CRC-32), so a trial's stream does not depend on
 which other targets were asked for, nor on the order the trials are run in, nor on which process
 runs them. The policy is not part of the key: trial k of a target sees the same random streams under
-every policy, so policies are compared on the same targets and seeds (METHOD.md, "Evaluation
+every policy, so policies are compared on the same targets and seeds (docs/method.md, "Evaluation
 protocols") and their difference is not blurred by different noise.
 """
 

@@ -1,6 +1,6 @@
 """Summaries of evaluation trials: accuracy by touch with Wilson intervals, per object, confusion,
 touches to confidence, calibration of the answers' probabilities, and the comparison of policies
-(METHOD.md, "Evaluation protocols").
+(docs/method.md, "Evaluation protocols").
 
 Pure functions of :class:`core.evaluation_records.TrialRecord` lists; the result is JSON-ready.
 """

@@ -97,7 +97,7 @@ def normalise_latents(
     """Centre S, scale it to RMS distance 1 from its centre, and rescale ℓ^s to match.
 
     s' = (s - centre) / c and ℓ^s' = ℓ^s / c leave every kernel value, hence the likelihood,
-    unchanged (the model is identifiable only up to such maps, METHOD.md M2).
+    unchanged (the model is identifiable only up to such maps, docs/method.md M2).
 
     Args:
         latents: Shape (L, ds).

@@ -1,6 +1,6 @@
 """Hyperparameters with the latents held fixed: one small problem per feature.
 
-With S fixed the negative log-likelihood of METHOD.md eq. (M2) is a sum of independent terms,
+With S fixed the negative log-likelihood of docs/method.md eq. (M2) is a sum of independent terms,
 
     -log p(Y | S, X, γ) = Σ_a -log p(y_a | S, X, γ_a),
 

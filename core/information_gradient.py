@@ -1,8 +1,8 @@
 """Analytic gradient of the mutual information U1 with respect to the action x (for refinement).
 
-U1(x) = ½ [log det Σ - log det P],  P = Σ - C S⁻¹ Cᵀ   (METHOD.md eq. (M4))
+U1(x) = ½ [log det Σ - log det P],  P = Σ - C S⁻¹ Cᵀ   (docs/method.md eq. (M4))
 
-depends on x only through the action statistics u_a(x) and T_a(x) of METHOD.md's structured
+depends on x only through the action statistics u_a(x) and T_a(x) of docs/method.md's structured
 (M3). With W = -½ S⁻¹ Cᵀ P⁻¹ C S⁻¹ (= ∂U1/∂S) and Γ = P⁻¹ C S⁻¹ (= ∂U1/∂C):
 
     ∂U1/∂u_a[l]      = 2 Σ_b W_ab (G_ab u_b)[l] - 2 (Σ_b W_ab m̃_b) c_a[l] + c_a[l] Γ_{:,a}ᵀ D_a[l]
@@ -151,7 +151,7 @@ def mutual_information_and_gradient(
     terms: BeliefTerms | None = None,
     cache: GradientCache | None = None,
 ) -> tuple[float, FloatArray]:
-    """U1 at one action and its gradient dU1/dx (METHOD.md eq. (M4)).
+    """U1 at one action and its gradient dU1/dx (docs/method.md eq. (M4)).
 
     Cost O(dy · N² + dy · dx · N · L) per call (one pass over each K_a⁻¹).
 

@@ -1,11 +1,11 @@
-"""Starting latents for manifold fitting (METHOD.md eq. (M2), findings).
+"""Starting latents for manifold fitting (docs/method.md eq. (M2), findings).
 
 The likelihood has many local optima in S. A data-driven start does much better than a random
 one: estimate each object's mean response at a common set of reference actions by kernel
 smoothing over x, standardise each feature, and embed the L rows of the L × (refs · dy) matrix
 of smoothed responses (the object *profiles*) in ds dimensions.
 
-* :func:`pca_latents` — their principal components (METHOD.md). A linear map of a curved
+* :func:`pca_latents` — their principal components (docs/method.md). A linear map of a curved
   manifold: with many objects it folds it. On Experiment-2-like worlds (ds = 2, dx = 6,
   dy = 5, a shared design of M = 100 actions) the PCA start's Procrustes R² against the true
   latents is 0.75 / 0.60 / 0.56 at L = 20 / 100 / 400, and the fit from it stays folded
@@ -162,7 +162,7 @@ def _latents_from_scores(
 
 
 def pca_latents(data: TrainingData, latent_dim: int, rng: np.random.Generator) -> FloatArray:
-    """The principal-component start (METHOD.md, M2) of the object profiles.
+    """The principal-component start (docs/method.md, M2) of the object profiles.
 
     The L × (R·dy) matrix of :func:`object_profiles` is centred over objects and its leading
     ``ds`` principal component scores are the latents. The centred matrix has rank ≤ L - 1:

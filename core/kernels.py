@@ -1,4 +1,4 @@
-"""The product squared-exponential kernel of METHOD.md eq. (M1), factor by factor.
+"""The product squared-exponential kernel of docs/method.md eq. (M1), factor by factor.
 
 k_a(z, z') = σ_f,a² · k^s_a(s, s') · k^x_a(x, x'), with both factors ARD squared exponentials.
 """

@@ -1,10 +1,10 @@
-"""The exact Kronecker path for shared action designs (METHOD.md, "Shared action designs").
+"""The exact Kronecker path for shared action designs (docs/method.md, "Shared action designs").
 
 When every object was touched with the same M actions (N = L·M; natural on a turntable: run
 each action on every object), order the touches object-major, touch (l, m) at grid position
 l·M + m. The noisy Gram matrix of feature a is then
 
-    K_a = σ_f,a² K^s_a ⊗ K^x_a + σ_n,a² I                                      METHOD.md eq. (M1)
+    K_a = σ_f,a² K^s_a ⊗ K^x_a + σ_n,a² I                                    docs/method.md (M1)
 
 with K^s_a the L × L latent kernel and K^x_a the M × M action kernel. With the
 eigendecompositions K^s_a = U_s Λ_s U_sᵀ and K^x_a = U_x Λ_x U_xᵀ,
@@ -35,7 +35,7 @@ Everything is O(dy (L³ + M³ + L·M·(L + M))) time and O(dy (L² + M² + L·M)
 O(dy (L·M)³) and O(dy (L·M)²) for the dense path: exact, not an approximation (tests match the
 dense path to 1e-8).
 
-The moment-matching statistics of METHOD.md's structured (M3) factor the same way: a new action
+The moment-matching statistics of docs/method.md's structured (M3) factor the same way: a new action
 x has e_a(x) = 1_L ⊗ e^x_a(x) over the grid (e^x_a(x)[m] = k^x_a(x, x_m)), so
 
     u_a(x) = B e^x_a(x)                                       (L,)
@@ -251,7 +251,7 @@ class KroneckerLikelihood:
         latent_gram, action_gram, latent_sq = grams if grams is not None else self._grams(vector)
         latent_values, latent_vectors = np.linalg.eigh(latent_gram)
         action_values, action_vectors = np.linalg.eigh(action_gram)
-        # METHOD.md eq. (M1): eigenvalues of σ_f² K^s ⊗ K^x + σ_n² I
+        # docs/method.md eq. (M1): eigenvalues of σ_f² K^s ⊗ K^x + σ_n² I
         spectrum = (signal[:, None] * latent_values)[:, :, None] * action_values[:, None, :]
         spectrum += noise[:, None, None]
         jitter = np.zeros(dy)
@@ -296,7 +296,7 @@ class KroneckerLikelihood:
             scaled = spectral.rotated / spectral.spectrum
         quad = float(np.vdot(spectral.rotated, scaled))
         log_det = float(np.sum(np.log(spectral.spectrum)))
-        # METHOD.md eq. (M2)
+        # docs/method.md eq. (M2)
         return 0.5 * quad + 0.5 * log_det + 0.5 * dy * n * _LOG_2PI
 
     def value(self, vector: FloatArray) -> float:

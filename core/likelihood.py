@@ -1,6 +1,6 @@
 """Negative log marginal likelihood of the object manifold and its analytic gradient (M2).
 
-    -log p(Y | S, X, γ) = Σ_a ½ y_aᵀ K_a⁻¹ y_a + ½ log det K_a + (N/2) log 2π     METHOD.md eq. (M2)
+    -log p(Y | S, X, γ) = Σ_a ½ y_aᵀ K_a⁻¹ y_a + ½ log det K_a + (N/2) log 2π   docs/method.md (M2)
 
 with K_a = σ_f,a² K^s_a[obj, obj] ∘ K^x_a + σ_n,a² I (eq. (M1)) and y_a centred on the
 per-feature observation mean (as :func:`core.posterior.condition` does).
@@ -103,7 +103,7 @@ class ManifoldLikelihood:
         self.evaluations = 0
 
     def noise_free_gram(self, vector: FloatArray) -> FloatArray:
-        """K_f,a = σ_f,a² K^s_a[obj, obj] ∘ K^x_a for every feature, METHOD.md eq. (M1).
+        """K_f,a = σ_f,a² K^s_a[obj, obj] ∘ K^x_a for every feature, docs/method.md eq. (M1).
 
         Rows and columns are in the internal (object-sorted) order. Built as one exponential
         per entry: exp(log σ_f² - ½ Σ_d (s_d - s_d')²/ℓ^s_d² - ½ Σ_d (x_d - x_d')²/ℓ^x_d²), the
@@ -165,7 +165,7 @@ class ManifoldLikelihood:
             if info:  # pragma: no cover - the factor came from a successful Cholesky
                 raise InvalidInputError(f"dtrtrs failed on feature {a}.")
             log_det = 2.0 * float(np.sum(np.log(upper.ravel(order="F")[self._diag])))
-            # METHOD.md eq. (M2)
+            # docs/method.md eq. (M2)
             total += 0.5 * float(alpha @ alpha) + 0.5 * log_det + 0.5 * n * _LOG_2PI
         return total
 
@@ -195,7 +195,7 @@ class ManifoldLikelihood:
             beta, info = scipy.linalg.lapack.dpotrs(upper, y, lower=0)
             if info:  # pragma: no cover - the factor came from a successful Cholesky
                 raise InvalidInputError(f"dpotrs failed on feature {a}.")
-            # METHOD.md eq. (M2)
+            # docs/method.md eq. (M2)
             log_det = 2.0 * float(np.sum(np.log(upper.ravel(order="F")[self._diag])))
             total += 0.5 * float(y @ beta) + 0.5 * log_det + 0.5 * n * _LOG_2PI
             # Upper triangle (Fortran) of W = K⁻¹ - ββᵀ: ∂(-log p)/∂K = ½ W. Its C-ordered
@@ -242,7 +242,7 @@ class ManifoldLikelihood:
 def negative_log_likelihood(
     data: TrainingData, latents: FloatArray, hyperparameters: Hyperparameters
 ) -> float:
-    """-Σ_a log p(y_a | S, X, γ_a), METHOD.md eq. (M2).
+    """-Σ_a log p(y_a | S, X, γ_a), docs/method.md eq. (M2).
 
     Args:
         data: Training touches (N of them, L objects).

@@ -11,7 +11,7 @@ import scipy.linalg.lapack
 from core.errors import NotPositiveDefiniteError
 from core.validation import FloatArray
 
-#: Relative jitters tried in turn, as multiples of the mean diagonal (METHOD.md, M2 findings).
+#: Relative jitters tried in turn, as multiples of the mean diagonal (docs/method.md, M2 findings).
 JITTER_LADDER: tuple[float, ...] = (0.0, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4)
 
 

@@ -1,4 +1,4 @@
-"""Object manifold learning: maximise Σ_a log p(y_a | S, X, γ_a) over S and γ (METHOD.md M2).
+"""Object manifold learning: maximise Σ_a log p(y_a | S, X, γ_a) over S and γ (docs/method.md M2).
 
 The public entry points: :func:`fit_manifold` (a fitted, normalised model), :func:`iter_fit`
 (the same fit as a generator of progress events) and :func:`fit_hyperparameters` (latents held
@@ -104,7 +104,7 @@ def fit_manifold(
     callback: Callable[[FitProgress], bool | None] | None = None,
     noise_model: NoiseModelChoice | None = None,
 ) -> ManifoldModel:
-    """Fit the object manifold (METHOD.md M2) and return the normalised model.
+    """Fit the object manifold (docs/method.md M2) and return the normalised model.
 
     Args:
         data: Training touches.

@@ -1,11 +1,11 @@
-"""Moment matching (METHOD.md eq. (M3)), mutual information (M4) and the belief update (M5).
+"""Moment matching (docs/method.md eq. (M3)), mutual information (M4) and the belief update (M5).
 
 The latent s ~ N(μ, Σ) of the touched object is unknown; for an action x the observation y has
 a non-Gaussian predictive distribution whose first two moments (and the cross-covariance with s)
 are available in closed form. Those moments define a joint Gaussian over (s, y) from which the
 mutual information I(s; y | x) and the updated belief follow.
 
-The computation uses the per-object structure of METHOD.md ("Structure that makes it fast"):
+The computation uses the per-object structure of docs/method.md ("Structure that makes it fast"):
 the N training latents take only L distinct values, so everything splits into
 
 * **action statistics** (depend on x only, computed once per model for a fixed candidate set):
@@ -36,7 +36,7 @@ from core.posterior import support_points
 from core.types import GaussianBelief, ManifoldModel
 from core.validation import FloatArray, as_float_array
 
-# Relative floor on the eigenvalues of an updated covariance (update hygiene, METHOD.md).
+# Relative floor on the eigenvalues of an updated covariance (update hygiene, docs/method.md).
 _EIGENVALUE_FLOOR = 1e-12
 # Candidates processed together in action_statistics (bounds memory at O(chunk · N · (dy + dx))).
 _CHUNK = 256
@@ -50,7 +50,7 @@ _ELEMENTWISE_MAX_OBJECTS = 32
 
 @dataclass(frozen=True)
 class ActionStatistics:
-    """Action-only statistics of C candidate actions (METHOD.md, structure of (M3)).
+    """Action-only statistics of C candidate actions (docs/method.md, structure of (M3)).
 
     They depend on the model and the actions but not on the belief: compute them once per model
     for a fixed candidate set and reuse them at every touch.
@@ -115,7 +115,7 @@ class BeliefTerms:
 
 @dataclass(frozen=True)
 class PredictiveMoments:
-    """Moments of the joint Gaussian over (s, y) for C candidate actions (METHOD.md eq. (M3)).
+    """Moments of the joint Gaussian over (s, y) for C candidate actions (docs/method.md eq. (M3)).
 
     Attributes:
         mean: m = E[y], including the model's constant mean. Shape (C, dy).
@@ -177,7 +177,7 @@ def _check_actions(model: ManifoldModel, actions: FloatArray, name: str) -> Floa
 
 
 def action_statistics(model: ManifoldModel, actions: FloatArray) -> ActionStatistics:
-    """Action statistics u_a(x) and T_a(x) of C candidate actions (METHOD.md, structure of (M3)).
+    """Action statistics u_a(x) and T_a(x) of C candidate actions (docs/method.md (M3)).
 
     Cost O(C · dy · N · (dx + N)) over the N support points (dense and sparse posteriors);
     O(C · dy · (M² + L·M)) on a Kronecker posterior of M design actions, whose statistics hold
@@ -311,7 +311,7 @@ def belief_terms(model: ManifoldModel, belief: GaussianBelief) -> BeliefTerms:
     signal = h.signal_variance  # (dy,)
     ds = mu.shape[0]
 
-    # METHOD.md eq. (M3): q_ai's belief part, c_a[l].
+    # docs/method.md eq. (M3): q_ai's belief part, c_a[l].
     sigma_plus_lam = sigma[None, :, :] + lam[:, :, None] * np.eye(ds)[None]  # (dy, ds, ds)
     diff = mu[None, :] - latents  # (L, ds): μ - s_l
     rhs = np.broadcast_to(diff.T[None], (lam.shape[0], ds, latents.shape[0]))
@@ -323,7 +323,7 @@ def belief_terms(model: ManifoldModel, belief: GaussianBelief) -> BeliefTerms:
     # D_a[l] = Σ (Σ + Λ_a)⁻¹ (s_l - μ)
     offsets = -np.einsum("ij,ajl->ali", sigma, solved)
 
-    # METHOD.md eq. (M3): Q_ab,ij's belief part, G_ab[l, l'].
+    # docs/method.md eq. (M3): Q_ab,ij's belief part, G_ab[l, l'].
     lam_a = lam[:, None, :]  # (dy, 1, ds)
     lam_b = lam[None, :, :]  # (1, dy, ds)
     lam_sum = lam_a + lam_b  # (dy, dy, ds): Λ_a + Λ_b
@@ -402,7 +402,7 @@ def _spectral_weights(pair_weights: FloatArray, basis: FloatArray) -> FloatArray
 def moments_from_terms(
     model: ManifoldModel, terms: BeliefTerms, stats: ActionStatistics
 ) -> PredictiveMoments:
-    """Contract belief terms with action statistics into m, S and C (METHOD.md eq. (M3)).
+    """Contract belief terms with action statistics into m, S and C (docs/method.md eq. (M3)).
 
     Cost O(C · dy² · L²) on top of the terms.
     """
@@ -430,7 +430,7 @@ def moments_from_terms(
         diagonal_pair = np.einsum("aalm->alm", pair)  # G_aa
         trace = np.einsum("alm,calm->ca", diagonal_pair, stats.trace_blocks)  # tr(K_a⁻¹ Q_aa)
     features = np.arange(h.observation_dim)
-    # METHOD.md eq. (M3): δ_ab (σ_f,a² - tr(K_a⁻¹ Q_aa)) + δ_ab σ_n,a²  (noise belongs in S)
+    # docs/method.md eq. (M3): δ_ab (σ_f,a² - tr(K_a⁻¹ Q_aa)) + δ_ab σ_n,a²  (noise belongs in S)
     cov[:, features, features] += h.signal_variance - trace + h.noise_variance
     cov = 0.5 * (cov + np.swapaxes(cov, 1, 2))
     cross_cov = np.einsum("al,cal,ald->cda", weights, u, terms.offsets)
@@ -445,7 +445,7 @@ def moments_from_terms(
 def predictive_moments(
     model: ManifoldModel, belief: GaussianBelief, stats: ActionStatistics
 ) -> PredictiveMoments:
-    """Predictive moments m, S (with noise) and C of every candidate (METHOD.md eq. (M3)).
+    """Predictive moments m, S (with noise) and C of every candidate (docs/method.md eq. (M3)).
 
     Args:
         model: The model the statistics were computed with.
@@ -475,7 +475,7 @@ def _check_moments(moments: PredictiveMoments, belief: GaussianBelief) -> None:
 
 
 def mutual_information(moments: PredictiveMoments, belief: GaussianBelief) -> FloatArray:
-    """U1 = ½ [log det Σ - log det(Σ - C S⁻¹ Cᵀ)] for every candidate (METHOD.md eq. (M4)).
+    """U1 = ½ [log det Σ - log det(Σ - C S⁻¹ Cᵀ)] for every candidate (docs/method.md eq. (M4)).
 
     Computed as -½ Σ_k log(1 - ρ_k²) with ρ_k the canonical correlations of the moment-matched
     joint (eigenvalues of Σ^(-½) C S⁻¹ Cᵀ Σ^(-½)), which avoids cancellation when U1 is small.
@@ -501,7 +501,7 @@ def mutual_information(moments: PredictiveMoments, belief: GaussianBelief) -> Fl
 def update_belief(
     belief: GaussianBelief, moments: PredictiveMoments, index: int, observation: FloatArray
 ) -> GaussianBelief:
-    """Condition the belief on the observation of candidate ``index`` (METHOD.md eq. (M5)).
+    """Condition the belief on the observation of candidate ``index`` (docs/method.md eq. (M5)).
 
     μ' = μ + C S⁻¹ (y - m),  Σ' = Σ - C S⁻¹ Cᵀ; Σ' is symmetrised and its eigenvalues are kept
     above 1e-12 times the largest.

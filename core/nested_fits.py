@@ -1,6 +1,6 @@
 """Nested warm starts: fit ds = 1, 2, ... each from the optimum one dimension below.
 
-Fits of separate latent dimensions stop in separate local optima (METHOD.md M2), so their
+Fits of separate latent dimensions stop in separate local optima (docs/method.md M2), so their
 maximised likelihoods need not grow with ds — measured on Experiment-2-like worlds: a 4-D fit
 27 nats *below* the 3-D one, a 1-D fit 28 nats below what a 2-D fit reaches on a 1-D world
 (docs/noise-model.md). Any choice of ds that compares fits inherits that noise. Here ds = k is

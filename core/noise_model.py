@@ -1,6 +1,6 @@
-"""Correlated observation noise: estimate Σ_ε, whiten, refit (METHOD.md "Real tactile data").
+"""Correlated observation noise: estimate Σ_ε, whiten, refit (docs/method.md "Real tactile data").
 
-The per-feature GPs of METHOD.md (M1) assume independent noise across features. Real tactile
+The per-feature GPs of docs/method.md (M1) assume independent noise across features. Real tactile
 channels are not independent (the two vibration features move together, heat flux and
 temperature see one heat exchange), so this module fits the GPs to y' = M (y - c)
 (:class:`core.observation_transform.ObservationTransform`):
@@ -187,7 +187,7 @@ def whitening_transform(
     correlation = correlation / np.sqrt(np.outer(np.diag(correlation), np.diag(correlation)))
     sigma = correlation * np.outer(std, std)
     # W = Σ_z^{-1/2}, the symmetric root (y'_a stays closest to feature a).
-    # METHOD.md "Real tactile data": y' = Σ_ε^{-1/2} y.
+    # docs/method.md "Real tactile data": y' = Σ_ε^{-1/2} y.
     s_values, s_vectors = np.linalg.eigh(sigma)
     whitening = (s_vectors / np.sqrt(s_values)) @ s_vectors.T
     return ObservationTransform("correlated", base.offset, base.scale, whitening, correlation, note)
@@ -215,7 +215,7 @@ def correlated_transform(
 def within_object_transform(data: TrainingData) -> ObservationTransform:
     """Whitening by the pooled within-object covariance of the standardised features.
 
-    The quick fix METHOD.md describes (it mixes the signal's variation with the action into the
+    The quick fix docs/method.md describes (it mixes the signal's variation with the action into the
     "noise"); kept for comparison in bench/correlated_noise.py.
     """
     base = standardising_transform(data)

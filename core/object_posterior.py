@@ -1,8 +1,8 @@
 """The discrete posterior over the L learned objects given the touches so far.
 
-Kept alongside the Gaussian belief of METHOD.md (M5): the Gaussian is a local, moment-matched
+Kept alongside the Gaussian belief of docs/method.md (M5): the Gaussian is a local, moment-matched
 approximation that can settle near the wrong object; this posterior uses the exact GP predictive
-likelihood of every touch under every learned object and does not (METHOD.md, "A known failure
+likelihood of every touch under every learned object and does not (docs/method.md, "A known failure
 mode" and "Recommended defaults: Decision").
 
 By default the touches of a trial are scored as one joint Gaussian per object (``"joint"``,
@@ -63,7 +63,7 @@ def object_log_likelihoods(
     model's observation transform (the identity for a model without one); m_a and v_a are the
     GP predictive mean and variance of f_a at the learned latent s_l and action x_t
     (:func:`core.posterior.predict_model_space`, which adds the noise variance). The features of
-    y' are independent given (s, x); the Jacobian log|det M| (= -½ log det Σ_ε, METHOD.md "Real
+    y' are independent given (s, x); the Jacobian log|det M| (= -½ log det Σ_ε, docs/method.md "Real
     tactile data") makes the value a log-density of the raw observations.
 
     Args:

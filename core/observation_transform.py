@@ -1,6 +1,6 @@
 """The affine map from raw observations to the space the per-feature GPs model.
 
-METHOD.md, "Real tactile data": with correlated channel noise the per-feature GPs are fitted to
+docs/method.md, "Real tactile data": with correlated channel noise the per-feature GPs are fitted to
 y' = M (y - c), where M = W · diag(1/scale) standardises each feature and then whitens the noise
 (W = Σ_z^{-1/2}, Σ_z the noise covariance of the standardised features). Everything downstream —
 moments, mutual information, the belief update, the object posterior — works in y'; raw

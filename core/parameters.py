@@ -1,6 +1,6 @@
 """Packing of the manifold-learning unknowns into one vector, with data-relative bounds.
 
-The optimiser of METHOD.md eq. (M2) works on one flat vector θ holding, in this order:
+The optimiser of docs/method.md eq. (M2) works on one flat vector θ holding, in this order:
 
 * the object latents S, row-major (L·ds numbers — one s per object, shared by its touches);
 * log σ_f,a² for every feature a (dy numbers);
@@ -22,7 +22,7 @@ from core.errors import InvalidInputError
 from core.types import Hyperparameters, TrainingData
 from core.validation import FloatArray, as_float_array
 
-#: Bounds relative to the data scales (METHOD.md, recommended defaults), as multiples of the
+#: Bounds relative to the data scales (docs/method.md, recommended defaults), as multiples of the
 #: data variance: Λ^x ∈ [1e-2, 1e4]·var(x), σ_f² ∈ [1e-3, 1e2]·var(y), σ_n² ∈ [1e-6, 1]·var(y),
 #: Λ^s ∈ [1e-4, 1e4] for latents of unit spread.
 ACTION_LENGTHSCALE_SQUARED_RANGE: tuple[float, float] = (1e-2, 1e4)
@@ -175,7 +175,7 @@ def data_scales(data: TrainingData) -> tuple[FloatArray, FloatArray]:
 def parameter_bounds(
     data: TrainingData, layout: ParameterLayout, latent_bound: float
 ) -> tuple[FloatArray, FloatArray]:
-    """Lower and upper bounds of the packed vector, relative to the data (METHOD.md defaults).
+    """Lower and upper bounds of the packed vector, relative to the data (docs/method.md defaults).
 
     Args:
         data: Training touches, for var(y) and var(x).
@@ -214,7 +214,7 @@ def initial_hyperparameters(
 
     σ_f² = var(y_a), σ_n² = ``noise_fraction``·var(y_a), ℓ^x_d = std(x_d) and ℓ^s =
     ``latent_lengthscale`` (≈10× the latent spread: random starts then reach the best optimum
-    far more often, METHOD.md recommended defaults).
+    far more often, docs/method.md recommended defaults).
 
     Args:
         data: Training touches.

@@ -1,7 +1,7 @@
 """Choosing the next touch: maximise the mutual information over a bounded action box (M4).
 
 The active planner scores a fixed, scrambled Sobol set of candidate actions spread over the box
-(their action statistics are computed once per model and reused at every touch, METHOD.md
+(their action statistics are computed once per model and reused at every touch, docs/method.md
 "Structure that makes it fast"), then refines the best few with L-BFGS-B inside the box using the
 analytic gradient of the mutual information. The discriminative policy scores the same
 candidates (and the same cached statistics) by the information the touch would give about *which
@@ -430,7 +430,7 @@ ReplayScore = Callable[[Planner, GaussianBelief, FloatArray, FloatArray], FloatA
 def information_score(
     planner: Planner, belief: GaussianBelief, probabilities: FloatArray, actions: FloatArray
 ) -> FloatArray:
-    """U1 of each recorded action under the belief (METHOD.md (M4)); the posterior is unused."""
+    """U1 of each recorded action under the belief (docs/method.md (M4)); posterior unused."""
     return planner.mutual_information(belief, actions)
 
 

@@ -1,4 +1,4 @@
-"""Condition the per-feature GPs on the training touches (METHOD.md eq. (M1)–(M2)).
+"""Condition the per-feature GPs on the training touches (docs/method.md eq. (M1)–(M2)).
 
 Three posterior structures (:class:`core.types.GPPosterior`): ``"dense"`` (Cholesky of each
 N × N Gram matrix), ``"kronecker"`` (exact, for a complete shared action design:
@@ -210,7 +210,7 @@ def condition(
         )
         beta[a] = scipy.linalg.cho_solve((factor, True), centred[:, a], check_finite=False)
         gram_inverse[a] = scipy.linalg.cho_solve((factor, True), identity, check_finite=False)
-        # METHOD.md eq. (M2)
+        # docs/method.md eq. (M2)
         log_likelihood += (
             -0.5 * float(centred[:, a] @ beta[a])
             - 0.5 * log_det_from_cholesky(factor)

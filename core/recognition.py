@@ -1,4 +1,4 @@
-"""Recognising an object by touch: plan, touch, update, decide (METHOD.md (M4)–(M5)).
+"""Recognising an object by touch: plan, touch, update, decide (docs/method.md (M4)–(M5)).
 
 Two beliefs are carried side by side:
 
@@ -10,7 +10,7 @@ Two beliefs are carried side by side:
   placement: docs/calibration.md eq. (C3)); ``trial_likelihood="independent"`` multiplies them.
 
 The Gaussian is a local approximation and can settle near the wrong object; the most informative
-actions under that wrong belief then need not dislodge it (METHOD.md, "A known failure mode").
+actions under that wrong belief then need not dislodge it (docs/method.md, "A known failure mode").
 The session therefore watches for disagreement: the Gaussian's nearest object is much less
 probable under the posterior than the posterior's best object. By default it then re-centres the
 Gaussian on the evidence, replacing it by the Gaussian that moment-matches the posterior mixture
@@ -75,8 +75,8 @@ class RecognitionSettings:
             probability. ``"nearest"``: the paper's rule, the learned latent nearest (Euclidean,
             normalised units) to the Gaussian mean. The default is the posterior because it uses
             the exact likelihood of every touch, while the Gaussian is a moment-matched
-            linearisation that can lock onto the wrong object (METHOD.md, "A known failure mode";
-            the reference found the posterior right in every case where the Gaussian failed).
+            linearisation that can lock onto the wrong object (docs/method.md, "A known failure
+            mode"; the reference found the posterior right in every case where the Gaussian failed).
         on_disagreement: What to do when, after an update, the posterior probability of the
             Gaussian's nearest object is below ``DISAGREEMENT_RATIO`` (½) times the largest one.
             ``"recentre"`` (default): replace the Gaussian by the moment-matched posterior mixture
@@ -305,7 +305,7 @@ class RecognitionSession:
         # The moments are in the model's space y' = M (y - c): map the raw observation there
         # (the object posterior below takes it raw and maps it itself).
         y_model = self.model.to_model_space(y[None, :])[0]
-        after = update_belief(before, moments, 0, y_model)  # METHOD.md eq. (M5)
+        after = update_belief(before, moments, 0, y_model)  # docs/method.md eq. (M5)
         self._belief = after
         settings = self.settings
         if settings.trial_likelihood == "joint":

@@ -1,7 +1,7 @@
 """The scalable approximate path for large data without a shared design: a sparse
 variational (VFE, Titsias 2009) GP with inducing points tied to the object latents.
 
-**Model.** Each feature keeps the exact model of METHOD.md eq. (M1); only the posterior is
+**Model.** Each feature keeps the exact model of docs/method.md eq. (M1); only the posterior is
 approximated. The m inducing points are training inputs z_u = (s_obj(u), x_u) of chosen touches
 (:func:`select_inducing_points`), so their latents *are* object latents: they move with S
 during the fit and the gradient flows through them; their actions stay fixed. With
@@ -22,7 +22,7 @@ jitter): the tests check that, the bound, and the analytic gradient.
 
 exactly the exact GP's form with the inducing points as support points, weights c for β and
 K_uu⁻¹ - A⁻¹ for K⁻¹. The model carries it as a ``"sparse"`` :class:`core.types.GPPosterior`,
-so prediction and the moment matching of METHOD.md (M3) (whose structured form only needs the
+so prediction and the moment matching of docs/method.md (M3) (whose structured form only needs the
 support points to take L distinct latents, which they do) run unchanged on it, at O(m²) per
 candidate instead of O(N²).
 
@@ -256,7 +256,7 @@ class SparseLikelihood:
         b[np.diag_indices(m)] += 1.0
         chol_b = scipy.linalg.cholesky(b, lower=True, check_finite=False)
         gamma = scipy.linalg.solve_triangular(chol_b, v @ y, lower=True, check_finite=False)
-        # Titsias (2009) bound; METHOD.md eq. (M2) with Q + σ_n² I for K_a
+        # Titsias (2009) bound; docs/method.md eq. (M2) with Q + σ_n² I for K_a
         bound = (
             -0.5 * n * (_LOG_2PI + np.log(noise))
             - float(np.sum(np.log(np.diag(chol_b))))

@@ -14,7 +14,7 @@ An observation source (:class:`ObservationSource`) gives the next touch of a ses
   (:class:`ModelTouches`, the paper's Experiment 2 protocol), the simulated or the real rig
   (composed in ``app``);
 * :class:`ReplayTouches` picks among the target's recorded held-out touches without replacement,
-  by the policy's replay score (:data:`core.planning.POLICIES`; METHOD.md, "Evaluation
+  by the policy's replay score (:data:`core.planning.POLICIES`; docs/method.md, "Evaluation
   protocols").
 
 :func:`run_trial` runs a trial of an evaluation to its end and returns its outcome, a

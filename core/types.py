@@ -1,7 +1,7 @@
 """Frozen value types shared across :mod:`core`.
 
-Notation follows ``METHOD.md``: L objects, N touches, ``dx`` action dimension, ``dy`` observation
-dimension (features), ``ds`` latent dimension.
+Notation follows ``docs/method.md``: L objects, N touches, ``dx`` action dimension, ``dy``
+observation dimension (features), ``ds`` latent dimension.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ class TrainingData:
 
     Attributes:
         object_names: Names of the L objects, in latent order.
-        object_index: Object of each touch, ``obj[i]`` in METHOD.md. Shape (N,), values in
+        object_index: Object of each touch, ``obj[i]`` in docs/method.md. Shape (N,), values in
             ``0..L-1``.
         actions: Action parameters x_i. Shape (N, dx).
         observations: Observed features y_i. Shape (N, dy).
@@ -126,7 +126,7 @@ class TrainingData:
 
 @dataclass(frozen=True)
 class Hyperparameters:
-    """GP hyperparameters of every feature, stacked (METHOD.md eq. (M1)).
+    """GP hyperparameters of every feature, stacked (docs/method.md eq. (M1)).
 
     Length-scales are stored as length-scales, not squared: Λ^s_a = diag(latent_lengthscales[a]²).
 
@@ -219,7 +219,7 @@ class KroneckerFactors:
 
     Every object was touched with the same M design actions, so in grid order (object-major,
     touch (l, m) at position l·M + m) the Gram matrix is a Kronecker product plus noise
-    (METHOD.md, "Shared action designs"). With K^s_a = U_s Λ_s U_sᵀ and K^x_a = U_x Λ_x U_xᵀ,
+    (docs/method.md, "Shared action designs"). With K^s_a = U_s Λ_s U_sᵀ and K^x_a = U_x Λ_x U_xᵀ,
     K_a = (U_s ⊗ U_x) diag(D_a) (U_s ⊗ U_x)ᵀ where D_a[j, k] = σ_f,a² Λ_s[j] Λ_x[k] + σ_n,a²
     (+ jitter). Memory O(dy (L² + M² + L·M)).
 
@@ -408,7 +408,7 @@ class ManifoldModel:
             Shape (L, ds).
         hyperparameters: Per-feature GP hyperparameters.
         posterior: β and K⁻¹ (or its structured form) of every feature.
-        log_likelihood: Σ_a log p(y_a | S, X, γ_a) (METHOD.md eq. (M2)); with an observation
+        log_likelihood: Σ_a log p(y_a | S, X, γ_a) (docs/method.md eq. (M2)); with an observation
             transform, the log-likelihood of the raw observations: the model-space value plus
             N · log|det M| (the Jacobian, -½ log det Σ_ε per touch), so that models with
             different noise models are comparable.

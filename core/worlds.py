@@ -77,7 +77,7 @@ class Experiment1World:
     Attributes:
         thetas: θ of each object. Shape (L,).
         noise_std: Standard deviation of the observation noise (0.1 in the paper as read by
-            METHOD.md; ``sqrt(0.1)`` gives the variance-0.1 reading).
+            docs/method.md; ``sqrt(0.1)`` gives the variance-0.1 reading).
     """
 
     thetas: tuple[float, ...] = EXPERIMENT1_THETAS
@@ -327,7 +327,7 @@ def sample_experiment1(
 
 #: Noise correlation of :func:`correlated_noise_world`'s five channels, in the order vibration
 #: RMS, vibration mean, pressure, heat flux, temperature. Modelled on the residual correlations
-#: of a first M1 fit to the public multimodal-fingertip data set (METHOD.md "Real tactile
+#: of a first M1 fit to the public multimodal-fingertip data set (docs/method.md "Real tactile
 #: data": 0.69 between the two vibration features, 0.74 between vibration mean and pressure,
 #: 0.4–0.5 between heat flux and the others), rounded up so that some pairs reach ≥ 0.7 and
 #: with heat flux and temperature, two views of one heat exchange, at 0.8.

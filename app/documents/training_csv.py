@@ -1,4 +1,4 @@
-"""The training CSV (DESIGN.md): header ``object,x_1,...,x_dx,y_1,...,y_dy``, one touch per row.
+"""The training CSV (docs/usage.md): header ``object,x_1,...,x_dx,y_1,...,y_dy``, one touch per row.
 
 An optional ``placement`` column after ``object`` (integers ≥ 0) records which placement of its
 object each touch met (``activetouch collect --placements``); the fit estimates the placement

@@ -2,7 +2,7 @@
 
 * :func:`manifold_figure` — the objects in s with the spread of their training touches (the
   paper's Fig. 9): each training touch placed where one touch alone puts the belief (the
-  Gaussian update of METHOD.md (M5) from the prior μ0 = mean of S, Σ0), coloured by object.
+  Gaussian update of docs/method.md (M5) from the prior μ0 = mean of S, Σ0), coloured by object.
 * :func:`trajectory_figure` — the joint trajectories (FFJ3, FFJ4) of the first actions chosen in
   one trial per policy beside the teaching trajectory (the paper's Fig. 11).
 * :func:`accuracy_figure` — accuracy by touch with the 95 % Wilson intervals, per policy.
@@ -36,7 +36,7 @@ def _pyplot() -> Any:
 def one_touch_latents(model: ManifoldModel, prior_variance: float = 5.0) -> np.ndarray:
     """Where each training touch alone places the belief mean. Shape (N, ds).
 
-    One Gaussian update (METHOD.md (M5)) of the prior μ0 = mean of S, Σ0 = prior_variance · I
+    One Gaussian update (docs/method.md (M5)) of the prior μ0 = mean of S, Σ0 = prior_variance · I
     with the touch's (x, y).
     """
     from core.moments import action_statistics, predictive_moments, update_belief

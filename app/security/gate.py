@@ -1,6 +1,6 @@
 """The gate: who is calling (token, session or nobody) and whether the request may pass.
 
-Policy (DESIGN.md Security; docs/security.md):
+Policy (docs/security.md):
 
 - With no token configured (loopback only) everything passes.
 - Otherwise mutating requests (POST, PUT, PATCH, DELETE) under ``/api/v1`` need the token

@@ -1,4 +1,4 @@
-"""The live 3D view of a recognition trial, served by viser (DESIGN.md, "The 3D view").
+"""The live 3D view of a recognition trial, served by viser (docs/architecture.md, "The 3D view").
 
 :class:`ManifoldView`, a viser server that draws a model and a trial and is updated by its
 caller::
@@ -68,7 +68,7 @@ class ManifoldView:
     Thread-safe: the methods may be called from any thread (a trial runner, an event follower).
 
     Args:
-        host: Address to bind; loopback by default (DESIGN.md, Security).
+        host: Address to bind; loopback by default (docs/security.md).
         port: Port to bind; 0 picks a free one (see :attr:`port`). viser tries the next ports
             when the one asked for is taken.
         n_sigma: Radius of the belief outline in standard deviations.

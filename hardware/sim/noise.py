@@ -30,7 +30,7 @@ from hardware.errors import ConfigurationError
 
 FloatArray = npt.NDArray[np.float64]
 
-#: Residual correlation between the five channels of a real fingertip sensor (METHOD.md, "Real
+#: Residual correlation between the five channels of a real fingertip sensor (docs/method.md, "Real
 #: tactile data": 0.69 between the two vibration features, 0.74 between vibration (the low band,
 #: the "vibration mean") and pressure, 0.4–0.5 between heat flux and the others). The
 #: high band–pressure entry is not reported; 0.51 ≈ 0.69 · 0.74 is what the two reported ones

@@ -1,4 +1,4 @@
-"""The exact Kronecker path for shared designs matches the dense path (METHOD.md, Kronecker)."""
+"""The exact Kronecker path for shared designs matches the dense path (docs/method.md)."""
 
 from __future__ import annotations
 

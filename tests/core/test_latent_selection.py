@@ -124,7 +124,7 @@ def test_the_smallest_ds_within_one_standard_error_of_the_best_is_chosen() -> No
 def test_experiment1_picks_one_latent_dimension() -> None:
     """A small real selection: Experiment 1 (θ is one number) from fitted models.
 
-    With 10 touches per object the 1-D fit can stop in a local optimum (METHOD.md M2), which
+    With 10 touches per object the 1-D fit can stop in a local optimum (docs/method.md M2), which
     the random restarts guard against; bench/latent_dim.py measures the choice over seeds.
     """
     data = sample_experiment1(np.random.default_rng(5), touches_per_object=10)

@@ -1,4 +1,4 @@
-"""Negative log-likelihood of the object manifold and its analytic gradient (METHOD.md M2)."""
+"""Negative log-likelihood of the object manifold and its analytic gradient (docs/method.md M2)."""
 
 from __future__ import annotations
 

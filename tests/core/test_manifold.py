@@ -1,4 +1,4 @@
-"""Manifold fitting (METHOD.md M2): initialisation, restarts, DE, normalisation, streaming."""
+"""Manifold fitting (docs/method.md M2): initialisation, restarts, DE, normalisation, streaming."""
 
 from __future__ import annotations
 

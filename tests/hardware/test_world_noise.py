@@ -28,7 +28,7 @@ def _frames(model: NoiseModel, n: int, seed: int = 0, period_s: float = 0.01) ->
 
 
 def test_the_configured_correlation_is_the_reported_one_and_positive_definite() -> None:
-    assert R[0, 1] == 0.69  # METHOD.md, "Real tactile data"
+    assert R[0, 1] == 0.69  # docs/method.md, "Real tactile data"
     assert R[0, 2] == 0.74
     assert all(0.4 <= abs(R[3, k]) <= 0.5 for k in (0, 1, 2, 4))
     assert np.linalg.eigvalsh(R).min() > 0.05
