@@ -100,3 +100,33 @@ def test_the_cli_takes_workers_or_a_scheduler_not_both(tmp_path: Any) -> None:
     )
     assert nowhere.exit_code == 2
     assert "cannot reach a Dask scheduler" in nowhere.output
+
+
+def test_the_server_runs_the_folds_of_an_auto_fit_on_its_scheduler(
+    tmp_path: Any, dask_cluster: Any
+) -> None:
+    from app.main import create_app
+    from tests.app.conftest import TestClient, make_settings
+    from tests.app.test_fit_jobs import API, upload, wait_for
+
+    settings = make_settings(tmp_path, dask_scheduler=dask_cluster.scheduler_address)
+    with TestClient(create_app(settings)) as client:
+        dataset_id = upload(client)
+        body = {
+            "dataset_id": dataset_id,
+            "latent_dim": "auto",
+            "restarts": 0,
+            "max_iterations": 100,
+            "seed": 0,
+            "noise_model": "independent",
+        }
+        response = client.post(f"{API}/models", json=body)
+        assert response.status_code == 202, response.text
+        model = wait_for(client, response.json()["id"], lambda m: m["status"] != "fitting")
+        assert model["status"] == "ready", model
+        selection = model["latent_selection"]
+        assert [c["latent_dim"] for c in selection["candidates"]] == [1, 2, 3]
+        assert model["latent_dim"] == selection["chosen"]
+        refused = client.post(f"{API}/models", json={**body, "workers": 0})
+        assert refused.status_code == 422
+        assert "workers" in refused.text
