@@ -127,6 +127,14 @@ class ModelCreate(BaseModel):
     restarts: Annotated[int, Field(ge=0, le=50)] = 2
     seed: Seed | None = None
     max_iterations: Annotated[int, Field(ge=1, le=20_000)] | None = None
+    workers: Annotated[int, Field(ge=1, le=256)] | None = Field(
+        default=None,
+        description=(
+            "latent_dim 'auto' only: run the cross-validation folds as Dask tasks on this many "
+            "local worker processes (on the server's cluster when it is configured with one, "
+            "ACTIVETOUCH_DASK_SCHEDULER; in process when neither)."
+        ),
+    )
 
 
 class ModelAccepted(BaseModel):

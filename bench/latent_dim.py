@@ -74,7 +74,12 @@ def main() -> None:
     options = FitOptions(restarts=args.restarts)
     candidates = tuple(range(1, min(args.max_dim, args.objects - 1) + 1))
 
-    def fit(train: TrainingData, ds: int, starts: tuple[FloatArray, ...]) -> ManifoldModel:
+    def fit(
+        train: TrainingData,
+        ds: int,
+        starts: tuple[FloatArray, ...],
+        rng: np.random.Generator,
+    ) -> ManifoldModel:
         started = dataclasses.replace(options, initial_latents=starts)
         return fit_manifold(train, ds, np.random.default_rng(0), started, noise_model="independent")
 
@@ -155,7 +160,7 @@ def _print_bic(
         rungs = nested_fits(data, max(candidates), fit, np.random.default_rng(1))
         values = [rungs[ds - 1].model.log_likelihood for ds in candidates]
     else:
-        values = [fit(data, ds, ()).log_likelihood for ds in candidates]
+        values = [fit(data, ds, (), np.random.default_rng(0)).log_likelihood for ds in candidates]
     penalised = [v - per_dim * ds for v, ds in zip(values, candidates, strict=True)]
     chosen = candidates[int(np.argmax(penalised))]
     text = "  ".join(f"{ds:d}: {v:.1f}" for ds, v in zip(candidates, values, strict=True))

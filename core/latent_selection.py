@@ -34,13 +34,17 @@ criterion tried; leave-objects-out leaned large there.
 Every fold's candidates are fitted nested by default (:mod:`core.nested_fits`): ds = k starts
 from the ds = k - 1 optimum too, so the training log-likelihood is non-decreasing in ds.
 
+The folds are independent (each gets its own generator, spawned from the one passed in):
+:func:`score_fold` is one fold's work, a pure function, and ``map`` runs them — one after
+another by default, or elsewhere (the app runs them as Dask tasks) with the same result.
+
 Pure maths: the fit is a function argument, randomness comes in as a generator.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -163,6 +167,93 @@ def _subset(data: TrainingData, keep: IntArray) -> TrainingData:
     )
 
 
+@dataclass(frozen=True)
+class FoldPlan:
+    """What every fold of one cross-validation shares (sent to a worker once).
+
+    Attributes:
+        data: Raw training touches.
+        folds: Fold of every touch (``"touches"``) or of every object (``"objects"``).
+            Shape (N,) or (L,).
+        halves: Half (0 or 1) of every touch, for ``"objects"``; ``None`` for ``"touches"``.
+            Shape (N,).
+        dims: The candidate ds, increasing.
+        criterion: ``"touches"`` or ``"objects"``.
+        nested: Whether each fold's candidates are fitted nested (:mod:`core.nested_fits`).
+        fit: The fit (:data:`core.nested_fits.StartedFit`).
+    """
+
+    data: TrainingData
+    folds: IntArray
+    halves: IntArray | None
+    dims: tuple[int, ...]
+    criterion: Criterion
+    nested: bool
+    fit: StartedFit
+
+
+@dataclass(frozen=True)
+class FoldTask:
+    """One fold's work: its index and its own random generator (folds are independent)."""
+
+    fold: int
+    rng: np.random.Generator
+
+
+@dataclass(frozen=True)
+class FoldResult:
+    """Every candidate's outcome on one fold, in the order of ``FoldPlan.dims``.
+
+    Attributes:
+        fold: The fold's index.
+        scores: Mean log-density per held-out touch (nats) of every candidate.
+        fit_log_likelihoods: Log-likelihood of every candidate's training fit.
+        carried_over: Whether every candidate's fit was carried over from ds - 1.
+    """
+
+    fold: int
+    scores: tuple[float, ...]
+    fit_log_likelihoods: tuple[float, ...]
+    carried_over: tuple[bool, ...]
+
+
+#: Runs ``score_fold(plan, task)`` for every task, yielding the results in any order (serially
+#: by default, :func:`serial_map`; the app supplies one that runs them as Dask tasks).
+FoldMap = Callable[[FoldPlan, Sequence[FoldTask]], Iterable[FoldResult]]
+
+
+def score_fold(plan: FoldPlan, task: FoldTask) -> FoldResult:
+    """Fit every candidate on the training part of one fold and score its held-out part.
+
+    A pure function of the plan and the task: where it runs does not change its result.
+    """
+    data, k = plan.data, task.fold
+    held = np.flatnonzero(plan.folds == k)
+    if plan.criterion == "objects":
+        train = objects_subset(data, np.flatnonzero(plan.folds != k))
+    else:
+        train = _subset(data, np.flatnonzero(plan.folds != k))
+    scores, fitted, carried = [], [], []
+    for _, _, model, was_carried in _fold_models(train, plan.dims, plan.fit, task.rng, plan.nested):
+        if plan.criterion == "objects":
+            assert plan.halves is not None
+            values = held_out_scores(model, data, held, plan.halves)
+        else:
+            values = touch_log_likelihoods(
+                model, data.object_index[held], data.actions[held], data.observations[held]
+            )
+        scores.append(float(values.mean()))
+        fitted.append(float(model.log_likelihood))
+        carried.append(bool(was_carried))
+    return FoldResult(k, tuple(scores), tuple(fitted), tuple(carried))
+
+
+def serial_map(plan: FoldPlan, tasks: Sequence[FoldTask]) -> Iterator[FoldResult]:
+    """The folds one after another, in this process."""
+    for task in tasks:
+        yield score_fold(plan, task)
+
+
 def select_latent_dim(
     data: TrainingData,
     fit: StartedFit,
@@ -172,24 +263,30 @@ def select_latent_dim(
     callback: Callable[[int, int, float], None] | None = None,
     criterion: Criterion = "touches",
     nested: bool = True,
+    map: FoldMap = serial_map,
 ) -> LatentSelection:
     """Choose ds by cross-validation (module docstring).
 
     Args:
         data: Raw training touches.
         fit: Fits a model to training touches at a latent dimension, with extra starting
-            latents (each (L, ds), e.g. passed on as ``FitOptions.initial_latents``; raw data
-            in, a model that maps raw observations itself out, e.g. with a noise model).
-        rng: Random generator (the folds, the halves for ``"objects"``, the nested starts).
+            latents (each (L, ds), e.g. passed on as ``FitOptions.initial_latents``) and the
+            fold's random generator (raw data in, a model that maps raw observations itself
+            out, e.g. with a noise model).
+        rng: Random generator (the folds, the halves for ``"objects"``, and one independent
+            generator per fold, spawned from it, for the nested starts and the fits).
         candidates: The ds to try; default :func:`candidate_dims` (of the smallest training
             set for ``"objects"``).
         n_folds: K ≥ 2; for ``"objects"`` lowered to L when there are fewer objects.
-        callback: Called after every candidate's fold fit with (ds, fold, score).
+        callback: Called with (ds, fold, score) for every candidate of a fold when the fold
+            is done (folds in the order they finish).
         criterion: ``"touches"`` (within objects) or ``"objects"`` (leave-objects-out).
         nested: Fit every fold's ds = 1..max(candidates) nested
             (:func:`core.nested_fits.nested_fits`: each from the one below, then each smaller
             one again from the one above, so the training log-likelihood is non-decreasing in
             ds); ``False``: every candidate on its own, with no extra starts.
+        map: Runs the folds (:data:`FoldMap`); the folds are independent, so the result does
+            not depend on how or where they run.
 
     Returns:
         The scores and the choice. Cost: K · len(candidates) fits (K · (2 max(candidates) - 1)
@@ -203,6 +300,7 @@ def select_latent_dim(
         raise InvalidInputError(
             f"criterion: expected one of {', '.join(CRITERIA)}, received {criterion!r}."
         )
+    halves: IntArray | None = None
     if criterion == "objects":
         n_folds = min(int(n_folds), data.n_objects)
         folds = object_folds(data.n_objects, n_folds, rng)
@@ -217,27 +315,24 @@ def select_latent_dim(
             f"candidates: expected distinct integers ≥ 1, received {list(dims)}."
         )
     dims = tuple(sorted(int(d) for d in dims))
-    scores = np.empty((len(dims), n_folds))
-    fitted = np.empty((len(dims), n_folds))
+    plan = FoldPlan(data, folds, halves, dims, criterion, nested, fit)
+    tasks = [FoldTask(k, fold_rng) for k, fold_rng in enumerate(rng.spawn(n_folds))]
+    scores = np.full((len(dims), n_folds), np.nan)
+    fitted = np.full((len(dims), n_folds), np.nan)
     carried = np.zeros(len(dims), dtype=np.int64)
-    for k in range(n_folds):
-        held = np.flatnonzero(folds == k)
-        if criterion == "objects":
-            train = objects_subset(data, np.flatnonzero(folds != k))
-        else:
-            train = _subset(data, np.flatnonzero(folds != k))
-        for c, ds, model, was_carried in _fold_models(train, dims, fit, rng, nested):
-            if criterion == "objects":
-                values = held_out_scores(model, data, held, halves)
-            else:
-                values = touch_log_likelihoods(
-                    model, data.object_index[held], data.actions[held], data.observations[held]
-                )
-            scores[c, k] = float(values.mean())
-            fitted[c, k] = float(model.log_likelihood)
-            carried[c] += was_carried
-            if callback is not None:
-                callback(ds, k, scores[c, k])
+    for result in map(plan, tasks):
+        k = result.fold
+        scores[:, k] = result.scores
+        fitted[:, k] = result.fit_log_likelihoods
+        carried += np.asarray(result.carried_over, dtype=np.int64)
+        if callback is not None:
+            for c, ds in enumerate(dims):
+                callback(ds, k, float(scores[c, k]))
+    missing = np.flatnonzero(np.isnan(scores).any(axis=0))
+    if missing.size:
+        raise InvalidInputError(
+            f"map: no result for fold(s) {', '.join(str(int(k)) for k in missing)}."
+        )
     selection = _summarise(dims, scores, criterion)
     return dataclasses.replace(
         selection,
@@ -262,7 +357,7 @@ def _fold_models(
     """(row, ds, model, carried over) of every candidate fitted on ``train``, in order."""
     if not nested:
         for c, ds in enumerate(dims):
-            yield c, ds, fit(train, ds, ()), False
+            yield c, ds, fit(train, ds, (), rng), False
         return
     rungs = nested_fits(train, max(dims), fit, rng)
     for c, ds in enumerate(dims):

@@ -32,8 +32,11 @@ from core.validation import FloatArray
 #: RMS of the random new coordinate, relative to the unit RMS spread of the latents.
 NEW_COORDINATE_SCALE = 0.1
 
-#: A fit that also takes extra starting latents, each (L, ds) (``FitOptions.initial_latents``).
-StartedFit = Callable[[TrainingData, int, tuple[FloatArray, ...]], ManifoldModel]
+#: A fit that also takes extra starting latents, each (L, ds) (``FitOptions.initial_latents``),
+#: and the random generator its own random starts come from.
+StartedFit = Callable[
+    [TrainingData, int, tuple[FloatArray, ...], np.random.Generator], ManifoldModel
+]
 
 
 @dataclass(frozen=True)
@@ -159,8 +162,9 @@ def nested_fits(
     Args:
         data: Training touches.
         top_dim: The largest ds (≥ 1).
-        fit: Fits ``data`` at a ds with extra starting latents (the usual starts too).
-        rng: Random generator (the appended coordinates).
+        fit: Fits ``data`` at a ds with extra starting latents (the usual starts too); it is
+            passed ``rng`` for its own random starts.
+        rng: Random generator (the appended coordinates and the fits' random starts).
         downward: Also the downward sweep (top_dim - 1 more fits).
 
     Returns:
@@ -174,11 +178,11 @@ def nested_fits(
     for ds in range(1, top + 1):
         below = rungs[-1].model if rungs else None
         starts = () if below is None else appended_starts(below, rng)
-        model = fit(data, ds, starts)
+        model = fit(data, ds, starts, rng)
         rungs.append(_kept(model, below))
     if downward:
         for ds in range(top - 1, 0, -1):
-            model = fit(data, ds, (projected_start(rungs[ds].model, ds),))
+            model = fit(data, ds, (projected_start(rungs[ds].model, ds),), rng)
             if model.log_likelihood > rungs[ds - 1].model.log_likelihood:
                 rungs[ds - 1] = NestedFit(model, False, float(model.log_likelihood), True)
         for ds in range(2, top + 1):

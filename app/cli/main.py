@@ -110,19 +110,28 @@ def fit_with_progress(
 
 
 def select_latent_dim_with_progress(
-    data: TrainingData, options: FitOptions, seed: int, noise_model: NoiseModelChoice
+    data: TrainingData,
+    options: FitOptions,
+    seed: int,
+    noise_model: NoiseModelChoice,
+    workers: int | None = None,
+    scheduler: str | None = None,
 ) -> LatentSelection:
     """Cross-validate ds (:func:`core.latent_selection.select_latent_dim`) with a progress bar.
 
     The folds use the requested noise model ("independent" for "auto", which the final fit
-    decides).
+    decides). With ``workers`` or ``scheduler`` they run as Dask tasks
+    (:mod:`app.services.fit_tasks`), with the same result; the bar then advances as each fold
+    finishes.
+
+    Raises:
+        BadInputError: The scheduler cannot be reached or has no worker.
     """
-    import dataclasses
 
     import numpy as np
 
-    from core.latent_selection import DEFAULT_FOLDS, candidate_dims, select_latent_dim
-    from core.manifold import fit_manifold
+    from app.services.fit_tasks import FoldFit, dask_fold_map
+    from core.latent_selection import DEFAULT_FOLDS, candidate_dims, select_latent_dim, serial_map
 
     fewest = int(data.touches_per_object().min())
     if fewest < 4:
@@ -144,18 +153,14 @@ def select_latent_dim_with_progress(
                 status=f"ds={ds:d}, fold {fold + 1:d}/{n_folds:d}: {score:.3f} nats/touch",
             )
 
+        on_cluster = workers is not None or scheduler is not None
         return select_latent_dim(
             data,
-            lambda train, ds, starts: fit_manifold(
-                train,
-                ds,
-                rng,
-                dataclasses.replace(options, initial_latents=starts),
-                noise_model=fold_noise,
-            ),
+            FoldFit(options, fold_noise),
             rng,
             n_folds=n_folds,
             callback=report,
+            map=dask_fold_map(workers, scheduler) if on_cluster else serial_map,
         )
 
 
@@ -226,6 +231,16 @@ def fit(
             help="dy of --features whole, or 'auto': by cross-validated recognition.",
         ),
     ] = "auto",
+    workers: Annotated[
+        int | None,
+        typer.Option(
+            min=1, help="--latent-dim auto: run the folds on a LocalCluster of K processes."
+        ),
+    ] = None,
+    scheduler: Annotated[
+        str | None,
+        typer.Option(help="--latent-dim auto: run the folds on a Dask scheduler, tcp://host:8786."),
+    ] = None,
     out: Annotated[Path | None, typer.Option(help="Write the model document here.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the model document.")] = False,
 ) -> None:
@@ -234,11 +249,14 @@ def fit(
 
     from app.cli.raw_data import training_touches
     from app.documents.model import latent_selection_dict, model_to_document
+    from app.errors import AppError
     from core.errors import CoreError
     from core.manifold import FitOptions
     from core.placement_effect import with_placement_effect
 
     requested_dim = _parse_latent_dim(latent_dim)
+    if workers is not None and scheduler is not None:
+        raise fail("--workers and --scheduler: give one (a local cluster or an existing one)")
     try:
         dy = _parse_latent_dim(feature_dim)
     except typer.BadParameter as exc:
@@ -250,13 +268,15 @@ def fit(
             optimizer=optimizer.value, restarts=restarts, structure=structure, n_inducing=inducing
         )
         if requested_dim is None:
-            selection = select_latent_dim_with_progress(data, options, seed, noise_model)
+            selection = select_latent_dim_with_progress(
+                data, options, seed, noise_model, workers, scheduler
+            )
             requested_dim = selection.chosen
         model, seconds = fit_with_progress(
             data, requested_dim, options, seed, quiet=False, noise_model=noise_model
         )
         model, placement = with_placement_effect(model)
-    except CoreError as exc:
+    except (CoreError, AppError) as exc:
         raise fail(str(exc)) from None
     if pipeline is not None:
         model = dataclasses.replace(model, features=pipeline)

@@ -72,7 +72,12 @@ def start_context(settings: Settings) -> AppContext:
         jobs=jobs,
         models=models,
         fits=FitService(
-            database, events, jobs, models, max_training_touches=settings.max_training_touches
+            database,
+            events,
+            jobs,
+            models,
+            max_training_touches=settings.max_training_touches,
+            scheduler=settings.dask_scheduler or None,
         ),
         trials=trials,
         trial_views=TrialViews(),

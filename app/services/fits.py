@@ -29,11 +29,17 @@ from app.models import utc_now
 from app.schemas import ModelAccepted, ModelCreate, ModelPublic
 from app.services import datasets
 from app.services.events import EventBus
+from app.services.fit_tasks import FoldFit, dask_fold_map
 from app.services.jobs import INTERRUPTED, Job, JobCancelled, JobRunner
 from app.services.models import ModelStore, require, store_fitted, to_public
 from core.errors import CoreError
 from core.fit_options import FitProgress
-from core.latent_selection import DEFAULT_FOLDS, LatentSelection, select_latent_dim
+from core.latent_selection import (
+    DEFAULT_FOLDS,
+    DEFAULT_MAX_LATENT_DIM,
+    LatentSelection,
+    select_latent_dim,
+)
 from core.manifold import (
     FitCancelledError,
     FitOptions,
@@ -54,11 +60,13 @@ PROGRESS_INTERVAL_S = 0.25
 
 @dataclasses.dataclass(frozen=True)
 class FitRequest:
-    """What one fit job needs: the model's row id, its training data and the request."""
+    """What one fit job needs: the model's row id, its training data, the request and the
+    server's Dask scheduler (``None``: none configured)."""
 
     model_id: int
     data: TrainingData
     body: ModelCreate
+    scheduler: str | None = None
 
 
 class FitService:
@@ -70,6 +78,9 @@ class FitService:
         jobs: The job runner the fits run on (its ``fit`` limit: fits at once).
         models: Keeps each fitted model for use.
         max_training_touches: Largest N accepted for a fit.
+        scheduler: Address of the Dask scheduler the folds of ``latent_dim: "auto"`` run on
+            (``ACTIVETOUCH_DASK_SCHEDULER``); without one they run on the request's ``workers``
+            local processes, or in process when it gives none.
     """
 
     def __init__(
@@ -79,7 +90,9 @@ class FitService:
         jobs: JobRunner,
         models: ModelStore,
         max_training_touches: int = 5000,
+        scheduler: str | None = None,
     ) -> None:
+        self._scheduler = scheduler
         self._database = database
         self._events = events
         self._jobs = jobs
@@ -116,7 +129,7 @@ class FitService:
         session.commit()
         model_id = row.id
         self._announce(model_id, "queued", dataset_id=row.dataset_id)
-        request = FitRequest(model_id, data, body)
+        request = FitRequest(model_id, data, body, self._scheduler)
         job = self._jobs.start(KIND, model_id, lambda job: self._run(job, request))
         if not job.waiting:  # started at once: fitting from now on
             self._set_fitting(model_id)
@@ -277,7 +290,7 @@ def run_fit(
     selection: dict[str, Any] | None = None
     latent_dim = body.latent_dim
     if latent_dim == "auto":
-        chosen = _select_latent_dim(data, body, options, rng, job, report, started)
+        chosen = _select_latent_dim(data, request, options, rng, job, report, started)
         selection = latent_selection_dict(chosen)
         latent_dim = chosen.chosen
     fitted: ManifoldModel | None = None
@@ -297,7 +310,7 @@ def run_fit(
 
 def _select_latent_dim(
     data: TrainingData,
-    body: ModelCreate,
+    request: FitRequest,
     options: FitOptions,
     rng: np.random.Generator,
     job: Job,
@@ -305,20 +318,26 @@ def _select_latent_dim(
     started: float,
 ) -> LatentSelection:
     """Cross-validate ds. The folds use the requested noise model, "independent" for "auto"
-    (it is decided by the final fit); a stop ends the fold in progress at its next event."""
+    (it is decided by the final fit). On the server's Dask scheduler or the request's
+    ``workers`` the folds run as tasks (:mod:`app.services.fit_tasks`) and a stop cancels them;
+    in process a stop ends the fold in progress at its next event."""
+    body = request.body
     fold_noise: NoiseModelChoice = "independent" if body.noise_model == "auto" else body.noise_model
     n_folds = min(DEFAULT_FOLDS, int(data.touches_per_object().min()) - 2)
-    n_candidates = min(5, data.n_objects - 1)
+    n_candidates = min(DEFAULT_MAX_LATENT_DIM, data.n_objects - 1)
     done = [0]
+    on_cluster = request.scheduler is not None or body.workers is not None
 
     def go_on(_: FitProgress) -> bool:
         return job.stop_requested is None
 
-    def fit_fold(train: TrainingData, ds: int, starts: tuple[FloatArray, ...]) -> ManifoldModel:
+    def fit_fold(
+        train: TrainingData, ds: int, starts: tuple[FloatArray, ...], fold_rng: np.random.Generator
+    ) -> ManifoldModel:
         job.checkpoint()
         started_from = dataclasses.replace(options, initial_latents=starts)
         try:
-            return fit_manifold(train, ds, rng, started_from, go_on, noise_model=fold_noise)
+            return fit_manifold(train, ds, fold_rng, started_from, go_on, noise_model=fold_noise)
         except FitCancelledError:
             job.checkpoint()  # raises JobCancelled: the stop is why the fold ended
             raise
@@ -335,7 +354,17 @@ def _select_latent_dim(
         )
         report(progress, time.perf_counter() - started)
 
-    return select_latent_dim(data, fit_fold, rng, n_folds=n_folds, callback=on_fold)
+    if not on_cluster:
+        return select_latent_dim(data, fit_fold, rng, n_folds=n_folds, callback=on_fold)
+    fold_map = dask_fold_map(body.workers, request.scheduler, job.checkpoint)
+    return select_latent_dim(
+        data,
+        FoldFit(options, fold_noise),
+        rng,
+        n_folds=n_folds,
+        callback=on_fold,
+        map=fold_map,
+    )
 
 
 def _finite_or_none(value: Any) -> float | None:

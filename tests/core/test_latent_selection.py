@@ -58,7 +58,7 @@ def test_scores_are_the_held_out_log_likelihoods_of_the_folds() -> None:
     data = sample_experiment1(np.random.default_rng(1), touches_per_object=8)
     models: list[tuple[TrainingData, ManifoldModel]] = []
 
-    def fit(train: TrainingData, ds: int, starts: Starts = ()) -> ManifoldModel:
+    def fit(train: TrainingData, ds: int, starts: Starts = (), rng: object = None) -> ManifoldModel:
         model = condition(train, np.hstack([THETA, np.zeros((4, ds - 1))]), hyper(ds))
         models.append((train, model))
         return model
@@ -86,7 +86,7 @@ def test_a_clearly_better_larger_dimension_is_chosen() -> None:
     data = sample_experiment1(np.random.default_rng(3), touches_per_object=8)
     scrambled = np.array([[0.0], [0.0], [1.0], [1.0]])  # ds = 1 cannot tell two pairs apart
 
-    def fit(train: TrainingData, ds: int, starts: Starts = ()) -> ManifoldModel:
+    def fit(train: TrainingData, ds: int, starts: Starts = (), rng: object = None) -> ManifoldModel:
         latents = scrambled if ds == 1 else np.hstack([scrambled, THETA])
         return condition(train, latents, hyper(ds))
 
@@ -130,7 +130,7 @@ def test_experiment1_picks_one_latent_dimension() -> None:
     data = sample_experiment1(np.random.default_rng(5), touches_per_object=10)
     options = FitOptions(restarts=2)
 
-    def fit(train: TrainingData, ds: int, starts: Starts = ()) -> ManifoldModel:
+    def fit(train: TrainingData, ds: int, starts: Starts = (), rng: object = None) -> ManifoldModel:
         started = dataclasses.replace(options, initial_latents=starts)
         return fit_manifold(train, ds, np.random.default_rng(0), started, noise_model="independent")
 
@@ -143,7 +143,7 @@ def test_experiment1_picks_one_latent_dimension() -> None:
 def test_bad_candidates_are_rejected() -> None:
     data = sample_experiment1(np.random.default_rng(7), touches_per_object=8)
     with pytest.raises(InvalidInputError, match="candidates"):
-        select_latent_dim(data, lambda t, d, s: None, np.random.default_rng(0), (0, 1))  # type: ignore[arg-type,return-value]
+        select_latent_dim(data, lambda t, d, s, r: None, np.random.default_rng(0), (0, 1))  # type: ignore[arg-type,return-value]
 
 
 # Leave-objects-out (criterion="objects").
@@ -214,7 +214,7 @@ def test_objects_scores_are_the_direct_held_out_computation() -> None:
     data = sample_experiment1(np.random.default_rng(10), touches_per_object=8)
     models: list[tuple[TrainingData, ManifoldModel]] = []
 
-    def fit(train: TrainingData, ds: int, starts: Starts = ()) -> ManifoldModel:
+    def fit(train: TrainingData, ds: int, starts: Starts = (), rng: object = None) -> ManifoldModel:
         model = condition(train, true_latents(train, ds), hyper(ds))
         models.append((train, model))
         return model
@@ -253,7 +253,7 @@ def test_objects_criterion_scores_the_needed_dimension_best() -> None:
     """
     data = sample_experiment1(np.random.default_rng(12), touches_per_object=8)
 
-    def fit(train: TrainingData, ds: int, starts: Starts = ()) -> ManifoldModel:
+    def fit(train: TrainingData, ds: int, starts: Starts = (), rng: object = None) -> ManifoldModel:
         return condition(train, true_latents(train, ds, scrambled=True), hyper(ds))
 
     selection = select_latent_dim(
@@ -270,4 +270,4 @@ def test_objects_criterion_scores_the_needed_dimension_best() -> None:
 def test_bad_criterion_is_rejected() -> None:
     data = sample_experiment1(np.random.default_rng(7), touches_per_object=8)
     with pytest.raises(InvalidInputError, match="criterion"):
-        select_latent_dim(data, lambda t, d, s: None, np.random.default_rng(0), criterion="bic")  # type: ignore[arg-type,return-value]
+        select_latent_dim(data, lambda t, d, s, r: None, np.random.default_rng(0), criterion="bic")  # type: ignore[arg-type,return-value]

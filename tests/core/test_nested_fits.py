@@ -35,7 +35,7 @@ def test_nested_fits_are_monotone_and_receive_the_nested_starts(downward: bool) 
     data = small_world()
     received: list[tuple[int, Starts, float]] = []
 
-    def fit(train: TrainingData, ds: int, starts: Starts) -> ManifoldModel:
+    def fit(train: TrainingData, ds: int, starts: Starts, rng: object) -> ManifoldModel:
         options = dataclasses.replace(OPTIONS, initial_latents=starts)
         model = fit_manifold(train, ds, np.random.default_rng(ds), options)
         received.append((ds, starts, model.log_likelihood))
@@ -73,7 +73,7 @@ def test_a_fit_that_ends_lower_is_replaced_by_the_embedded_optimum_below() -> No
         action_lengthscales=np.full((2, 1), 1.0),
     )
 
-    def fit(train: TrainingData, ds: int, starts: Starts) -> ManifoldModel:
+    def fit(train: TrainingData, ds: int, starts: Starts, rng: object) -> ManifoldModel:
         if ds == 1:
             return one
         return condition(train, np.random.default_rng(1).standard_normal((6, 2)), bad)
@@ -112,13 +112,13 @@ def test_appended_coordinates_are_small_random_and_the_unexplained_direction() -
     assert float(residual_column @ one.latents[:, 0]) == pytest.approx(0.0, abs=1e-10)
     assert np.sqrt(np.mean(residual_column**2)) >= 0.1 - 1e-12
     with pytest.raises(InvalidInputError, match="top_dim"):
-        nested_fits(data, 0, lambda t, d, s: one, np.random.default_rng(0))
+        nested_fits(data, 0, lambda t, d, s, r: one, np.random.default_rng(0))
 
 
 def test_cross_validation_fits_are_nested_in_every_fold() -> None:
     data = small_world()
 
-    def fit(train: TrainingData, ds: int, starts: Starts) -> ManifoldModel:
+    def fit(train: TrainingData, ds: int, starts: Starts, rng: object) -> ManifoldModel:
         options = dataclasses.replace(OPTIONS, initial_latents=starts)
         return fit_manifold(train, ds, np.random.default_rng(0), options)
 

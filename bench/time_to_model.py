@@ -1,0 +1,114 @@
+"""Benchmark: time to a model — wall time of ``fit --latent-dim auto``, serial and on workers.
+
+A random design (every touch its own action) from :func:`core.worlds.random_experiment2_world`
+(true ds = 3, dx = 1) sampled at ``--objects`` × ``--touches`` (default 20 × 40, N = 800), for
+each ``--dy``. The run is what ``activetouch fit --latent-dim auto`` does: cross-validation of
+ds (:func:`core.latent_selection.select_latent_dim`, folds fitted with the independent noise
+model, :class:`app.services.fit_tasks.FoldFit`), in process or with its folds as tasks on a
+``LocalCluster`` of ``--workers`` single-threaded processes (:func:`app.services.fit_tasks.
+dask_fold_map`; the cluster's start-up is included), then the final fit at the chosen ds with
+the noise model ``auto``, in process. Printed per dy and worker count: the wall seconds of the
+selection and of the final fit, the ds chosen, the final log-likelihood, and whether the
+cluster chose the same ds with the same fold scores as the serial run.
+
+The machine is shared: the load average before and after each run is printed; quote it.
+
+Run: ``.venv/bin/python -m bench.time_to_model [--dy 5 20] [--workers 0 2] [--objects 20]
+[--touches 40] [--max-dim 5] [--folds 5] [--restarts 4] [--seed 0]`` (``--workers 0``: serial).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import numpy as np
+
+from app.services.fit_tasks import FoldFit, dask_fold_map
+from core.latent_selection import LatentSelection, select_latent_dim, serial_map
+from core.manifold import FitOptions, fit_manifold
+from core.types import TrainingData
+from core.worlds import random_experiment2_world, sample_dataset
+
+TRUE_DIM = 3
+
+
+def make_data(objects: int, touches: int, dy: int, seed: int) -> TrainingData:
+    """The benchmark's training touches: a random design, dx = 1, true ds = 3."""
+    rng = np.random.default_rng(seed)
+    world = random_experiment2_world(
+        rng, n_objects=objects, latent_dim=TRUE_DIM, action_dim=1, observation_dim=dy
+    )
+    return sample_dataset(world, rng, touches_per_object=touches)
+
+
+def time_to_model(
+    data: TrainingData,
+    options: FitOptions,
+    workers: int,
+    max_dim: int,
+    folds: int,
+    seed: int,
+) -> tuple[LatentSelection, float, float, float]:
+    """(selection, selection seconds, final-fit seconds, final log-likelihood) of one run."""
+    rng = np.random.default_rng(seed)
+    started = time.perf_counter()
+    selection = select_latent_dim(
+        data,
+        FoldFit(options, "independent"),
+        rng,
+        tuple(range(1, min(max_dim, data.n_objects - 1) + 1)),
+        n_folds=folds,
+        map=dask_fold_map(workers, None) if workers > 0 else serial_map,
+    )
+    selected = time.perf_counter()
+    model = fit_manifold(data, selection.chosen, rng, options, noise_model="auto")
+    return (
+        selection,
+        selected - started,
+        time.perf_counter() - selected,
+        float(model.log_likelihood),
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--dy", type=int, nargs="+", default=[5, 20])
+    parser.add_argument("--workers", type=int, nargs="+", default=[0, 2])
+    parser.add_argument("--objects", type=int, default=20)
+    parser.add_argument("--touches", type=int, default=40)
+    parser.add_argument("--max-dim", type=int, default=5)
+    parser.add_argument("--folds", type=int, default=5)
+    parser.add_argument("--restarts", type=int, default=FitOptions().restarts)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    options = FitOptions(restarts=args.restarts)
+    print(
+        f"{args.objects} objects x {args.touches} touches, dx = 1, true ds = {TRUE_DIM}, "
+        f"candidates 1..{args.max_dim}, {args.folds} folds, restarts {args.restarts}, "
+        f"{os.cpu_count()} cores"
+    )
+    print(" dy workers  select_s  final_s  total_s  chosen  log-lik    same  load before/after")
+    for dy in args.dy:
+        data = make_data(args.objects, args.touches, dy, args.seed)
+        serial: LatentSelection | None = None
+        for workers in args.workers:
+            before = os.getloadavg()[0]
+            selection, select_s, final_s, log_likelihood = time_to_model(
+                data, options, workers, args.max_dim, args.folds, args.seed
+            )
+            after = os.getloadavg()[0]
+            if workers == 0:
+                serial = selection
+            same = "-" if serial is None or workers == 0 else str(selection == serial)
+            print(
+                f"{dy:3d} {workers:7d} {select_s:9.1f} {final_s:8.1f} "
+                f"{select_s + final_s:8.1f} {selection.chosen:7d} {log_likelihood:9.2f} "
+                f"{same:>5s}  {before:.1f}/{after:.1f}",
+                flush=True,
+            )
+
+
+if __name__ == "__main__":
+    main()

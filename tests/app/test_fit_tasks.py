@@ -1,0 +1,132 @@
+"""The folds of ``--latent-dim auto`` as Dask tasks (app/services/fit_tasks.py) equal the serial
+run, and a stop cancels them."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from app.services.fit_tasks import FoldFit, dask_fold_map
+from core.latent_selection import select_latent_dim
+from core.manifold import FitOptions
+from core.types import TrainingData
+from core.worlds import random_experiment2_world, sample_dataset
+
+FIT = FoldFit(FitOptions(restarts=1, max_iterations=150), "independent")
+
+
+def small_world() -> TrainingData:
+    rng = np.random.default_rng(3)
+    world = random_experiment2_world(
+        rng, n_objects=6, latent_dim=2, action_dim=1, observation_dim=2
+    )
+    return sample_dataset(world, rng, touches_per_object=8)
+
+
+def test_the_folds_on_a_cluster_give_the_serial_choice_and_scores(dask_cluster: Any) -> None:
+    data = small_world()
+    serial_seen: list[tuple[int, int, float]] = []
+    serial = select_latent_dim(
+        data,
+        FIT,
+        np.random.default_rng(1),
+        (1, 2, 3),
+        n_folds=3,
+        callback=lambda *a: serial_seen.append(a),
+    )
+    seen: list[tuple[int, int, float]] = []
+    distributed = select_latent_dim(
+        data,
+        FIT,
+        np.random.default_rng(1),
+        (1, 2, 3),
+        n_folds=3,
+        callback=lambda *a: seen.append(a),
+        map=dask_fold_map(None, dask_cluster.scheduler_address),
+    )
+    assert distributed == serial  # the same choice, scores and training log-likelihoods
+    assert sorted(seen) == sorted(serial_seen)  # every (ds, fold, score), in finishing order
+    assert len(seen) == 3 * 3
+
+
+def test_a_stop_cancels_the_pending_folds(dask_cluster: Any) -> None:
+    from distributed import Client
+
+    class StoppedError(Exception):
+        pass
+
+    def stop() -> None:
+        raise StoppedError
+
+    with pytest.raises(StoppedError):
+        select_latent_dim(
+            small_world(),
+            FIT,
+            np.random.default_rng(1),
+            (1, 2, 3),
+            n_folds=3,
+            map=dask_fold_map(None, dask_cluster.scheduler_address, stop),
+        )
+    with Client(dask_cluster.scheduler_address, set_as_default=False) as client:
+        left = client.run_on_scheduler(
+            lambda dask_scheduler: [str(k) for k in dask_scheduler.tasks]
+        )
+    assert not [k for k in left if k.startswith("fold-")]
+
+
+def test_workers_or_a_scheduler_is_needed() -> None:
+    with pytest.raises(ValueError, match="workers"):
+        dask_fold_map(None, None)
+
+
+def test_the_cli_takes_workers_or_a_scheduler_not_both(tmp_path: Any) -> None:
+    from typer.testing import CliRunner
+
+    from app.cli.main import app
+    from tests.app.conftest import experiment1_csv
+
+    csv = tmp_path / "train.csv"
+    csv.write_text(experiment1_csv())
+    runner = CliRunner()
+    both = runner.invoke(
+        app, ["fit", str(csv), "--latent-dim", "auto", "--workers", "2", "--scheduler", "x"]
+    )
+    assert both.exit_code == 2
+    assert "--workers and --scheduler" in both.output
+    nowhere = runner.invoke(
+        app, ["fit", str(csv), "--latent-dim", "auto", "--scheduler", "tcp://127.0.0.1:9"]
+    )
+    assert nowhere.exit_code == 2
+    assert "cannot reach a Dask scheduler" in nowhere.output
+
+
+def test_the_server_runs_the_folds_of_an_auto_fit_on_its_scheduler(
+    tmp_path: Any, dask_cluster: Any
+) -> None:
+    from app.main import create_app
+    from tests.app.conftest import TestClient, make_settings
+    from tests.app.test_fit_jobs import API, upload, wait_for
+
+    settings = make_settings(tmp_path, dask_scheduler=dask_cluster.scheduler_address)
+    with TestClient(create_app(settings)) as client:
+        dataset_id = upload(client)
+        body = {
+            "dataset_id": dataset_id,
+            "latent_dim": "auto",
+            "restarts": 0,
+            "max_iterations": 100,
+            "seed": 0,
+            "noise_model": "independent",
+        }
+        response = client.post(f"{API}/models", json=body)
+        assert response.status_code == 202, response.text
+        model = wait_for(client, response.json()["id"], lambda m: m["status"] != "fitting")
+        assert model["status"] == "ready", model
+        selection = model["latent_selection"]
+        assert [c["latent_dim"] for c in selection["candidates"]] == [1, 2, 3]
+        assert model["latent_dim"] == selection["chosen"]
+        refused = client.post(f"{API}/models", json={**body, "workers": 0})
+        assert refused.status_code == 422
+        assert "workers" in refused.text
