@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import io
 import json
+from collections.abc import Sequence
 from functools import partial
+from typing import Any
 
 import numpy as np
 from sqlalchemy.orm import Session
@@ -41,8 +43,17 @@ def to_public(dataset: Dataset) -> DatasetPublic:
     )
 
 
-def store_training_data(session: Session, data: TrainingData, name: str, source: str) -> Dataset:
-    """Add a complete dataset holding ``data`` (not committed)."""
+def store_training_data(
+    session: Session,
+    data: TrainingData,
+    name: str,
+    source: str,
+    raw: Sequence[dict[str, Any]] | None = None,
+) -> Dataset:
+    """Add a complete dataset holding ``data`` (not committed).
+
+    ``raw``: each sample's raw record (its channels), kept so it can be featurised again.
+    """
     dataset = crud.create_dataset(
         session,
         name=name,
@@ -52,13 +63,16 @@ def store_training_data(session: Session, data: TrainingData, name: str, source:
         action_dim=data.action_dim,
         observation_dim=data.observation_dim,
     )
+    records: Sequence[dict[str, Any] | None] = (
+        [None] * len(data.object_index) if raw is None else raw
+    )
     crud.add_samples(
         session,
         dataset,
         (
-            (data.object_names[obj], action, observation, None)
-            for obj, action, observation in zip(
-                data.object_index, data.actions, data.observations, strict=True
+            (data.object_names[obj], action, observation, record)
+            for obj, action, observation, record in zip(
+                data.object_index, data.actions, data.observations, records, strict=True
             )
         ),
     )
@@ -66,9 +80,14 @@ def store_training_data(session: Session, data: TrainingData, name: str, source:
 
 
 def _commit_and_announce(
-    session: Session, events: EventBus, data: TrainingData, name: str, source: str
+    session: Session,
+    events: EventBus,
+    data: TrainingData,
+    name: str,
+    source: str,
+    raw: Sequence[dict[str, Any]] | None = None,
 ) -> DatasetPublic:
-    dataset = store_training_data(session, data, name, source)
+    dataset = store_training_data(session, data, name, source, raw)
     session.commit()
     public = to_public(dataset)
     events.publish(
@@ -135,32 +154,8 @@ def create_from_raw(session: Session, events: EventBus, text: str, name: str) ->
     """
     touches = read_raw_touches(text)
     data = featurise(touches, means_pipeline(touches.touches[0]))
-    dataset = crud.create_dataset(
-        session,
-        name=name,
-        source="upload",
-        status="ready",
-        object_names=data.object_names,
-        action_dim=data.action_dim,
-        observation_dim=data.observation_dim,
-    )
-    crud.add_samples(
-        session,
-        dataset,
-        (
-            (data.object_names[obj], action, observation, {"channels": channels_field(touch)})
-            for obj, action, observation, touch in zip(
-                data.object_index, data.actions, data.observations, touches.touches, strict=True
-            )
-        ),
-    )
-    session.commit()
-    public = to_public(dataset)
-    events.publish(
-        "dataset.created",
-        {"dataset_id": public.id, "n_samples": public.n_samples, "objects": public.objects},
-    )
-    return public
+    raw = [{"channels": channels_field(touch)} for touch in touches.touches]
+    return _commit_and_announce(session, events, data, name, "upload", raw)
 
 
 def export_raw(session: Session, dataset_id: int) -> str:
