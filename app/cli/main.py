@@ -249,7 +249,6 @@ def fit(
 
     from app.cli.raw_data import training_touches
     from app.documents.model import latent_selection_dict, model_to_document
-    from app.errors import AppError
     from core.errors import CoreError
     from core.manifold import FitOptions
     from core.placement_effect import with_placement_effect
@@ -257,6 +256,11 @@ def fit(
     requested_dim = _parse_latent_dim(latent_dim)
     if workers is not None and scheduler is not None:
         raise fail("--workers and --scheduler: give one (a local cluster or an existing one)")
+    refusals: tuple[type[Exception], ...] = (CoreError,)
+    if workers is not None or scheduler is not None:
+        from app.errors import AppError  # the cluster's refusals; the web stack only then
+
+        refusals = (CoreError, AppError)
     try:
         dy = _parse_latent_dim(feature_dim)
     except typer.BadParameter as exc:
@@ -276,7 +280,7 @@ def fit(
             data, requested_dim, options, seed, quiet=False, noise_model=noise_model
         )
         model, placement = with_placement_effect(model)
-    except (CoreError, AppError) as exc:
+    except refusals as exc:
         raise fail(str(exc)) from None
     if pipeline is not None:
         model = dataclasses.replace(model, features=pipeline)
