@@ -26,7 +26,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from types import TracebackType
+from typing import TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -46,10 +46,13 @@ from hardware.errors import (
 )
 from hardware.finger import Finger, FingerState
 from hardware.frames import TactileFrame
+from hardware.lifecycle import WithBlock
 from hardware.records import FloatArray, TouchRecord
 from hardware.tactile import TactileRecorder, TactileSensor
 from hardware.trajectories import check_trajectory, ramp
 from hardware.turntable import Turntable
+
+_T = TypeVar("_T")
 
 
 class RigState(enum.StrEnum):
@@ -399,46 +402,46 @@ class Rig:
 
     def go_safe(self, lease: RigLease) -> None:
         """See :meth:`RigLease.go_safe`."""
-        self._check_lease(lease)
-        with self._operation:
-            self._require_ready()
-            try:
-                self._set_state(RigState.MOVING)
-                self._ensure_safe_pose()
-            except HardwareError as exc:
-                self._fail(exc)
-                raise self._estop_error(exc) from exc
-            self._set_state(RigState.IDLE)
+        self._move(lease, lambda: None)
 
     def move_to_slot(self, lease: RigLease, slot: int) -> float:
         """See :meth:`RigLease.move_to_slot`."""
-        self._check_lease(lease)
-        with self._operation:
-            self._require_ready()
-            self.turntable.slot_angle(slot)  # validates before anything moves
-            try:
-                self._set_state(RigState.MOVING)
-                self._ensure_safe_pose()
-                angle = self.turntable.move_to_slot(slot)
-            except HardwareError as exc:
-                self._fail(exc)
-                raise self._estop_error(exc) from exc
-            self._set_state(RigState.IDLE)
-            return angle
+        return self._move(
+            lease,
+            lambda: self.turntable.move_to_slot(slot),
+            check=lambda: self.turntable.slot_angle(slot),  # validates before anything moves
+        )
 
     def home(self, lease: RigLease) -> None:
         """See :meth:`RigLease.home`."""
+        self._move(lease, self.turntable.home)
+
+    def _move(
+        self,
+        lease: RigLease,
+        motion: Callable[[], _T],
+        check: Callable[[], object] | None = None,
+    ) -> _T:
+        """Put the finger in its safe pose, then run ``motion``; returns what it returns.
+
+        The rig must be ready; ``check`` (if given) runs before anything moves. A device fault
+        leaves the rig safe and FAULT (:meth:`_fail`) and is raised, as
+        :class:`~hardware.errors.EmergencyStopped` when an emergency stop caused it.
+        """
         self._check_lease(lease)
         with self._operation:
             self._require_ready()
+            if check is not None:
+                check()
             try:
                 self._set_state(RigState.MOVING)
                 self._ensure_safe_pose()
-                self.turntable.home()
+                result = motion()
             except HardwareError as exc:
                 self._fail(exc)
                 raise self._estop_error(exc) from exc
             self._set_state(RigState.IDLE)
+            return result
 
     def _fail(self, exc: HardwareError) -> None:
         """Leave the rig safe after a fault and mark it FAULT (unless emergency-stopped)."""
@@ -686,7 +689,7 @@ class _TouchSession:
             raise error
 
 
-class RigLease:
+class RigLease(WithBlock):
     """The right to drive the rig, held by one run at a time (a context manager).
 
     Every method raises :class:`~hardware.errors.LeaseError` once the lease is released or
@@ -763,13 +766,5 @@ class RigLease:
             self._active = False
             self.rig.release(self)
 
-    def __enter__(self) -> RigLease:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
+    def _end(self) -> None:
         self.release()

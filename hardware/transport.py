@@ -19,7 +19,6 @@ import select
 import threading
 import time
 from abc import ABC, abstractmethod
-from types import TracebackType
 from typing import Any, Protocol
 
 import serial
@@ -31,6 +30,7 @@ from hardware.errors import (
     DeviceUnavailable,
     NotConnectedError,
 )
+from hardware.lifecycle import WithBlock
 
 try:  # POSIX: pyserial lets termios errors through (e.g. tcflush on a hung-up tty)
     import termios
@@ -51,7 +51,7 @@ _FILENO_ERRORS: tuple[type[BaseException], ...] = (
 )
 
 
-class Transport(ABC):
+class Transport(WithBlock, ABC):
     """A bidirectional byte stream to one device.
 
     Writes are serialised by a lock, so an emergency stop may write from another thread while a
@@ -102,17 +102,11 @@ class Transport(ABC):
         assert last is not None
         raise DeviceUnavailable(f"{self.name}: reconnect failed after {attempts} attempts: {last}")
 
-    def __enter__(self) -> Transport:
+    def _begin(self) -> None:
         if not self.is_open:
             self.open()
-        return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
+    def _end(self) -> None:
         self.close()
 
     # -- bytes -------------------------------------------------------------------------------

@@ -13,11 +13,11 @@ Faults: a silent servo, late replies, a corrupt reply, a hardware error, unplugg
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from hardware.errors import ServoHardwareErrorFlags
+from hardware.sim.device import SimulatedDevice
 from hardware.sim.world import Plant
 
 HEADER = b"\xff\xff\xfd\x00"
@@ -128,7 +128,7 @@ class _Servo:
         return int.from_bytes(self.table[address : address + size], "little", signed=signed)
 
 
-class DynamixelBus:
+class DynamixelBus(SimulatedDevice):
     """Servos on one Protocol 2.0 bus.
 
     Args:
@@ -143,9 +143,9 @@ class DynamixelBus:
         joints_by_id: Mapping[int, int] | None = None,
         model_number: int = MODEL_XM430_W350,
     ) -> None:
+        super().__init__()
         self.plant = plant
         self.clock = plant.clock
-        self.lock = threading.RLock()
         mapping = dict(joints_by_id or {1: 0, 2: 1})
         self.servos: dict[int, _Servo] = {}
         for servo_id, joint in mapping.items():
@@ -174,17 +174,11 @@ class DynamixelBus:
                 servo.put(address, value, size)
             self.servos[servo_id] = servo
         self._in = bytearray()
-        self._out: list[tuple[float, bytes]] = []
-        self._connected = True
+        self._replies: list[tuple[float, bytes]] = []  # (due at, packet)
         self.packets_received = 0
         self.crc_errors = 0
 
     # -- ByteDevice ---------------------------------------------------------------------------
-
-    @property
-    def connected(self) -> bool:
-        """False after :meth:`unplug`."""
-        return self._connected
 
     def attach(self) -> None:
         """Opening the port changes nothing on a Dynamixel bus."""
@@ -200,20 +194,15 @@ class DynamixelBus:
         with self.lock:
             now = self.clock.now()
             out = bytearray()
-            while self._out and self._out[0][0] <= now and len(out) < max_bytes:
-                _, packet = self._out.pop(0)
+            while self._replies and self._replies[0][0] <= now and len(out) < max_bytes:
+                _, packet = self._replies.pop(0)
                 out.extend(packet)
             if len(out) > max_bytes:
-                self._out.insert(0, (now, bytes(out[max_bytes:])))
+                self._replies.insert(0, (now, bytes(out[max_bytes:])))
                 del out[max_bytes:]
             return bytes(out)
 
     # -- fault injection ----------------------------------------------------------------------
-
-    def unplug(self) -> None:
-        """The bus cable is pulled."""
-        with self.lock:
-            self._connected = False
 
     def mute(self, servo_id: int, muted: bool = True) -> None:
         """A servo stops answering (as if its ID were wrong or its power lost)."""
@@ -279,7 +268,7 @@ class DynamixelBus:
         if servo.corrupt_replies > 0:
             servo.corrupt_replies -= 1
             packet[-1] ^= 0xFF
-        self._out.append((self.clock.now() + servo.reply_delay_s, bytes(packet)))
+        self._replies.append((self.clock.now() + servo.reply_delay_s, bytes(packet)))
 
     def _refresh(self, servo: _Servo) -> None:
         position, velocity, current, torque = self.plant.joint_state(servo.joint)

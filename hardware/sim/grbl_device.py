@@ -20,10 +20,10 @@ from __future__ import annotations
 
 import math
 import re
-import threading
 from dataclasses import dataclass
 
 from hardware.clock import Clock
+from hardware.sim.device import SimulatedDevice
 
 BANNER = b"\r\nGrbl 1.1h ['$' for help]\r\n"
 UNLOCK_HINT = b"[MSG:'$H'|'$X' to unlock]\r\n"
@@ -117,7 +117,7 @@ def _plan(start_s: float, start_deg: float, end_deg: float, rate: float, accel: 
     return _Segment(start_s, start_deg, end_deg, 2.0 * ramp + cruise, ramp, rate, accel)
 
 
-class GrblDevice:
+class GrblDevice(SimulatedDevice):
     """The simulated controller.
 
     Args:
@@ -126,11 +126,10 @@ class GrblDevice:
     """
 
     def __init__(self, clock: Clock, settings: dict[int, float] | None = None) -> None:
+        super().__init__()
         self.clock = clock
         self.settings = dict(DEFAULT_SETTINGS)
         self.settings.update(settings or {})
-        self.lock = threading.RLock()
-        self._out = bytearray()
         self._line = bytearray()
         now = clock.now()
         self._history: list[_Segment] = [_Segment(now, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)]
@@ -142,7 +141,6 @@ class GrblDevice:
         self._dwell: tuple[float, float] | None = None  # (queued at, seconds)
         self._pending_lines: list[str] = []
         self._homing = False
-        self._connected = True
         self._muted = False
         self._alarm_next_move: tuple[int, float] | None = None
         self._alarm_due: tuple[float, int] | None = None
@@ -151,11 +149,6 @@ class GrblDevice:
         self._boot()
 
     # -- ByteDevice ---------------------------------------------------------------------------
-
-    @property
-    def connected(self) -> bool:
-        """False after :meth:`unplug`."""
-        return self._connected
 
     def attach(self) -> None:
         """Opening the port resets the Arduino: GRBL boots and prints its banner."""
@@ -175,18 +168,9 @@ class GrblDevice:
         """Bytes GRBL has sent by now."""
         with self.lock:
             self._update()
-            if self._muted:
-                return b""
-            chunk = bytes(self._out[:max_bytes])
-            del self._out[:max_bytes]
-            return chunk
+            return b"" if self._muted else self._take(max_bytes)
 
     # -- fault injection ----------------------------------------------------------------------
-
-    def unplug(self) -> None:
-        """The USB cable is pulled."""
-        with self.lock:
-            self._connected = False
 
     def mute(self, muted: bool = True) -> None:
         """Stop (or resume) sending anything; input is still processed."""

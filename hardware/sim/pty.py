@@ -17,13 +17,13 @@ import select
 import threading
 import time
 import tty
-from types import TracebackType
 
 from hardware.errors import HardwareError
+from hardware.lifecycle import WithBlock
 from hardware.transport import ByteDevice
 
 
-class PtyEmulator:
+class PtyEmulator(WithBlock):
     """A device served on a pseudo-terminal.
 
     Args:
@@ -106,16 +106,10 @@ class PtyEmulator:
                     os.close(fd)
         self._master = self._slave = -1
 
-    def __enter__(self) -> PtyEmulator:
+    def _begin(self) -> None:
         self.start()
-        return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
+    def _end(self) -> None:
         self.stop()
 
     def _serve(self) -> None:

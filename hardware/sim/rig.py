@@ -16,7 +16,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from types import TracebackType
 
 import numpy as np
 
@@ -24,6 +23,7 @@ from hardware.clock import Clock, ScaledClock, VirtualClock
 from hardware.errors import ConfigurationError
 from hardware.finger import DYNAMIXEL_BAUDRATE, Finger, FingerConfig
 from hardware.frames import CHANNELS
+from hardware.lifecycle import WithBlock
 from hardware.rig import Rig, RigConfig
 from hardware.sim.dynamixel_device import DynamixelBus
 from hardware.sim.electrodes import WholeTouchSensor, surface_detail
@@ -135,7 +135,7 @@ def simulated_devices(
     return SimulatedDevices(clock, plant, grbl, bus, sensor, placed)
 
 
-class SimulatedRig:
+class SimulatedRig(WithBlock):
     """A :class:`~hardware.rig.Rig` wired to simulated devices (a context manager).
 
     Attributes:
@@ -176,15 +176,7 @@ class SimulatedRig:
         for emulator in self.emulators:
             emulator.stop()
 
-    def __enter__(self) -> SimulatedRig:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
+    def _end(self) -> None:
         self.close()
 
 

@@ -7,13 +7,12 @@ when its output buffer is full. Faults: frames lost at the source (sequence gaps
 
 from __future__ import annotations
 
-import threading
-
 from hardware.frames import encode_frame
+from hardware.sim.device import SimulatedDevice
 from hardware.sim.world import Plant
 
 
-class TactileSource:
+class TactileSource(SimulatedDevice):
     """The sensor, as bytes.
 
     Args:
@@ -25,13 +24,11 @@ class TactileSource:
     def __init__(
         self, plant: Plant, frame_rate_hz: float = 100.0, buffer_limit_bytes: int = 65536
     ) -> None:
+        super().__init__()
         self.plant = plant
         self.frame_rate_hz = float(frame_rate_hz)
         self.buffer_limit_bytes = buffer_limit_bytes
-        self.lock = threading.RLock()
-        self._out = bytearray()
         self._sequence = 0
-        self._connected = True
         self._stalled = False
         self._drop_next = 0
         self._corrupt_next = 0
@@ -60,11 +57,6 @@ class TactileSource:
 
     # -- ByteDevice ---------------------------------------------------------------------------
 
-    @property
-    def connected(self) -> bool:
-        """False after :meth:`unplug`."""
-        return self._connected
-
     def attach(self) -> None:
         """Opening the port changes nothing: the sensor streams regardless."""
 
@@ -74,17 +66,9 @@ class TactileSource:
     def transmit(self, max_bytes: int) -> bytes:
         """The frames produced by now."""
         self.plant.advance()
-        with self.lock:
-            chunk = bytes(self._out[:max_bytes])
-            del self._out[:max_bytes]
-            return chunk
+        return self._take(max_bytes)
 
     # -- fault injection ----------------------------------------------------------------------
-
-    def unplug(self) -> None:
-        """The cable is pulled."""
-        with self.lock:
-            self._connected = False
 
     def stall(self, stalled: bool = True) -> None:
         """Stop (or resume) sending frames."""
