@@ -11,7 +11,6 @@ import csv
 import io
 import json
 import signal
-import time
 from pathlib import Path
 from typing import Any
 
@@ -36,25 +35,9 @@ from tests.app.conftest import (
     make_settings,
 )
 from tests.app.test_crash import _free_port, server
+from tests.app.waits import UNFINISHED, wait_until
 
 API = "/api/v1"
-UNFINISHED = ("queued", "running", "paused")
-
-
-def wait_until(
-    client: TestClient | httpx.Client,
-    path: str,
-    done: Any,
-    timeout_s: float = 120.0,
-) -> dict[str, Any]:
-    """Poll ``GET path`` until ``done(body)``; return the body."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        body: dict[str, Any] = client.get(path).json()
-        if done(body):
-            return body
-        assert time.monotonic() < deadline, f"{path}: still {body.get('status')}: {body}"
-        time.sleep(0.05)
 
 
 def wait_ended(client: TestClient | httpx.Client, evaluation_id: int) -> dict[str, Any]:

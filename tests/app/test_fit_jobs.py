@@ -21,6 +21,7 @@ from app.main import create_app
 from app.services import fits
 from app.services.jobs import Job
 from tests.app.conftest import TestClient, experiment1_csv, make_settings
+from tests.app.waits import wait_until
 
 API = "/api/v1"
 FIT = {
@@ -104,13 +105,7 @@ def wait_for(
     done: Callable[[dict[str, Any]], bool],
     timeout_s: float = 120,
 ) -> dict[str, Any]:
-    deadline = time.monotonic() + timeout_s
-    while True:
-        model: dict[str, Any] = client.get(f"{API}/models/{model_id}").json()
-        if done(model):
-            return model
-        assert time.monotonic() < deadline, f"model {model_id} stayed {model['status']}: {model}"
-        time.sleep(0.05)
+    return wait_until(client, f"{API}/models/{model_id}", done, timeout_s)
 
 
 def test_with_a_limit_of_two_both_fits_run_at_once_and_the_second_does_not_wait(

@@ -27,25 +27,22 @@ def small_world() -> TrainingData:
 
 def test_the_folds_on_a_cluster_give_the_serial_choice_and_scores(dask_cluster: Any) -> None:
     data = small_world()
-    serial_seen: list[tuple[int, int, float]] = []
-    serial = select_latent_dim(
-        data,
-        FIT,
-        np.random.default_rng(1),
-        (1, 2, 3),
-        n_folds=3,
-        callback=lambda *a: serial_seen.append(a),
-    )
-    seen: list[tuple[int, int, float]] = []
-    distributed = select_latent_dim(
-        data,
-        FIT,
-        np.random.default_rng(1),
-        (1, 2, 3),
-        n_folds=3,
-        callback=lambda *a: seen.append(a),
-        map=dask_fold_map(None, dask_cluster.scheduler_address),
-    )
+
+    def choose(**options: Any) -> tuple[Any, list[tuple[int, int, float]]]:
+        seen: list[tuple[int, int, float]] = []
+        choice = select_latent_dim(
+            data,
+            FIT,
+            np.random.default_rng(1),
+            (1, 2, 3),
+            n_folds=3,
+            callback=lambda *a: seen.append(a),
+            **options,
+        )
+        return choice, seen
+
+    serial, serial_seen = choose()
+    distributed, seen = choose(map=dask_fold_map(None, dask_cluster.scheduler_address))
     assert distributed == serial  # the same choice, scores and training log-likelihoods
     assert sorted(seen) == sorted(serial_seen)  # every (ds, fold, score), in finishing order
     assert len(seen) == 3 * 3

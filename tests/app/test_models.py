@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 from app.models import ModelRecord
 from tests.app.conftest import TestClient, experiment1_csv
+from tests.app.waits import wait_until
 
 API = "/api/v1"
 
@@ -23,13 +23,9 @@ def upload(client: TestClient, touches_per_object: int = 10) -> int:
 
 
 def wait_ready(client: TestClient, model_id: int, timeout_s: float = 120) -> dict[str, Any]:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        model: dict[str, Any] = client.get(f"{API}/models/{model_id}").json()
-        if model["status"] != "fitting":
-            return model
-        time.sleep(0.05)
-    raise AssertionError("fit did not finish")
+    return wait_until(
+        client, f"{API}/models/{model_id}", lambda m: m["status"] != "fitting", timeout_s
+    )
 
 
 def test_fit_in_background_with_progress(client: TestClient) -> None:

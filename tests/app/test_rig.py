@@ -14,19 +14,22 @@ from core.posterior import condition
 from core.types import Hyperparameters
 from hardware.frames import CHANNELS
 from tests.app.conftest import TestClient
+from tests.app.waits import wait_until
 
 API = "/api/v1"
 CUPS = ["paper_cup", "bumpy_glass"]
 
 
-def wait_until(client: TestClient, path: str, done: Any, timeout_s: float = 120) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        body = client.get(path).json()
-        if done(body):
-            return body
-        time.sleep(0.05)
-    raise AssertionError(f"timed out waiting on {path}: {body}")
+def collect_cups(client: TestClient, samples_per_object: int, seed: int) -> Any:
+    """Start a collection of :data:`CUPS` (slots 0, 1, ...); the API's response."""
+    return client.post(
+        f"{API}/collections",
+        json={
+            "objects": [{"name": n, "slot": i} for i, n in enumerate(CUPS)],
+            "samples_per_object": samples_per_object,
+            "seed": seed,
+        },
+    )
 
 
 def test_rig_operations_and_estop(client: TestClient) -> None:
@@ -67,14 +70,7 @@ def rig_model_document(client: TestClient, dataset_id: int) -> dict[str, Any]:
 
 
 def test_collection_then_rig_trial_hold_the_rig(client: TestClient) -> None:
-    created = client.post(
-        f"{API}/collections",
-        json={
-            "objects": [{"name": n, "slot": i} for i, n in enumerate(CUPS)],
-            "samples_per_object": 2,
-            "seed": 3,
-        },
-    )
+    created = collect_cups(client, 2, seed=3)
     assert created.status_code == 201, created.text
     run = created.json()
     assert run["total"] == 4
@@ -180,11 +176,7 @@ def test_rig_trial_needs_matching_model_and_slot(client: TestClient) -> None:
 
 
 def test_estop_aborts_the_collection_keeping_its_samples(client: TestClient) -> None:
-    created = client.post(
-        f"{API}/collections",
-        json={"objects": [{"name": n, "slot": i} for i, n in enumerate(CUPS)],
-              "samples_per_object": 50, "seed": 1},
-    ).json()  # fmt: skip
+    created = collect_cups(client, 50, seed=1).json()
     wait_until(client, f"{API}/collections/{created['id']}", lambda r: r["done"] >= 1)
     assert client.post(f"{API}/rig/estop").json()["state"] == "estopped"
     run = wait_until(
@@ -203,11 +195,7 @@ def test_estop_aborts_the_collection_keeping_its_samples(client: TestClient) -> 
 def test_device_fault_fails_the_run_with_reason_and_keeps_samples(client: TestClient) -> None:
     from hardware.errors import ServoHardwareErrorFlags
 
-    created = client.post(
-        f"{API}/collections",
-        json={"objects": [{"name": n, "slot": i} for i, n in enumerate(CUPS)],
-              "samples_per_object": 50, "seed": 2},
-    ).json()  # fmt: skip
+    created = collect_cups(client, 50, seed=2).json()
     wait_until(client, f"{API}/collections/{created['id']}", lambda r: r["done"] >= 2)
     simulation = client.app.state.context.rig.handle().simulation  # type: ignore[attr-defined]
     simulation.devices.plant.inject_hardware_error(0, ServoHardwareErrorFlags.OVERLOAD)
@@ -286,11 +274,7 @@ def test_a_collection_seen_ended_no_longer_holds_the_rig(
         finish(self, *args)
 
     monkeypatch.setattr(CollectionService, "_finish", finish_and_note)
-    created = client.post(
-        f"{API}/collections",
-        json={"objects": [{"name": n, "slot": i} for i, n in enumerate(CUPS)],
-              "samples_per_object": 2, "seed": 4},
-    )  # fmt: skip
+    created = collect_cups(client, 2, seed=4)
     assert created.status_code == 201, created.text
     path = f"{API}/collections/{created.json()['id']}"
     done = wait_until(client, path, lambda r: r["status"] not in ("queued", "running"))

@@ -4,8 +4,6 @@ event stream, a change and a sign-out shows the paths, never the token or the se
 from __future__ import annotations
 
 import logging
-import threading
-import time
 from pathlib import Path
 
 import httpx
@@ -13,17 +11,9 @@ import httpx
 from app.cli.serve import ServedApp, listening_url
 from app.security.sessions import SESSION_COOKIE
 from tests.app.conftest import make_settings
+from tests.app.served import LogRecords, start_in_thread
 
 TOKEN = "log-probe-token-5d1e9a"
-
-
-class Collect(logging.Handler):
-    def __init__(self) -> None:
-        super().__init__(level=logging.DEBUG)
-        self.lines: list[str] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.lines.append(record.getMessage())
 
 
 def test_access_log_never_shows_the_token_or_the_session(tmp_path: Path) -> None:
@@ -31,17 +21,12 @@ def test_access_log_never_shows_the_token_or_the_session(tmp_path: Path) -> None
         tmp_path, port=0, viz=False, api_token=TOKEN, require_auth_for_reads=True
     )
     served = ServedApp(settings, log_level="info")
-    collect = Collect()
+    collect = LogRecords()
     loggers = [logging.getLogger(name) for name in ("uvicorn.access", "uvicorn.error", "app")]
     for logger in loggers:
         logger.addHandler(collect)
-    thread = threading.Thread(target=served.run, daemon=True)
-    thread.start()
+    thread = start_in_thread(served.server, served.run)
     try:
-        deadline = time.monotonic() + 60
-        while not served.server.started:
-            assert time.monotonic() < deadline
-            time.sleep(0.05)
         base = listening_url(served.server, "127.0.0.1")
         with httpx.Client(base_url=base, timeout=30) as client:
             assert client.post("/api/v1/session", json={"token": "wrong"}).status_code == 401

@@ -18,35 +18,22 @@ from websockets.sync.client import ClientConnection, connect
 from app.cli.serve import ServedApp, listening_url
 from app.security.sessions import SESSION_COOKIE
 from tests.app.conftest import make_settings
+from tests.app.served import LogRecords, start_in_thread
 
 TOKEN = "stream-gate-token"
 BEARER = {"Authorization": f"Bearer {TOKEN}"}
 CSRF = {"X-Requested-With": "activetouch"}
 
 
-class Collect(logging.Handler):
-    def __init__(self) -> None:
-        super().__init__(level=logging.DEBUG)
-        self.lines: list[str] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.lines.append(record.getMessage())
-
-
 @pytest.fixture
-def served(tmp_path: Path) -> Iterator[tuple[ServedApp, Collect]]:
+def served(tmp_path: Path) -> Iterator[tuple[ServedApp, LogRecords]]:
     settings = make_settings(
         tmp_path, port=0, viz=True, viz_port=0, api_token=TOKEN, require_auth_for_reads=True
     )
     served = ServedApp(settings, log_level="warning")
-    errors = Collect()
+    errors = LogRecords()
     logging.getLogger("uvicorn.error").addHandler(errors)
-    thread = threading.Thread(target=served.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 60
-    while not served.server.started:
-        assert time.monotonic() < deadline
-        time.sleep(0.05)
+    thread = start_in_thread(served.server, served.run)
     try:
         yield served, errors
     finally:
@@ -74,7 +61,7 @@ def drain(websocket: ClientConnection) -> None:
         websocket.recv(timeout=10)
 
 
-def test_the_event_stream_ends_at_sign_out(served: tuple[ServedApp, Collect]) -> None:
+def test_the_event_stream_ends_at_sign_out(served: tuple[ServedApp, LogRecords]) -> None:
     app, errors = served
     base = listening_url(app.server, "127.0.0.1")
     session_id = sign_in(base)
@@ -109,7 +96,7 @@ def test_the_event_stream_ends_at_sign_out(served: tuple[ServedApp, Collect]) ->
     assert not [line for line in errors.lines if "Exception" in line], errors.lines
 
 
-def test_the_3d_view_websocket_ends_at_sign_out(served: tuple[ServedApp, Collect]) -> None:
+def test_the_3d_view_websocket_ends_at_sign_out(served: tuple[ServedApp, LogRecords]) -> None:
     app, errors = served
     assert app.live is not None
     base = listening_url(app.server, "127.0.0.1")

@@ -4,7 +4,6 @@ the app at ``/viser/`` (HTTP and websocket), which refuses a client without the 
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -18,6 +17,7 @@ from app.cli.serve import ServedApp, listening_url
 from app.security.sessions import SESSION_COOKIE
 from app.viz.live import LiveView
 from tests.app.conftest import make_settings
+from tests.app.served import start_in_thread
 
 TOKEN = "viser-gate-token"
 SUBPROTOCOL = f"viser-v{viser.__version__}"
@@ -28,13 +28,7 @@ def serve(settings_dir: Path, **overrides: object) -> tuple[ServedApp, threading
         make_settings(settings_dir, port=0, viz=True, viz_port=0, **overrides),
         log_level="warning",
     )
-    thread = threading.Thread(target=served.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 60
-    while not served.server.started:
-        assert thread.is_alive(), "the server stopped while starting"
-        assert time.monotonic() < deadline, "the server did not start within 60 s"
-        time.sleep(0.05)
+    thread = start_in_thread(served.server, served.run)
     return served, thread
 
 

@@ -4,8 +4,6 @@ leaves it out."""
 
 from __future__ import annotations
 
-import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -16,7 +14,8 @@ import pytest
 from app.cli.serve import ServedApp, listening_url
 from app.viz.follower import wait_for_belief_mean
 from tests.app.conftest import experiment1_document, make_settings
-from tests.app.trial_waits import wait_finished
+from tests.app.served import start_in_thread
+from tests.app.waits import finished, wait_until
 
 API = "/api/v1"
 
@@ -26,13 +25,7 @@ def served(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[ServedApp
     """The app on a free port of 127.0.0.1, in a thread, with or without the view."""
     viz = bool(getattr(request, "param", True))
     served = ServedApp(make_settings(tmp_path, port=0, viz=viz, viz_port=0), log_level="warning")
-    thread = threading.Thread(target=served.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 60
-    while not served.server.started:
-        assert thread.is_alive(), "the server stopped while starting"
-        assert time.monotonic() < deadline, "the server did not start within 60 s"
-        time.sleep(0.05)
+    thread = start_in_thread(served.server, served.run)
     try:
         yield served
     finally:
@@ -62,9 +55,7 @@ def test_serve_runs_the_view_and_it_follows_a_trial(served: ServedApp) -> None:
             },
         )  # fmt: skip
         assert created.status_code == 201, created.text
-        trial = wait_finished(
-            lambda trial_id: client.get(f"{API}/trials/{trial_id}").json(), created.json()["id"]
-        )
+        trial = wait_until(client, f"{API}/trials/{created.json()['id']}", finished, 60)
     assert trial["status"] == "completed"
     final_mean = np.asarray(trial["steps"][-1]["belief"]["mean"])
     wait_for_belief_mean(view, final_mean)

@@ -10,22 +10,12 @@ from pathlib import Path
 import httpx
 import uvicorn
 
-from app.cli.serve import GracefulServer
+from app.cli.serve import GracefulServer, listening_url
 from app.main import create_app
 from tests.app.conftest import TestClient, make_settings
+from tests.app.served import LogRecords, start_in_thread
 
 API = "/api/v1"
-
-
-class Records(logging.Handler):
-    """Keeps every log record it sees."""
-
-    def __init__(self) -> None:
-        super().__init__(level=logging.DEBUG)
-        self.records: list[logging.LogRecord] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.records.append(record)
 
 
 def test_a_closed_bus_ends_a_following_stream_after_its_backlog(tmp_path: Path) -> None:
@@ -46,28 +36,23 @@ def test_shutdown_with_open_streams_logs_no_traceback(tmp_path: Path) -> None:
         app, host="127.0.0.1", port=0, log_config=None, timeout_graceful_shutdown=30
     )
     server = GracefulServer(config)
-    handler = Records()
+    handler = LogRecords()
     loggers = [logging.getLogger(name) for name in ("uvicorn", "uvicorn.error", "app")]
     levels = [logger.level for logger in loggers]
     for logger in loggers:
         logger.addHandler(handler)
         logger.setLevel(logging.INFO)
-    thread = threading.Thread(target=server.run, daemon=True)
+    thread: threading.Thread | None = None
     try:
-        thread.start()
-        deadline = time.monotonic() + 30
-        while not server.started:
-            assert thread.is_alive(), "the server stopped while starting"
-            assert time.monotonic() < deadline, "the server did not start within 30 s"
-            time.sleep(0.02)
-        port = server.servers[0].sockets[0].getsockname()[1]
+        thread = start_in_thread(server, timeout_s=30)
+        base = listening_url(server, "127.0.0.1")
         received: list[list[str]] = [[], []]
         errors: list[BaseException] = []
         opened = threading.Barrier(3, timeout=20)
 
         def follow(lines: list[str]) -> None:
             try:
-                url = f"http://127.0.0.1:{port}{API}/events?after=0"
+                url = f"{base}{API}/events?after=0"
                 with httpx.stream("GET", url, timeout=60) as response:
                     opened.wait()
                     for line in response.iter_lines():
@@ -93,11 +78,13 @@ def test_shutdown_with_open_streams_logs_no_traceback(tmp_path: Path) -> None:
         stopped_in_s = time.monotonic() - stopping
     finally:
         server.should_exit = True
-        thread.join(timeout=20)
+        if thread is not None:
+            thread.join(timeout=20)
         for logger, level in zip(loggers, levels, strict=True):
             logger.removeHandler(handler)
             logger.setLevel(level)
 
+    assert thread is not None
     assert not thread.is_alive()
     assert stopped_in_s < 5.0  # not the 30 s grace period: the streams ended by themselves
     assert errors == []  # each response was complete (no "incomplete chunked read")

@@ -12,6 +12,7 @@ import pytest
 from app.main import create_app
 from core.worlds import Experiment1World
 from tests.app.conftest import TestClient, import_model, make_settings
+from tests.app.waits import wait_until
 
 API = "/api/v1"
 
@@ -41,13 +42,7 @@ def touch(client: TestClient, trial_id: int, obj: int, rng: np.random.Generator)
 
 
 def wait_for(client: TestClient, trial_id: int, predicate: Any, timeout_s: float = 20) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        trial = client.get(f"{API}/trials/{trial_id}").json()
-        if predicate(trial):
-            return trial
-        time.sleep(0.02)
-    raise AssertionError(f"timed out; last state {trial['status']} with {trial['n_steps']} steps")
+    return wait_until(client, f"{API}/trials/{trial_id}", predicate, timeout_s)
 
 
 def wait_until_steady(client: TestClient, trial_id: int, quiet_s: float = 0.2) -> int:

@@ -1,22 +1,50 @@
-"""Waiting for a trial run through the REST API to end (app and browser tests)."""
+"""Waiting on the REST API in tests: poll a resource until it reaches the state a test needs."""
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Protocol
 
 UNFINISHED = ("queued", "running", "paused")
 
 
-def wait_finished(
-    fetch: Callable[[int], dict[str, Any]], trial_id: int, timeout_s: float = 60
+class _Getter(Protocol):
+    def get(self, url: str) -> Any: ...
+
+
+def poll(
+    fetch: Callable[[], dict[str, Any]],
+    done: Callable[[dict[str, Any]], bool],
+    timeout_s: float = 120.0,
+    what: str = "the resource",
 ) -> dict[str, Any]:
-    """Poll ``fetch(trial_id)`` (the trial's JSON) until its status is final; return it."""
+    """Call ``fetch()`` (a resource's JSON) until ``done(body)``; return that body.
+
+    Raises:
+        AssertionError: ``done`` still false after ``timeout_s``; names ``what`` and the last body.
+    """
     deadline = time.monotonic() + timeout_s
     while True:
-        trial = fetch(trial_id)
-        if trial["status"] not in UNFINISHED:
-            return trial
-        assert time.monotonic() < deadline, f"trial {trial_id} still {trial['status']}"
-        time.sleep(0.1)
+        body = fetch()
+        if done(body):
+            return body
+        assert time.monotonic() < deadline, (
+            f"{what}: still {body.get('status')} after {timeout_s:g} s: {body}"
+        )
+        time.sleep(0.05)
+
+
+def wait_until(
+    client: _Getter,
+    path: str,
+    done: Callable[[dict[str, Any]], bool],
+    timeout_s: float = 120.0,
+) -> dict[str, Any]:
+    """Poll ``GET path`` (a TestClient or an httpx client) until ``done(body)``; return the body."""
+    return poll(lambda: client.get(path).json(), done, timeout_s, path)
+
+
+def finished(body: dict[str, Any]) -> bool:
+    """Whether a run (trial, collection, evaluation) has reached a final status."""
+    return body["status"] not in UNFINISHED

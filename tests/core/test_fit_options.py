@@ -15,22 +15,14 @@ from core.fit_run import FitRun
 from core.hyperparameter_fit import minimize_free
 from core.types import TrainingData
 from core.worlds import random_experiment2_world, sample_dataset
+from tests.core.badly_scaled import minimize_quadratic
 
 
 def test_more_joint_lbfgs_memory_reaches_the_optimum_in_fewer_iterations() -> None:
     # A badly scaled quadratic (condition 1e4): with more correction pairs L-BFGS-B models
     # more of the curvature. Both runs must reach the optimum; the longer memory must be used.
-    scales = np.logspace(0, 4, 30)
-
-    class Quadratic:
-        def value_and_gradient(self, x: np.ndarray) -> tuple[float, np.ndarray]:
-            return float(0.5 * np.sum(scales * x**2)), scales * x
-
-    x0 = np.ones(30)
-    free = np.ones(30, dtype=bool)
-    bounds = (np.full(30, -10.0), np.full(30, 10.0))
-    short = minimize_free(Quadratic(), x0, free, *bounds, 10_000, 1e-15, 1e-12, memory=10)
-    long = minimize_free(Quadratic(), x0, free, *bounds, 10_000, 1e-15, 1e-12, memory=30)
+    short = minimize_quadratic(memory=10)
+    long = minimize_quadratic(memory=30)
     assert short.fun < 1e-10
     assert long.fun < 1e-10
     assert long.nit < 0.8 * short.nit

@@ -22,6 +22,7 @@ from core.parameters import ParameterLayout, initial_hyperparameters, parameter_
 from core.posterior import make_likelihood
 from core.types import TrainingData
 from core.worlds import random_experiment2_world, sample_dataset
+from tests.core.badly_scaled import minimize_quadratic
 
 
 def small_world_data(seed: int = 0, touches: int = 12) -> tuple[TrainingData, np.ndarray]:
@@ -121,26 +122,13 @@ def test_unit_length_scale_start_avoids_the_independent_objects_corner() -> None
 
 def test_stall_stop_ends_a_creeping_run_successfully() -> None:
     # A badly scaled quadratic: L-BFGS-B needs many iterations to its tolerance.
-    scales = np.logspace(0, 4, 30)
-
-    class Quadratic:
-        def value_and_gradient(self, x: np.ndarray) -> tuple[float, np.ndarray]:
-            return float(0.5 * np.sum(scales * x**2)), scales * x
-
-    x0 = np.ones(30)
-    free = np.ones(30, dtype=bool)
-    bounds = (np.full(30, -10.0), np.full(30, 10.0))
-    full = minimize_free(Quadratic(), x0, free, *bounds, 10_000, 1e-15, 1e-12)
-    stalled = minimize_free(
-        Quadratic(), x0, free, *bounds, 10_000, 1e-15, 1e-12, stall_nats=1e3, stall_iterations=3
-    )
+    full = minimize_quadratic()
+    stalled = minimize_quadratic(stall_nats=1e3, stall_iterations=3)
     assert isinstance(stalled, scipy.optimize.OptimizeResult)
     assert stalled.success
     assert "improved by <" in stalled.message
     assert stalled.nit == 4 < full.nit
-    relative = minimize_free(
-        Quadratic(), x0, free, *bounds, 10_000, 1e-15, 1e-12, stall_relative=1e-1
-    )
+    relative = minimize_quadratic(stall_relative=1e-1)
     assert relative.success
     assert relative.nit < full.nit
 

@@ -7,7 +7,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from bench.reference_moments import direct_moments_batch
 from core.designs import collect, shared_design
 from core.errors import CoreError, InvalidInputError
 from core.fit_run import FitRun, evaluation_cost
@@ -22,7 +21,6 @@ from core.kronecker import (
     predictive_covariance_kronecker,
     require_shared_design,
 )
-from core.likelihood import ManifoldLikelihood
 from core.manifold import FitOptions, fit_manifold
 from core.moments import (
     ActionStatistics,
@@ -36,9 +34,15 @@ from core.posterior import condition, predict, resolve_structure
 from core.recognition import RecognitionSession
 from core.types import GaussianBelief, Hyperparameters, ManifoldModel, TrainingData
 from core.worlds import random_experiment2_world
+from tests.core.agreement import (
+    KRONECKER_TOLERANCE,
+    assert_kronecker_matches_dense,
+    assert_moments_match_direct,
+    relative,
+)
 from tests.core.finite_differences import central_differences
 
-TOLERANCE = 1e-8
+TOLERANCE = KRONECKER_TOLERANCE
 
 
 @dataclass(frozen=True)
@@ -96,20 +100,10 @@ def make_problem(
     return data, latents, hyper
 
 
-def relative(value: np.ndarray, reference: np.ndarray) -> float:
-    return float(np.max(np.abs(value - reference)) / max(np.max(np.abs(reference)), 1e-300))
-
-
 @pytest.mark.parametrize("case", CASES, ids=lambda c: c.name)
 def test_value_and_gradient_match_the_dense_likelihood(case: Case) -> None:
     data, latents, hyper = make_problem(case, seed=1)
-    dense = ManifoldLikelihood(data, case.latent_dim)
-    kron = KroneckerLikelihood(data, case.latent_dim)
-    vector = dense.layout.pack(latents, hyper)
-    value_d, grad_d = dense.value_and_gradient(vector)
-    value_k, grad_k = kron.value_and_gradient(vector)
-    assert abs(value_k - value_d) <= TOLERANCE * abs(value_d)
-    assert relative(grad_k, grad_d) <= TOLERANCE
+    kron, vector, value_k = assert_kronecker_matches_dense(data, case.latent_dim, latents, hyper)
     assert kron.value(vector) == pytest.approx(value_k, rel=1e-12)
     assert kron.evaluations == 2
 
@@ -237,13 +231,7 @@ def test_a_repeated_design_action_still_matches_dense() -> None:
     for obj in range(CASES[1].n_objects):
         actions[obj * m + 1] = actions[obj * m]  # design action 1 repeats action 0
     repeated = TrainingData(data.object_names, data.object_index, actions, data.observations)
-    dense = ManifoldLikelihood(repeated, 1)
-    kron = KroneckerLikelihood(repeated, 1)
-    vector = dense.layout.pack(latents, hyper)
-    value_d, grad_d = dense.value_and_gradient(vector)
-    value_k, grad_k = kron.value_and_gradient(vector)
-    assert abs(value_k - value_d) <= TOLERANCE * abs(value_d)
-    assert relative(grad_k, grad_d) <= TOLERANCE
+    assert_kronecker_matches_dense(repeated, 1, latents, hyper)
 
 
 def test_large_posterior_does_not_materialise_its_inverse() -> None:
@@ -392,9 +380,4 @@ def test_many_objects_moments_match_the_direct_appendix_formula() -> None:
     assert model.posterior.structure == "kronecker"
     belief = GaussianBelief(mean=latents[5] + 0.2, cov=np.array([[0.6, 0.1], [0.1, 0.4]]))
     actions = np.random.default_rng(24).standard_normal((3, case.action_dim))
-    moments = predictive_moments(model, belief, action_statistics(model, actions))
-    mean, cov, cross, information = direct_moments_batch(model, belief, actions)
-    assert relative(moments.mean, mean) < 1e-9
-    assert relative(moments.cov, cov) < 1e-9
-    assert relative(moments.cross_cov, cross) < 1e-9
-    assert relative(mutual_information(moments, belief), information) < 1e-9
+    assert_moments_match_direct(model, belief, actions)

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from core.designs import collect, shared_design
-from core.kronecker import KroneckerLikelihood, condition_kronecker
-from core.likelihood import ManifoldLikelihood
+from core.kronecker import condition_kronecker
 from core.posterior import condition
 from core.types import Hyperparameters, TrainingData
 from core.worlds import random_experiment2_world
+from tests.core.agreement import assert_kronecker_matches_dense
 
 TOLERANCE = 1e-8
 
@@ -47,14 +47,7 @@ def singular_problem(
 @pytest.mark.parametrize(("n_objects", "n_actions"), [(33, 4), (3, 40)])
 def test_singular_factors_match_the_dense_path(n_objects: int, n_actions: int) -> None:
     data, latents, hyper = singular_problem(n_objects, n_actions, seed=n_objects)
-    dense = ManifoldLikelihood(data, 2)
-    kron = KroneckerLikelihood(data, 2)
-    vector = dense.layout.pack(latents, hyper)
-    value_d, grad_d = dense.value_and_gradient(vector)
-    value_k, grad_k = kron.value_and_gradient(vector)
-    assert abs(value_k - value_d) <= TOLERANCE * abs(value_d)
-    scale = np.max(np.abs(grad_d))
-    assert np.max(np.abs(grad_k - grad_d)) <= TOLERANCE * scale
+    kron, vector, value_k = assert_kronecker_matches_dense(data, 2, latents, hyper)
     assert kron.value(vector) == pytest.approx(value_k, rel=1e-12)
     model_k = condition_kronecker(data, latents, hyper)
     model_d = condition(data, latents, hyper, structure="dense")

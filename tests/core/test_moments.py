@@ -10,7 +10,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.reference_moments import direct_moments_batch
 from core.errors import InvalidInputError
 from core.information_gradient import mutual_information_and_gradient
 from core.moments import (
@@ -21,6 +20,7 @@ from core.moments import (
 )
 from core.posterior import condition, predict
 from core.types import GaussianBelief, Hyperparameters, ManifoldModel, TrainingData
+from tests.core.agreement import assert_moments_match_direct
 
 
 def small_model(
@@ -77,22 +77,12 @@ def actions() -> np.ndarray:
     return np.random.default_rng(1).normal(0.0, 0.8, (6, 2))
 
 
-def _relative_error(value: np.ndarray, reference: np.ndarray) -> float:
-    return float(np.max(np.abs(value - reference)) / np.max(np.abs(reference)))
-
-
 @pytest.mark.parametrize("belief_name", sorted(BELIEFS))
 def test_structured_batched_moments_match_the_direct_appendix_formula(
     model: ManifoldModel, actions: np.ndarray, belief_name: str
 ) -> None:
     belief = BELIEFS[belief_name]
-    moments = predictive_moments(model, belief, action_statistics(model, actions))
-    information = mutual_information(moments, belief)
-    mean, cov, cross, direct_information = direct_moments_batch(model, belief, actions)
-    assert _relative_error(moments.mean, mean) < 1e-9
-    assert _relative_error(moments.cov, cov) < 1e-9
-    assert _relative_error(moments.cross_cov, cross) < 1e-9
-    assert _relative_error(information, direct_information) < 1e-9
+    _, information = assert_moments_match_direct(model, belief, actions)
     assert np.all(information > 0)
 
 
@@ -100,12 +90,7 @@ def test_direct_formula_agreement_also_holds_with_a_one_dimensional_latent() -> 
     model = small_model(seed=3, n_objects=4, latent_dim=1, action_dim=1, observation_dim=2)
     belief = GaussianBelief(mean=np.array([0.3]), cov=np.array([[2.0]]))
     actions = np.linspace(-2.0, 2.0, 5)[:, None]
-    moments = predictive_moments(model, belief, action_statistics(model, actions))
-    mean, cov, cross, information = direct_moments_batch(model, belief, actions)
-    assert _relative_error(moments.mean, mean) < 1e-9
-    assert _relative_error(moments.cov, cov) < 1e-9
-    assert _relative_error(moments.cross_cov, cross) < 1e-9
-    assert _relative_error(mutual_information(moments, belief), information) < 1e-9
+    assert_moments_match_direct(model, belief, actions)
 
 
 def _batch_mean_estimates(

@@ -226,11 +226,23 @@ def test_with_placement_effect_uses_the_recorded_placements(model: ManifoldModel
     assert len(placement_groups(placed.data.object_index, placement)) == 80
 
 
-def test_session_scores_a_trials_touches_jointly_at_every_step(model: ManifoldModel) -> None:
-    placed = dataclasses.replace(
-        model, placement_variance=0.5 * model.hyperparameters.noise_variance
+@pytest.mark.parametrize(
+    ("placement_share", "seed"),
+    [(0.5, 10), (0.0, 13)],
+    ids=["with a placement effect", "without"],
+)
+def test_session_posterior_is_the_batch_joint_at_every_step(
+    model: ManifoldModel, placement_share: float, seed: int
+) -> None:
+    """With or without a placement effect, the session scores a trial's touches jointly."""
+    placed = (
+        dataclasses.replace(
+            model, placement_variance=placement_share * model.hyperparameters.noise_variance
+        )
+        if placement_share
+        else model
     )
-    x, y = _trial(5, 10)
+    x, y = _trial(5, seed)
     session = RecognitionSession(
         placed, Planner(placed, PassivePolicy()), settings=RecognitionSettings(max_steps=5)
     )
@@ -238,18 +250,6 @@ def test_session_scores_a_trials_touches_jointly_at_every_step(model: ManifoldMo
         step = session.observe(x[t], y[t])
         np.testing.assert_allclose(
             step.probabilities, object_posterior(placed, x[: t + 1], y[: t + 1]), rtol=1e-12
-        )
-
-
-def test_session_posterior_is_the_batch_joint_at_every_step(model: ManifoldModel) -> None:
-    x, y = _trial(5, 13)
-    session = RecognitionSession(
-        model, Planner(model, PassivePolicy()), settings=RecognitionSettings(max_steps=5)
-    )
-    for t in range(5):
-        step = session.observe(x[t], y[t])
-        np.testing.assert_allclose(
-            step.probabilities, object_posterior(model, x[: t + 1], y[: t + 1]), rtol=1e-12
         )
 
 

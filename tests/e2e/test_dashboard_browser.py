@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from app.viz.follower import wait_for_belief_mean, wait_for_clients
-from tests.app.trial_waits import wait_finished
+from tests.app.waits import finished, poll
 from tests.e2e.conftest import DOCS_FLAG, Demo, PageErrors, record_touch_counts, save_screenshot
 
 pytestmark = pytest.mark.browser
@@ -151,7 +151,8 @@ def test_viser_view_connects_and_follows_the_trial(
         body["simulation"] = {"world": demo.state.world, "step_interval_s": 0.0}
     created = demo.server.client.post("/trials", json=body)
     assert created.status_code == 201, created.text
-    trial = wait_finished(lambda trial_id: demo.get(f"/trials/{trial_id}"), created.json()["id"])
+    path = f"/trials/{created.json()['id']}"
+    trial = poll(lambda: demo.get(path), finished, 60, path)
     final_mean = np.asarray(trial["steps"][-1]["belief"]["mean"])
     wait_for_belief_mean(view, final_mean)
     assert view.belief is not None

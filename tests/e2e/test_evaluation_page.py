@@ -10,8 +10,6 @@ made before the refusal, the refused touch and no answer.
 
 from __future__ import annotations
 
-import threading
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -20,10 +18,12 @@ import httpx
 import pytest
 import uvicorn
 
-from app.cli.serve import GracefulServer
+from app.cli.serve import GracefulServer, listening_url
 from app.config import Settings
 from app.main import API_PREFIX, create_app
 from tests.app.conftest import experiment1_document
+from tests.app.served import start_in_thread
+from tests.app.waits import finished, wait_until
 from tests.e2e.conftest import PageErrors, save_screenshot
 
 pytestmark = pytest.mark.browser
@@ -55,15 +55,8 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
     )
     config = uvicorn.Config(create_app(settings), host="127.0.0.1", port=0, log_level="warning")
     server = GracefulServer(config)
-    thread = threading.Thread(target=server.run, name="evaluation-page-uvicorn", daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 60
-    while not server.started:
-        assert thread.is_alive(), "the app did not start"
-        assert time.monotonic() < deadline, "the app did not start within 60 s"
-        time.sleep(0.05)
-    port = server.servers[0].sockets[0].getsockname()[1]
-    base_url = f"http://127.0.0.1:{port}"
+    thread = start_in_thread(server)
+    base_url = listening_url(server, "127.0.0.1")
     client = httpx.Client(base_url=base_url + API_PREFIX, timeout=30)
     try:
         imported = client.post("/models/import", json=experiment1_document())
@@ -265,11 +258,8 @@ def test_refused_trials_are_counted_and_listed(
     created = served.client.post("/evaluations", json=body)
     assert created.status_code == 202, created.text
     path = f"/evaluations/{created.json()['id']}"
-    deadline = time.monotonic() + 120
-    while (evaluation := served.client.get(path).json())["status"] != "completed":
-        assert evaluation["status"] in ("queued", "running"), evaluation
-        assert time.monotonic() < deadline, "the evaluation did not complete within 120 s"
-        time.sleep(0.1)
+    evaluation = wait_until(served.client, path, finished, 120)
+    assert evaluation["status"] == "completed", evaluation
     summary = evaluation["summary"]
     refused = summary["refused_trials"]
     assert 0 < refused < evaluation["total"]
@@ -377,11 +367,8 @@ def test_the_trials_page_says_a_trial_stopped_by_the_confidence_rule(
     created = served.client.post("/trials", json=body)
     assert created.status_code == 201, created.text
     path = f"/trials/{created.json()['id']}"
-    deadline = time.monotonic() + 60
-    while (trial := served.client.get(path).json())["status"] != "completed":
-        assert trial["status"] in ("queued", "running"), trial
-        assert time.monotonic() < deadline, "the trial did not complete within 60 s"
-        time.sleep(0.05)
+    trial = wait_until(served.client, path, finished, 60)
+    assert trial["status"] == "completed", trial
     assert trial["reason"] == "confident"
     page.goto(f"{served.base_url}/?viz=off#trials?trial={trial['id']}")
     expect(page.get_by_test_id("trial-stopped-by")).to_contain_text(

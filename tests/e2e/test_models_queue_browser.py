@@ -9,7 +9,6 @@ stays queued for as long as the page is looked at.
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -18,12 +17,13 @@ import httpx
 import pytest
 import uvicorn
 
-from app.cli.serve import GracefulServer
+from app.cli.serve import GracefulServer, listening_url
 from app.config import PROJECT_ROOT
 from app.main import create_app
 from app.services import fits
 from app.services.jobs import Job
 from tests.app.conftest import experiment1_csv, make_settings
+from tests.app.served import start_in_thread
 
 API = "/api/v1"
 
@@ -56,16 +56,9 @@ def base_url(tmp_path: Path, gate: threading.Event) -> Iterator[str]:
     )
     config = uvicorn.Config(create_app(settings), host="127.0.0.1", port=0, log_level="warning")
     server = GracefulServer(config)
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 60
-    while not server.started:
-        assert thread.is_alive(), "the server stopped while starting"
-        assert time.monotonic() < deadline, "the server did not start within 60 s"
-        time.sleep(0.02)
-    port = server.servers[0].sockets[0].getsockname()[1]
+    thread = start_in_thread(server)
     try:
-        yield f"http://127.0.0.1:{port}"
+        yield listening_url(server, "127.0.0.1")
     finally:
         gate.set()
         server.should_exit = True
