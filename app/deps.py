@@ -11,7 +11,6 @@ from fastapi import Depends, Path, Query, Request
 from sqlalchemy.orm import Session
 
 from app.security.attempts import AttemptLimiter
-from app.security.errors import ForbiddenError, UnauthorizedError
 from app.security.gate import Identity, identify, refusal
 from app.security.sessions import SessionStore
 from app.services.context import AppContext
@@ -90,8 +89,5 @@ async def require_token(request: Request, identity: IdentityDep) -> None:
         request.headers,
         API_PREFIX,
     )
-    if refused is None:
-        return
-    if refused.status_code == 401:
-        raise UnauthorizedError(refused.detail)
-    raise ForbiddenError(refused.detail)
+    if refused is not None:
+        raise refused.error()

@@ -28,6 +28,7 @@ import argparse
 import dataclasses
 import time
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import scipy.stats
@@ -176,6 +177,40 @@ def report(title: str, tallies: dict[str, Tally]) -> None:
             print(row)
 
 
+MODELS = ("centroid", "independent", "within-object", "correlated", "auto")
+
+
+def compare(
+    make_world: Callable[[np.random.Generator], Any],
+    n_seeds: int,
+    rng_offset: int,
+    latent_dim: int,
+    args: argparse.Namespace,
+    options: FitOptions,
+) -> tuple[dict[str, Tally], list[str], float]:
+    """Fit every model of :data:`MODELS` on worlds ``make_world(rng)`` (``rng`` seeded
+    ``rng_offset + seed`` for each of ``n_seeds`` seeds) and score them on held-out touches.
+
+    Returns:
+        The tallies by model, the noise model each ``auto`` fit kept, and the seconds taken.
+    """
+    tallies = {name: Tally() for name in MODELS}
+    chosen: list[str] = []
+    started = time.perf_counter()
+    for seed in range(n_seeds):
+        rng = np.random.default_rng(rng_offset + seed)
+        world = make_world(rng)
+        train = sample_dataset(world, rng, args.touches)
+        test = sample_dataset(world, rng, args.test_touches)
+        models = fit_all(train, latent_dim, options)
+        auto = models["auto"].transform
+        chosen.append(auto.kind if auto is not None else "identity")
+        evaluate(tallies["centroid"], centroid_classifier(train), test, args.groups, seed)
+        for name, model in models.items():
+            evaluate(tallies[name], model_scorers(model), test, args.groups, seed)
+    return tallies, chosen, time.perf_counter() - started
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3, help="correlated worlds")
@@ -190,51 +225,37 @@ def main() -> None:
     parser.add_argument("--restarts", type=int, default=2)
     args = parser.parse_args()
     options = FitOptions(restarts=args.restarts)
-    names = ("centroid", "independent", "within-object", "correlated", "auto")
     with threadpool_limits(1):
-        tallies = {name: Tally() for name in names}
-        chosen = []
-        started = time.perf_counter()
-        for seed in range(args.seeds):
-            rng = np.random.default_rng(seed)
-            world = correlated_noise_world(
+        tallies, chosen, seconds = compare(
+            lambda rng: correlated_noise_world(
                 rng, n_objects=args.objects, latent_dim=args.latent_dim, noise_std=args.noise
-            )
-            train = sample_dataset(world, rng, args.touches)
-            test = sample_dataset(world, rng, args.test_touches)
-            models = fit_all(train, args.latent_dim, options)
-            auto = models["auto"].transform
-            chosen.append(auto.kind if auto is not None else "identity")
-            evaluate(tallies["centroid"], centroid_classifier(train), test, args.groups, seed)
-            for name, model in models.items():
-                evaluate(tallies[name], model_scorers(model), test, args.groups, seed)
+            ),
+            args.seeds,
+            0,
+            args.latent_dim,
+            args,
+            options,
+        )
         report(
             f"correlated-noise world: {args.seeds} seeds, L={args.objects}, ds={args.latent_dim}, "
             f"dx=1, dy=5, {args.touches} training + {args.test_touches} held-out touches per "
             f"object, noise std {args.noise} (x channel scale), {args.groups} groups per object "
-            f"and size; auto kept {chosen}; {time.perf_counter() - started:.0f} s",
+            f"and size; auto kept {chosen}; {seconds:.0f} s",
             tallies,
         )
-        tallies = {name: Tally() for name in names}
-        chosen = []
-        started = time.perf_counter()
-        for seed in range(args.exp2_seeds):
-            rng = np.random.default_rng(100 + seed)
-            world = random_experiment2_world(
+        tallies, chosen, seconds = compare(
+            lambda rng: random_experiment2_world(
                 rng, n_objects=args.objects, action_dim=2, noise_std=args.exp2_noise
-            )
-            train = sample_dataset(world, rng, args.touches)
-            test = sample_dataset(world, rng, args.test_touches)
-            models = fit_all(train, 2, options)
-            auto = models["auto"].transform
-            chosen.append(auto.kind if auto is not None else "identity")
-            evaluate(tallies["centroid"], centroid_classifier(train), test, args.groups, seed)
-            for name, model in models.items():
-                evaluate(tallies[name], model_scorers(model), test, args.groups, seed)
+            ),
+            args.exp2_seeds,
+            100,
+            2,
+            args,
+            options,
+        )
         report(
             f"Experiment-2-like worlds (independent noise {args.exp2_noise}, ds=2, dx=2, dy=5): "
-            f"{args.exp2_seeds} seeds, L={args.objects}; auto kept {chosen}; "
-            f"{time.perf_counter() - started:.0f} s",
+            f"{args.exp2_seeds} seeds, L={args.objects}; auto kept {chosen}; {seconds:.0f} s",
             tallies,
         )
 

@@ -200,44 +200,50 @@ def _all(page: Callable[[int, int], Page[Any]]) -> list[dict[str, Any]]:
             return rows
 
 
+def _created(row: dict[str, Any]) -> str:
+    """A row's creation time to the second (``YYYY-MM-DDTHH:MM:SS``)."""
+    return str(row["created_at"][:19])
+
+
 def _print_listing(listing: dict[str, list[dict[str, Any]]]) -> None:
     from rich.table import Table
 
     out = results
-    columns: dict[str, list[tuple[str, Callable[[dict[str, Any]], Any]]]] = {
+    # A column: its header and the row's field shown, or a function of the row.
+    columns: dict[str, list[tuple[str, str | Callable[[dict[str, Any]], Any]]]] = {
         "datasets": [
-            ("id", lambda r: r["id"]),
-            ("name", lambda r: r["name"]),
-            ("source", lambda r: r["source"]),
-            ("status", lambda r: r["status"]),
-            ("samples", lambda r: r["n_samples"]),
+            ("id", "id"),
+            ("name", "name"),
+            ("source", "source"),
+            ("status", "status"),
+            ("samples", "n_samples"),
             ("objects", lambda r: len(r["objects"])),
-            ("dx", lambda r: r["action_dim"]),
-            ("dy", lambda r: r["observation_dim"]),
-            ("created", lambda r: r["created_at"][:19]),
+            ("dx", "action_dim"),
+            ("dy", "observation_dim"),
+            ("created", _created),
         ],
         "models": [
-            ("id", lambda r: r["id"]),
-            ("status", lambda r: r["status"]),
-            ("dataset", lambda r: r["dataset_id"]),
-            ("ds", lambda r: r["latent_dim"]),
-            ("optimizer", lambda r: r["optimizer"]),
+            ("id", "id"),
+            ("status", "status"),
+            ("dataset", "dataset_id"),
+            ("ds", "latent_dim"),
+            ("optimizer", "optimizer"),
             (
                 "log-likelihood",
                 lambda r: "" if r["log_likelihood"] is None else f"{r['log_likelihood']:.3f}",
             ),
-            ("created", lambda r: r["created_at"][:19]),
+            ("created", _created),
         ],
         "trials": [
-            ("id", lambda r: r["id"]),
-            ("model", lambda r: r["model_id"]),
-            ("mode", lambda r: r["mode"]),
-            ("policy", lambda r: r["policy"]),
-            ("status", lambda r: r["status"]),
-            ("steps", lambda r: r["n_steps"]),
+            ("id", "id"),
+            ("model", "model_id"),
+            ("mode", "mode"),
+            ("policy", "policy"),
+            ("status", "status"),
+            ("steps", "n_steps"),
             ("target", lambda r: r["target"] or ""),
             ("answer", lambda r: (r["result"] or {}).get("object") or ""),
-            ("created", lambda r: r["created_at"][:19]),
+            ("created", _created),
         ],
     }
     for kind, spec in columns.items():
@@ -249,7 +255,8 @@ def _print_listing(listing: dict[str, list[dict[str, Any]]]) -> None:
         for header, _ in spec:
             table.add_column(header)
         for row in rows:
-            table.add_row(*(escape(str(cell(row))) for _, cell in spec))
+            cells = (row[cell] if isinstance(cell, str) else cell(row) for _, cell in spec)
+            table.add_row(*(escape(str(value)) for value in cells))
         out.print(table)
 
 

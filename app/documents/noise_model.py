@@ -9,12 +9,11 @@ model row the same dict is kept inside the ``posterior`` record (key ``noise_mod
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
-from app.documents.errors import DocumentError
+from app.documents.errors import DocumentError, read_kind
 from core.errors import InvalidInputError
 from core.observation_transform import TRANSFORM_KINDS, ObservationTransform
 
@@ -44,18 +43,7 @@ def read_noise_model_field(
     """
     if field is None:
         return None
-    if not isinstance(field, Mapping):
-        raise DocumentError(
-            f"{where}: 'noise_model' must be an object, found {type(field).__name__}.",
-            column="noise_model",
-        )
-    kind = field.get("kind")
-    if kind not in TRANSFORM_KINDS:
-        raise DocumentError(
-            f"{where}: noise_model.kind must be one of {', '.join(TRANSFORM_KINDS)}, found "
-            f"{kind!r}.",
-            column="noise_model.kind",
-        )
+    field, kind = read_kind(field, "noise_model", "kind", TRANSFORM_KINDS, where)
     if kind == "identity":
         return None
     arrays = {}

@@ -11,14 +11,14 @@ on a model row: :func:`posterior_field` writes it, :func:`read_posterior_field` 
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from app.documents.errors import DocumentError
+from app.documents.errors import DocumentError, read_kind
 from core.errors import InvalidInputError
 from core.noise_model import attach_transform, transform_data
 from core.observation_transform import ObservationTransform
@@ -101,18 +101,7 @@ def read_posterior_field(
     """
     if field is None:
         return None
-    if not isinstance(field, Mapping):
-        raise DocumentError(
-            f"{where}: 'posterior' must be an object, found {type(field).__name__}.",
-            column="posterior",
-        )
-    structure = field.get("structure")
-    if structure not in _STRUCTURES:
-        raise DocumentError(
-            f"{where}: posterior.structure must be one of {', '.join(_STRUCTURES)}, "
-            f"found {structure!r}.",
-            column="posterior.structure",
-        )
+    field, structure = read_kind(field, "posterior", "structure", _STRUCTURES, where)
     if structure == "dense" or structure == "kronecker":
         return RecordedPosterior(structure, 1, None)
     n_inducing: Any = field.get("n_inducing")

@@ -30,11 +30,12 @@ from urllib.parse import urlsplit
 
 from starlette.datastructures import Headers
 from starlette.requests import cookie_parser
-from starlette.responses import JSONResponse
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from app.config import Settings
-from app.security.attempts import AttemptLimiter, retry_after_header
+from app.errors import AppError, error_response
+from app.security.attempts import AttemptLimiter
+from app.security.errors import ForbiddenError, TooManyAttemptsError, UnauthorizedError
 from app.security.sessions import SESSION_COOKIE, SessionStore
 from app.security.watch import watch_session
 
@@ -68,6 +69,17 @@ class Refusal:
     status_code: int
     detail: str
     retry_after_s: float | None = None
+
+    def error(self) -> AppError:
+        """The app error that answers it (:func:`app.errors.error_response` writes the body)."""
+        if self.status_code == 429:
+            assert self.retry_after_s is not None
+            return TooManyAttemptsError(self.detail, self.retry_after_s)
+        if self.status_code == 401:
+            unauthorized = UnauthorizedError(self.detail)
+            unauthorized.headers = {"WWW-Authenticate": "Bearer"}
+            return unauthorized
+        return ForbiddenError(self.detail)
 
 
 def token_matches(presented: str, token: str) -> bool:
@@ -265,13 +277,7 @@ class AuthGate:
             # Closing before accepting: the server answers the handshake with HTTP 403.
             await send({"type": "websocket.close", "code": 1008, "reason": refused.detail})
         else:
-            body: dict[str, object] = {"detail": refused.detail}
-            extra = {"WWW-Authenticate": "Bearer"} if refused.status_code == 401 else {}
-            if refused.retry_after_s is not None:
-                extra["Retry-After"] = retry_after_header(refused.retry_after_s)
-                body["retry_after_s"] = int(extra["Retry-After"])
-            response = JSONResponse(body, status_code=refused.status_code, headers=extra)
-            await response(scope, receive, send)
+            await error_response(refused.error())(scope, receive, send)
 
 
 def identity_of(state: Mapping[str, object]) -> Identity:
