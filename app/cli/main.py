@@ -12,6 +12,7 @@ import the module and hand it their arguments (:func:`_forward`).
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import json
 import os
 import sys
@@ -499,44 +500,36 @@ def _forward(ctx: typer.Context, command: Callable[..., Any]) -> None:
     single(args=list(ctx.args), prog_name=ctx.command_path)
 
 
-@app.command(
+def _forwarding_command(name: str, target: str, help_text: str) -> None:
+    """Register ``name``: a thin command that imports ``target`` (``module:function``, a typer
+    command function) only when it runs and forwards every argument to it (its help is the one
+    shown)."""
+    module, function = target.split(":")
+
+    def forward(ctx: typer.Context) -> None:
+        _forward(ctx, getattr(importlib.import_module(module), function))
+
+    forward.__name__ = name
+    forward.__doc__ = f"Forward to :func:`{module}.{function}`."
+    app.command(name, help=help_text, context_settings=_FORWARDED, add_help_option=False)(forward)
+
+
+_forwarding_command(
     "serve",
-    help="Run the REST API, the live event stream, the dashboard and the live 3D view.",
-    context_settings=_FORWARDED,
-    add_help_option=False,
+    "app.cli.serve:serve_command",
+    "Run the REST API, the live event stream, the dashboard and the live 3D view.",
 )
-def serve(ctx: typer.Context) -> None:
-    """Forward to :func:`app.cli.serve.serve_command` (its help is the one shown)."""
-    from app.cli.serve import serve_command
-
-    _forward(ctx, serve_command)
-
-
-@app.command(
+_forwarding_command(
     "demo",
-    help="Start everything on the simulated rig: dashboard, 3D view, a trained model.",
-    context_settings=_FORWARDED,
-    add_help_option=False,
+    "app.cli.demo:demo_command",
+    "Start everything on the simulated rig: dashboard, 3D view, a trained model.",
 )
-def demo(ctx: typer.Context) -> None:
-    """Forward to :func:`app.cli.demo.demo_command`."""
-    from app.cli.demo import demo_command
-
-    _forward(ctx, demo_command)
-
-
-@app.command(
+_forwarding_command(
     "bench",
-    help="Benchmark the likelihood, the fit, the mutual information, planning and scaling "
+    "app.cli.bench:bench_command",
+    "Benchmark the likelihood, the fit, the mutual information, planning and scaling "
     "against GPy and the direct formulas (medians of repeats, BLAS threads pinned).",
-    context_settings=_FORWARDED,
-    add_help_option=False,
 )
-def bench(ctx: typer.Context) -> None:
-    """Forward to :func:`app.cli.bench.bench_command`."""
-    from app.cli.bench import bench_command
-
-    _forward(ctx, bench_command)
 
 
 #: The thread-count variables BLAS and OpenMP libraries read when they load.

@@ -33,6 +33,14 @@ def _pyplot() -> Any:
     return plt
 
 
+def _save(fig: Any, path: Path) -> Path:
+    """Lay ``fig`` out, write it to ``path`` and free it; returns ``path``."""
+    fig.tight_layout()
+    fig.savefig(path)
+    _pyplot().close(fig)
+    return path
+
+
 def one_touch_latents(model: ManifoldModel, prior_variance: float = 5.0) -> np.ndarray:
     """Where each training touch alone places the belief mean. Shape (N, ds).
 
@@ -76,10 +84,7 @@ def manifold_figure(model: ManifoldModel, path: Path, prior_variance: float = 5.
     ax.set_ylabel("s2" if model.latent_dim > 1 else "")
     ax.set_title("Object manifold (stars: S; dots: one training touch's belief)", fontsize=9)
     ax.legend(fontsize=7, loc="best")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def trajectory_figure(
@@ -124,10 +129,7 @@ def trajectory_figure(
             ax.set_ylabel("angle (deg)")
             if row == 0 and column == 0:
                 ax.legend(fontsize=6)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def accuracy_figure(report: EvaluationReport, source: str, path: Path) -> Path:
@@ -145,10 +147,7 @@ def accuracy_figure(report: EvaluationReport, source: str, path: Path) -> Path:
     ax.set_ylim(0, 102)
     ax.set_title(f"Experiment 2, observations from the {source}", fontsize=9)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def reliability_figure(report: EvaluationReport, source: str, path: Path) -> Path:
@@ -159,7 +158,4 @@ def reliability_figure(report: EvaluationReport, source: str, path: Path) -> Pat
     fig, ax = plt.subplots(figsize=(5.5, 4.5), dpi=110)
     draw_reliability(ax, report.summary())
     ax.set_title(f"Experiment 2, observations from the {source}: reliability", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return _save(fig, path)

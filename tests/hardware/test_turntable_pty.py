@@ -8,7 +8,7 @@ from collections.abc import Iterator
 import pytest
 
 from hardware.clock import ScaledClock
-from hardware.errors import DeviceDisconnected, DeviceTimeout, GrblAlarm, GrblCommandError
+from hardware.errors import DeviceTimeout, GrblAlarm, GrblCommandError
 from hardware.sim.grbl_device import GrblDevice
 from hardware.sim.pty import PtyEmulator
 from hardware.transport import SerialTransport
@@ -109,13 +109,3 @@ def test_silent_controller_times_out(grbl: tuple[GrblDevice, PtyEmulator]) -> No
     device.mute()
     with pytest.raises(DeviceTimeout):
         table.move_to_slot(2)
-
-
-def test_unplugged_controller_is_a_disconnect(grbl: tuple[GrblDevice, PtyEmulator]) -> None:
-    device, emulator = grbl
-    table = open_table(emulator)
-    device.unplug()
-    assert emulator.wait_hung_up()
-
-    with pytest.raises(DeviceDisconnected):
-        table.move_to_slot(4)
