@@ -14,8 +14,9 @@ Two levels, both running the same drivers (turntable, finger, tactile sensor and
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import TypedDict, Unpack
 
 import numpy as np
 
@@ -180,22 +181,59 @@ class SimulatedRig(WithBlock):
         self.close()
 
 
-def _assemble(
-    transports: tuple[Transport, Transport, Transport],
+#: The turntable's, finger's and tactile sensor's transports, and the emulators behind them.
+_Wiring = tuple[tuple[Transport, Transport, Transport], list[PtyEmulator]]
+
+
+class RigSettings(TypedDict, total=False):
+    """Settings shared by :func:`in_process_rig` and :func:`pty_rig` (keyword arguments).
+
+    Attributes:
+        frame_rate_hz: Tactile frame rate (default 100 frames per simulated second).
+        rig_config: Rig settings (default :class:`~hardware.rig.RigConfig`).
+        turntable_config: Turntable driver settings (default: a 0.3 s banner timeout).
+        finger_config: Finger driver settings.
+        tactile_config: Tactile driver settings (default: the sensor's channels).
+        noise: Noise model of the world.
+    """
+
+    frame_rate_hz: float
+    rig_config: RigConfig | None
+    turntable_config: TurntableConfig | None
+    finger_config: FingerConfig | None
+    tactile_config: TactileConfig | None
+    noise: NoiseModel | None
+
+
+def _simulated_rig(
+    objects: Sequence[str | TactileObject],
+    seed: int,
     clock: Clock,
-    rig_config: RigConfig | None,
-    turntable_config: TurntableConfig | None,
-    finger_config: FingerConfig | None,
-    tactile_config: TactileConfig | None,
-) -> Rig:
-    table, bus, sensor = transports
-    return Rig(
-        Turntable(table, turntable_config or TurntableConfig(banner_timeout_s=0.3)),
-        Finger(bus, finger_config),
-        TactileSensor(sensor, tactile_config),
-        rig_config,
+    settings: RigSettings,
+    wire: Callable[
+        [SimulatedDevices], tuple[tuple[Transport, Transport, Transport], list[PtyEmulator]]
+    ],
+) -> SimulatedRig:
+    """Build the devices, connect the drivers to them through ``wire`` (which returns the
+    turntable's, finger's and tactile sensor's transports, and any emulators it started), and
+    assemble the rig."""
+    devices = simulated_devices(
+        objects,
+        clock=clock,
+        seed=seed,
+        frame_rate_hz=settings.get("frame_rate_hz", 100.0),
+        noise=settings.get("noise"),
+    )
+    (table, bus, sensor), emulators = wire(devices)
+    turntable_config = settings.get("turntable_config") or TurntableConfig(banner_timeout_s=0.3)
+    rig = Rig(
+        Turntable(table, turntable_config),
+        Finger(bus, settings.get("finger_config")),
+        TactileSensor(sensor, devices.tactile_config(settings.get("tactile_config"))),
+        settings.get("rig_config"),
         clock,
     )
+    return SimulatedRig(devices, rig, emulators)
 
 
 def in_process_rig(
@@ -203,12 +241,7 @@ def in_process_rig(
     *,
     seed: int = 0,
     clock: Clock | None = None,
-    frame_rate_hz: float = 100.0,
-    rig_config: RigConfig | None = None,
-    turntable_config: TurntableConfig | None = None,
-    finger_config: FingerConfig | None = None,
-    tactile_config: TactileConfig | None = None,
-    noise: NoiseModel | None = None,
+    **settings: Unpack[RigSettings],
 ) -> SimulatedRig:
     """A rig on in-process simulated devices (fast; deterministic with the default clock).
 
@@ -216,28 +249,19 @@ def in_process_rig(
         objects: Objects in slots 0, 1, ... (default: the paper's four cups and three more).
         seed: World seed.
         clock: Simulation clock (default: a new :class:`~hardware.clock.VirtualClock`).
-        frame_rate_hz: Tactile frame rate.
-        rig_config, turntable_config, finger_config, tactile_config: Driver settings.
-        noise: Noise model of the world.
+        **settings: Frame rate, driver settings and noise (:class:`RigSettings`).
     """
     sim_clock: Clock = clock or VirtualClock()
-    devices = simulated_devices(
-        objects, clock=sim_clock, seed=seed, frame_rate_hz=frame_rate_hz, noise=noise
-    )
-    transports = (
-        InProcessTransport(devices.grbl, sim_clock, "simulated GRBL"),
-        InProcessTransport(devices.bus, sim_clock, "simulated Dynamixel bus"),
-        InProcessTransport(devices.sensor, sim_clock, "simulated tactile sensor"),
-    )
-    rig = _assemble(
-        transports,
-        sim_clock,
-        rig_config,
-        turntable_config,
-        finger_config,
-        devices.tactile_config(tactile_config),
-    )
-    return SimulatedRig(devices, rig)
+
+    def wire(devices: SimulatedDevices) -> _Wiring:
+        transports = (
+            InProcessTransport(devices.grbl, sim_clock, "simulated GRBL"),
+            InProcessTransport(devices.bus, sim_clock, "simulated Dynamixel bus"),
+            InProcessTransport(devices.sensor, sim_clock, "simulated tactile sensor"),
+        )
+        return transports, []
+
+    return _simulated_rig(objects, seed, sim_clock, settings, wire)
 
 
 def start_emulators(devices: SimulatedDevices) -> dict[str, PtyEmulator]:
@@ -257,12 +281,7 @@ def pty_rig(
     *,
     seed: int = 0,
     speed: float = 20.0,
-    frame_rate_hz: float = 100.0,
-    rig_config: RigConfig | None = None,
-    turntable_config: TurntableConfig | None = None,
-    finger_config: FingerConfig | None = None,
-    tactile_config: TactileConfig | None = None,
-    noise: NoiseModel | None = None,
+    **settings: Unpack[RigSettings],
 ) -> SimulatedRig:
     """A rig whose drivers talk to emulators on pseudo-terminals through pyserial.
 
@@ -270,26 +289,16 @@ def pty_rig(
         objects: Objects in slots 0, 1, ... (default: the paper's four cups and three more).
         seed: World seed.
         speed: Simulated seconds per real second.
-        frame_rate_hz: Tactile frame rate.
-        rig_config, turntable_config, finger_config, tactile_config: Driver settings.
-        noise: Noise model of the world.
+        **settings: Frame rate, driver settings and noise (:class:`RigSettings`).
     """
-    clock = ScaledClock(speed)
-    devices = simulated_devices(
-        objects, clock=clock, seed=seed, frame_rate_hz=frame_rate_hz, noise=noise
-    )
-    emulators = start_emulators(devices)
-    transports = (
-        SerialTransport(emulators["turntable"].port, GRBL_BAUDRATE),
-        SerialTransport(emulators["finger"].port, DYNAMIXEL_BAUDRATE),
-        SerialTransport(emulators["tactile"].port, TACTILE_BAUDRATE),
-    )
-    rig = _assemble(
-        transports,
-        clock,
-        rig_config,
-        turntable_config,
-        finger_config,
-        devices.tactile_config(tactile_config),
-    )
-    return SimulatedRig(devices, rig, list(emulators.values()))
+
+    def wire(devices: SimulatedDevices) -> _Wiring:
+        emulators = start_emulators(devices)
+        transports = (
+            SerialTransport(emulators["turntable"].port, GRBL_BAUDRATE),
+            SerialTransport(emulators["finger"].port, DYNAMIXEL_BAUDRATE),
+            SerialTransport(emulators["tactile"].port, TACTILE_BAUDRATE),
+        )
+        return transports, list(emulators.values())
+
+    return _simulated_rig(objects, seed, ScaledClock(speed), settings, wire)
