@@ -74,6 +74,16 @@ export function renderChart(id, config) {
 }
 
 /** 2D coordinates of latent points: ds = 1 on a line (y = 0), ds ≥ 2 the first two dims. */
+/** The legend under a chart (small colour boxes), a fresh object for each chart. */
+export function bottomLegend() {
+  return { position: "bottom", labels: { boxWidth: 12 } };
+}
+
+/** Plugins of a scatter chart: the legend under it, and a tooltip saying `labelOf(point, item)`. */
+export function scatterPlugins(labelOf) {
+  return { legend: bottomLegend(), tooltip: { callbacks: { label: (item) => labelOf(item.raw, item) } } };
+}
+
 export function latentXY(latent) {
   return { x: latent[0], y: latent.length > 1 ? latent[1] : 0 };
 }
@@ -148,18 +158,7 @@ export function manifoldChart(id, objects, { belief = null, path = [], nearest =
     data: { datasets },
     options: {
       scales: axisTitles(ds),
-      plugins: {
-        legend: { position: "bottom", labels: { boxWidth: 12 } },
-        tooltip: {
-          callbacks: {
-            label: (item) => {
-              const p = item.raw;
-              const name = p.label ? `${p.label}: ` : "";
-              return `${name}(${p.x.toFixed(3)}, ${p.y.toFixed(3)})`;
-            },
-          },
-        },
-      },
+      plugins: scatterPlugins((p) => `${p.label ? `${p.label}: ` : ""}(${p.x.toFixed(3)}, ${p.y.toFixed(3)})`),
     },
   });
 }
@@ -215,7 +214,7 @@ export function lineChart(id, series, { xTitle = "", yTitle = "", yMin, yMax, st
           ticks: { callback: (value) => compactNumber(value) },
         },
       },
-      plugins: { legend: { display: series.length > 1, position: "bottom", labels: { boxWidth: 12 } } },
+      plugins: { legend: { ...bottomLegend(), display: series.length > 1 } },
     },
   });
 }

@@ -6,7 +6,7 @@
 // the completed ones) and listed.
 
 import { api, apiList } from "../api.js";
-import { colorOf, compactNumber, renderChart } from "../charts.js";
+import { bottomLegend, colorOf, compactNumber, renderChart, scatterPlugins } from "../charts.js";
 import * as store from "../store.js";
 import { $, badge, el, fill, guarded, num, setOptions, throttle, toast } from "../ui.js";
 import { ACTIVE } from "../states.js";
@@ -258,18 +258,9 @@ function drawReliability() {
         // Room above 1 for the points at 1 and their counts; no tick there.
         y: { min: 0, max: 1.05, title: { display: true, text: "observed accuracy" }, ticks: { callback: (v) => (v <= 1 ? compactNumber(v) : "") } },
       },
-      plugins: {
-        legend: { position: "bottom", labels: { boxWidth: 12 } },
-        tooltip: {
-          callbacks: {
-            label: (item) => {
-              const p = item.raw;
-              if (p.count === undefined) return item.dataset.label;
-              return `${item.dataset.label}: stated ${num(p.x, 3)}, right ${num(p.y, 3)} of ${p.count} answers`;
-            },
-          },
-        },
-      },
+      plugins: scatterPlugins((p, item) =>
+        p.count === undefined ? item.dataset.label : `${item.dataset.label}: stated ${num(p.x, 3)}, right ${num(p.y, 3)} of ${p.count} answers`,
+      ),
     },
   });
 }
@@ -375,7 +366,7 @@ function drawObjects() {
     },
     options: {
       scales: { y: { min: 0, max: 1, title: { display: true, text: "final accuracy" } } },
-      plugins: { legend: { position: "bottom", labels: { boxWidth: 12 } } },
+      plugins: { legend: bottomLegend() },
     },
   });
 }
