@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 
 import pytest
 
+from hardware.errors import ServoHardwareError, ServoHardwareErrorFlags
 from hardware.records import FloatArray
-from hardware.rig import RigConfig
+from hardware.rig import RigConfig, RigState, TouchProgress
 from hardware.sim.rig import SimulatedRig, in_process_rig
 from hardware.teaching import teaching_trajectory
 
@@ -56,3 +58,47 @@ def sim_rig() -> Iterator[SimulatedRig]:
     lease.release()
     yield sim
     sim.close()
+
+
+def at_step(step: int, action: Callable[[], object]) -> Callable[[TouchProgress], None]:
+    """An on_progress callback that runs ``action()`` once, at setpoint ``step``."""
+    done: list[bool] = []
+
+    def callback(progress: TouchProgress) -> None:
+        if progress.step >= step and not done:
+            done.append(True)
+            action()
+
+    return callback
+
+
+def servo_error_mid_touch(
+    sim: SimulatedRig,
+    touch: FloatArray,
+    slot: int,
+    step: int,
+    servo_id: int,
+    flags: ServoHardwareErrorFlags,
+) -> ServoHardwareError:
+    """A servo reports ``flags`` at setpoint ``step`` of a touch at ``slot``: the touch raises
+    it with what was recorded, both joints' torque goes off (the rig is safe, in FAULT), and
+    after :meth:`~hardware.rig.RigLease.recover` the rig touches again. Returns the error."""
+    bus, plant = sim.devices.bus, sim.devices.plant
+    with sim.rig.acquire("test") as lease:
+        lease.move_to_slot(slot)
+        with pytest.raises(ServoHardwareError) as raised:
+            lease.touch(
+                touch, on_progress=at_step(step, lambda: bus.inject_hardware_error(servo_id, flags))
+            )
+        assert raised.value.flags == flags
+        assert raised.value.partial_record is not None
+        deadline = time.monotonic() + 2.0  # over a pty the broadcast torque-off takes a while
+        while plant.joint_state(0)[3] and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert not plant.joint_state(0)[3]
+        assert not plant.joint_state(1)[3]
+        assert sim.rig.state is RigState.FAULT
+        lease.recover()  # reboots the servo
+        assert not plant.hardware_error(bus.servos[servo_id].joint)
+        assert lease.touch(touch).complete
+    return raised.value

@@ -21,29 +21,16 @@ from hardware.errors import (
     LeaseError,
     NotConnectedError,
     RigBusy,
-    ServoHardwareError,
     ServoHardwareErrorFlags,
     UnsafeTrajectoryError,
 )
 from hardware.records import FloatArray
-from hardware.rig import RigConfig, RigState, TouchProgress
+from hardware.rig import RigConfig, RigState
 from hardware.sim.materials import DEFAULT_TABLE, PAPER_CUPS
 from hardware.sim.rig import SimulatedRig, in_process_rig
-from tests.hardware.conftest import SHORT_TOUCH_S
+from tests.hardware.conftest import SHORT_TOUCH_S, at_step, servo_error_mid_touch
 
 FRAME_RATE_HZ = 100.0
-
-
-def at_step(step: int, action: object) -> object:
-    """An on_progress callback that runs ``action()`` once, at setpoint ``step``."""
-    done = []
-
-    def callback(progress: TouchProgress) -> None:
-        if progress.step >= step and not done:
-            done.append(True)
-            action()  # type: ignore[operator]
-
-    return callback
 
 
 def finger_pose(sim: SimulatedRig) -> np.ndarray:
@@ -271,26 +258,9 @@ def test_a_few_bad_frames_are_counted_too_many_refused(
 
 
 def test_servo_hardware_error_mid_touch(sim_rig: SimulatedRig, short_touch: FloatArray) -> None:
-    bus, plant = sim_rig.devices.bus, sim_rig.devices.plant
-    with sim_rig.rig.acquire("test") as lease:
-        lease.move_to_slot(3)
-        with pytest.raises(ServoHardwareError) as raised:
-            lease.touch(
-                short_touch,
-                on_progress=at_step(
-                    35, lambda: bus.inject_hardware_error(1, ServoHardwareErrorFlags.OVERLOAD)
-                ),
-            )
-        assert raised.value.flags == ServoHardwareErrorFlags.OVERLOAD
-        assert raised.value.partial_record is not None
-        assert raised.value.partial_record.n_frames > 100
-        # Safe: the faulty servo is off and the other one was switched off too.
-        assert not plant.joint_state(0)[3]
-        assert not plant.joint_state(1)[3]
-        assert sim_rig.rig.state is RigState.FAULT
-        lease.recover()  # reboots the servo
-        assert not plant.hardware_error(0)
-        assert lease.touch(short_touch).complete
+    error = servo_error_mid_touch(sim_rig, short_touch, 3, 35, 1, ServoHardwareErrorFlags.OVERLOAD)
+    assert error.partial_record is not None
+    assert error.partial_record.n_frames > 100
 
 
 def test_silent_servo_mid_touch(sim_rig: SimulatedRig, short_touch: FloatArray) -> None:

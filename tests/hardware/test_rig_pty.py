@@ -6,7 +6,6 @@ Simulated time runs 10x faster than real time; a 4 s touch takes ~0.4 s.
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Iterator
 
 import numpy as np
@@ -16,13 +15,12 @@ from hardware.errors import (
     DeviceDisconnected,
     EmergencyStopped,
     GrblAlarm,
-    ServoHardwareError,
     ServoHardwareErrorFlags,
 )
 from hardware.records import FloatArray
-from hardware.rig import RigConfig, RigState, TouchProgress
+from hardware.rig import RigConfig, RigState
 from hardware.sim.rig import SimulatedRig, pty_rig
-from tests.hardware.conftest import SHORT_TOUCH_S
+from tests.hardware.conftest import SHORT_TOUCH_S, at_step, servo_error_mid_touch
 
 
 @pytest.fixture
@@ -32,17 +30,6 @@ def rig() -> Iterator[SimulatedRig]:
         lease.connect()
     yield sim
     sim.close()
-
-
-def at_step(step: int, action: object) -> object:
-    done: list[bool] = []
-
-    def callback(progress: TouchProgress) -> None:
-        if progress.step >= step and not done:
-            done.append(True)
-            action()  # type: ignore[operator]
-
-    return callback
 
 
 def test_touch_through_ptys(rig: SimulatedRig, short_touch: FloatArray) -> None:
@@ -90,27 +77,8 @@ def test_finger_bus_disconnected_mid_touch(rig: SimulatedRig, short_touch: Float
 
 
 def test_servo_hardware_error_mid_touch(rig: SimulatedRig, short_touch: FloatArray) -> None:
-    bus = rig.devices.bus
-    with rig.rig.acquire("test") as lease:
-        lease.move_to_slot(1)
-        with pytest.raises(ServoHardwareError) as raised:
-            lease.touch(
-                short_touch,
-                on_progress=at_step(
-                    40, lambda: bus.inject_hardware_error(2, ServoHardwareErrorFlags.OVERHEATING)
-                ),
-            )
-        assert raised.value.joint == "FFJ4"
-        assert raised.value.flags == ServoHardwareErrorFlags.OVERHEATING
-        assert raised.value.partial_record is not None
-        plant = rig.devices.plant
-        deadline = time.monotonic() + 2.0  # the broadcast torque-off crosses the pty
-        while plant.joint_state(0)[3] and time.monotonic() < deadline:
-            time.sleep(0.01)
-        assert not plant.joint_state(0)[3]  # torque off on both joints: safe
-        assert not plant.joint_state(1)[3]
-        lease.recover()
-        assert lease.touch(short_touch).complete
+    error = servo_error_mid_touch(rig, short_touch, 1, 40, 2, ServoHardwareErrorFlags.OVERHEATING)
+    assert error.joint == "FFJ4"
 
 
 def test_grbl_alarm_through_the_port(rig: SimulatedRig) -> None:
