@@ -120,19 +120,25 @@ def held_out():
     return sample_experiment1(np.random.default_rng(11), touches_per_object=8)
 
 
-def replay(model, held_out, policy, target="O2", index=0, steps=None):
-    pool = replay_pools(held_out)[target]
-    return pool, run_trial(
+def fresh_trial(model, policy, target, settings, index=0, **source):
+    """Trial ``index`` of ``target`` by a fresh ``policy`` planner, seeded as an evaluation
+    seeds it; ``source``: the observations (``touches=`` or ``replay=``, and ``steps=``)."""
+    return run_trial(
         model,
         Planner(model, policy_entry(policy).make()),
         policy=policy,
         target=target,
         trial=index,
         seed=trial_seed(0, target, index),
-        replay=pool,
-        settings=TrialSettings(steps=8, tolerance=0.0),
-        steps=steps,
+        settings=settings,
+        **source,
     )
+
+
+def replay(model, held_out, policy, target="O2", index=0, steps=None):
+    pool = replay_pools(held_out)[target]
+    settings = TrialSettings(steps=8, tolerance=0.0)
+    return pool, fresh_trial(model, policy, target, settings, index, replay=pool, steps=steps)
 
 
 @pytest.mark.parametrize("policy", ["active", "passive"])
@@ -166,16 +172,7 @@ def test_replay_cap_and_dimensions_are_checked(model, held_out):
         replay(model, held_out, "active", steps=9)
     wrong = ReplayPool(actions=np.zeros((4, 2)), observations=np.zeros((4, 3)))
     with pytest.raises(InvalidInputError, match="dx=2, dy=3; the model has dx=1, dy=3"):
-        run_trial(
-            model,
-            Planner(model, policy_entry("active").make()),
-            policy="active",
-            target="O1",
-            trial=0,
-            seed=trial_seed(0, "O1", 0),
-            replay=wrong,
-            settings=TrialSettings(steps=2),
-        )
+        fresh_trial(model, "active", "O1", TrialSettings(steps=2), replay=wrong)
 
 
 def test_discriminative_replay_picks_the_most_label_informative_touch_first(model, held_out):
@@ -229,15 +226,8 @@ def test_the_loop_yields_each_touch_and_stops_when_the_caller_stops(model):
     ],
 )
 def test_the_outcome_records_why_the_trial_stopped(model, settings, reason):
-    record = run_trial(
-        model,
-        Planner(model, policy_entry("active").make()),
-        policy="active",
-        target="O2",
-        trial=0,
-        seed=trial_seed(0, "O2", 0),
-        settings=settings,
-        touches=WorldTouches(Experiment1World(), "O2"),
+    record = fresh_trial(
+        model, "active", "O2", settings, touches=WorldTouches(Experiment1World(), "O2")
     )
     assert isinstance(record, TrialRecord)
     assert record.stop_reason == reason
