@@ -30,6 +30,11 @@ def scripted(client: TestClient, model_id: int, **extra: Any) -> dict[str, Any]:
     return trial
 
 
+def simulated(client: TestClient, model_id: int, **fields: Any) -> Any:
+    """``POST /trials`` of a simulated trial of ``model_id`` with ``fields``; the response."""
+    return client.post(f"{API}/trials", json={"model_id": model_id, "mode": "simulated", **fields})
+
+
 def touch(client: TestClient, trial_id: int, obj: int, rng: np.random.Generator) -> Any:
     advice = client.get(f"{API}/trials/{trial_id}/next-action")
     assert advice.status_code == 200, advice.text
@@ -158,20 +163,12 @@ def test_bad_requests(client: TestClient, model_id: int) -> None:
     assert client.post(f"{API}/trials", json={"model_id": 999, "mode": "scripted"}).status_code == (
         404
     )
-    no_target = client.post(f"{API}/trials", json={"model_id": model_id, "mode": "simulated"})
+    no_target = simulated(client, model_id)
     assert no_target.status_code == 422
     assert no_target.json()["field"] == "target"
-    unknown = client.post(
-        f"{API}/trials", json={"model_id": model_id, "mode": "simulated", "target": "O9"}
-    )
+    unknown = simulated(client, model_id, target="O9")
     assert unknown.status_code == 422
-    wrong_world = client.post(
-        f"{API}/trials",
-        json={
-            "model_id": model_id, "mode": "simulated", "target": "O1",
-            "simulation": {"world": "experiment2"},
-        },
-    )  # fmt: skip
+    wrong_world = simulated(client, model_id, target="O1", simulation={"world": "experiment2"})
     assert wrong_world.status_code == 422
     assert "dx=6" in wrong_world.json()["detail"]
     trial = scripted(client, model_id)
@@ -209,14 +206,15 @@ def test_transitions_and_409s(client: TestClient, model_id: int) -> None:
 
 
 def test_simulated_trial_pause_resume_abort(client: TestClient, model_id: int) -> None:
-    created = client.post(
-        f"{API}/trials",
-        json={
-            "model_id": model_id, "mode": "simulated", "target": "O4", "seed": 5,
-            "max_steps": 1000, "tolerance": 0.0,
-            "simulation": {"world": "experiment1", "step_interval_s": 0.01},
-        },
-    )  # fmt: skip
+    created = simulated(
+        client,
+        model_id,
+        target="O4",
+        seed=5,
+        max_steps=1000,
+        tolerance=0.0,
+        simulation={"world": "experiment1", "step_interval_s": 0.01},
+    )
     assert created.status_code == 201, created.text
     tid = created.json()["id"]
     wait_for(client, tid, lambda t: t["n_steps"] >= 2)
@@ -240,11 +238,7 @@ def test_simulated_trial_pause_resume_abort(client: TestClient, model_id: int) -
 def test_simulated_trial_completes_and_streams_events(client: TestClient, model_id: int) -> None:
     start = client.get(f"{API}/events?follow=false").text  # nothing new yet: empty
     assert start == ""
-    created = client.post(
-        f"{API}/trials",
-        json={"model_id": model_id, "mode": "simulated", "target": "O1", "seed": 1,
-              "max_steps": 6, "tolerance": 0.0},
-    )  # fmt: skip
+    created = simulated(client, model_id, target="O1", seed=1, max_steps=6, tolerance=0.0)
     tid = created.json()["id"]
     trial = wait_for(client, tid, lambda t: t["status"] == "completed")
     assert trial["n_steps"] == 6
@@ -280,11 +274,7 @@ def test_a_last_step_that_cannot_be_recorded_fails_the_trial(
         return store(session, trial, model, step, *rest)
 
     monkeypatch.setattr(TrialService, "_store_step", staticmethod(refuse_the_last))
-    created = client.post(
-        f"{API}/trials",
-        json={"model_id": model_id, "mode": "simulated", "target": "O2", "seed": 1,
-              "max_steps": 3, "tolerance": 0.0},
-    )  # fmt: skip
+    created = simulated(client, model_id, target="O2", seed=1, max_steps=3, tolerance=0.0)
     assert created.status_code == 201, created.text
     trial = wait_for(client, created.json()["id"], lambda t: t["status"] != "running"
                      and t["status"] != "queued")  # fmt: skip
@@ -347,24 +337,20 @@ def test_simulated_worlds_have_the_cli_names_and_the_old_ones_as_aliases(
     """``exp1`` as ``activetouch`` and the evaluations say; ``experiment1`` still means it."""
     results = []
     for world in ("exp1", "experiment1"):
-        created = client.post(
-            f"{API}/trials",
-            json={
-                "model_id": model_id, "mode": "simulated", "target": "O2", "seed": 8,
-                "max_steps": 3, "tolerance": 0.0, "simulation": {"world": world},
-            },
-        )  # fmt: skip
+        created = simulated(
+            client,
+            model_id,
+            target="O2",
+            seed=8,
+            max_steps=3,
+            tolerance=0.0,
+            simulation={"world": world},
+        )
         assert created.status_code == 201, created.text
         done = wait_for(client, created.json()["id"], lambda t: t["status"] == "completed")
         results.append([(s["action"], s["observation"]) for s in done["steps"]])
     assert results[0] == results[1]
-    unknown = client.post(
-        f"{API}/trials",
-        json={
-            "model_id": model_id, "mode": "simulated", "target": "O2",
-            "simulation": {"world": "experiment3"},
-        },
-    )  # fmt: skip
+    unknown = simulated(client, model_id, target="O2", simulation={"world": "experiment3"})
     assert unknown.status_code == 422
     assert "exp1" in unknown.text
     assert "exp2" in unknown.text
