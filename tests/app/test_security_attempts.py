@@ -19,6 +19,7 @@ from app.security.errors import TooManyAttemptsError, UnauthorizedError
 from app.security.sessions import SessionStore
 from app.services import session as sessions_service
 from tests.app.conftest import TestClient, make_settings
+from tests.app.manual_clock import ManualClock
 
 TOKEN = "attempts-token"
 BEARER = {"Authorization": f"Bearer {TOKEN}"}
@@ -28,19 +29,11 @@ MAX_FAILURES = 3
 WINDOW_S = 60.0
 
 
-class Clock:
-    def __init__(self) -> None:
-        self.now_s = 5000.0
-
-    def __call__(self) -> float:
-        return self.now_s
-
-
 # --- the limiter -------------------------------------------------------------------------------
 
 
 def test_limit_is_a_sliding_window_of_failures() -> None:
-    clock = Clock()
+    clock = ManualClock(5000.0)
     limiter = AttemptLimiter(MAX_FAILURES, WINDOW_S, clock=clock)
     for step in range(MAX_FAILURES):
         assert limiter.retry_after_s("10.0.0.1") is None
@@ -62,7 +55,7 @@ def test_limit_is_a_sliding_window_of_failures() -> None:
 
 
 def test_addresses_count_apart_ipv6_per_64() -> None:
-    clock = Clock()
+    clock = ManualClock(5000.0)
     limiter = AttemptLimiter(1, WINDOW_S, clock=clock)
     limiter.record_failure("10.0.0.1")
     assert limiter.retry_after_s("10.0.0.1") is not None
@@ -78,7 +71,7 @@ def test_addresses_count_apart_ipv6_per_64() -> None:
 
 
 def test_limiter_is_bounded_and_checks_its_arguments() -> None:
-    clock = Clock()
+    clock = ManualClock(5000.0)
     limiter = AttemptLimiter(1, WINDOW_S, clock=clock, max_clients=2)
     for address in ("10.0.0.1", "10.0.0.2", "10.0.0.3"):
         limiter.record_failure(address)
@@ -108,12 +101,12 @@ def test_settings_defaults_and_bounds(tmp_path: Path, monkeypatch: pytest.Monkey
 
 
 @pytest.fixture
-def clock() -> Clock:
-    return Clock()
+def clock() -> ManualClock:
+    return ManualClock(5000.0)
 
 
 @pytest.fixture
-def lab(tmp_path: Path, clock: Clock) -> Iterator[Any]:
+def lab(tmp_path: Path, clock: ManualClock) -> Iterator[Any]:
     """An off-loopback app (limit 3 per 60 s) with the fake clock, and a client per address."""
     settings = make_settings(
         tmp_path,
@@ -145,7 +138,7 @@ def assert_too_many(response: Any, wait_s: int) -> None:
     assert "Too many wrong API tokens" in body["detail"]
 
 
-def test_wrong_sign_ins_then_429_until_the_window_passes(lab: Any, clock: Clock) -> None:
+def test_wrong_sign_ins_then_429_until_the_window_passes(lab: Any, clock: ManualClock) -> None:
     client, _ = lab
     assert [sign_in(client, "guess") for _ in range(MAX_FAILURES)] == [401] * MAX_FAILURES
     # Over the limit: even the right token is not checked.
@@ -159,7 +152,7 @@ def test_wrong_sign_ins_then_429_until_the_window_passes(lab: Any, clock: Clock)
     assert client.get("/api/v1/trials").status_code == 200  # the session works
 
 
-def test_wrong_bearer_tokens_count_and_then_429(lab: Any, clock: Clock) -> None:
+def test_wrong_bearer_tokens_count_and_then_429(lab: Any, clock: ManualClock) -> None:
     client, _ = lab
     assert [client.get("/api/v1/trials", headers=WRONG).status_code for _ in range(2)] == [401] * 2
     assert sign_in(client, "guess") == 401  # sign-ins and bearer tokens count together
@@ -172,7 +165,7 @@ def test_wrong_bearer_tokens_count_and_then_429(lab: Any, clock: Clock) -> None:
     assert client.get("/api/v1/trials", headers=BEARER).status_code == 200
 
 
-def test_one_address_over_the_limit_leaves_others_alone(lab: Any, clock: Clock) -> None:
+def test_one_address_over_the_limit_leaves_others_alone(lab: Any, clock: ManualClock) -> None:
     blocked, client_at = lab
     other = client_at("10.0.0.2")
     for _ in range(MAX_FAILURES):
@@ -189,7 +182,7 @@ def test_one_address_over_the_limit_leaves_others_alone(lab: Any, clock: Clock) 
 
 
 def test_a_session_keeps_working_while_its_address_is_over_the_limit(
-    lab: Any, clock: Clock
+    lab: Any, clock: ManualClock
 ) -> None:
     client, _ = lab
     assert sign_in(client, TOKEN) == 200
@@ -209,7 +202,9 @@ def test_successes_are_never_limited(lab: Any) -> None:
     assert client.app.state.auth_attempts.failures("10.0.0.1") == 0  # type: ignore[attr-defined]
 
 
-def test_on_loopback_open_reads_stay_open_over_the_limit(tmp_path: Path, clock: Clock) -> None:
+def test_on_loopback_open_reads_stay_open_over_the_limit(
+    tmp_path: Path, clock: ManualClock
+) -> None:
     settings = make_settings(
         tmp_path, api_token=TOKEN, hardware="serial", auth_max_failures=MAX_FAILURES
     )
@@ -225,7 +220,7 @@ def test_on_loopback_open_reads_stay_open_over_the_limit(tmp_path: Path, clock: 
         assert client.post("/api/v1/rig/estop").status_code == 401
 
 
-def test_refused_attempts_are_in_the_audit(lab: Any, clock: Clock) -> None:
+def test_refused_attempts_are_in_the_audit(lab: Any, clock: ManualClock) -> None:
     client, client_at = lab
     for _ in range(MAX_FAILURES):
         client.post(SIGN_IN, json={"token": "guess"})
@@ -246,7 +241,9 @@ def test_refused_attempts_are_in_the_audit(lab: Any, clock: Clock) -> None:
     assert all(r["authenticated"] is False and r["auth_method"] is None for r in rows)
 
 
-def test_the_sign_in_service_limits_without_the_gate_too(tmp_path: Path, clock: Clock) -> None:
+def test_the_sign_in_service_limits_without_the_gate_too(
+    tmp_path: Path, clock: ManualClock
+) -> None:
     settings = make_settings(tmp_path, api_token=TOKEN, auth_max_failures=1)
     limiter = AttemptLimiter(1, WINDOW_S, clock=clock)
     sessions = SessionStore(ttl_s=60.0, clock=clock)

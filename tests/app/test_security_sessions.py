@@ -11,18 +11,11 @@ from app.main import create_app
 from app.security.gate import Identity, refusal, same_origin, token_matches
 from app.security.sessions import SessionStore
 from tests.app.conftest import make_settings
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.now_s = 1000.0
-
-    def __call__(self) -> float:
-        return self.now_s
+from tests.app.manual_clock import ManualClock
 
 
 def test_sessions_expire_when_idle_and_renew_on_use() -> None:
-    clock = Clock()
+    clock = ManualClock()
     store = SessionStore(ttl_s=60.0, clock=clock)
     session = store.create()
     assert store.is_valid(session.session_id)
