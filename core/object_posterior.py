@@ -24,6 +24,7 @@ import numpy as np
 import scipy.special
 
 from core.errors import InvalidInputError
+from core.latent_uncertainty import trial_log_likelihoods as latent_trial_log_likelihoods
 from core.placement_effect import trial_log_likelihoods
 from core.posterior import predict_model_space
 from core.types import ManifoldModel
@@ -55,6 +56,11 @@ def object_log_likelihoods(
     met one placement of the object), else 0. It is not a sum over touches: pass all of a
     trial's touches at once. For one touch it equals the independent density below.
 
+    A model with ``latent_covariance`` (the Laplace covariance Σ_l of every object's latent,
+    :mod:`core.latent_uncertainty`) integrates each s_l over N(s_l, Σ_l) instead of taking it
+    as known (docs/method.md (L2)–(L3)): the moments above become the Gaussian-input moments over
+    all touches and features at once, in either setting.
+
     ``"independent"``: the touches are independent given the object (the base model, (M1)):
 
         log p(D_t | l) = Σ_t [Σ_a log N(y'_ta; m_a(s_l, x_t), v_a(s_l, x_t) + σ_n,a²) + log|det M|].
@@ -84,12 +90,26 @@ def object_log_likelihoods(
     n_objects = model.latents.shape[0]
     if x.shape[0] == 0:
         return np.zeros(n_objects)
-    if trial_likelihood == "joint":
-        variance = (
-            model.placement_variance
-            if shared_placement and model.placement_variance is not None
-            else np.zeros(model.hyperparameters.observation_dim)
+    variance = (
+        model.placement_variance
+        if shared_placement and model.placement_variance is not None
+        else np.zeros(model.hyperparameters.observation_dim)
+    )
+    if model.latent_covariance is not None:
+        # docs/method.md (L3): every s_l integrated over its Laplace posterior.
+        if trial_likelihood == "joint":
+            return latent_trial_log_likelihoods(model, x, y, variance, model.latent_covariance)
+        zero = np.zeros(model.hyperparameters.observation_dim)
+        return np.asarray(
+            sum(
+                latent_trial_log_likelihoods(
+                    model, x[t : t + 1], y[t : t + 1], zero, model.latent_covariance
+                )
+                for t in range(x.shape[0])
+            ),
+            dtype=np.float64,
         )
+    if trial_likelihood == "joint":
         return trial_log_likelihoods(model, x, y, variance)
     # Queries ordered (touch, object): every touch under every learned latent.
     latents = np.tile(model.latents, (x.shape[0], 1))
