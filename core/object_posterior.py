@@ -61,6 +61,9 @@ def object_log_likelihoods(
     as known (docs/method.md (L2)–(L3)): the moments above become the Gaussian-input moments over
     all touches and features at once, in either setting.
 
+    A model with ``tempering`` = β (:mod:`core.tempering`, a last resort fitted on the training
+    touches) returns β times the value: the posterior becomes p(D_t | l)^β, normalised.
+
     ``"independent"``: the touches are independent given the object (the base model, (M1)):
 
         log p(D_t | l) = Σ_t [Σ_a log N(y'_ta; m_a(s_l, x_t), v_a(s_l, x_t) + σ_n,a²) + log|det M|].
@@ -85,6 +88,22 @@ def object_log_likelihoods(
     Raises:
         InvalidInputError: Wrong shapes, non-finite values or an unknown ``trial_likelihood``.
     """
+    values = _untempered_log_likelihoods(
+        model, actions, observations, trial_likelihood, shared_placement
+    )
+    if model.tempering is None:
+        return values
+    # A last resort (core.tempering): p(D | l)^β with β fitted on the training touches.
+    return np.asarray(model.tempering * values, dtype=np.float64)
+
+
+def _untempered_log_likelihoods(
+    model: ManifoldModel,
+    actions: FloatArray,
+    observations: FloatArray,
+    trial_likelihood: TrialLikelihood,
+    shared_placement: bool,
+) -> FloatArray:
     check_trial_likelihood(trial_likelihood)
     x, y = _check_touches(model, actions, observations)
     n_objects = model.latents.shape[0]

@@ -425,6 +425,9 @@ class ManifoldModel:
         latent_covariance: Σ_l, the Laplace covariance of every object's latent point
             (:mod:`core.latent_uncertainty`, docs/method.md (L1)); ``None``: the latents are
             taken as known and the object likelihood uses them as points. Shape (L, ds, ds).
+        tempering: β in (0, 1], the exponent on the object likelihood fitted by
+            cross-validation on the training touches (:mod:`core.tempering`, a last resort);
+            ``None``: untempered.
         features: The feature pipeline that turns a raw touch into y
             (:mod:`core.features.pipeline`); ``None``: y is given as it is (the channel means).
     """
@@ -440,6 +443,7 @@ class ManifoldModel:
     placement_variance: FloatArray | None = None
     features: FeaturePipeline | None = None
     latent_covariance: FloatArray | None = None
+    tempering: float | None = None
 
     @property
     def raw_data(self) -> TrainingData:

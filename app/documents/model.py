@@ -10,6 +10,8 @@ the offset shared by one placement's touches (docs/calibration.md), estimated at
 it scores a trial's touches as independent (σ_b² = 0). ``latent_uncertainty`` (optional) holds
 the Laplace covariance Σ_l of every object's latent point (docs/method.md (L1)); a document with
 it integrates each s_l over N(s_l, Σ_l) in the object likelihood, one without takes s_l as known.
+``tempering`` (optional) holds β, the exponent on the object likelihood fitted by cross-validation
+on the training touches (:mod:`core.tempering`, a last resort); without it, β = 1.
 ``features`` (optional, :mod:`app.documents.features`) is the
 pipeline that turns a raw touch into y; without it y is the channel means.
 """
@@ -34,6 +36,7 @@ from core.errors import InvalidInputError
 from core.latent_selection import LatentSelection
 from core.latent_uncertainty import check_latent_covariance
 from core.placement_effect import check_placement_variance
+from core.tempering import check_exponent
 from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
 
 MODEL_FORMAT = "activetouch-model/1"
@@ -122,6 +125,11 @@ def model_to_document(
         document["latent_uncertainty"] = {
             "covariance": model.latent_covariance.tolist(),
             "method": "Laplace, per object, hyperparameters fixed (docs/method.md (L1))",
+        }
+    if model.tempering is not None:
+        document["tempering"] = {
+            "exponent": float(model.tempering),
+            "method": "held-out log-loss of leave-touches-out training trials (core.tempering)",
         }
     noise = noise_model_field(model.transform)
     if noise is not None:
@@ -411,6 +419,15 @@ def model_from_document(document: Any) -> ManifoldModel:
                 column="latent_uncertainty",
             ) from exc
         model = dataclasses.replace(model, latent_covariance=covariance)
+    tempering = document.get("tempering")
+    if tempering is not None:
+        try:
+            exponent = check_exponent(_field(tempering, "exponent", "tempering"))
+        except (InvalidInputError, TypeError, ValueError) as exc:
+            raise DocumentError(
+                f"model document: malformed field 'tempering' ({exc}).", column="tempering"
+            ) from exc
+        model = dataclasses.replace(model, tempering=exponent)
     effect = document.get("placement_effect")
     if effect is None:
         return model
