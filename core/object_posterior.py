@@ -24,6 +24,7 @@ import numpy as np
 import scipy.special
 
 from core.errors import InvalidInputError
+from core.latent_uncertainty import trial_log_likelihoods as latent_trial_log_likelihoods
 from core.placement_effect import trial_log_likelihoods
 from core.posterior import predict_model_space
 from core.types import ManifoldModel
@@ -55,6 +56,14 @@ def object_log_likelihoods(
     met one placement of the object), else 0. It is not a sum over touches: pass all of a
     trial's touches at once. For one touch it equals the independent density below.
 
+    A model with ``latent_covariance`` (the Laplace covariance Σ_l of every object's latent,
+    :mod:`core.latent_uncertainty`) integrates each s_l over N(s_l, Σ_l) instead of taking it
+    as known (docs/method.md (L2)–(L3)): the moments above become the Gaussian-input moments over
+    all touches and features at once, in either setting.
+
+    A model with ``tempering`` = β (:mod:`core.tempering`, a last resort fitted on the training
+    touches) returns β times the value: the posterior becomes p(D_t | l)^β, normalised.
+
     ``"independent"``: the touches are independent given the object (the base model, (M1)):
 
         log p(D_t | l) = Σ_t [Σ_a log N(y'_ta; m_a(s_l, x_t), v_a(s_l, x_t) + σ_n,a²) + log|det M|].
@@ -79,17 +88,47 @@ def object_log_likelihoods(
     Raises:
         InvalidInputError: Wrong shapes, non-finite values or an unknown ``trial_likelihood``.
     """
+    values = _untempered_log_likelihoods(
+        model, actions, observations, trial_likelihood, shared_placement
+    )
+    if model.tempering is None:
+        return values
+    # A last resort (core.tempering): p(D | l)^β with β fitted on the training touches.
+    return np.asarray(model.tempering * values, dtype=np.float64)
+
+
+def _untempered_log_likelihoods(
+    model: ManifoldModel,
+    actions: FloatArray,
+    observations: FloatArray,
+    trial_likelihood: TrialLikelihood,
+    shared_placement: bool,
+) -> FloatArray:
     check_trial_likelihood(trial_likelihood)
     x, y = _check_touches(model, actions, observations)
     n_objects = model.latents.shape[0]
     if x.shape[0] == 0:
         return np.zeros(n_objects)
-    if trial_likelihood == "joint":
-        variance = (
-            model.placement_variance
-            if shared_placement and model.placement_variance is not None
-            else np.zeros(model.hyperparameters.observation_dim)
+    variance = (
+        model.placement_variance
+        if shared_placement and model.placement_variance is not None
+        else np.zeros(model.hyperparameters.observation_dim)
+    )
+    if model.latent_covariance is not None:
+        # docs/method.md (L3): every s_l integrated over its Laplace posterior.
+        if trial_likelihood == "joint":
+            return latent_trial_log_likelihoods(model, x, y, variance, model.latent_covariance)
+        zero = np.zeros(model.hyperparameters.observation_dim)
+        return np.asarray(
+            sum(
+                latent_trial_log_likelihoods(
+                    model, x[t : t + 1], y[t : t + 1], zero, model.latent_covariance
+                )
+                for t in range(x.shape[0])
+            ),
+            dtype=np.float64,
         )
+    if trial_likelihood == "joint":
         return trial_log_likelihoods(model, x, y, variance)
     # Queries ordered (touch, object): every touch under every learned latent.
     latents = np.tile(model.latents, (x.shape[0], 1))

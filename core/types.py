@@ -422,6 +422,12 @@ class ManifoldModel:
             placement, per model-space feature (:mod:`core.placement_effect`); ``None`` (or all
             zero) when not estimated: the touches of a trial are then independent given the
             object. Shape (dy,).
+        latent_covariance: Σ_l, the Laplace covariance of every object's latent point
+            (:mod:`core.latent_uncertainty`, docs/method.md (L1)); ``None``: the latents are
+            taken as known and the object likelihood uses them as points. Shape (L, ds, ds).
+        tempering: β in (0, 1], the exponent on the object likelihood fitted by
+            cross-validation on the training touches (:mod:`core.tempering`, a last resort);
+            ``None``: untempered.
         features: The feature pipeline that turns a raw touch into y
             (:mod:`core.features.pipeline`); ``None``: y is given as it is (the channel means).
     """
@@ -436,6 +442,8 @@ class ManifoldModel:
     source_data: TrainingData | None = None
     placement_variance: FloatArray | None = None
     features: FeaturePipeline | None = None
+    latent_covariance: FloatArray | None = None
+    tempering: float | None = None
 
     @property
     def raw_data(self) -> TrainingData:

@@ -7,7 +7,11 @@ The training data are included; β and K⁻¹ are recomputed on load, conditione
 how ``--latent-dim auto`` chose ds. ``placement_effect`` (optional) holds σ_b², the variance of
 the offset shared by one placement's touches (docs/calibration.md), estimated at fit time from
 ``training_data.placements`` (optional, the placement number of every touch); a document without
-it scores a trial's touches as independent (σ_b² = 0).
+it scores a trial's touches as independent (σ_b² = 0). ``latent_uncertainty`` (optional) holds
+the Laplace covariance Σ_l of every object's latent point (docs/method.md (L1)); a document with
+it integrates each s_l over N(s_l, Σ_l) in the object likelihood, one without takes s_l as known.
+``tempering`` (optional) holds β, the exponent on the object likelihood fitted by cross-validation
+on the training touches (:mod:`core.tempering`, a last resort); without it, β = 1.
 ``features`` (optional, :mod:`app.documents.features`) is the
 pipeline that turns a raw touch into y; without it y is the channel means.
 """
@@ -30,7 +34,9 @@ from app.documents.posterior import condition_as_recorded, posterior_field
 from app.documents.training_csv import MAX_NAME_CHARACTERS
 from core.errors import InvalidInputError
 from core.latent_selection import LatentSelection
+from core.latent_uncertainty import check_latent_covariance
 from core.placement_effect import check_placement_variance
+from core.tempering import check_exponent
 from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
 
 MODEL_FORMAT = "activetouch-model/1"
@@ -114,6 +120,16 @@ def model_to_document(
             "variance": [float(v) for v in model.placement_variance],
             "space": "model",
             "estimator": "leave-one-placement-out method of moments (docs/calibration.md)",
+        }
+    if model.latent_covariance is not None:
+        document["latent_uncertainty"] = {
+            "covariance": model.latent_covariance.tolist(),
+            "method": "Laplace, per object, hyperparameters fixed (docs/method.md (L1))",
+        }
+    if model.tempering is not None:
+        document["tempering"] = {
+            "exponent": float(model.tempering),
+            "method": "held-out log-loss of leave-touches-out training trials (core.tempering)",
         }
     noise = noise_model_field(model.transform)
     if noise is not None:
@@ -386,6 +402,32 @@ def model_from_document(document: Any) -> ManifoldModel:
     )
     if features is not None:
         model = dataclasses.replace(model, features=features)
+    uncertainty = document.get("latent_uncertainty")
+    if uncertainty is not None:
+        try:
+            covariance = check_latent_covariance(
+                model,
+                np.asarray(
+                    _field(uncertainty, "covariance", "latent_uncertainty"), dtype=np.float64
+                ),
+            )
+        except InvalidInputError as exc:
+            raise DocumentError(f"model document: {exc}", column="latent_uncertainty") from exc
+        except (TypeError, ValueError) as exc:
+            raise DocumentError(
+                f"model document: malformed field 'latent_uncertainty' ({exc}).",
+                column="latent_uncertainty",
+            ) from exc
+        model = dataclasses.replace(model, latent_covariance=covariance)
+    tempering = document.get("tempering")
+    if tempering is not None:
+        try:
+            exponent = check_exponent(_field(tempering, "exponent", "tempering"))
+        except (InvalidInputError, TypeError, ValueError) as exc:
+            raise DocumentError(
+                f"model document: malformed field 'tempering' ({exc}).", column="tempering"
+            ) from exc
+        model = dataclasses.replace(model, tempering=exponent)
     effect = document.get("placement_effect")
     if effect is None:
         return model

@@ -1,0 +1,80 @@
+"""The model document keeps the latent covariance and the tempering exponent, and refuses bad ones
+naming the field."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from app.cli.main import app
+from app.documents.errors import DocumentError
+from app.documents.model import model_from_document, model_to_document
+from app.documents.training_csv import write_training_csv
+from core.reference_model import experiment1_at_true_latents
+
+runner = CliRunner()
+
+
+def test_latent_covariance_and_tempering_round_trip() -> None:
+    model = experiment1_at_true_latents(seed=0, touches_per_object=6)
+    covariance = np.array([[[0.01]], [[0.02]], [[0.03]], [[0.04]]])
+    richer = dataclasses.replace(model, latent_covariance=covariance, tempering=0.6)
+    document = json.loads(json.dumps(model_to_document(richer)))
+    loaded = model_from_document(document)
+    np.testing.assert_array_equal(loaded.latent_covariance, covariance)
+    assert loaded.tempering == 0.6
+    # A document without the fields: latents taken as known, no tempering.
+    plain = model_from_document(model_to_document(model))
+    assert plain.latent_covariance is None
+    assert plain.tempering is None
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "fragment"),
+    [
+        (
+            "latent_uncertainty",
+            {"covariance": [[[0.01]], [[-0.02]], [[0.03]], [[0.04]]]},
+            "object 1",
+        ),
+        ("latent_uncertainty", {"covariance": [[0.01]]}, "latent_covariance"),
+        ("latent_uncertainty", {}, "missing field 'covariance'"),
+        ("tempering", {"exponent": 1.5}, "tempering"),
+        ("tempering", {"exponent": "high"}, "tempering"),
+    ],
+)
+def test_bad_fields_are_refused(field: str, value: object, fragment: str) -> None:
+    model = experiment1_at_true_latents(seed=0, touches_per_object=6)
+    document = json.loads(json.dumps(model_to_document(model)))
+    document[field] = value
+    with pytest.raises(DocumentError, match=fragment):
+        model_from_document(document)
+
+
+def test_fit_computes_them_only_when_asked(tmp_path: Path) -> None:
+    data = experiment1_at_true_latents(seed=1, touches_per_object=10).data
+    csv_path = tmp_path / "train.csv"
+    csv_path.write_text(write_training_csv(data))
+    common = ["fit", str(csv_path), "--latent-dim", "1", "--restarts", "0"]
+    common += ["--noise-model", "independent"]
+    plain, rich = tmp_path / "plain.json", tmp_path / "rich.json"
+    result = runner.invoke(app, [*common, "--out", str(plain)])
+    assert result.exit_code == 0, result.output
+    document = json.loads(plain.read_text())
+    assert "latent_uncertainty" not in document
+    assert "tempering" not in document
+    options = ["--latent-uncertainty", "--tempering", "--out", str(rich)]
+    result = runner.invoke(app, [*common, *options])
+    assert result.exit_code == 0, result.output
+    assert "latent uncertainty (Laplace)" in result.output
+    assert "tempering β =" in result.output
+    model = model_from_document(json.loads(rich.read_text()))
+    assert model.latent_covariance is not None
+    assert model.latent_covariance.shape == (4, 1, 1)
+    assert model.tempering is not None
+    assert 0 < model.tempering <= 1
