@@ -15,7 +15,7 @@ from app import crud
 from app.documents.raw_touches import (
     channels_field,
     featurise,
-    raw_touch_from_frames,
+    frames_touch,
     read_raw_touches,
 )
 from app.documents.training_csv import TrainingCsvWriter, read_training_csv
@@ -173,12 +173,7 @@ def export_raw(session: Session, dataset_id: int) -> str:
         if raw is not None and "channels" in raw:
             channels = raw["channels"]
         elif raw is not None and "tactile" in raw:
-            touch = raw_touch_from_frames(
-                raw["channel_names"],
-                np.asarray(raw["tactile_times_s"], dtype=np.float64),
-                np.asarray(raw["tactile"], dtype=np.float64),
-            )
-            channels = channels_field(touch)
+            channels = channels_field(frames_touch(raw))
         else:
             raise BadInputError(
                 f"Dataset {dataset_id}: sample {k + 1} has no raw series (it was uploaded as "

@@ -149,3 +149,27 @@ def test_a_rig_record_becomes_a_raw_touch_by_its_channel_names() -> None:
     vib = touch.channel("vib")
     assert vib.rate_hz == pytest.approx(200.0)
     np.testing.assert_array_equal(vib.samples, frames[:, 3:5].reshape(-1))
+
+
+def test_a_line_of_the_older_collect_format_is_read_from_its_frames() -> None:
+    n = 40
+    frames = np.column_stack([np.linspace(1.0, 2.0, n), np.full(n, 3.0), np.full(n, 4.0)])
+    old = {
+        "object": "mug",
+        "action": [0.5],
+        "channel_names": ["pressure_kpa", "electrode[0]", "electrode[1]"],
+        "tactile_times_s": (np.arange(n) / 50.0).tolist(),
+        "tactile": frames.tolist(),
+    }
+    touches = read_raw_touches(json.dumps(old) + "\n")
+    touch = touches.touches[0]
+    assert touch.names == ("pressure_kpa", "electrode")
+    assert touch.channel("pressure_kpa").rate_hz == pytest.approx(50.0)
+    np.testing.assert_array_equal(touch.channel("electrode").samples, frames[:, 1:])
+    # A new line with 'channels' and an old one with frames read alike, in one file.
+    new = json.dumps(raw_touch_line("cup", [0.1], touch))
+    both = read_raw_touches(json.dumps(old) + "\n" + new + "\n")
+    assert both.object_names == ("mug", "cup")
+    broken = {**old, "tactile": frames[:, :2].tolist()}
+    with pytest.raises(DocumentError, match=r"line 2: frames: expected shape \(40, 3\)"):
+        read_raw_touches(new + "\n" + json.dumps(broken) + "\n")
