@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import json
 from collections.abc import Sequence
+from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
@@ -16,6 +17,7 @@ from app.documents.raw_touches import (
     channels_field,
     featurise,
     frames_touch,
+    line_refusal,
     read_raw_touches,
 )
 from app.documents.training_csv import TrainingCsvWriter, read_training_csv
@@ -24,7 +26,7 @@ from app.models import Dataset
 from app.schemas import DatasetCreate, DatasetPublic, Page, SampleIn
 from app.services.events import EventBus
 from core.errors import InvalidInputError
-from core.features.pipeline import means_pipeline
+from core.features.pipeline import FeatureKind, check_touches, means_pipeline
 from core.types import TrainingData
 
 
@@ -143,19 +145,59 @@ def training_data_from_samples(samples: list[SampleIn]) -> TrainingData:
         raise BadInputError(f"samples: {exc}", field="samples") from exc
 
 
-def create_from_raw(session: Session, events: EventBus, text: str, name: str) -> DatasetPublic:
-    """Store raw touches (``docs/raw-touches.md``): y is each channel's mean, and every touch's
-    channels are kept with its sample, so the dataset can be featurised again
-    (:func:`export_raw`) without touching the objects again.
+@dataclass(frozen=True)
+class RawUpload:
+    """Raw touches checked and ready to store: their training data (y: each channel's mean) and
+    each touch's channels."""
+
+    data: TrainingData
+    raw: list[dict[str, Any]]
+
+
+def read_raw_upload(text: str, features: FeatureKind = "whole") -> RawUpload:
+    """Read and check a raw-touch file (``docs/raw-touches.md``) for storing.
+
+    Args:
+        text: The file.
+        features: The pipeline the touches are meant for: with ``"whole"`` every series must
+            be at least its window long (:func:`core.features.pipeline.check_touches`).
+
+    Raises:
+        app.documents.errors.DocumentError: (→ 422) the message names the line and channel.
+    """
+    touches = read_raw_touches(text)
+    try:
+        check_touches(touches.touches, features)
+    except InvalidInputError as exc:
+        raise line_refusal(touches, exc) from None
+    data = featurise(touches, means_pipeline(touches.touches[0]))
+    return RawUpload(data, [{"channels": channels_field(touch)} for touch in touches.touches])
+
+
+def store_raw_upload(
+    session: Session, events: EventBus, upload: RawUpload, name: str, source: str = "upload"
+) -> DatasetPublic:
+    """Store checked raw touches (:func:`read_raw_upload`) as one dataset, committed at once:
+    y is each channel's mean, and every touch's channels are kept with its sample, so the
+    dataset can be featurised again (:func:`featurised_data`, :func:`export_raw`) without
+    touching the objects again."""
+    return _commit_and_announce(session, events, upload.data, name, source, upload.raw)
+
+
+def create_from_raw(
+    session: Session,
+    events: EventBus,
+    text: str,
+    name: str,
+    features: FeatureKind = "whole",
+) -> DatasetPublic:
+    """Check raw touches (:func:`read_raw_upload`) and store them (:func:`store_raw_upload`).
 
     Raises:
         app.documents.errors.DocumentError: (→ 422) the message names the line and channel;
             nothing is stored.
     """
-    touches = read_raw_touches(text)
-    data = featurise(touches, means_pipeline(touches.touches[0]))
-    raw = [{"channels": channels_field(touch)} for touch in touches.touches]
-    return _commit_and_announce(session, events, data, name, "upload", raw)
+    return store_raw_upload(session, events, read_raw_upload(text, features), name)
 
 
 def export_raw(session: Session, dataset_id: int) -> str:

@@ -118,3 +118,18 @@ def test_a_stored_model_keeps_its_pipeline_after_a_restart(tmp_path: Path) -> No
         )
         assert response.status_code == 200, response.text
         assert response.json()["answer"] == "fine"
+
+
+def test_a_raw_upload_is_checked_against_the_pipeline_it_is_meant_for(client: TestClient) -> None:
+    short = raw_file(3) + touch_line(np.random.default_rng(1), "fine", 200.0, 100) + "\n"
+    ndjson = {"Content-Type": "application/x-ndjson"}
+    refused = client.post(f"{API}/datasets", content=short.encode(), headers=ndjson)
+    assert refused.status_code == 422
+    assert "line 10" in refused.text
+    assert "'vibration': 100 samples, shorter than the pipeline's window of 256" in refused.text
+    means = client.post(f"{API}/datasets?features=means", content=short.encode(), headers=ndjson)
+    assert means.status_code == 201, means.text
+    assert means.json()["n_samples"] == 10
+    wrong = client.post(f"{API}/datasets?features=all", content=short.encode(), headers=ndjson)
+    assert wrong.status_code == 422
+    assert "features" in wrong.text
