@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 from collections.abc import Sequence
@@ -19,6 +20,7 @@ from app.documents.raw_touches import (
     frames_touch,
     line_refusal,
     read_raw_touches,
+    stored_touch,
 )
 from app.documents.training_csv import TrainingCsvWriter, read_training_csv
 from app.errors import BadInputError, ConflictError
@@ -26,7 +28,8 @@ from app.models import Dataset
 from app.schemas import DatasetCreate, DatasetPublic, Page, SampleIn
 from app.services.events import EventBus
 from core.errors import InvalidInputError
-from core.features.pipeline import FeatureKind, check_touches, means_pipeline
+from core.features.pipeline import FeatureKind, FeaturePipeline, check_touches, means_pipeline
+from core.features.raw import RawTouch
 from core.types import TrainingData
 
 
@@ -288,6 +291,61 @@ def _training_data(session: Session, dataset: Dataset) -> TrainingData:
             f"Dataset {dataset.id} cannot be used as training data: {exc}",
             field="dataset_id",
         ) from exc
+
+
+def raw_touches(session: Session, dataset_id: int) -> tuple[TrainingData, list[RawTouch]]:
+    """A dataset's touches with their raw series, to be featurised again.
+
+    Returns:
+        The stored training data (y as stored) and each sample's raw touch, in order.
+
+    Raises:
+        BadInputError: (→ 422, field ``features``) a sample without raw series (uploaded as y
+            only) or whose series cannot be read, or touches of different channel layouts;
+            the message names the sample.
+    """
+    dataset = require(session, dataset_id)
+    data = _training_data(session, dataset)
+    touches: list[RawTouch] = []
+    for k, (_, _, raw) in enumerate(crud.dataset_raw_samples(session, dataset.id), start=1):
+        if raw is None:
+            raise BadInputError(
+                f"features: dataset {dataset_id}, sample {k} has no raw series (it was uploaded "
+                "as y only); features are made of raw touches — upload them as "
+                "application/x-ndjson (docs/raw-touches.md) or collect them on the rig.",
+                field="features",
+            )
+        try:
+            touches.append(stored_touch(raw))
+        except InvalidInputError as exc:
+            raise BadInputError(
+                f"features: dataset {dataset_id}, sample {k}: {exc}", field="features"
+            ) from None
+    return data, touches
+
+
+def has_raw_touches(session: Session, dataset_id: int) -> bool:
+    """Whether every sample of the dataset keeps its raw series."""
+    rows = crud.dataset_raw_samples(session, dataset_id)
+    return bool(rows) and all(raw is not None for _, _, raw in rows)
+
+
+def featurised_data(session: Session, dataset_id: int, pipeline: FeaturePipeline) -> TrainingData:
+    """The dataset's touches with y made by ``pipeline`` from their raw series.
+
+    Raises:
+        BadInputError: (→ 422, field ``features``) a sample without raw series, or one the
+            pipeline refuses (another channel set, a series shorter than its window), named.
+    """
+    data, touches = raw_touches(session, dataset_id)
+    try:
+        y = pipeline.transform_many(touches)
+    except InvalidInputError as exc:
+        raise BadInputError(
+            f"features: dataset {dataset_id}, {str(exc).replace('touch ', 'sample ', 1)}",
+            field="features",
+        ) from None
+    return dataclasses.replace(data, observations=y)
 
 
 def export_csv(session: Session, dataset_id: int) -> str:
