@@ -293,6 +293,16 @@ def _frame_group(channel: str) -> tuple[str, str, int]:
     return "scalar", channel, 0
 
 
+def raw_channel_names(frame_channels: Sequence[str]) -> tuple[str, ...]:
+    """The raw channels frames of these channels make (:func:`raw_touch_from_frames`), in order."""
+    names: list[str] = []
+    for channel in frame_channels:
+        name = _frame_group(channel)[1]
+        if name not in names:
+            names.append(name)
+    return tuple(names)
+
+
 def raw_touch_from_record(record: TouchRecord) -> RawTouch:
     """A rig touch as a raw touch: frame channels grouped by name.
 

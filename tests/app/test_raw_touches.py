@@ -13,13 +13,14 @@ from app.documents.model import model_from_document, model_to_document
 from app.documents.raw_touches import (
     featurise,
     line_refusal,
+    raw_channel_names,
     raw_touch_from_record,
     raw_touch_line,
     read_raw_touches,
 )
 from core.errors import InvalidInputError
 from core.features.pipeline import fit_features
-from core.features.raw import raw_touch
+from core.features.raw import RawTouch, raw_touch
 from core.manifold import FitOptions, fit_manifold
 from hardware.records import TouchRecord
 
@@ -173,3 +174,44 @@ def test_a_line_of_the_older_collect_format_is_read_from_its_frames() -> None:
     broken = {**old, "tactile": frames[:, :2].tolist()}
     with pytest.raises(DocumentError, match=r"line 2: frames: expected shape \(40, 3\)"):
         read_raw_touches(new + "\n" + json.dumps(broken) + "\n")
+
+
+def test_rig_trials_accept_a_model_whose_pipeline_reads_the_tables_channels() -> None:
+    from app.errors import BadInputError
+    from app.evaluation.spec import EvaluationSpec
+    from app.evaluation.worlds import table_objects
+    from core.types import TrainingData
+    from hardware.sim.rig import table_channel_names
+
+    assert raw_channel_names(table_channel_names(table_objects("twins"))) == (
+        "vibration_1", "vibration_2", "pressure_kpa", "heat_flux_mw", "temperature_c",
+        "electrode", "vibration",
+    )  # fmt: skip
+    rng = np.random.default_rng(0)
+
+    def touch(level: float) -> RawTouch:
+        slow = {n: (100.0, level + rng.normal(size=20)) for n in ("vibration_1", "vibration_2")}
+        slow |= {n: (100.0, level + rng.normal(size=20)) for n in ("pressure_kpa", "heat_flux_mw")}
+        return raw_touch(
+            {
+                **slow,
+                "temperature_c": (100.0, 30 + rng.normal(size=20)),
+                "electrode": (100.0, level + rng.normal(size=(20, 8))),
+                "vibration": (1600.0, rng.normal(size=320)),
+            }
+        )
+
+    index = np.repeat(np.arange(4), 5)
+    touches = [touch(float(k)) for k in index]
+    pipeline = fit_features(touches, index, "means")
+    names = table_objects("twins")
+    data = TrainingData(names, index, rng.normal(size=(20, 6)), pipeline.transform_many(touches))
+    model = fit_manifold(data, 1, np.random.default_rng(0), FitOptions(restarts=0))
+    spec = EvaluationSpec("rig", 1, 1, ("passive",), table="twins")
+    spec.check(dataclasses.replace(model, features=pipeline))  # 14 channel means of 7 channels
+    with pytest.raises(BadInputError, match="the simulated rig has dx=6, dy=29"):
+        spec.check(model)  # without its pipeline y would be the 29 frame channels
+    other = read_raw_touches(raw_file(4))
+    fitted = fit_features(other.touches, other.object_index, "means")
+    with pytest.raises(BadInputError, match=r"the model's features read \['pressure_kpa'"):
+        spec.check(dataclasses.replace(model, features=fitted))
