@@ -189,7 +189,12 @@ class RigService:
     @property
     def observation_dim(self) -> int:
         """dy of rig observations (tactile channels)."""
-        return len(self.handle().rig.tactile.config.channel_names)
+        return len(self.channel_names)
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        """The tactile frame's channels."""
+        return tuple(self.handle().rig.tactile.config.channel_names)
 
     def close(self) -> None:
         """Close the ports (or the simulation)."""

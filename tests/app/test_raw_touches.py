@@ -18,11 +18,16 @@ from app.documents.raw_touches import (
     raw_touch_line,
     read_raw_touches,
 )
+from app.errors import BadInputError
+from app.evaluation.spec import EvaluationSpec
+from app.evaluation.worlds import table_objects
 from core.errors import InvalidInputError
 from core.features.pipeline import fit_features
 from core.features.raw import RawTouch, raw_touch
 from core.manifold import FitOptions, fit_manifold
+from core.types import ManifoldModel, TrainingData
 from hardware.records import TouchRecord
+from hardware.sim.rig import table_channel_names
 
 PATTERNS = {"fine": [1.0, 2.0, 3.0], "coarse": [3.0, 2.0, 1.0], "medium": [2.0, 2.0, 2.0]}
 
@@ -176,17 +181,8 @@ def test_a_line_of_the_older_collect_format_is_read_from_its_frames() -> None:
         read_raw_touches(new + "\n" + json.dumps(broken) + "\n")
 
 
-def test_rig_trials_accept_a_model_whose_pipeline_reads_the_tables_channels() -> None:
-    from app.errors import BadInputError
-    from app.evaluation.spec import EvaluationSpec
-    from app.evaluation.worlds import table_objects
-    from core.types import TrainingData
-    from hardware.sim.rig import table_channel_names
-
-    assert raw_channel_names(table_channel_names(table_objects("twins"))) == (
-        "vibration_1", "vibration_2", "pressure_kpa", "heat_flux_mw", "temperature_c",
-        "electrode", "vibration",
-    )  # fmt: skip
+def twins_channel_model() -> ManifoldModel:
+    """A small model (dx = 6) whose channel-means pipeline reads the twins table's channels."""
     rng = np.random.default_rng(0)
 
     def touch(level: float) -> RawTouch:
@@ -207,10 +203,19 @@ def test_rig_trials_accept_a_model_whose_pipeline_reads_the_tables_channels() ->
     names = table_objects("twins")
     data = TrainingData(names, index, rng.normal(size=(20, 6)), pipeline.transform_many(touches))
     model = fit_manifold(data, 1, np.random.default_rng(0), FitOptions(restarts=0))
+    return dataclasses.replace(model, features=pipeline)
+
+
+def test_rig_trials_accept_a_model_whose_pipeline_reads_the_tables_channels() -> None:
+    assert raw_channel_names(table_channel_names(table_objects("twins"))) == (
+        "vibration_1", "vibration_2", "pressure_kpa", "heat_flux_mw", "temperature_c",
+        "electrode", "vibration",
+    )  # fmt: skip
+    model = twins_channel_model()
     spec = EvaluationSpec("rig", 1, 1, ("passive",), table="twins")
-    spec.check(dataclasses.replace(model, features=pipeline))  # 14 channel means of 7 channels
+    spec.check(model)  # 14 channel means of 7 channels
     with pytest.raises(BadInputError, match="the simulated rig has dx=6, dy=29"):
-        spec.check(model)  # without its pipeline y would be the 29 frame channels
+        spec.check(dataclasses.replace(model, features=None))  # y: the 29 frame channels
     other = read_raw_touches(raw_file(4))
     fitted = fit_features(other.touches, other.object_index, "means")
     with pytest.raises(BadInputError, match=r"the model's features read \['pressure_kpa'"):

@@ -16,7 +16,7 @@ from app.main import create_app
 from core.features.pipeline import fit_features
 from core.manifold import FitOptions, fit_manifold
 from tests.app.conftest import TestClient, experiment1_csv, make_settings
-from tests.app.test_raw_touches import raw_file, touch_line
+from tests.app.test_raw_touches import raw_file, touch_line, twins_channel_model
 
 API = "/api/v1"
 
@@ -253,3 +253,23 @@ def test_features_need_raw_touches_that_the_pipeline_can_take(client: TestClient
     assert means_dim.status_code == 422
     assert "feature_dim" in means_dim.text
     assert client.get(f"{API}/models").json()["count"] == 0
+
+
+def test_rig_trials_of_a_model_with_features_need_the_channels_it_reads(tmp_path: Path) -> None:
+    document = json.loads(json.dumps(model_to_document(twins_channel_model())))
+    for table, expected in (("twins", 201), ("default", 422)):
+        settings = make_settings(tmp_path / table, sim_table=table)
+        with TestClient(create_app(settings)) as client:
+            model_id = client.post(f"{API}/models/import", json=document).json()["id"]
+            response = client.post(
+                f"{API}/trials",
+                json={
+                    "model_id": model_id,
+                    "mode": "simulated",
+                    "target": "twin_fine_edge",
+                    "max_steps": 1,
+                    "simulation": {"world": "rig"},
+                },
+            )
+            assert response.status_code == expected, response.text
+    assert "the model's features read" in response.text
