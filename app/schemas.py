@@ -127,6 +127,23 @@ class ModelCreate(BaseModel):
     restarts: Annotated[int, Field(ge=0, le=50)] = 2
     seed: Seed | None = None
     max_iterations: Annotated[int, Field(ge=1, le=20_000)] | None = None
+    features: Literal["means", "whole"] | None = Field(
+        default=None,
+        description=(
+            "Make y afresh from the dataset's raw touches (an upload of raw touches, "
+            "docs/raw-touches.md, or a rig collection): 'whole' reduces every series "
+            "(mean, RMS, std, slope, Welch band powers and centroid, electrode pattern), "
+            "standardises and projects to feature_dim; 'means' takes each channel's mean. The "
+            "fitted pipeline becomes part of the model (its 'features'). Null: y as stored."
+        ),
+    )
+    feature_dim: Annotated[int, Field(ge=1, le=30)] | Literal["auto"] = Field(
+        default="auto",
+        description=(
+            "features 'whole' only: dy, or 'auto': chosen by cross-validated recognition of "
+            "held-out training touches (reported in features.explanation)."
+        ),
+    )
     workers: Annotated[int, Field(ge=1, le=256)] | None = Field(
         default=None,
         description=(

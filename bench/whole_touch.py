@@ -5,66 +5,56 @@ Two parts:
 1. **Twins** (``--part twins``): the simulated ``twins`` table (four objects of one material
    whose every channel has the same mean; they differ in the vibration's spectrum and the spread
    of the electrode ring, ``hardware/sim/electrodes.py``), ``--touches`` touches per object on
-   the in-process simulated rig (random design, x ~ N(0, 0.75² I), rounds over the objects as
-   ``activetouch collect`` does). The first ``--fit`` touches of each object train, the rest are
-   held out. For each feature pipeline (``means``: each channel's mean; ``whole``: reducers,
-   standardisation, PCA/LDA with dy by cross-validation) a manifold is fitted (ds =
-   ``--latent-dim``, noise model auto) and passive replay is scored: ``--trials`` groups per
-   object of 1 and of 3 distinct random held-out touches, the answer the most probable object
-   of the posterior (:func:`core.object_posterior.object_posterior`). Calibration: of the answers
-   given with p ≥ 0.95, the share that were right.
+   the in-process simulated rig (random design, x ~ N(0, σ² I) with the table's σ, rounds over
+   the objects as ``activetouch collect`` does, touches of ``--duration`` s, by default the
+   duration rig trials touch for) — or the raw-touch file ``--data`` (what ``activetouch
+   collect --sim --table twins --raw FILE`` writes). The first ``--fit`` touches of each object
+   train, the rest are held out. For each feature pipeline (``means``: each channel's mean;
+   ``whole``: reducers, standardisation, PCA/LDA with dy by cross-validation) a manifold is
+   fitted (ds = ``--latent-dim``, noise model auto, 2 restarts) with the pipeline in the model,
+   and evaluated by the evaluation engine (:func:`app.evaluation.runner.run_evaluation`),
+   policies active and passive, 3 touches per trial: replaying the held-out touches
+   (``--trials`` trials per object) and on the simulated rig (``--rig-trials`` per object, every
+   touch a fresh simulated touch through the model's pipeline). Each accuracy comes with its
+   calibration: the ECE and "sure and wrong" (answers given with p ≥ 0.95 that were wrong) after
+   touch 1 and touch 3, and the reliability table over every touch.
 2. **Fit time** (``--part fit``): 20 objects × 40 synthetic whole touches shaped like a
    multimodal fingertip's (19 electrodes and pressure/thermal channels at 100 Hz, a vibration
    at 2.2 kHz); the time to fit the feature pipeline (dy chosen by cross-validation), then the
    manifold at ``--fit-dims`` features (ds = 3, noise model independent, 2 restarts).
 
-Run: ``.venv/bin/python -m bench.whole_touch [--part twins|fit|both] [--touches 100]
-[--fit 80] [--duration 6] [--trials 50] [--json]``
-
-Measured (one run, seed 0, ``--part twins --touches 100 --fit 80 --trials 50``; 2 cores shared
-by about 15 busy processes, load average 14–17, so times are long):
-
-* channel means (dy = 14): right after 1 touch 44.0 %, after 3 touches 39.5 %; answers given
-  with p ≥ 0.95: 8.5 % of them after 1 touch (all right), 43 % after 3 (64 % right); fit 360 s.
-* whole touch (PCA to dy = 5): 98.5 % and 100 %; answers with p ≥ 0.95: 95.5 % after 1 touch
-  and 100 % after 3, all right; fit 181 s.
-
-(200 groups each.) With
-channel means the model is confidently wrong on three touches; from the whole touch the
-cross-validation chose PCA to dy = 5 (100 % of held-out training touches recognised), the
-collection of 400 six-second touches took 492 s and the pipeline 19 s.
-
-``--part fit --fit-dims 10 20 30`` (same loaded machine): the pipeline on the 800 touches, dy
-chosen by 5-fold cross-validation, took 27 s; the manifold fit at dy = 10 had not finished after
-51 min of wall time (19.6 min of CPU) and was stopped — the figures for dy = 10, 20 and 30 are
-still to be measured on an unloaded machine.
+Run: ``.venv/bin/python -m bench.whole_touch [--part twins|fit|both] [--data FILE.jsonl]
+[--touches 100] [--fit 80] [--trials 50] [--rig-trials 10] [--workers 2] [--json]``.
+The figures measured are in docs/results.md ("Whole touch against channel means").
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from app.documents.raw_touches import raw_touch_from_record
+from app.documents.raw_touches import raw_touch_from_record, read_raw_touches
+from app.evaluation.runner import run_evaluation
+from app.evaluation.spec import EvaluationSpec
 from app.rig_factory import SimulationMode, TouchActions, open_rig
 from app.services.collections import iter_collection
 from core.designs import random_design
 from core.features.pipeline import FeatureKind, fit_features
 from core.features.raw import RawTouch, raw_touch
 from core.manifold import FitOptions, fit_manifold
-from core.object_posterior import object_posterior
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray, IntArray
 from hardware.rig import RigConfig
 from hardware.sim.materials import get_table
-
-CONFIDENT = 0.95
+from hardware.teaching import PAPER_TOUCH_DURATION_S
 
 
 def collect_twins(
@@ -103,54 +93,64 @@ def split(index: IntArray, first: int) -> tuple[IntArray, IntArray]:
     return np.asarray(sorted(fit_rows)), np.asarray(sorted(held_rows))
 
 
-def passive_replay(
-    model: ManifoldModel,
-    index: IntArray,
-    actions: FloatArray,
-    observations: FloatArray,
-    group_sizes: tuple[int, ...],
-    trials: int,
-    seed: int,
-) -> dict[str, dict[str, float | int]]:
-    """Accuracy and calibration of the object posterior on random groups of held-out touches."""
-    rng = np.random.default_rng(seed)
-    result: dict[str, dict[str, float | int]] = {}
-    for size in group_sizes:
-        right = confident = confident_right = total = 0
-        for obj in np.unique(index):
-            pool = np.flatnonzero(index == obj)
-            for _ in range(trials):
-                rows = rng.choice(pool, size=size, replace=False)
-                p = object_posterior(model, actions[rows], observations[rows])
-                answer = int(np.argmax(p))
-                total += 1
-                right += answer == obj
-                if p[answer] >= CONFIDENT:
-                    confident += 1
-                    confident_right += answer == obj
-        result[f"{size}"] = {
-            "accuracy": right / total,
-            "confident_share": confident / total,
-            "confident_accuracy": confident_right / confident if confident else float("nan"),
-            "groups": total,
+def touch_summary(entry: dict[str, Any], touch: int) -> dict[str, Any]:
+    """Accuracy after ``touch`` touches with its 95 % interval and calibration (ECE, Brier,
+    "sure and wrong") from one policy's evaluation summary."""
+    calibration = entry["calibration"]["by_touch"][touch - 1]
+    return {
+        "accuracy": entry["accuracy_by_touch"][touch - 1],
+        "interval": entry["accuracy_interval"][touch - 1],
+        "ece": calibration["ece"],
+        "brier": calibration["brier"],
+        "sure_and_wrong": calibration["sure_and_wrong"],
+    }
+
+
+def evaluate(
+    model: ManifoldModel, spec: EvaluationSpec, replay: TrainingData | None, workers: int | None
+) -> dict[str, Any]:
+    """Run one evaluation; per policy: after touch 1 and 3, the reliability over every touch."""
+    started = time.perf_counter()
+    report = run_evaluation(model, spec, replay=replay, workers=workers)
+    figures: dict[str, Any] = {"seconds": time.perf_counter() - started}
+    for policy, entry in report.summary().items():
+        figures[policy] = {
+            "trials": entry["trials"],
+            "after_1": touch_summary(entry, 1),
+            "after_3": touch_summary(entry, min(3, spec.steps)),
+            "reliability": entry["calibration"]["all_touches"]["reliability"],
         }
-    return result
+    figures["refused"] = report.refused_by_policy()
+    after = {p: (figures[p]["after_1"], figures[p]["after_3"]) for p in report.summary()}
+    print(json.dumps({spec.world: after}), file=sys.stderr, flush=True)
+    return figures
+
+
+def twins_touches(
+    args: argparse.Namespace,
+) -> tuple[tuple[str, ...], IntArray, FloatArray, list[RawTouch]]:
+    """The twins touches: read from ``--data``, or collected on the simulated rig."""
+    if args.data is None:
+        return collect_twins(args.touches, args.duration, args.seed)
+    touches = read_raw_touches(Path(args.data).read_text(encoding="utf-8"))
+    return touches.object_names, touches.object_index, touches.actions, list(touches.touches)
 
 
 def run_twins(args: argparse.Namespace) -> dict[str, Any]:
-    """Part 1: means vs whole touch on the twins table."""
+    """Part 1: means vs whole touch on the twins table, replayed and on the rig."""
     started = time.perf_counter()
-    names, index, actions, raws = collect_twins(args.touches, args.duration, args.seed)
+    names, index, actions, raws = twins_touches(args)
     collect_s = time.perf_counter() - started
     fit_rows, held_rows = split(index, args.fit)
     figures: dict[str, Any] = {
         "objects": list(names),
-        "touches_per_object": args.touches,
+        "touches": len(raws),
         "fit_per_object": args.fit,
-        "duration_s": args.duration,
-        "collect_s": collect_s,
+        "data": args.data,
+        "collect_s": None if args.data else collect_s,
     }
     kinds: tuple[FeatureKind, ...] = ("means", "whole")
+    policies = ("active", "passive")
     for kind in kinds:
         started = time.perf_counter()
         pipeline = fit_features([raws[i] for i in fit_rows], index[fit_rows], kind, seed=args.seed)
@@ -166,6 +166,11 @@ def run_twins(args: argparse.Namespace) -> dict[str, Any]:
             noise_model="auto",
         )
         fit_s = time.perf_counter() - started
+        model = dataclasses.replace(model, features=pipeline)
+        print(f"{kind}: dy = {pipeline.output_dim}, fit {fit_s:.0f} s", file=sys.stderr, flush=True)
+        held = TrainingData(names, index[held_rows], actions[held_rows], y[held_rows])
+        replay = EvaluationSpec("replay", args.trials, 3, policies, seed=args.seed)
+        rig = EvaluationSpec("rig", args.rig_trials, 3, policies, seed=args.seed, table="twins")
         figures[kind] = {
             "dy": pipeline.output_dim,
             "projection": pipeline.projection if kind == "whole" else None,
@@ -173,15 +178,8 @@ def run_twins(args: argparse.Namespace) -> dict[str, Any]:
             "features_s": features_s,
             "fit_s": fit_s,
             "noise_model": None if model.transform is None else model.transform.note,
-            "replay": passive_replay(
-                model,
-                index[held_rows],
-                actions[held_rows],
-                y[held_rows],
-                (1, 3),
-                args.trials,
-                args.seed,
-            ),
+            "replay": evaluate(model, replay, held, args.workers),
+            "rig": evaluate(model, rig, None, args.workers) if args.rig_trials > 0 else None,
         }
     return figures
 
@@ -279,9 +277,17 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--part", choices=("twins", "fit", "both"), default="both")
     parser.add_argument("--touches", type=int, default=100, help="Touches per object.")
     parser.add_argument("--fit", type=int, default=80, help="Touches per object used to fit.")
-    parser.add_argument("--duration", type=float, default=6.0, help="Touch duration (s).")
+    parser.add_argument(
+        "--duration",
+        type=float,
+        default=PAPER_TOUCH_DURATION_S,
+        help="Touch duration (s) of the collection (rig trials touch for the default).",
+    )
+    parser.add_argument("--data", help="A twins raw-touch file instead of collecting.")
     parser.add_argument("--latent-dim", type=int, default=2, help="ds of the twins models.")
-    parser.add_argument("--trials", type=int, default=50, help="Replay groups per object.")
+    parser.add_argument("--trials", type=int, default=50, help="Replay trials per object.")
+    parser.add_argument("--rig-trials", type=int, default=10, help="Rig trials per object.")
+    parser.add_argument("--workers", type=int, default=None, help="Dask workers of the trials.")
     parser.add_argument(
         "--fit-dims", type=int, nargs="+", default=[10, 20, 30], help="dy of the timed fits."
     )

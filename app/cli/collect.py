@@ -387,7 +387,7 @@ def _collect(
     from app.cli.output import progress_bar
     from app.documents.raw_touches import raw_touch_from_record, raw_touch_line
     from app.documents.training_csv import TrainingCsvWriter
-    from app.services.rig import raw_series
+    from app.services.rig import motion_series
     from core.errors import InvalidInputError
     from hardware.errors import HardwareError
 
@@ -427,7 +427,7 @@ def _collect(
                             index=touch.index,
                             placement=touch.placement,
                             observation=touch.record.observation.tolist(),
-                            **raw_series(touch.record),
+                            **motion_series(touch.record),
                         )
                         raw_file.write(json.dumps(line) + "\n")
                         _sync(raw_file)

@@ -77,8 +77,9 @@ def database_url(db: str | None, settings: Settings) -> str:
     return f"sqlite:///{Path(db).expanduser().absolute()}"
 
 
-def _database_file(url: str) -> Path:
-    """The file behind a SQLite URL; exit 2 when it is not a SQLite file that exists."""
+def _database_file(url: str, must_exist: bool = True) -> Path:
+    """The file behind a SQLite URL; exit 2 when it is not a SQLite file (that exists, unless
+    ``must_exist`` is false)."""
     from sqlalchemy.engine import make_url
     from sqlalchemy.exc import ArgumentError
 
@@ -91,7 +92,7 @@ def _database_file(url: str) -> Path:
     if not parsed.database or parsed.database == ":memory:":
         raise fail(f"--db: {url!r} is an in-memory database; there is nothing to export.")
     path = Path(parsed.database).expanduser()
-    if not path.is_file():
+    if must_exist and not path.is_file():
         raise fail(
             f"no database at {path} (give --db FILE, or set ACTIVETOUCH_DATABASE_URL as for "
             "activetouch serve)."
@@ -120,23 +121,33 @@ def _check_schema(database: Database, path: Path, migrations_dir: Path) -> None:
 
 
 @contextmanager
-def open_session(db: str | None) -> Iterator[tuple[Database, Session]]:
+def open_session(db: str | None, create: bool = False) -> Iterator[tuple[Database, Session]]:
     """The database ``serve`` would use (or ``--db``), checked, and a session on it.
 
+    Args:
+        db: ``--db``.
+        create: Create the database (at this version's schema, as ``serve`` does) when no
+            file is there.
+
     Raises:
-        typer.Exit: (code 2) no such file, not SQLite, not an ActiveTouch database, or a schema
-            of another version.
+        typer.Exit: (code 2) no such file (unless ``create``), not SQLite, not an ActiveTouch
+            database, or a schema of another version.
     """
     from sqlalchemy.exc import DatabaseError
 
     from app.config import Settings
-    from app.db import Database
+    from app.db import Database, upgrade_to_head
 
     settings = Settings()
     url = database_url(db, settings)
-    path = _database_file(url)
+    path = _database_file(url, must_exist=not create)
+    if create and not path.parent.is_dir():
+        raise fail(f"--db: no directory {path.parent} to create the database in.")
+    new = not path.exists()
     database = Database(url)
     try:
+        if new:
+            upgrade_to_head(database.engine, settings.migrations_dir)
         _check_schema(database, path, settings.migrations_dir)
         with database.session() as session:
             yield database, session

@@ -26,6 +26,7 @@ import typer
 from rich.markup import escape
 
 from app.cli.collect import collect_command
+from app.cli.dataset import dataset_app
 from app.cli.evaluate import evaluate_command
 from app.cli.export import export_app
 from app.cli.output import fail, progress_bar, read_text, write_text
@@ -397,8 +398,7 @@ def make_world(world: WorldName, world_seed: int, noise_std: float | None) -> Wo
     return make_named_world(world.value, world_seed=world_seed, noise_std=noise_std)
 
 
-@app.command()
-def dataset(
+def simulate_dataset(
     world: Annotated[WorldName, typer.Argument(help="exp1 (the paper's) or exp2 (random, ds=2)")],
     out: Annotated[Path, typer.Option(help="CSV file to write.")],
     touches: Annotated[int, typer.Option(min=2, help="Touches per object.")] = 100,
@@ -522,6 +522,8 @@ app.add_typer(rig_app, name="rig", help="Check and drive the rig (real ports or 
 app.command("collect")(collect_command)
 app.command("evaluate")(evaluate_command)
 app.add_typer(export_app, name="export")
+dataset_app.command("simulate")(simulate_dataset)
+app.add_typer(dataset_app, name="dataset")
 app.add_typer(paper_app, name="paper")
 
 #: Context of a command that hands every argument (``--help`` included) to another command.

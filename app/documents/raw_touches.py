@@ -89,8 +89,66 @@ def _read_channels(value: Any, line: int) -> RawTouch:
     return RawTouch(tuple(channels))
 
 
+#: The keys of a line written by ``collect --raw`` before it wrote ``channels``: the frames.
+_FRAME_KEYS = ("channel_names", "tactile_times_s", "tactile")
+
+
+def frames_touch(item: Mapping[str, Any]) -> RawTouch:
+    """A touch from its frames: ``channel_names``, ``tactile_times_s`` and ``tactile`` (a rig
+    collection's stored sample, or a line ``collect --raw`` wrote before it wrote ``channels``).
+
+    Raises:
+        InvalidInputError: A frame key missing, frames that are not numbers or not (n, C), or
+            channel names :func:`raw_touch_from_frames` cannot group.
+    """
+    missing = [key for key in _FRAME_KEYS if key not in item]
+    if missing:
+        raise InvalidInputError(f"the frames: {missing} missing.")
+    names = item["channel_names"]
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        raise InvalidInputError("'channel_names' must be a list of names.")
+    try:
+        times_s = np.asarray(item["tactile_times_s"], dtype=np.float64)
+        frames = np.asarray(item["tactile"], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidInputError(
+            "the frames ('tactile', 'tactile_times_s') are not numbers."
+        ) from None
+    if times_s.ndim != 1 or frames.ndim != 2:
+        raise InvalidInputError(
+            "'tactile_times_s' must be a list of times and 'tactile' a list of frames."
+        )
+    return raw_touch_from_frames(names, times_s, frames)
+
+
+def stored_touch(raw: Mapping[str, Any]) -> RawTouch:
+    """A stored sample's raw touch: its ``channels`` (an upload of raw touches), else its frames
+    (a rig collection, :func:`frames_touch`).
+
+    Raises:
+        InvalidInputError: Neither is there, or they are malformed (the channel named).
+    """
+    if "channels" in raw:
+        channels = raw["channels"]
+        if not isinstance(channels, Mapping) or not all(
+            isinstance(spec, Mapping) and "samples" in spec for spec in channels.values()
+        ):
+            raise InvalidInputError("'channels' must map names to {rate_hz, samples}.")
+        return RawTouch(
+            tuple(
+                raw_channel(str(name), spec.get("rate_hz"), spec["samples"])
+                for name, spec in channels.items()
+            )
+        )
+    return frames_touch(raw)
+
+
 def read_raw_touches(text: str) -> RawTouchSet:
     """Parse and check a raw-touch file (JSON lines).
+
+    A line without ``channels`` but with the frames ``channel_names``, ``tactile_times_s`` and
+    ``tactile`` (what ``collect --raw`` wrote before) is read from its frames
+    (:func:`frames_touch`).
 
     Raises:
         DocumentError: A line that is not a JSON object, a missing or empty object name, an
@@ -130,9 +188,15 @@ def read_raw_touches(text: str) -> RawTouchSet:
                 f"'action' has {len(x)} components, the first touch's has {len(actions[0])}.",
                 "action",
             )
-        if "channels" not in item:
+        if "channels" in item:
+            touch = _read_channels(item["channels"], line)
+        elif all(key in item for key in _FRAME_KEYS):
+            try:
+                touch = frames_touch(item)
+            except InvalidInputError as exc:
+                raise _line_error(line, str(exc), "tactile") from None
+        else:
             raise _line_error(line, "'channels' is missing.", "channels")
-        touch = _read_channels(item["channels"], line)
         if touches:
             try:
                 check_same_layout(touches[0], touch)
@@ -227,6 +291,16 @@ def _frame_group(channel: str) -> tuple[str, str, int]:
     if subsample is not None:
         return "subsample", subsample.group("name"), int(subsample.group("index"))
     return "scalar", channel, 0
+
+
+def raw_channel_names(frame_channels: Sequence[str]) -> tuple[str, ...]:
+    """The raw channels frames of these channels make (:func:`raw_touch_from_frames`), in order."""
+    names: list[str] = []
+    for channel in frame_channels:
+        name = _frame_group(channel)[1]
+        if name not in names:
+            names.append(name)
+    return tuple(names)
 
 
 def raw_touch_from_record(record: TouchRecord) -> RawTouch:

@@ -72,11 +72,7 @@ def check_world(spec: EvaluationSpec, model: ManifoldModel, replay: TrainingData
             )
     elif spec.world == "rig":
         objects = table_objects(spec.table)
-        from hardware.tactile import TactileConfig
-
-        dy = len(TactileConfig().channel_names)
-        if (h.action_dim, h.observation_dim) != (6, dy):
-            raise _dims_error("world", "the simulated rig", 6, dy, model)
+        _check_rig_channels(objects, model)
         missing = [t for t in targets if t not in objects]
         if missing:
             raise BadInputError(
@@ -86,6 +82,30 @@ def check_world(spec: EvaluationSpec, model: ManifoldModel, replay: TrainingData
             )
     elif spec.world == "replay":
         _check_replay(spec, model, replay)
+
+
+def _check_rig_channels(objects: tuple[str, ...], model: ManifoldModel) -> None:
+    """The simulated table's sensor must make the model's y: as many frame channels as dy
+    (channel means), or the raw channels the model's feature pipeline reads."""
+    from app.documents.raw_touches import raw_channel_names
+    from hardware.sim.rig import table_channel_names
+
+    h = model.hyperparameters
+    frames = table_channel_names(objects)
+    if model.features is None:
+        if (h.action_dim, h.observation_dim) != (6, len(frames)):
+            raise _dims_error("world", "the simulated rig", 6, len(frames), model)
+        return
+    if h.action_dim != 6:
+        raise _dims_error("world", "the simulated rig", 6, h.observation_dim, model)
+    needed = [p.name for p in model.features.channels]
+    made = raw_channel_names(frames)
+    if sorted(needed) != sorted(made):
+        raise BadInputError(
+            f"world: the simulated rig's sensor gives the channels {list(made)}, the model's "
+            f"features read {needed}.",
+            field="world",
+        )
 
 
 def _check_replay(spec: EvaluationSpec, model: ManifoldModel, replay: TrainingData | None) -> None:

@@ -13,6 +13,7 @@ from app.documents.training_csv import MAX_NAME_CHARACTERS
 from app.errors import BadInputError
 from app.schemas import DatasetCreate, DatasetPublic, Page
 from app.services import datasets
+from core.features.pipeline import FEATURE_KINDS
 
 router = APIRouter(prefix="/datasets", tags=["datasets"])
 
@@ -49,7 +50,9 @@ async def create_dataset(
 ) -> DatasetPublic:
     """Upload touches as CSV (``object,x_1..x_dx,y_1..y_dy``), JSON ``{"name", "samples"}`` or
     raw touches (``application/x-ndjson``, docs/raw-touches.md: y is each channel's mean and the
-    series are kept, ``GET /datasets/{id}/raw-touches`` gives them back)."""
+    series are kept, ``GET /datasets/{id}/raw-touches`` gives them back; ``?features=whole``,
+    the default, refuses series shorter than the whole-touch pipeline's window, ``means`` only
+    empty ones)."""
     content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
     name = request.query_params.get("name", "")[:MAX_NAME_CHARACTERS]
     if content_type in ("text/csv", "text/plain", "application/csv"):
@@ -63,9 +66,20 @@ async def create_dataset(
             datasets.create_from_csv, session, context.events, text, name
         )
     if content_type in ("application/x-ndjson", "application/jsonl"):
+        features = request.query_params.get("features", "whole")
+        if features not in FEATURE_KINDS:
+            raise BadInputError(
+                f"features: expected one of {list(FEATURE_KINDS)}, received {features!r}.",
+                field="features",
+            )
         text = _decode(await request.body(), "body")
         return await run_in_threadpool(
-            datasets.create_from_raw, session, context.events, text, name
+            datasets.create_from_raw,
+            session,
+            context.events,
+            text,
+            name,
+            "means" if features == "means" else "whole",
         )
     if content_type in ("application/json", ""):
         try:

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 from collections.abc import Sequence
+from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
@@ -15,8 +17,10 @@ from app import crud
 from app.documents.raw_touches import (
     channels_field,
     featurise,
-    raw_touch_from_frames,
+    frames_touch,
+    line_refusal,
     read_raw_touches,
+    stored_touch,
 )
 from app.documents.training_csv import TrainingCsvWriter, read_training_csv
 from app.errors import BadInputError, ConflictError
@@ -24,7 +28,8 @@ from app.models import Dataset
 from app.schemas import DatasetCreate, DatasetPublic, Page, SampleIn
 from app.services.events import EventBus
 from core.errors import InvalidInputError
-from core.features.pipeline import means_pipeline
+from core.features.pipeline import FeatureKind, FeaturePipeline, check_touches, means_pipeline
+from core.features.raw import RawTouch
 from core.types import TrainingData
 
 
@@ -143,19 +148,59 @@ def training_data_from_samples(samples: list[SampleIn]) -> TrainingData:
         raise BadInputError(f"samples: {exc}", field="samples") from exc
 
 
-def create_from_raw(session: Session, events: EventBus, text: str, name: str) -> DatasetPublic:
-    """Store raw touches (``docs/raw-touches.md``): y is each channel's mean, and every touch's
-    channels are kept with its sample, so the dataset can be featurised again
-    (:func:`export_raw`) without touching the objects again.
+@dataclass(frozen=True)
+class RawUpload:
+    """Raw touches checked and ready to store: their training data (y: each channel's mean) and
+    each touch's channels."""
+
+    data: TrainingData
+    raw: list[dict[str, Any]]
+
+
+def read_raw_upload(text: str, features: FeatureKind = "whole") -> RawUpload:
+    """Read and check a raw-touch file (``docs/raw-touches.md``) for storing.
+
+    Args:
+        text: The file.
+        features: The pipeline the touches are meant for: with ``"whole"`` every series must
+            be at least its window long (:func:`core.features.pipeline.check_touches`).
+
+    Raises:
+        app.documents.errors.DocumentError: (→ 422) the message names the line and channel.
+    """
+    touches = read_raw_touches(text)
+    try:
+        check_touches(touches.touches, features)
+    except InvalidInputError as exc:
+        raise line_refusal(touches, exc) from None
+    data = featurise(touches, means_pipeline(touches.touches[0]))
+    return RawUpload(data, [{"channels": channels_field(touch)} for touch in touches.touches])
+
+
+def store_raw_upload(
+    session: Session, events: EventBus, upload: RawUpload, name: str, source: str = "upload"
+) -> DatasetPublic:
+    """Store checked raw touches (:func:`read_raw_upload`) as one dataset, committed at once:
+    y is each channel's mean, and every touch's channels are kept with its sample, so the
+    dataset can be featurised again (:func:`featurised_data`, :func:`export_raw`) without
+    touching the objects again."""
+    return _commit_and_announce(session, events, upload.data, name, source, upload.raw)
+
+
+def create_from_raw(
+    session: Session,
+    events: EventBus,
+    text: str,
+    name: str,
+    features: FeatureKind = "whole",
+) -> DatasetPublic:
+    """Check raw touches (:func:`read_raw_upload`) and store them (:func:`store_raw_upload`).
 
     Raises:
         app.documents.errors.DocumentError: (→ 422) the message names the line and channel;
             nothing is stored.
     """
-    touches = read_raw_touches(text)
-    data = featurise(touches, means_pipeline(touches.touches[0]))
-    raw = [{"channels": channels_field(touch)} for touch in touches.touches]
-    return _commit_and_announce(session, events, data, name, "upload", raw)
+    return store_raw_upload(session, events, read_raw_upload(text, features), name)
 
 
 def export_raw(session: Session, dataset_id: int) -> str:
@@ -173,12 +218,7 @@ def export_raw(session: Session, dataset_id: int) -> str:
         if raw is not None and "channels" in raw:
             channels = raw["channels"]
         elif raw is not None and "tactile" in raw:
-            touch = raw_touch_from_frames(
-                raw["channel_names"],
-                np.asarray(raw["tactile_times_s"], dtype=np.float64),
-                np.asarray(raw["tactile"], dtype=np.float64),
-            )
-            channels = channels_field(touch)
+            channels = channels_field(frames_touch(raw))
         else:
             raise BadInputError(
                 f"Dataset {dataset_id}: sample {k + 1} has no raw series (it was uploaded as "
@@ -251,6 +291,61 @@ def _training_data(session: Session, dataset: Dataset) -> TrainingData:
             f"Dataset {dataset.id} cannot be used as training data: {exc}",
             field="dataset_id",
         ) from exc
+
+
+def raw_touches(session: Session, dataset_id: int) -> tuple[TrainingData, list[RawTouch]]:
+    """A dataset's touches with their raw series, to be featurised again.
+
+    Returns:
+        The stored training data (y as stored) and each sample's raw touch, in order.
+
+    Raises:
+        BadInputError: (→ 422, field ``features``) a sample without raw series (uploaded as y
+            only) or whose series cannot be read, or touches of different channel layouts;
+            the message names the sample.
+    """
+    dataset = require(session, dataset_id)
+    data = _training_data(session, dataset)
+    touches: list[RawTouch] = []
+    for k, (_, _, raw) in enumerate(crud.dataset_raw_samples(session, dataset.id), start=1):
+        if raw is None:
+            raise BadInputError(
+                f"features: dataset {dataset_id}, sample {k} has no raw series (it was uploaded "
+                "as y only); features are made of raw touches — upload them as "
+                "application/x-ndjson (docs/raw-touches.md) or collect them on the rig.",
+                field="features",
+            )
+        try:
+            touches.append(stored_touch(raw))
+        except InvalidInputError as exc:
+            raise BadInputError(
+                f"features: dataset {dataset_id}, sample {k}: {exc}", field="features"
+            ) from None
+    return data, touches
+
+
+def has_raw_touches(session: Session, dataset_id: int) -> bool:
+    """Whether every sample of the dataset keeps its raw series."""
+    rows = crud.dataset_raw_samples(session, dataset_id)
+    return bool(rows) and all(raw is not None for _, _, raw in rows)
+
+
+def featurised_data(session: Session, dataset_id: int, pipeline: FeaturePipeline) -> TrainingData:
+    """The dataset's touches with y made by ``pipeline`` from their raw series.
+
+    Raises:
+        BadInputError: (→ 422, field ``features``) a sample without raw series, or one the
+            pipeline refuses (another channel set, a series shorter than its window), named.
+    """
+    data, touches = raw_touches(session, dataset_id)
+    try:
+        y = pipeline.transform_many(touches)
+    except InvalidInputError as exc:
+        raise BadInputError(
+            f"features: dataset {dataset_id}, {str(exc).replace('touch ', 'sample ', 1)}",
+            field="features",
+        ) from None
+    return dataclasses.replace(data, observations=y)
 
 
 def export_csv(session: Session, dataset_id: int) -> str:

@@ -111,6 +111,9 @@ class EvaluationService:
                     field="dataset_id",
                 )
             replay = datasets.load_training_data(session, body.dataset_id)
+            if model.features is not None and datasets.has_raw_touches(session, body.dataset_id):
+                # Recorded raw touches are seen as the model sees a touch: through its pipeline.
+                replay = datasets.featurised_data(session, body.dataset_id, model.features)
         elif body.dataset_id is not None:
             raise BadInputError(
                 f"dataset_id: only a replay evaluation takes a dataset (world is {body.world!r}).",

@@ -32,7 +32,9 @@ from app.services.events import EventBus
 from app.services.fit_tasks import FoldFit, dask_fold_map
 from app.services.jobs import INTERRUPTED, Job, JobCancelled, JobRunner
 from app.services.models import ModelStore, require, store_fitted, to_public
-from core.errors import CoreError
+from core.errors import CoreError, InvalidInputError
+from core.features.pipeline import check_touches, fit_features
+from core.features.raw import RawTouch
 from core.fit_options import FitProgress
 from core.latent_selection import (
     DEFAULT_FOLDS,
@@ -60,13 +62,15 @@ PROGRESS_INTERVAL_S = 0.25
 
 @dataclasses.dataclass(frozen=True)
 class FitRequest:
-    """What one fit job needs: the model's row id, its training data, the request and the
-    server's Dask scheduler (``None``: none configured)."""
+    """What one fit job needs: the model's row id, its training data, the request, the server's
+    Dask scheduler (``None``: none configured) and, when the request asks for ``features``, the
+    dataset's raw touches (y is then made of them by the pipeline the job fits)."""
 
     model_id: int
     data: TrainingData
     body: ModelCreate
     scheduler: str | None = None
+    touches: tuple[RawTouch, ...] | None = None
 
 
 class FitService:
@@ -109,6 +113,7 @@ class FitService:
         """
         data = datasets.load_training_data(session, body.dataset_id)
         self._models.check_size(data.n_touches, "dataset_id")
+        touches = None if body.features is None else self._raw_touches(session, body)
         fewest = int(data.touches_per_object().min())
         if body.latent_dim == "auto" and fewest < 4:
             raise BadInputError(
@@ -129,13 +134,39 @@ class FitService:
         session.commit()
         model_id = row.id
         self._announce(model_id, "queued", dataset_id=row.dataset_id)
-        request = FitRequest(model_id, data, body, self._scheduler)
+        request = FitRequest(model_id, data, body, self._scheduler, touches)
         job = self._jobs.start(KIND, model_id, lambda job: self._run(job, request))
         if not job.waiting:  # started at once: fitting from now on
             self._set_fitting(model_id)
         session.refresh(row)
         position = self.queue_position(model_id)
         return ModelAccepted(id=model_id, status=row.status, queue_position=position)
+
+    @staticmethod
+    def _raw_touches(session: Session, body: ModelCreate) -> tuple[RawTouch, ...]:
+        """The dataset's raw touches for ``body.features``, checked as the pipeline needs them.
+
+        Raises:
+            BadInputError: (422, field ``features``) a sample without raw series, touches of
+                different channel sets or a series shorter than the pipeline's window (the
+                sample and channel named); ``feature_dim`` given with ``features: "means"``.
+        """
+        assert body.features is not None
+        if body.features == "means" and body.feature_dim != "auto":
+            raise BadInputError(
+                "feature_dim: only features 'whole' is projected to dy; 'means' gives one "
+                "feature per channel element.",
+                field="feature_dim",
+            )
+        _, touches = datasets.raw_touches(session, body.dataset_id)
+        try:
+            check_touches(touches, body.features)
+        except InvalidInputError as exc:
+            sample = str(exc).replace("touch ", "sample ", 1)
+            raise BadInputError(
+                f"features: dataset {body.dataset_id}, {sample}", field="features"
+            ) from None
+        return tuple(touches)
 
     def queue_position(self, model_id: int) -> int | None:
         """The model's place in the queue of fits (1: next to start), if it is waiting."""
@@ -199,7 +230,9 @@ class FitService:
             row = require(session, model_id)
             if row.status != "fitting":  # stopped as it finished
                 return
-            store_fitted(row, fitted, fit_seconds, selection)
+            store_fitted(
+                row, fitted, fit_seconds, selection, featurised=request.touches is not None
+            )
             session.commit()
         self._models.remember(model_id, fitted)
         self._events.publish(
@@ -263,7 +296,8 @@ def run_fit(
     job: Job,
     report: Callable[[FitProgress, float], None],
 ) -> tuple[ManifoldModel, dict[str, Any] | None, float]:
-    """The body of a fit job: choose ds if asked (cross-validation), then fit the model.
+    """The body of a fit job: fit the feature pipeline if asked (y from the raw touches), choose
+    ds if asked (cross-validation), then fit the model.
 
     Args:
         request: The model's id, its training data and the request.
@@ -287,6 +321,18 @@ def run_fit(
     options = FitOptions(**options_kwargs)
     rng = np.random.default_rng(body.seed)
     started = time.perf_counter()
+    pipeline = None
+    if request.touches is not None and body.features is not None:
+        job.checkpoint()
+        pipeline = fit_features(
+            request.touches,
+            data.object_index,
+            body.features,
+            feature_dim=None if body.feature_dim == "auto" else body.feature_dim,
+            seed=body.seed or 0,
+        )
+        data = dataclasses.replace(data, observations=pipeline.transform_many(request.touches))
+        request = dataclasses.replace(request, data=data)
     selection: dict[str, Any] | None = None
     latent_dim = body.latent_dim
     if latent_dim == "auto":
@@ -305,6 +351,8 @@ def run_fit(
             report(progress, now - started)
     if fitted is None:
         raise ValueError("the fit ended without a model")
+    if pipeline is not None:
+        fitted = dataclasses.replace(fitted, features=pipeline)
     return fitted, selection, time.perf_counter() - started
 
 

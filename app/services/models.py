@@ -61,6 +61,19 @@ class StoredModelError(AppError):
     status_code = 500
 
 
+#: Key of a model row's posterior record: its training y are its pipeline's features of the
+#: dataset's raw touches.
+FEATURISED = "featurised_from_raw"
+
+
+def observation_dim(row: ModelRecord) -> int:
+    """dy of a model: its fitted features (a pipeline may make another dy than the dataset's
+    stored y), else its dataset's."""
+    if row.signal_variance is not None:
+        return int(row.signal_variance.shape[0])
+    return int(row.dataset.observation_dim)
+
+
 def _diagnostics_dict(diagnostics: FitDiagnostics | None) -> dict[str, Any] | None:
     if diagnostics is None:
         return None
@@ -94,11 +107,16 @@ def store_fitted(
     model: ManifoldModel,
     fit_seconds: float | None,
     latent_selection: dict[str, Any] | None = None,
+    featurised: bool = False,
 ) -> None:
     """Copy a fitted model's latents, hyperparameters, posterior record
     (:func:`app.documents.posterior.posterior_field`, with the observation transform under
-    ``noise_model``), diagnostics (with ``latent_selection`` when ds was chosen) into its row;
-    mark ready."""
+    ``noise_model`` and the feature pipeline under ``features``), diagnostics (with
+    ``latent_selection`` when ds was chosen) into its row; mark ready.
+
+    ``featurised``: the model's y were made by its pipeline from the dataset's raw touches (not
+    the y stored with the dataset); recorded as ``featurised_from_raw``, so that
+    :meth:`ModelStore.load` makes them again the same way."""
     h = model.hyperparameters
     row.latent_dim = model.latent_dim
     row.latents = model.latents
@@ -108,6 +126,8 @@ def store_fitted(
         record["noise_model"] = noise
     if model.features is not None:
         record["features"] = features_field(model.features)
+        if featurised:
+            record[FEATURISED] = True
     row.posterior = record
     row.signal_variance = h.signal_variance
     row.noise_variance = h.noise_variance
@@ -127,7 +147,7 @@ def _noise_model_public(row: ModelRecord) -> NoiseModelPublic | None:
     if row.status != "ready":
         return None
     field = row.posterior.get("noise_model") if isinstance(row.posterior, dict) else None
-    dy = row.dataset.observation_dim
+    dy = observation_dim(row)
     try:
         transform = read_noise_model_field(field, dy, where="model row")
     except DocumentError:  # changed behind the server's back; load() says so (500)
@@ -154,7 +174,7 @@ def _features_public(row: ModelRecord) -> FeaturesPublic | None:
     if field is None:
         return None
     try:
-        pipeline = read_features_field(field, row.dataset.observation_dim)
+        pipeline = read_features_field(field, observation_dim(row))
     except DocumentError:  # changed behind the server's back; load() says so (500)
         logger.warning("model %d: malformed features record", row.id)
         return None
@@ -220,7 +240,7 @@ def to_public(row: ModelRecord, queue_position: int | None = None) -> ModelPubli
         dataset_id=row.dataset_id,
         latent_dim=row.latent_dim,
         action_dim=row.dataset.action_dim,
-        observation_dim=row.dataset.observation_dim,
+        observation_dim=observation_dim(row),
         optimizer=row.optimizer,
         restarts=row.restarts,
         seed=row.seed,
@@ -328,7 +348,18 @@ class ModelStore:
                 f"Model {model_id} is {row.status}; only a ready model can be used.",
                 current_state=row.status,
             )
-        data = datasets.training_data(session, row.dataset_id)
+        record = row.posterior if isinstance(row.posterior, dict) else {}
+        try:
+            pipeline = read_features_field(record.get("features"), observation_dim(row))
+        except DocumentError as exc:
+            raise StoredModelError(
+                f"Model {model_id} cannot be rebuilt from what is stored: {exc}",
+                model_id=model_id,
+            ) from exc
+        if pipeline is not None and record.get(FEATURISED):
+            data = datasets.featurised_data(session, row.dataset_id, pipeline)
+        else:
+            data = datasets.training_data(session, row.dataset_id)
         assert row.latents is not None
         assert row.signal_variance is not None
         assert row.noise_variance is not None
@@ -351,8 +382,6 @@ class ModelStore:
                 where="model row",
                 transform=read_noise_model_field(noise, data.observation_dim, where="model row"),
             )
-            features = row.posterior.get("features") if isinstance(row.posterior, dict) else None
-            pipeline = read_features_field(features, data.observation_dim)
             if pipeline is not None:
                 model = dataclasses.replace(model, features=pipeline)
         except (CoreError, ValueError, KeyError, TypeError) as exc:

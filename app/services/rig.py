@@ -53,11 +53,21 @@ def touch_trajectory(record: TouchRecord) -> dict[str, Any]:
 
 
 def raw_series(record: TouchRecord) -> dict[str, Any]:
-    """The raw tactile time series of a touch (kept with a collected sample)."""
+    """The raw tactile time series of a touch (kept with a collected sample): the frames
+    (``channel_names``, ``tactile``) and :func:`motion_series`."""
     return {
         "channel_names": list(record.channel_names),
-        "tactile_times_s": record.tactile_times_s.tolist(),
         "tactile": record.tactile.tolist(),
+        **motion_series(record),
+    }
+
+
+def motion_series(record: TouchRecord) -> dict[str, Any]:
+    """What a raw-touch line of ``collect --raw`` keeps beside the touch's channels: the frame
+    times, the joint series and :func:`touch_trajectory` (the frames themselves are in the
+    line's ``channels``, ``docs/raw-touches.md``)."""
+    return {
+        "tactile_times_s": record.tactile_times_s.tolist(),
         "joint_times_s": record.joint_times_s.tolist(),
         "joint_positions_deg": record.joint_positions_deg.tolist(),
         **touch_trajectory(record),
@@ -179,7 +189,12 @@ class RigService:
     @property
     def observation_dim(self) -> int:
         """dy of rig observations (tactile channels)."""
-        return len(self.handle().rig.tactile.config.channel_names)
+        return len(self.channel_names)
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        """The tactile frame's channels."""
+        return tuple(self.handle().rig.tactile.config.channel_names)
 
     def close(self) -> None:
         """Close the ports (or the simulation)."""

@@ -6,6 +6,7 @@ what was felt.
 
 from __future__ import annotations
 
+from app.documents.raw_touches import raw_channel_names
 from app.errors import BadInputError
 from app.rig_factory import SimulationMode, open_rig
 from app.schemas import SimulationOptions
@@ -67,8 +68,20 @@ class WorldFactory:
         self._rig = rig
 
     def _check_rig_dims(self, model: ManifoldModel, field: str) -> None:
+        """The rig's touches must make the model's y: dy frame channels (the channel means),
+        or, for a model with a feature pipeline, the raw channels the pipeline reads."""
         h = model.hyperparameters
         dx, dy = self._rig.action_dim, self._rig.observation_dim
+        if model.features is not None and h.action_dim == dx:
+            made = raw_channel_names(self._rig.channel_names)
+            needed = [p.name for p in model.features.channels]
+            if sorted(made) != sorted(needed):
+                raise BadInputError(
+                    f"{field}: the rig's sensor gives the channels {list(made)}, the model's "
+                    f"features read {needed}.",
+                    field=field,
+                )
+            return
         if (h.action_dim, h.observation_dim) != (dx, dy):
             raise BadInputError(
                 f"{field}: rig touches have dx={dx}, dy={dy} but the model has "

@@ -227,11 +227,7 @@ class FeaturePipeline:
 
     def min_samples(self, plan: ChannelPlan) -> int:
         """The shortest series this pipeline accepts on channel ``plan``."""
-        if self.kind == "means":
-            return 1
-        if plan.role == "vibration":
-            return self.settings.segment_samples
-        return self.settings.min_samples
+        return window_samples(self.kind, plan.role, self.settings)
 
     def check(self, touch: RawTouch) -> None:
         """Require the channel layout and series lengths this pipeline needs.
@@ -306,6 +302,47 @@ class FeaturePipeline:
         if self.center is None or self.scale is None or self.components is None:
             return reduced
         return np.asarray(((reduced - self.center) / self.scale) @ self.components)
+
+
+def window_samples(kind: FeatureKind, role: ChannelRole, settings: FeatureSettings) -> int:
+    """The shortest series a pipeline of ``kind`` accepts on a channel of ``role``: one Welch
+    segment for a vibration channel and ``min_samples`` for any other with ``"whole"``, one
+    sample with ``"means"``."""
+    if kind == "means":
+        return 1
+    if role == "vibration":
+        return settings.segment_samples
+    return settings.min_samples
+
+
+def check_touches(
+    touches: Sequence[RawTouch], kind: FeatureKind, settings: FeatureSettings | None = None
+) -> None:
+    """Require touches a pipeline of ``kind`` can be fitted to: one channel layout (the first
+    touch's) and every series at least its window (:func:`window_samples`) long.
+
+    Raises:
+        InvalidInputError: The first touch that fails, as ``touch k: channel 'NAME': …``.
+    """
+    settings = settings or FeatureSettings()
+    if kind not in FEATURE_KINDS:
+        raise InvalidInputError(f"kind: expected one of {FEATURE_KINDS}, received {kind!r}.")
+    if len(touches) == 0:
+        raise InvalidInputError("touches: at least one touch is needed.")
+    plans = plan_channels(touches[0], settings)
+    for k, touch in enumerate(touches, start=1):
+        try:
+            check_same_layout(touches[0], touch)
+            for plan in plans:
+                channel = touch.channel(plan.name)
+                needed = window_samples(kind, plan.role, settings)
+                if channel.n_samples < needed:
+                    raise InvalidInputError(
+                        f"channel {plan.name!r}: {channel.n_samples} samples, shorter than the "
+                        f"pipeline's window of {needed}."
+                    )
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"touch {k}: {exc}") from None
 
 
 def plan_channels(touch: RawTouch, settings: FeatureSettings) -> tuple[ChannelPlan, ...]:

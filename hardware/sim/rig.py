@@ -79,6 +79,16 @@ class SimulatedDevices:
         )
 
 
+def table_channel_names(objects: Sequence[str | TactileObject]) -> tuple[str, ...]:
+    """The tactile frame's channels of a simulated table with its default sensor: the five,
+    then the whole-touch ones when an object has a surface detail (as
+    :func:`simulated_devices` builds it with ``whole_touch=None``)."""
+    names = [item if isinstance(item, str) else item.name for item in objects]
+    if any(surface_detail(name) is not None for name in names):
+        return CHANNELS + WholeTouchSensor().channel_names
+    return CHANNELS
+
+
 def simulated_devices(
     objects: Sequence[str | TactileObject] = DEFAULT_TABLE,
     *,

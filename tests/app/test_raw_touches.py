@@ -13,15 +13,21 @@ from app.documents.model import model_from_document, model_to_document
 from app.documents.raw_touches import (
     featurise,
     line_refusal,
+    raw_channel_names,
     raw_touch_from_record,
     raw_touch_line,
     read_raw_touches,
 )
+from app.errors import BadInputError
+from app.evaluation.spec import EvaluationSpec
+from app.evaluation.worlds import table_objects
 from core.errors import InvalidInputError
 from core.features.pipeline import fit_features
-from core.features.raw import raw_touch
+from core.features.raw import RawTouch, raw_touch
 from core.manifold import FitOptions, fit_manifold
+from core.types import ManifoldModel, TrainingData
 from hardware.records import TouchRecord
+from hardware.sim.rig import table_channel_names
 
 PATTERNS = {"fine": [1.0, 2.0, 3.0], "coarse": [3.0, 2.0, 1.0], "medium": [2.0, 2.0, 2.0]}
 
@@ -149,3 +155,68 @@ def test_a_rig_record_becomes_a_raw_touch_by_its_channel_names() -> None:
     vib = touch.channel("vib")
     assert vib.rate_hz == pytest.approx(200.0)
     np.testing.assert_array_equal(vib.samples, frames[:, 3:5].reshape(-1))
+
+
+def test_a_line_of_the_older_collect_format_is_read_from_its_frames() -> None:
+    n = 40
+    frames = np.column_stack([np.linspace(1.0, 2.0, n), np.full(n, 3.0), np.full(n, 4.0)])
+    old = {
+        "object": "mug",
+        "action": [0.5],
+        "channel_names": ["pressure_kpa", "electrode[0]", "electrode[1]"],
+        "tactile_times_s": (np.arange(n) / 50.0).tolist(),
+        "tactile": frames.tolist(),
+    }
+    touches = read_raw_touches(json.dumps(old) + "\n")
+    touch = touches.touches[0]
+    assert touch.names == ("pressure_kpa", "electrode")
+    assert touch.channel("pressure_kpa").rate_hz == pytest.approx(50.0)
+    np.testing.assert_array_equal(touch.channel("electrode").samples, frames[:, 1:])
+    # A new line with 'channels' and an old one with frames read alike, in one file.
+    new = json.dumps(raw_touch_line("cup", [0.1], touch))
+    both = read_raw_touches(json.dumps(old) + "\n" + new + "\n")
+    assert both.object_names == ("mug", "cup")
+    broken = {**old, "tactile": frames[:, :2].tolist()}
+    with pytest.raises(DocumentError, match=r"line 2: frames: expected shape \(40, 3\)"):
+        read_raw_touches(new + "\n" + json.dumps(broken) + "\n")
+
+
+def twins_channel_model() -> ManifoldModel:
+    """A small model (dx = 6) whose channel-means pipeline reads the twins table's channels."""
+    rng = np.random.default_rng(0)
+
+    def touch(level: float) -> RawTouch:
+        slow = {n: (100.0, level + rng.normal(size=20)) for n in ("vibration_1", "vibration_2")}
+        slow |= {n: (100.0, level + rng.normal(size=20)) for n in ("pressure_kpa", "heat_flux_mw")}
+        return raw_touch(
+            {
+                **slow,
+                "temperature_c": (100.0, 30 + rng.normal(size=20)),
+                "electrode": (100.0, level + rng.normal(size=(20, 8))),
+                "vibration": (1600.0, rng.normal(size=320)),
+            }
+        )
+
+    index = np.repeat(np.arange(4), 5)
+    touches = [touch(float(k)) for k in index]
+    pipeline = fit_features(touches, index, "means")
+    names = table_objects("twins")
+    data = TrainingData(names, index, rng.normal(size=(20, 6)), pipeline.transform_many(touches))
+    model = fit_manifold(data, 1, np.random.default_rng(0), FitOptions(restarts=0))
+    return dataclasses.replace(model, features=pipeline)
+
+
+def test_rig_trials_accept_a_model_whose_pipeline_reads_the_tables_channels() -> None:
+    assert raw_channel_names(table_channel_names(table_objects("twins"))) == (
+        "vibration_1", "vibration_2", "pressure_kpa", "heat_flux_mw", "temperature_c",
+        "electrode", "vibration",
+    )  # fmt: skip
+    model = twins_channel_model()
+    spec = EvaluationSpec("rig", 1, 1, ("passive",), table="twins")
+    spec.check(model)  # 14 channel means of 7 channels
+    with pytest.raises(BadInputError, match="the simulated rig has dx=6, dy=29"):
+        spec.check(dataclasses.replace(model, features=None))  # y: the 29 frame channels
+    other = read_raw_touches(raw_file(4))
+    fitted = fit_features(other.touches, other.object_index, "means")
+    with pytest.raises(BadInputError, match=r"the model's features read \['pressure_kpa'"):
+        spec.check(dataclasses.replace(model, features=fitted))

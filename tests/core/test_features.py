@@ -9,6 +9,7 @@ from core.errors import InvalidInputError
 from core.features import reducers
 from core.features.pipeline import (
     FeatureSettings,
+    check_touches,
     discriminant_axes,
     fit_features,
     gaussian_classify,
@@ -172,6 +173,30 @@ def test_pipeline_refuses_short_series_and_other_channels_naming_them() -> None:
         fit_features([touches[0], RawTouch(touches[1].channels[:2])], index[:2], "whole")
     with pytest.raises(InvalidInputError, match="feature_dim"):
         fit_features(touches, index, "whole", feature_dim=40)
+
+
+def test_check_touches_names_the_first_touch_a_pipeline_cannot_take() -> None:
+    touches, _ = _two_objects(4)
+    check_touches(touches, "whole")
+    short = RawTouch(
+        tuple(
+            c if c.name != "vibration" else raw_channel("vibration", 1000.0, c.samples[:255])
+            for c in touches[2].channels
+        )
+    )
+    pressure_short = RawTouch(
+        tuple(
+            c if c.name != "pressure_kpa" else raw_channel("pressure_kpa", 50.0, c.samples[:3])
+            for c in touches[1].channels
+        )
+    )
+    with pytest.raises(InvalidInputError, match=r"^touch 3: channel 'vibration': 255 samples"):
+        check_touches([*touches[:2], short, touches[3]], "whole")
+    with pytest.raises(InvalidInputError, match=r"^touch 2: channel 'pressure_kpa': 3 samples"):
+        check_touches([touches[0], pressure_short], "whole")
+    check_touches([touches[0], short, pressure_short], "means")  # a mean needs one sample
+    with pytest.raises(InvalidInputError, match=r"^touch 2: the channel set differs"):
+        check_touches([touches[0], RawTouch(touches[1].channels[:2])], "means")
 
 
 def test_lda_axis_of_two_objects_is_fishers_direction() -> None:
