@@ -512,7 +512,9 @@ class CollectionCreate(BaseModel):
     path); ``teaching`` repeats the teaching action x = 0; ``adaptive`` touches the first half
     as ``random`` does, then (``samples_per_object`` ≥ 3) rounds at the actions the planners
     would choose from a model fitted to the touches so far (the same budget,
-    :mod:`core.adaptive_design`). ``action_scale`` left out: the simulated
+    :mod:`core.adaptive_design`). ``action_design`` left out: ``adaptive``, or ``random`` with
+    fewer than 3 samples per object (:func:`app.services.collections.default_design`); the
+    run's ``params`` record the design used. ``action_scale`` left out: the simulated
     table's own spread on the mock rig (its ``action_std``), 1.0 on a real rig; the run's
     ``params`` record the spread used.
     """
@@ -522,7 +524,7 @@ class CollectionCreate(BaseModel):
     name: Annotated[str, Field(max_length=MAX_NAME_CHARACTERS)] = ""
     objects: Annotated[list[CollectionObject], Field(min_length=2, max_length=100)]
     samples_per_object: Annotated[int, Field(ge=2, le=1000)] = 20
-    action_design: Literal["random", "shared", "teaching", "adaptive"] = "random"
+    action_design: Literal["random", "shared", "teaching", "adaptive"] | None = None
     action_scale: Annotated[float | None, Field(gt=0.0, le=100.0)] = None
     seed: Seed | None = None
 
