@@ -16,6 +16,7 @@ from pydantic import (
     ConfigDict,
     Field,
     FiniteFloat,
+    StrictBool,
     StringConstraints,
 )
 
@@ -601,6 +602,11 @@ class EvaluationCreate(BaseModel):
         default="joint",
         description="How the object posterior scores a trial's touches: one Gaussian with the "
         "GP's full covariance (joint) or a product over touches (independent).",
+    )
+    stop_at_confidence: StrictBool = Field(
+        default=False,
+        description="Also stop a trial once its answer's probability reaches `confidence` (the "
+        "answer is carried forward to T; the trial records the stop). true or false.",
     )
     workers: Annotated[int, Field(ge=1, le=256)] | None = None
 
