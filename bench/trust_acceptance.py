@@ -8,9 +8,11 @@ so an interrupted run resumes and anyone can rerun it):
     activetouch collect --sim --table T --touches 30 --design random --seed S+1 --out heldout.csv
     activetouch fit train.csv --out model.json
     activetouch evaluate --model model.json --world rig --table T \\
-        --policies active,discriminative,passive --trials n --steps 6 --workers W --out rig.json
-    activetouch evaluate ... --world model ...  --out model-world.json
-    activetouch evaluate ... --world replay --data heldout.csv ... --out replay.json
+        --policies active,discriminative,passive --trials n --steps 6 --workers W --seed S \
+        --out eval-rig-n<n>-T6-s<S>.json
+    activetouch evaluate ... --world model ...  --out eval-model-n<n>-T6-s<S>.json
+    activetouch evaluate ... --world replay --data heldout.csv ... \\
+        --out eval-replay-n<n>-T6-s<S>.json
 
 (``--table-file F`` in place of ``--table T``; the first collection takes ``collect``'s default
 design, the adaptive one; the held-out collection is a random design, as recorded data are, and
@@ -57,8 +59,9 @@ CUSHIONS_LEAD = 0.15
 CUSHIONS_LEAD_BY_TOUCH = 5
 MAX_MODEL_RIG_GAP = 0.10
 
-#: Each world's report file in the work directory.
-REPORTS = {"rig": "rig.json", "model": "model-world.json", "replay": "replay.json"}
+#: The worlds evaluated; world W's report is ``eval-W-n<trials per target>-T<steps>-s<seed>.json``
+#: in the work directory (reused only with the same settings).
+REPORTS = ("rig", "model", "replay")
 
 
 @dataclass(frozen=True)
@@ -295,9 +298,9 @@ def run(args: argparse.Namespace, workdir: Path) -> dict[str, dict[str, Any]]:
     objects = len(json.loads(model.read_text())["objects"])
     per_target = max(1, math.ceil(args.trials / objects))
     documents = {}
-    for world, name in REPORTS.items():
+    for world in REPORTS:
         extra = table if world == "rig" else ["--data", str(heldout)] if world == "replay" else []
-        out = workdir / name
+        out = workdir / f"eval-{world}-n{per_target}-T{args.steps}-s{seed}.json"
         _run(
             [exe, "evaluate", "--model", str(model), "--world", world, *extra, "--policies",
              ",".join(POLICIES), "--trials", str(per_target), "--steps", str(args.steps),
