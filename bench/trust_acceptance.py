@@ -8,7 +8,7 @@ so an interrupted run resumes and anyone can rerun it):
     activetouch collect --sim --table T --touches 30 --design random --seed S+1 --out heldout.csv
     activetouch fit train.csv --out model.json
     activetouch evaluate --model model.json --world rig --table T \\
-        --policies active,discriminative,passive --trials n --steps 6 --workers W --seed S \
+        --policies active,discriminative,passive --trials n --steps 6 --workers W --seed S \\
         --out eval-rig-n<n>-T6-s<S>.json
     activetouch evaluate ... --world model ...  --out eval-model-n<n>-T6-s<S>.json
     activetouch evaluate ... --world replay --data heldout.csv ... \\
