@@ -16,6 +16,7 @@ from pydantic import (
     ConfigDict,
     Field,
     FiniteFloat,
+    StrictBool,
     StringConstraints,
 )
 
@@ -529,7 +530,9 @@ class CollectionCreate(BaseModel):
     path); ``teaching`` repeats the teaching action x = 0; ``adaptive`` touches the first half
     as ``random`` does, then (``samples_per_object`` ≥ 3) rounds at the actions the planners
     would choose from a model fitted to the touches so far (the same budget,
-    :mod:`core.adaptive_design`). ``action_scale`` left out: the simulated
+    :mod:`core.adaptive_design`). ``action_design`` left out: ``adaptive``, or ``random`` with
+    fewer than 3 samples per object (:func:`app.services.collections.default_design`); the
+    run's ``params`` record the design used. ``action_scale`` left out: the simulated
     table's own spread on the mock rig (its ``action_std``), 1.0 on a real rig; the run's
     ``params`` record the spread used.
     """
@@ -539,7 +542,7 @@ class CollectionCreate(BaseModel):
     name: Annotated[str, Field(max_length=MAX_NAME_CHARACTERS)] = ""
     objects: Annotated[list[CollectionObject], Field(min_length=2, max_length=100)]
     samples_per_object: Annotated[int, Field(ge=2, le=1000)] = 20
-    action_design: Literal["random", "shared", "teaching", "adaptive"] = "random"
+    action_design: Literal["random", "shared", "teaching", "adaptive"] | None = None
     action_scale: Annotated[float | None, Field(gt=0.0, le=100.0)] = None
     seed: Seed | None = None
 
@@ -616,6 +619,11 @@ class EvaluationCreate(BaseModel):
         default="joint",
         description="How the object posterior scores a trial's touches: one Gaussian with the "
         "GP's full covariance (joint) or a product over touches (independent).",
+    )
+    stop_at_confidence: StrictBool = Field(
+        default=False,
+        description="Also stop a trial once its answer's probability reaches `confidence` (the "
+        "answer is carried forward to T; the trial records the stop). true or false.",
     )
     workers: Annotated[int, Field(ge=1, le=256)] | None = None
 

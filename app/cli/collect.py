@@ -17,6 +17,9 @@ with the first half of its budget as ``random`` does, fits the model (ds = 2, ``
 defaults), then in rounds (:data:`app.services.collections.ADAPTIVE_ROUNDS`) touches every
 object at the actions the planners would choose from the current model
 (:func:`core.adaptive_design.planner_round`), refitting between rounds; the same budget.
+Without ``--design`` the design is ``adaptive``, or ``random`` where adaptive cannot run (fewer
+than 3 touches, or ``--placements``), said in a note and in the summary's ``design_note``
+(:func:`app.services.collections.default_design`).
 
 Each touch is appended to the CSV (and, with ``--raw``, its raw tactile series to a raw-touch
 file, JSON lines as ``docs/raw-touches.md`` describes, with the frame times and joint series
@@ -261,14 +264,15 @@ def collect_command(
         int, typer.Option("--touches", min=2, help="Touches per object (M for --design shared).")
     ] = 20,
     design: Annotated[
-        DesignName,
+        DesignName | None,
         typer.Option(
-            help="random: a fresh action x ~ N(0, scale² I) per touch (the paper's); shared: "
-            "the same M actions (scrambled Sobol) on every object (Kronecker fit); adaptive: "
-            "half the touches random, then rounds at the actions the planners would choose "
-            "from a model fitted to the touches so far."
+            help="adaptive (default): half the touches random, then rounds at the actions the "
+            "planners would choose from a model fitted to the touches so far; random: a fresh "
+            "action x ~ N(0, scale² I) per touch (the paper's; the default's fallback with "
+            "fewer than 3 touches or with --placements); shared: the same M actions "
+            "(scrambled Sobol) on every object (Kronecker fit)."
         ),
-    ] = "random",
+    ] = None,
     action_scale: Annotated[
         float | None,
         typer.Option(
@@ -313,6 +317,11 @@ def collect_command(
             f"received {placements}.",
             2,
         )
+    design_note = None
+    if design is None:
+        from app.services.collections import default_design
+
+        design, design_note = default_design(touches, placements)
     if placements is not None and design == "adaptive":
         raise fail(
             "--placements: not with --design adaptive (its rounds touch each object once per "
@@ -337,12 +346,15 @@ def collect_command(
         else:
             plan = make_design(design, len(slots), touches, actions.action_dim, action_scale, seed)
         check_plan(plan, actions, handle, list(slots))
+        if design_note is not None:
+            console.print(f"[yellow]note:[/yellow] {escape(design_note)}.")
         channels = list(handle.rig.tactile.config.channel_names)
         summary: dict[str, Any] = {
             "out": str(out),
             "raw": None if raw is None else str(raw),
             "rig": f"simulated ({sim_transport})" if sim else "serial",
             "design": design,
+            "design_note": design_note,
             "action_scale": action_scale,
             "seed": seed,
             "duration_s": duration_s,

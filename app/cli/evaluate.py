@@ -12,8 +12,10 @@ stderr; ``--json`` prints only the ``activetouch-evaluation/2`` report on stdout
 policy's calibration: reliability tables, ECE, Brier score, log-loss and "sure and wrong", over
 every trial and touch, at T and by touch); the table shows the ECE and "sure and wrong" (answers
 given with p ≥ ``--confidence``, and how many of them were wrong) over every trial and touch.
-``--out`` and ``--plot`` are written once the evaluation has finished (nothing half-written). Bad
-input exits with 2 and a message naming it; Ctrl-C exits with 130 and writes nothing.
+``--stop-at-confidence`` also ends a trial once its answer reaches that probability (recorded
+in the report and said under the table). ``--out`` and ``--plot`` are written once the
+evaluation has finished (nothing half-written). Bad input exits with 2 and a message naming it;
+Ctrl-C exits with 130 and writes nothing.
 
 On the ``rig`` world a trial whose touch the rig refuses (a servo overload, ...) is counted in
 the table's "refused" column and left out of the accuracy (over the "completed" trials); a rig
@@ -124,7 +126,13 @@ def summary_table(document: dict[str, Any]) -> Table:
         f"target, T = {steps:d}, seed {document['seed']:d}, {document['workers']:d} worker(s), "
         f"{document['seconds']:.1f} s",
         caption="ECE: expected calibration error; sure and wrong: of the answers given with "
-        f"p ≥ {document['confidence']:g}, the wrong ones (both over every trial and touch).",
+        f"p ≥ {document['confidence']:g}, the wrong ones (both over every trial and touch)."
+        + (
+            f" Trials stop once the answer reaches p ≥ {document['confidence']:g} (its answer "
+            "carried forward to T)."
+            if document.get("stop_at_confidence")
+            else ""
+        ),
         caption_justify="left",
     )
     table.add_column("policy")
@@ -182,6 +190,14 @@ def evaluate_command(
     confidence: Annotated[
         float, typer.Option(help="Probability for 'touches to confidence' and the comparison.")
     ] = 0.95,
+    stop_at_confidence: Annotated[
+        bool,
+        typer.Option(
+            "--stop-at-confidence",
+            help="Also stop a trial once its answer's probability reaches --confidence (the "
+            "answer is carried forward to T; the trial records the stop).",
+        ),
+    ] = False,
     seed: Annotated[int, typer.Option(help="Seed of every trial's SeedSequence.")] = 0,
     table: TableName = None,
     table_file: TableFile = None,
@@ -231,6 +247,7 @@ def evaluate_command(
         table=chosen_table,
         placement=cast(Placement, placement),
         trial_likelihood=cast(TrialLikelihood, trial_likelihood),
+        stop_at_confidence=stop_at_confidence,
     )
     try:
         spec.check(model, replay)

@@ -193,9 +193,10 @@ def fit(
         typer.Option(
             "--latent-dim",
             help="ds, or 'auto': choose it by cross-validated held-out likelihood "
-            "(candidates 1..min(5, L-1)).",
+            "(candidates 1..min(5, L-1)). Default 2 (what the adaptive collection design's "
+            "fits use).",
         ),
-    ] = ...,  # type: ignore[assignment]
+    ] = "2",
     noise_model: Annotated[
         Literal["auto", "independent", "correlated"],
         typer.Option(

@@ -153,6 +153,7 @@ class EvaluationReport:
             "workers": self.workers,
             "seconds": self.seconds,
             "confidence": spec.confidence,
+            "stop_at_confidence": spec.stop_at_confidence,
             "objects": list(self.object_names),
             "targets": list(spec.targets) if spec.targets is not None else None,
             "table": None if spec.table is None else table_name(spec.table),

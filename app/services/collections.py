@@ -48,6 +48,40 @@ KIND: Literal["collection"] = "collection"
 #: Rounds of planner-chosen touches of the adaptive design, after its initial random half.
 ADAPTIVE_ROUNDS = 2
 
+#: Fewest touches per object the adaptive design can spend: 2 random ones, then a round of 1.
+ADAPTIVE_MIN_TOUCHES = 3
+
+
+def default_design(
+    touches: int, placements: int | None = None
+) -> tuple[Literal["adaptive", "random"], str | None]:
+    """The design of a collection that names none: ``adaptive`` wherever it can run.
+
+    Why adaptive: with the random design the planners' touches land where the GP extrapolates
+    and the model is confidently wrong on the rig; the adaptive design spends half the same
+    budget where the planners go (docs/calibration.md, "Adaptive training design"). It cannot
+    run with fewer than :data:`ADAPTIVE_MIN_TOUCHES` touches per object, nor with placements
+    (its rounds touch every object once per action); there the default is ``random``.
+
+    Args:
+        touches: Touches per object.
+        placements: Placements per object asked for (``None``: a fresh one per touch).
+
+    Returns:
+        The design, and ``None`` or the sentence saying why ``random`` replaced ``adaptive``.
+    """
+    if placements is not None:
+        return "random", (
+            "the default design is adaptive, but its rounds touch every object once per action "
+            "at a fresh placement, so with placements the random design is used"
+        )
+    if touches < ADAPTIVE_MIN_TOUCHES:
+        return "random", (
+            f"the default design is adaptive, but it needs {ADAPTIVE_MIN_TOUCHES} touches per "
+            f"object or more (received {touches}), so the random design is used"
+        )
+    return "adaptive", None
+
 
 def check_objects(objects: Mapping[str, int] | list[tuple[str, int]]) -> None:
     """Every object of a collection needs its own name and its own slot.
@@ -269,10 +303,14 @@ class CollectionService:
     def create(self, session: Session, body: CollectionCreate) -> RunPublic:
         """Check a collection request, store the run and its (empty) dataset, start it."""
         check_objects([(o.name, o.slot) for o in body.objects])
-        if body.action_design == "adaptive" and body.samples_per_object < 3:
+        if body.action_design is None:
+            design, _ = default_design(body.samples_per_object)
+            body = body.model_copy(update={"action_design": design})
+        if body.action_design == "adaptive" and body.samples_per_object < ADAPTIVE_MIN_TOUCHES:
             raise BadInputError(
-                "samples_per_object: the adaptive design needs 3 or more (2 random touches per "
-                f"object, then at least one round), received {body.samples_per_object}.",
+                f"samples_per_object: the adaptive design needs {ADAPTIVE_MIN_TOUCHES} or more "
+                "(2 random touches per object, then at least one round), received "
+                f"{body.samples_per_object}.",
                 field="samples_per_object",
             )
         if body.action_scale is None:

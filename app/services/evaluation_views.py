@@ -53,6 +53,7 @@ def build_spec(body: EvaluationCreate) -> EvaluationSpec:
             table=body.table,
             placement=body.placement,
             trial_likelihood=body.trial_likelihood,
+            stop_at_confidence=body.stop_at_confidence,
         )
     except (CoreError, ValueError, TypeError) as exc:
         raise BadInputError(f"evaluation: {exc}", field="body") from exc

@@ -49,6 +49,13 @@ def test_fit_json_prints_only_the_model_document(csv_path):
     assert len(document["training_data"]["actions"]) == 160
 
 
+def test_fit_without_latent_dim_fits_ds_2(csv_path):
+    # The documented default (docs/usage.md): ds = 2, as the adaptive design's own fits.
+    result = runner.invoke(app, ["fit", str(csv_path), "--restarts", "0", "--json"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["latent_dim"] == 2
+
+
 def test_fit_writes_a_model_that_recognize_uses(model_path):
     result = runner.invoke(
         app,

@@ -47,8 +47,9 @@ def collect(*args: str) -> Any:
 def test_random_design_writes_the_csv_the_raw_series_and_a_summary(tmp_path: Path) -> None:
     out, raw = tmp_path / "data.csv", tmp_path / "raw.jsonl"
     result = collect(
-        *OBJECTS, "--touches", "3", "--seed", "1", "--out", str(out), "--raw", str(raw), "--json"
-    )
+        *OBJECTS, "--design", "random", "--touches", "3", "--seed", "1", "--out", str(out),
+        "--raw", str(raw), "--json",
+    )  # fmt: skip
     assert result.exit_code == 0, result.output
     summary = json.loads(result.stdout)
     assert summary["complete"] is True
@@ -160,6 +161,37 @@ def test_adaptive_design_spends_the_same_budget_in_planned_rounds(tmp_path: Path
     assert "too few for --design adaptive" in said(too_few)
 
 
+def test_without_design_adaptive_is_the_default_and_random_its_said_fallback(
+    tmp_path: Path,
+) -> None:
+    # The default of docs/usage.md: adaptive (here 3 random touches, then rounds of 2 and 1).
+    out = tmp_path / "default.csv"
+    result = collect(*OBJECTS[:4], "--touches", "6", "--seed", "1", "--out", str(out), "--json")
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.stdout)
+    assert summary["design"] == "adaptive"
+    assert summary["design_note"] is None
+    data = read_training_csv(out.read_text())
+    rounds = [data.actions[data.object_index == obj][3:] for obj in range(2)]
+    np.testing.assert_array_equal(rounds[0], rounds[1])  # planned rounds: each action on both
+    # Too few touches for a round: random, and the output says so.
+    few = collect(*OBJECTS[:4], "--touches", "2", "--out", str(tmp_path / "few.csv"), "--json")
+    assert few.exit_code == 0, few.output
+    summary = json.loads(few.stdout)
+    assert summary["design"] == "random"
+    assert "needs 3 touches per object or more (received 2)" in summary["design_note"]
+    assert "the random design is used" in said(few)
+    # Placements: random likewise (adaptive rounds touch each object once per action).
+    placed = collect(
+        *OBJECTS[:4], "--touches", "4", "--placements", "2", "--out", str(tmp_path / "p.csv"),
+        "--json",
+    )  # fmt: skip
+    assert placed.exit_code == 0, placed.output
+    summary = json.loads(placed.stdout)
+    assert summary["design"] == "random"
+    assert "with placements" in summary["design_note"]
+
+
 def test_same_seed_same_file_and_no_silent_overwrite(tmp_path: Path) -> None:
     out = tmp_path / "a.csv"
     args = [*OBJECTS[:4], "--touches", "2", "--seed", "5", "--out", str(out)]
@@ -264,7 +296,10 @@ def test_a_fault_mid_collection_keeps_what_was_recorded(
 
     rig_with_trigger["clock"].action = overload
     out, raw = tmp_path / "data.csv", tmp_path / "raw.jsonl"
-    result = collect(*OBJECTS, "--touches", "4", "--out", str(out), "--raw", str(raw), "--json")
+    result = collect(
+        *OBJECTS, "--design", "random", "--touches", "4", "--out", str(out), "--raw", str(raw),
+        "--json",
+    )  # fmt: skip
     assert result.exit_code == 1
     summary = json.loads(result.stdout)
     assert summary["complete"] is False
@@ -291,7 +326,7 @@ def test_ctrl_c_emergency_stops_and_keeps_the_file(
 
     rig_with_trigger["clock"].action = interrupt
     out = tmp_path / "data.csv"
-    result = collect(*OBJECTS, "--touches", "4", "--out", str(out), "--json")
+    result = collect(*OBJECTS, "--design", "random", "--touches", "4", "--out", str(out), "--json")
     assert result.exit_code == 130
     summary = json.loads(result.stdout)
     assert summary["rig_state"] == "estopped"

@@ -73,7 +73,7 @@ def test_rig_status_collect_fit_and_evaluate_on_a_table_file(kitchen: Path, tmp_
         app,
         [
             *("collect", "--sim", "--table-file", str(kitchen), "--duration", "5"),
-            *("--touches", "4", "--out", str(data), "--json"),
+            *("--touches", "4", "--design", "random", "--out", str(data), "--json"),
         ],
     )
     assert collected.exit_code == 0, collected.output

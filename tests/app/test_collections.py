@@ -16,6 +16,7 @@ import pytest
 
 from app.documents.training_csv import read_training_csv
 from app.main import create_app
+from app.schemas import CollectionCreate
 from core.designs import random_design, shared_design
 from core.types import TrainingData
 from tests.app.conftest import TestClient, make_settings
@@ -126,6 +127,25 @@ def test_the_spread_defaults_to_the_simulated_tables_own(tmp_path: Path) -> None
     expected = random_design(2, 2, np.zeros(dx), 2.25 * np.eye(dx), np.random.default_rng(SEED))
     for obj, mine in enumerate(per_object(data)):
         np.testing.assert_array_equal(mine, expected.actions[expected.object_index == obj])
+
+
+def test_without_action_design_the_run_is_adaptive_or_random_below_three(
+    client: TestClient,
+) -> None:
+    # The default of docs/usage.md: adaptive; random where adaptive cannot run (< 3 touches).
+    # The run's params record the design used.
+    body = {"objects": [{"name": n, "slot": i} for i, n in enumerate(CUPS)], "seed": SEED}
+    for touches, design in ((3, "adaptive"), (2, "random")):
+        created = client.post(f"{API}/collections", json={**body, "samples_per_object": touches})
+        assert created.status_code == 201, created.text
+        assert created.json()["params"]["action_design"] == design
+        deadline = time.monotonic() + 120
+        run: dict[str, Any] = created.json()
+        while run["status"] in ("queued", "running") and time.monotonic() < deadline:
+            time.sleep(0.05)
+            run = client.get(f"{API}/collections/{run['id']}").json()
+        assert run["status"] == "completed", run
+    assert CollectionCreate.model_fields["action_design"].default is None
 
 
 def test_adaptive_design_spends_the_budget_in_planned_rounds(client: TestClient) -> None:

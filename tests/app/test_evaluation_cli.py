@@ -164,3 +164,23 @@ def test_table_is_checked_and_only_for_the_rig(model_path):
     misplaced = evaluate(model_path, "--world", "exp1", "--table", "default")
     assert misplaced.exit_code == 2
     assert "only the rig world has a table" in misplaced.output
+
+
+def test_stop_at_confidence_stops_trials_and_is_recorded_and_shown(model_path, tmp_path):
+    out = tmp_path / "report.json"
+    base = ("--world", "exp1", "--trials", "2", "--steps", "6", "--confidence", "0.6")
+    stopped = evaluate(model_path, *base, "--stop-at-confidence", "--out", str(out))
+    assert stopped.exit_code == 0, stopped.output
+    document = json.loads(out.read_text())
+    assert document["stop_at_confidence"] is True
+    reasons = {trial["stop_reason"] for trial in document["trials"]}
+    assert "confident" in reasons  # Experiment 1 reaches p ≥ 0.6 well before touch 6
+    assert all(
+        trial["touches"] < 6 for trial in document["trials"] if trial["stop_reason"] == "confident"
+    )
+    assert "Trials stop once the answer reaches p ≥ 0.6" in " ".join(stopped.stdout.split())
+    plain = evaluate(model_path, *base, "--json")
+    assert plain.exit_code == 0, plain.output
+    document = json.loads(plain.stdout)
+    assert document["stop_at_confidence"] is False
+    assert "confident" not in {trial["stop_reason"] for trial in document["trials"]}

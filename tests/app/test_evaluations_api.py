@@ -147,6 +147,20 @@ def test_an_evaluation_runs_to_the_engines_report(client: TestClient) -> None:
     assert client.get(f"{API}/evaluations?model_id={model_id + 1}").json()["count"] == 0
 
 
+def test_stop_at_confidence_is_taken_recorded_and_stops_trials(client: TestClient) -> None:
+    model_id = import_model(client)
+    body = {"model_id": model_id, "world": "exp1", "trials_per_target": 1, "steps": 6}
+    created = start(client, **body, confidence=0.6, stop_at_confidence=True)
+    assert created["spec"]["stop_at_confidence"] is True
+    ended = wait_ended(client, created["id"])
+    assert ended["status"] == "completed", ended
+    assert ended["summary"]["stop_at_confidence"] is True
+    document = client.get(f"{API}/evaluations/{created['id']}/export?format=json").json()
+    assert "confident" in {trial["stop_reason"] for trial in document["trials"]}
+    default = start(client, **body)
+    assert default["spec"]["stop_at_confidence"] is False
+
+
 def test_trials_are_readable_one_by_one_and_export_as_csv(client: TestClient) -> None:
     model_id = import_model(client)
     created = start(client, model_id=model_id, world="exp1", trials_per_target=1, steps=5, seed=1)
@@ -366,7 +380,13 @@ def test_bad_requests_name_what_is_wrong(client: TestClient, settings: Settings)
     assert "dy=2" in dims.json()["detail"]
     assert "dy=3" in dims.json()["detail"]
 
-    for field, value in (("trials_per_target", 0), ("steps", 0), ("confidence", 1.5)):
+    for field, value in (
+        ("trials_per_target", 0),
+        ("steps", 0),
+        ("confidence", 1.5),
+        ("stop_at_confidence", "yes"),
+        ("stop_at_confidence", 1),
+    ):
         out_of_range = post(client, model_id=model_id, world="exp1", **{field: value})
         assert out_of_range.status_code == 422, field
 

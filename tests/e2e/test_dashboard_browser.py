@@ -208,16 +208,17 @@ def test_collection_through_the_ui(page: Any, demo: Demo) -> None:
     page.locator("#col-samples").fill("2")
     design = page.get_by_test_id("collection-design")
     help_text = page.get_by_test_id("collection-design-help")
-    expect(design).to_have_value("random")
-    expect(help_text).to_contain_text("a fresh action")
+    # The default is the API's and collect's: adaptive (docs/usage.md).
+    expect(design).to_have_value("adaptive")
+    expect(help_text).to_contain_text("rounds at the actions the planners would choose")
     assert [o.get_attribute("value") for o in design.locator("option").all()] == [
+        "adaptive",
         "random",
         "shared",
         "teaching",
-        "adaptive",
     ]
-    design.select_option("adaptive")
-    expect(help_text).to_contain_text("rounds at the actions the planners would choose")
+    design.select_option("random")
+    expect(help_text).to_contain_text("a fresh action")
     design.select_option("shared")
     expect(help_text).to_contain_text("applied to every object")
     before = len(demo.get("/datasets")["data"])

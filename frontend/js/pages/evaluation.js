@@ -71,6 +71,7 @@ function requestBody() {
     steps: Number($("eval-steps").value),
     confidence: Number($("eval-confidence").value),
     seed: Number($("eval-seed").value || 0),
+    stop_at_confidence: $("eval-stop-at-confidence").checked,
   };
   if (body.world === "replay") {
     if (!$("eval-dataset").value) throw new Error("A replay evaluation needs a dataset of held-out touches.");
@@ -133,7 +134,8 @@ function policies() {
 
 function render() {
   const e = evaluation;
-  $("eval-title").textContent = `Evaluation #${e.id} — model #${e.model_id}, ${e.spec.world}`;
+  const stopRule = e.spec.stop_at_confidence ? `, trials stop at p ≥ ${e.spec.confidence}` : "";
+  $("eval-title").textContent = `Evaluation #${e.id} — model #${e.model_id}, ${e.spec.world}${stopRule}`;
   $("eval-status").textContent = e.status;
   $("eval-status").className = `badge ${e.status}`;
   $("eval-bar").style.width = `${e.total ? (100 * e.done) / e.total : 0}%`;

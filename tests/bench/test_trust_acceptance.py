@@ -1,0 +1,123 @@
+"""bench/trust_acceptance.py's verdicts on hand-made reports: every criterion is there, each
+can fail, and the per-touch table reads what the report holds."""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+import pytest
+
+from bench.trust_acceptance import POLICIES, assess, touch_table
+
+
+def policy(
+    curve: list[float], ece: float = 0.02, sure: int = 100, wrong: int = 2
+) -> dict[str, Any]:
+    """A policy's summary as activetouch-evaluation/2 gives it (the fields the bench reads)."""
+    scored = {"ece": ece, "sure_and_wrong": {"threshold": 0.95, "sure": sure, "wrong": wrong}}
+    return {
+        "trials": 200,
+        "accuracy_by_touch": curve,
+        "accuracy_interval": [[max(0.0, a - 0.05), min(1.0, a + 0.05)] for a in curve],
+        "calibration": {"all_touches": scored, "by_touch": [scored] * len(curve)},
+    }
+
+
+def report(world: str, **curves: list[float]) -> dict[str, Any]:
+    return {
+        "world": world,
+        "trials_per_target": 50,
+        "steps": 6,
+        "seconds": 1.0,
+        "workers": 2,
+        "policies": {name: policy(list(curve)) for name, curve in curves.items()},
+    }
+
+
+GOOD = {"active": [0.7, 0.9, 0.95, 0.97, 0.98, 0.98],
+        "discriminative": [0.75, 0.92, 0.96, 0.97, 0.98, 0.99],
+        "passive": [0.5, 0.6, 0.7, 0.75, 0.8, 0.85]}  # fmt: skip
+
+
+def documents() -> dict[str, dict[str, Any]]:
+    return {world: report(world, **GOOD) for world in ("rig", "model", "replay")}
+
+
+def test_a_run_that_meets_every_criterion_passes_them_all() -> None:
+    criteria = assess(documents(), cushions=True)
+    assert all(c.passed for c in criteria), [c.line() for c in criteria if not c.passed]
+    names = " | ".join(c.name for c in criteria)
+    for asked in (
+        "rig: of the answers with p ≥ 0.95, ≥ 95 % right",
+        "rig: ECE ≤ 0.05",
+        "rig: active and discriminative never below passive",
+        "≥ 90 % right at T",
+        "≥ 15 points ahead of passive at some touch ≤ 5",
+        "model vs rig within 10 points at T",
+        "replay: active never below passive",
+        "replay: of the answers with p ≥ 0.95",
+        "replay: ECE ≤ 0.05",
+    ):
+        assert asked in names
+    # Not the cushions: their two criteria are left out.
+    assert len(assess(documents(), cushions=False)) == len(criteria) - 2
+
+
+def failed(changed: dict[str, dict[str, Any]], cushions: bool = True) -> list[str]:
+    return [c.name for c in assess(changed, cushions) if not c.passed]
+
+
+def test_each_criterion_fails_when_its_figure_is_violated() -> None:
+    # 6 of 100 sure answers wrong on the rig (the limit is 5 %).
+    sure = documents()
+    sure["rig"]["policies"]["passive"]["calibration"]["all_touches"]["sure_and_wrong"]["wrong"] = 6
+    assert failed(sure) == ["rig: of the answers with p ≥ 0.95, ≥ 95 % right, every policy"]
+    # ECE 0.051 on replay.
+    ece = documents()
+    ece["replay"]["policies"]["active"]["calibration"]["all_touches"]["ece"] = 0.051
+    assert failed(ece) == ["replay: ECE ≤ 0.05, every policy"]
+    # Discriminative's interval below passive's at touch 1 on the rig.
+    below = documents()
+    below["rig"]["policies"]["discriminative"]["accuracy_interval"][0] = [0.2, 0.3]
+    assert failed(below) == [
+        "rig: active and discriminative never below passive beyond the 95 % intervals"
+    ]
+    # Active 87 % at T on the cushions (also 11 points from the model world's 98 %).
+    low = documents()
+    low["rig"]["policies"]["active"]["accuracy_by_touch"][-1] = 0.87
+    assert failed(low) == [
+        "rig (cushions): active and discriminative ≥ 90 % right at T",
+        "model vs rig within 10 points at T, every policy",
+    ]
+    assert failed(low, cushions=False) == ["model vs rig within 10 points at T, every policy"]
+    # Passive close behind: the lead is 14 points at best.
+    close = documents()
+    close["rig"]["policies"]["passive"]["accuracy_by_touch"] = [
+        a - 0.14 for a in GOOD["discriminative"]
+    ]
+    close["rig"]["policies"]["active"]["accuracy_by_touch"] = list(GOOD["discriminative"])
+    assert failed(close) == [
+        "rig (cushions): active and discriminative ≥ 15 points ahead of passive at some touch ≤ 5"
+    ]
+    # Active below passive on replay, beyond the intervals.
+    replay = documents()
+    replay["replay"]["policies"]["active"]["accuracy_interval"][3] = [0.4, 0.6]
+    assert failed(replay) == ["replay: active never below passive beyond the 95 % intervals"]
+
+
+def test_a_missing_world_or_policy_is_named() -> None:
+    partial = documents()
+    del partial["replay"]
+    with pytest.raises(ValueError, match="replay"):
+        assess(partial, cushions=False)
+    no_passive = copy.deepcopy(documents())
+    del no_passive["rig"]["policies"]["passive"]
+    with pytest.raises(ValueError, match="no policy 'passive'"):
+        assess(no_passive, cushions=False)
+
+
+def test_the_touch_table_shows_every_policy_and_touch() -> None:
+    lines = touch_table(report("rig", **GOOD))
+    assert sum(line.strip().startswith("touch ") for line in lines) == 6 * len(POLICIES)
+    assert "    touch 1:  70.0 % ( 65.0– 75.0)  ECE 0.020  sure & wrong 2/100" in lines
