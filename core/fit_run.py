@@ -21,9 +21,12 @@ docs/method.md (M2). The measurements behind each choice below are in docs/fitti
    (hyperparameters fitted to a subsample transfer badly, see :meth:`FitRun._transfer`): the
    hyperparameters alone first, then jointly, because a joint fit from fresh hyperparameters can
    throw every latent length-scale onto its lower bound (K^s = I, a flat corner L-BFGS-B never
-   leaves). When the subsample would make an evaluation less than :data:`SCREEN_MIN_SAVING`
-   times cheaper (:func:`evaluation_cost`: many objects on a shared design, where the L × L
-   latent factorisations dominate), screening runs on all the data instead.
+   leaves). The data-driven starts are screened first; a random restart then gives up once
+   it cannot come within :data:`REACH_MARGIN_NATS` of the best of them that is not degenerate
+   at its current pace (``FitOptions.restart_reach_iterations``). When the subsample would
+   make an evaluation less than :data:`SCREEN_MIN_SAVING` times cheaper
+   (:func:`evaluation_cost`: many objects on a shared design, where the L × L latent
+   factorisations dominate), screening runs on all the data instead.
 3. **Differential evolution** (``optimizer="de"``): one more start, a
    :func:`scipy.optimize.differential_evolution` search over the same bounded vector on the
    screening data (value only), seeded with the best start so far, refined with L-BFGS-B and
@@ -95,6 +98,13 @@ from core.validation import FloatArray, as_float_array
 
 #: Distance (log units) from a bound that counts as sitting on it.
 AT_BOUND = 1e-4
+
+#: A random restart gives up only when its pace cannot bring it within this margin of the best
+#: data-driven start's screened -log p (the larger of the two): L-BFGS-B's pace is uneven, and
+#: a start one nat behind after half its iterations was seen to overtake (FitOptions.
+#: restart_reach_iterations).
+REACH_MARGIN_NATS = 1.0
+REACH_MARGIN_RELATIVE = 1e-3
 
 #: Screening runs on a subsample only when that makes an evaluation at least this many times
 #: cheaper (:func:`evaluation_cost`); otherwise it runs on all the data.
@@ -197,6 +207,8 @@ class RunSettings:
     stall_nats: float
     stall_iterations: int
     memory: int
+    reach: float = -np.inf
+    reach_iterations: int = 0
 
 
 @dataclass(frozen=True)
@@ -245,6 +257,8 @@ def optimise_stage(
             settings.stall_iterations,
             options.stall_relative,
             settings.memory,
+            settings.reach,
+            settings.reach_iterations,
         )
 
     stream = stream_optimiser(run, options.progress_every)
@@ -512,7 +526,25 @@ class FitRun:
 
         # 1. Every L-BFGS start on the working data (screening subsample or all the data).
         limit = options.screen_iterations if self.screen is not None else options.max_iterations
-        yield from self._first_stages(working, limit, phase, n_starts)
+        settings = self._settings(working, phase)
+        data_starts = [s for s in self.starts if s.kind == "data"]
+        yield from self._first_stages(data_starts, working, limit, phase, n_starts, settings)
+        # The random restarts give up once they cannot reach the best healthy data-driven
+        # start (FitOptions.restart_reach_iterations): known before any of them runs, so
+        # the outcome does not depend on where they run.
+        healthy = [
+            s.screen_value
+            for s in data_starts
+            if np.isfinite(s.screen_value) and not self._is_degenerate(s.vector)
+        ]
+        if self.screen is not None and healthy and options.restart_reach_iterations > 0:
+            best = min(healthy)
+            margin = max(REACH_MARGIN_NATS, REACH_MARGIN_RELATIVE * abs(best))
+            settings = dataclasses.replace(
+                settings, reach=best + margin, reach_iterations=options.restart_reach_iterations
+            )
+        others = [s for s in self.starts if s.kind != "data"]
+        yield from self._first_stages(others, working, limit, phase, n_starts, settings)
 
         # 2. Differential evolution on the working data, seeded with the best start so far.
         if options.optimizer == "de":
@@ -638,21 +670,22 @@ class FitRun:
         start.message = outcome.message
 
     def _first_stages(
-        self, working: FitProblem, max_iterations: int, phase: str, n_starts: int
+        self,
+        starts: list[Start],
+        working: FitProblem,
+        max_iterations: int,
+        phase: str,
+        n_starts: int,
+        settings: RunSettings,
     ) -> Generator[FitProgress, None, None]:
-        """The first stage of every start (:func:`first_stage`), in this process with
+        """The first stage of ``starts`` (:func:`first_stage`), in this process with
         streamed progress, or by ``start_map`` with one event per start."""
-        plan = StartPlan(
-            working,
-            self.layout,
-            self.options,
-            max_iterations,
-            phase,
-            self._settings(working, phase),
-        )
-        tasks = [StartTask(s.index, s.kind, s.vector) for s in self.starts]
+        if not starts:
+            return
+        plan = StartPlan(working, self.layout, self.options, max_iterations, phase, settings)
+        tasks = [StartTask(s.index, s.kind, s.vector) for s in starts]
         if self.start_map is None:
-            for start, task in zip(self.starts, tasks, strict=True):
+            for start, task in zip(starts, tasks, strict=True):
                 stream = first_stage(plan, task)
                 try:
                     while True:

@@ -14,8 +14,9 @@ processes started for it, or an existing scheduler (:func:`app.evaluation.cluste
 worker once (``broadcast=True``); a task carries only its fold's index and generator, or its
 start's vector. Folds have their own generators and starts none, so the result is the serial
 run's whatever worker ran which task. A fold's candidates depend on each other (ds = k starts
-from ds = k - 1), so the fold is the unit of work there; the polish of a fit's best starts runs
-in process after its starts.
+from ds = k - 1), so the fold is the unit of work there, but the starts of each of its fits run
+as tasks of their own (:func:`worker_start_map`), so the last folds of a run spread over every
+worker; the polish of a fit's best starts runs after its starts, where the fit runs.
 
 Stopping: the ``stop`` callable is polled every :data:`POLL_S` while tasks run; when it raises
 (or the caller is interrupted), the pending tasks are cancelled and a local cluster is closed,
@@ -53,10 +54,13 @@ class FoldFit:
     Attributes:
         options: Fit options; the nested starts are added as ``initial_latents``.
         noise_model: Noise model of the fold fits.
+        starts_as_tasks: Run each fit's starts as tasks of their own on the cluster of the
+            fold's task (:func:`worker_start_map`); set by :meth:`FitEngine.fold_map`.
     """
 
     options: FitOptions
     noise_model: NoiseModelChoice
+    starts_as_tasks: bool = False
 
     def __call__(
         self,
@@ -66,7 +70,34 @@ class FoldFit:
         rng: np.random.Generator,
     ) -> ManifoldModel:
         started = dataclasses.replace(self.options, initial_latents=starts)
-        return fit_manifold(train, latent_dim, rng, started, noise_model=self.noise_model)
+        return fit_manifold(
+            train,
+            latent_dim,
+            rng,
+            started,
+            noise_model=self.noise_model,
+            start_map=worker_start_map if self.starts_as_tasks else None,
+        )
+
+
+def worker_start_map(plan: StartPlan, tasks: Sequence[StartTask]) -> Iterator[StartResult]:
+    """A :data:`core.fit_run.StartMap` for a fit that runs inside a Dask task (a fold): its
+    starts become tasks on the same cluster. The fold's task leaves its worker's thread pool
+    while they run (``worker_client`` secedes), so an idle worker takes some of them — the last
+    folds of a run then use every worker — and rejoins it for the polish."""
+    from distributed import as_completed, worker_client
+
+    with worker_client() as client:
+        [remote] = client.scatter([plan], hash=False)
+        prefix = uuid.uuid4().hex[:8]
+        futures = [
+            client.submit(
+                run_first_stage, remote, task, pure=False, key=f"start-{task.index}-{prefix}"
+            )
+            for task in tasks
+        ]
+        for future in as_completed(futures):
+            yield future.result()
 
 
 class FitEngine:
@@ -108,7 +139,12 @@ class FitEngine:
         self._stack, self._client = None, None
 
     def fold_map(self, plan: FoldPlan, tasks: Sequence[FoldTask]) -> Iterator[FoldResult]:
-        """A :data:`core.latent_selection.FoldMap`: every fold as one task."""
+        """A :data:`core.latent_selection.FoldMap`: every fold as one task (and the starts of
+        its fits as tasks of their own when the fit is a :class:`FoldFit`)."""
+        if isinstance(plan.fit, FoldFit):
+            plan = dataclasses.replace(
+                plan, fit=dataclasses.replace(plan.fit, starts_as_tasks=True)
+            )
         return self._run(score_fold, plan, [(f"fold-{t.fold}", t) for t in tasks])
 
     def start_map(self, plan: StartPlan, tasks: Sequence[StartTask]) -> Iterator[StartResult]:
