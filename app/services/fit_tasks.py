@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import time
 import uuid
 from collections.abc import Callable, Iterator, Sequence
@@ -45,6 +46,9 @@ from core.validation import FloatArray
 #: Seconds between two looks at the folds' futures (and at ``stop``) while none has finished.
 POLL_S = 0.1
 
+#: The same inside a fold's task, for its fits' starts (and the run's stop event).
+WORKER_POLL_S = 0.5
+
 
 @dataclasses.dataclass(frozen=True)
 class FoldFit:
@@ -56,11 +60,14 @@ class FoldFit:
         noise_model: Noise model of the fold fits.
         starts_as_tasks: Run each fit's starts as tasks of their own on the cluster of the
             fold's task (:func:`worker_start_map`); set by :meth:`FitEngine.fold_map`.
+        stop_event: Name of the Dask ``Event`` set when the run stops: a fold already running
+            then submits no more starts and ends (with ``starts_as_tasks``).
     """
 
     options: FitOptions
     noise_model: NoiseModelChoice
     starts_as_tasks: bool = False
+    stop_event: str | None = None
 
     def __call__(
         self,
@@ -76,28 +83,53 @@ class FoldFit:
             rng,
             started,
             noise_model=self.noise_model,
-            start_map=worker_start_map if self.starts_as_tasks else None,
+            start_map=functools.partial(worker_start_map, stop_event=self.stop_event)
+            if self.starts_as_tasks
+            else None,
         )
 
 
-def worker_start_map(plan: StartPlan, tasks: Sequence[StartTask]) -> Iterator[StartResult]:
+class RunStoppedError(Exception):
+    """The run a fold belongs to was stopped (its ``stop_event`` is set)."""
+
+
+def worker_start_map(
+    plan: StartPlan, tasks: Sequence[StartTask], stop_event: str | None = None
+) -> Iterator[StartResult]:
     """A :data:`core.fit_run.StartMap` for a fit that runs inside a Dask task (a fold): its
     starts become tasks on the same cluster. The fold's task leaves its worker's thread pool
     while they run (``worker_client`` secedes), so an idle worker takes some of them — the last
-    folds of a run then use every worker — and rejoins it for the polish."""
-    from distributed import as_completed, worker_client
+    folds of a run then use every worker — and rejoins it for the polish.
+
+    Raises:
+        RunStoppedError: The Dask ``Event`` named ``stop_event`` is set (the run was stopped;
+            a running task cannot be cancelled, so it ends itself here).
+    """
+    from distributed import Event, worker_client
 
     with worker_client() as client:
-        [remote] = client.scatter([plan], hash=False)
+        event = None if stop_event is None else Event(stop_event, client=client)
         prefix = uuid.uuid4().hex[:8]
-        futures = [
+        [remote] = client.scatter([plan], hash=False)
+        pending = {
             client.submit(
                 run_first_stage, remote, task, pure=False, key=f"start-{task.index}-{prefix}"
             )
             for task in tasks
-        ]
-        for future in as_completed(futures):
-            yield future.result()
+        }
+        try:
+            while pending:
+                done = {future for future in pending if future.done()}
+                pending -= done
+                for future in done:
+                    yield future.result()
+                if not done:
+                    if event is not None and event.is_set():
+                        raise RunStoppedError(f"the run was stopped ({stop_event}).")
+                    time.sleep(WORKER_POLL_S)
+        finally:
+            if pending:
+                client.cancel(list(pending))
 
 
 class FitEngine:
@@ -141,21 +173,27 @@ class FitEngine:
     def fold_map(self, plan: FoldPlan, tasks: Sequence[FoldTask]) -> Iterator[FoldResult]:
         """A :data:`core.latent_selection.FoldMap`: every fold as one task (and the starts of
         its fits as tasks of their own when the fit is a :class:`FoldFit`)."""
+        stop_event = None
         if isinstance(plan.fit, FoldFit):
-            plan = dataclasses.replace(
-                plan, fit=dataclasses.replace(plan.fit, starts_as_tasks=True)
-            )
-        return self._run(score_fold, plan, [(f"fold-{t.fold}", t) for t in tasks])
+            stop_event = f"stop-{uuid.uuid4().hex[:8]}"
+            fit = dataclasses.replace(plan.fit, starts_as_tasks=True, stop_event=stop_event)
+            plan = dataclasses.replace(plan, fit=fit)
+        return self._run(score_fold, plan, [(f"fold-{t.fold}", t) for t in tasks], stop_event)
 
     def start_map(self, plan: StartPlan, tasks: Sequence[StartTask]) -> Iterator[StartResult]:
         """A :data:`core.fit_run.StartMap`: every start's first stage as one task."""
         return self._run(run_first_stage, plan, [(f"start-{t.index}", t) for t in tasks])
 
     def _run(
-        self, function: Callable[[Any, Any], Any], shared: Any, tasks: list[tuple[str, Any]]
+        self,
+        function: Callable[[Any, Any], Any],
+        shared: Any,
+        tasks: list[tuple[str, Any]],
+        stop_event: str | None = None,
     ) -> Iterator[Any]:
         """``function(shared, task)`` of every task as Dask tasks, ``shared`` scattered once;
-        the results in the order they finish."""
+        the results in the order they finish. Stopped early, the pending tasks are cancelled
+        and the Dask ``Event`` ``stop_event`` (if any) is set for the running ones."""
         if self._client is None:
             raise RuntimeError("FitEngine: use it in a `with` block.")
         client = self._client
@@ -178,6 +216,10 @@ class FitEngine:
                     self.stop()
         finally:
             if pending:
+                if stop_event is not None:
+                    from distributed import Event
+
+                    Event(stop_event, client=client).set()
                 client.cancel(list(pending))
 
 
