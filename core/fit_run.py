@@ -100,9 +100,8 @@ from core.validation import FloatArray, as_float_array
 AT_BOUND = 1e-4
 
 #: A random restart gives up only when its pace cannot bring it within this margin of the best
-#: data-driven start's screened -log p (the larger of the two): L-BFGS-B's pace is uneven, and
-#: a start one nat behind after half its iterations was seen to overtake (FitOptions.
-#: restart_reach_iterations).
+#: data-driven start's screened -log p (the larger of the two), because L-BFGS-B's pace is
+#: uneven (``FitOptions.restart_reach_iterations``; the measurement is in docs/fitting.md).
 REACH_MARGIN_NATS = 1.0
 REACH_MARGIN_RELATIVE = 1e-3
 
