@@ -4,28 +4,31 @@ A random design (every touch its own action) from :func:`core.worlds.random_expe
 (true ds = 3, dx = 1) sampled at ``--objects`` × ``--touches`` (default 20 × 40, N = 800), for
 each ``--dy``. The run is what ``activetouch fit --latent-dim auto`` does: cross-validation of
 ds (:func:`core.latent_selection.select_latent_dim`, folds fitted with the independent noise
-model, :class:`app.services.fit_tasks.FoldFit`), in process or with its folds as tasks on a
-``LocalCluster`` of ``--workers`` single-threaded processes (:func:`app.services.fit_tasks.
-dask_fold_map`; the cluster's start-up is included), then the final fit at the chosen ds with
-the noise model ``auto``, in process. Printed per dy and worker count: the wall seconds of the
-selection and of the final fit, the ds chosen, the final log-likelihood, and whether the
-cluster chose the same ds with the same fold scores as the serial run.
+model, :class:`app.services.fit_tasks.FoldFit`), then the final fit at the chosen ds with the
+noise model ``auto``: in process, or on a ``LocalCluster`` of ``--workers`` single-threaded
+processes (:class:`app.services.fit_tasks.FitEngine`: the folds as tasks, the starts of every
+fit as tasks of their own; the cluster's start-up is included). Printed per dy and worker
+count: the wall seconds of the selection and of the final fit, the ds chosen, the final
+log-likelihood, and whether the cluster chose the same ds with the same fold scores as the
+serial run. ``--fixed-ds K`` times one fit at ds = K instead (no selection).
 
 The machine is shared: the load average before and after each run is printed; quote it.
 
 Run: ``.venv/bin/python -m bench.time_to_model [--dy 5 20] [--workers 0 2] [--objects 20]
-[--touches 40] [--max-dim 5] [--folds 5] [--restarts 4] [--seed 0]`` (``--workers 0``: serial).
+[--touches 40] [--max-dim 5] [--folds 5] [--restarts 4] [--seed 0] [--fixed-ds K]``
+(``--workers 0``: serial).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import time
 
 import numpy as np
 
-from app.services.fit_tasks import FoldFit, dask_fold_map
+from app.services.fit_tasks import FitEngine, FoldFit
 from core.latent_selection import LatentSelection, select_latent_dim, serial_map
 from core.manifold import FitOptions, fit_manifold
 from core.types import TrainingData
@@ -50,25 +53,40 @@ def time_to_model(
     max_dim: int,
     folds: int,
     seed: int,
-) -> tuple[LatentSelection, float, float, float]:
-    """(selection, selection seconds, final-fit seconds, final log-likelihood) of one run."""
+    fixed_ds: int | None = None,
+) -> tuple[LatentSelection | None, float, float, float, int]:
+    """(selection, selection seconds, final-fit seconds, final log-likelihood, ds) of one run
+    (no selection at ``fixed_ds``)."""
     rng = np.random.default_rng(seed)
     started = time.perf_counter()
-    selection = select_latent_dim(
-        data,
-        FoldFit(options, "independent"),
-        rng,
-        tuple(range(1, min(max_dim, data.n_objects - 1) + 1)),
-        n_folds=folds,
-        map=dask_fold_map(workers, None) if workers > 0 else serial_map,
-    )
-    selected = time.perf_counter()
-    model = fit_manifold(data, selection.chosen, rng, options, noise_model="auto")
+    with contextlib.ExitStack() as stack:
+        engine = stack.enter_context(FitEngine(workers, None)) if workers > 0 else None
+        selection = None
+        if fixed_ds is None:
+            selection = select_latent_dim(
+                data,
+                FoldFit(options, "independent"),
+                rng,
+                tuple(range(1, min(max_dim, data.n_objects - 1) + 1)),
+                n_folds=folds,
+                map=serial_map if engine is None else engine.fold_map,
+            )
+        ds = selection.chosen if selection is not None else int(fixed_ds or 1)
+        selected = time.perf_counter()
+        model = fit_manifold(
+            data,
+            ds,
+            rng,
+            options,
+            noise_model="auto",
+            start_map=None if engine is None else engine.start_map,
+        )
     return (
         selection,
         selected - started,
         time.perf_counter() - selected,
         float(model.log_likelihood),
+        ds,
     )
 
 
@@ -82,6 +100,7 @@ def main() -> None:
     parser.add_argument("--folds", type=int, default=5)
     parser.add_argument("--restarts", type=int, default=FitOptions().restarts)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--fixed-ds", type=int, default=None, help="one fit at this ds")
     args = parser.parse_args()
     options = FitOptions(restarts=args.restarts)
     print(
@@ -95,8 +114,8 @@ def main() -> None:
         serial: LatentSelection | None = None
         for workers in args.workers:
             before = os.getloadavg()[0]
-            selection, select_s, final_s, log_likelihood = time_to_model(
-                data, options, workers, args.max_dim, args.folds, args.seed
+            selection, select_s, final_s, log_likelihood, ds = time_to_model(
+                data, options, workers, args.max_dim, args.folds, args.seed, args.fixed_ds
             )
             after = os.getloadavg()[0]
             if workers == 0:
@@ -104,7 +123,7 @@ def main() -> None:
             same = "-" if serial is None or workers == 0 else str(selection == serial)
             print(
                 f"{dy:3d} {workers:7d} {select_s:9.1f} {final_s:8.1f} "
-                f"{select_s + final_s:8.1f} {selection.chosen:7d} {log_likelihood:9.2f} "
+                f"{select_s + final_s:8.1f} {ds:7d} {log_likelihood:9.2f} "
                 f"{same:>5s}  {before:.1f}/{after:.1f}",
                 flush=True,
             )

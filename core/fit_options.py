@@ -104,6 +104,14 @@ class FitOptions:
             two seeds) nor without screening: ``joint_lbfgs_memory`` there. Pairs cost
             L-BFGS-B's own arithmetic ~O(pairs² · unknowns) per iteration: 100 add ~0.3 ms
             at 140 unknowns, ~1.2 ms at 2,000.
+        restart_reach_iterations: The random restarts' screening runs give up once they
+            cannot reach the best data-driven start's screened value at their pace over this
+            many iterations (:func:`core.hyperparameter_fit.minimize_free`'s ``reach``; ≥ 0,
+            0 = never). The data-driven starts (and ``initial_latents``) are screened first,
+            so which random starts give up does not depend on where the starts run; a start
+            that gave up still competes with its full-data value. Only while screening, and
+            only against a data-driven start that is not degenerate (see
+            :mod:`core.fit_run`).
         initial_latents: Extra starting latents, each of shape (L, ds) for the data and ds of
             the fit (checked when the fit starts; here: 2-D and finite). Each is normalised
             (centred, unit RMS spread) and treated like the data-driven starts: the
@@ -138,6 +146,7 @@ class FitOptions:
     joint_stall_nats: float = 0.5
     joint_stall_iterations: int = 30
     polish_lbfgs_memory: int = 100
+    restart_reach_iterations: int = 10
     initial_latents: tuple[FloatArray, ...] = field(default=(), compare=False)
 
     def __post_init__(self) -> None:
@@ -162,6 +171,7 @@ class FitOptions:
             "screen_max_touches": 0,
             "joint_stall_iterations": 1,
             "polish_lbfgs_memory": 1,
+            "restart_reach_iterations": 0,
         }
         for name, minimum in minimums.items():
             value = getattr(self, name)

@@ -21,9 +21,12 @@ docs/method.md (M2). The measurements behind each choice below are in docs/fitti
    (hyperparameters fitted to a subsample transfer badly, see :meth:`FitRun._transfer`): the
    hyperparameters alone first, then jointly, because a joint fit from fresh hyperparameters can
    throw every latent length-scale onto its lower bound (K^s = I, a flat corner L-BFGS-B never
-   leaves). When the subsample would make an evaluation less than :data:`SCREEN_MIN_SAVING`
-   times cheaper (:func:`evaluation_cost`: many objects on a shared design, where the L × L
-   latent factorisations dominate), screening runs on all the data instead.
+   leaves). The data-driven starts are screened first; a random restart then gives up once
+   it cannot come within :data:`REACH_MARGIN_NATS` of the best of them that is not degenerate
+   at its current pace (``FitOptions.restart_reach_iterations``). When the subsample would
+   make an evaluation less than :data:`SCREEN_MIN_SAVING` times cheaper
+   (:func:`evaluation_cost`: many objects on a shared design, where the L × L latent
+   factorisations dominate), screening runs on all the data instead.
 3. **Differential evolution** (``optimizer="de"``): one more start, a
    :func:`scipy.optimize.differential_evolution` search over the same bounded vector on the
    screening data (value only), seeded with the best start so far, refined with L-BFGS-B and
@@ -46,6 +49,15 @@ iterations. The joint runs on all the data, which end the fit, use the looser
 ``joint_stall_nats`` / ``joint_stall_iterations``; the screening and hyperparameter stages keep
 the tighter rule, so the starts and their choice do not depend on it.
 
+**Starts elsewhere.** The first stage of every start (1.: its hyperparameters with S frozen, then
+its joint run on the screening data) depends only on the start's vector and on the problem, so
+the starts are independent: :func:`first_stage` is one start's work, a pure function of a
+:class:`StartPlan` (shared by every start) and a :class:`StartTask`, and a ``start_map``
+(:data:`StartMap`) may run them elsewhere, e.g. as Dask tasks (the app's
+``app.services.fit_tasks``); the fit is then the serial one, only the progress events within a
+start are not streamed. Without a map the starts run one after another in this process, with
+progress every ``progress_every`` iterations.
+
 The likelihood is exactly invariant to scaling one latent dimension of S together with every
 feature's ℓ^s of that dimension (and to shifting S); its gradient is orthogonal to those
 directions (tests/core/test_likelihood.py), so the fit leaves the symmetry alone and normalises
@@ -56,7 +68,8 @@ Bounds (log space, relative to the data): see :func:`core.parameters.parameter_b
 
 from __future__ import annotations
 
-from collections.abc import Callable, Generator
+import dataclasses
+from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -76,7 +89,7 @@ from core.hyperparameter_fit import (
 )
 from core.initialisation import data_driven_starts, normalise_spread, random_latents
 from core.kronecker import find_shared_design
-from core.optimiser_stream import stream_optimiser
+from core.optimiser_stream import run_to_end, stream_optimiser
 from core.parameters import ParameterLayout, initial_hyperparameters, parameter_bounds
 from core.posterior import Likelihood, Structure, condition, make_likelihood, resolve_structure
 from core.sparse import DEFAULT_INDUCING_POINTS
@@ -85,6 +98,12 @@ from core.validation import FloatArray, as_float_array
 
 #: Distance (log units) from a bound that counts as sitting on it.
 AT_BOUND = 1e-4
+
+#: A random restart gives up only when its pace cannot bring it within this margin of the best
+#: data-driven start's screened -log p (the larger of the two), because L-BFGS-B's pace is
+#: uneven (``FitOptions.restart_reach_iterations``; the measurement is in docs/fitting.md).
+REACH_MARGIN_NATS = 1.0
+REACH_MARGIN_RELATIVE = 1e-3
 
 #: Screening runs on a subsample only when that makes an evaluation at least this many times
 #: cheaper (:func:`evaluation_cost`); otherwise it runs on all the data.
@@ -180,8 +199,206 @@ class FitProblem:
         )
 
 
+@dataclass(frozen=True)
+class RunSettings:
+    """How one L-BFGS-B run of a stage stops and remembers (see :meth:`FitRun._settings`)."""
+
+    stall_nats: float
+    stall_iterations: int
+    memory: int
+    reach: float = -np.inf
+    reach_iterations: int = 0
+
+
+@dataclass(frozen=True)
+class StageOutcome:
+    """Where one stage left a start.
+
+    Attributes:
+        vector: The packed vector. Shape (P,).
+        iterations: L-BFGS-B iterations of the stage.
+        converged: Whether the stage converged.
+        message: The optimiser's message.
+        value: -log p at ``vector`` on the stage's problem.
+    """
+
+    vector: FloatArray
+    iterations: int
+    converged: bool
+    message: str
+    value: float
+
+
+def optimise_stage(
+    problem: FitProblem,
+    vector: FloatArray,
+    free: np.ndarray[Any, np.dtype[np.bool_]],
+    max_iterations: int,
+    options: FitOptions,
+    settings: RunSettings,
+) -> Generator[tuple[int, float], None, StageOutcome]:
+    """L-BFGS-B on the ``free`` entries of ``vector`` (shape (P,)); yields (iteration, -log p)
+    every ``options.progress_every`` iterations and returns the :class:`StageOutcome`."""
+    base = vector.copy()
+
+    def run(callback: Callable[[Any], None]) -> scipy.optimize.OptimizeResult:
+        return minimize_free(
+            problem.likelihood,
+            base,
+            free,
+            problem.lower,
+            problem.upper,
+            max_iterations,
+            options.ftol,
+            options.gtol,
+            callback,
+            settings.stall_nats,
+            settings.stall_iterations,
+            options.stall_relative,
+            settings.memory,
+            settings.reach,
+            settings.reach_iterations,
+        )
+
+    stream = stream_optimiser(run, options.progress_every)
+    try:
+        while True:
+            yield next(stream)
+    except StopIteration as stop:
+        result: scipy.optimize.OptimizeResult = stop.value
+    finally:
+        stream.close()
+    out = base.copy()
+    out[free] = result.x
+    return StageOutcome(
+        out, int(result.nit), bool(result.success), str(result.message), float(result.fun)
+    )
+
+
+def hyperparameter_stage(
+    problem: FitProblem, vector: FloatArray, layout: ParameterLayout, options: FitOptions
+) -> Generator[tuple[int, float], None, StageOutcome]:
+    """The hyperparameters of ``vector`` (shape (P,)) with S frozen, one feature at a time
+    (:func:`core.hyperparameter_fit.iter_fit_separately`); yields (iterations, -log p) after
+    every feature and returns the :class:`StageOutcome`."""
+    stream = problem.fit_separately(vector, layout, options, options.hyperparameter_iterations)
+    try:
+        while True:
+            step = next(stream)
+            yield step.iterations, step.value
+    except StopIteration as stop:
+        result: SeparableResult = stop.value
+    return StageOutcome(
+        result.vector, result.iterations, result.converged, result.message, result.value
+    )
+
+
+@dataclass(frozen=True)
+class StartPlan:
+    """What the first stage of every start shares (sent to a worker once).
+
+    Attributes:
+        problem: The working problem (the screening subsample, or all the data).
+        layout: The packed vector's layout.
+        options: The fit's settings.
+        max_iterations: Iteration limit of the joint run.
+        phase: ``"screen"`` or ``"joint"`` (no screening: the run ends the fit).
+        settings: Stall rule and memory of the joint run.
+    """
+
+    problem: FitProblem
+    layout: ParameterLayout
+    options: FitOptions
+    max_iterations: int
+    phase: str
+    settings: RunSettings
+
+
+@dataclass(frozen=True)
+class StartTask:
+    """One start: its index, kind (``"data"``, ``"random"``) and starting vector (P,)."""
+
+    index: int
+    kind: str
+    vector: FloatArray
+
+
+@dataclass(frozen=True)
+class StartResult:
+    """Where the first stage left one start.
+
+    Attributes:
+        index: The start's index.
+        outcome: The joint run's outcome (``iterations`` counts the hyperparameter stage's
+            too).
+        max_jitter: The largest jitter the problem's likelihoods had needed when the start
+            ended (they may have run other starts before it).
+    """
+
+    index: int
+    outcome: StageOutcome
+    max_jitter: float
+
+
+#: Runs ``first_stage`` of every task, to the end, yielding the results in any order
+#: (:func:`serial_start_map` one after another; the app supplies one running them as Dask
+#: tasks). The fit's result does not depend on the map.
+StartMap = Callable[[StartPlan, Sequence[StartTask]], Iterable[StartResult]]
+
+
+def first_stage(
+    plan: StartPlan, task: StartTask
+) -> Generator[tuple[str, int, float], None, StartResult]:
+    """One start's first stage: for a data-driven start the hyperparameters with S frozen,
+    then the joint run on the working problem. Yields (phase, iterations so far, -log p); a
+    phase ending in ``" done"`` ends a sub-stage. A pure function of its arguments."""
+    options, vector, iterations = plan.options, task.vector.copy(), 0
+    if task.kind == "data" and options.hyperparameter_iterations > 0:
+        stream = hyperparameter_stage(plan.problem, vector, plan.layout, options)
+        try:
+            while True:
+                done, value = next(stream)
+                yield "hyperparameters", done, value
+        except StopIteration as stop:
+            separate: StageOutcome = stop.value
+        vector, iterations = separate.vector, separate.iterations
+        yield "hyperparameters done", iterations, separate.value
+    everything = np.ones(plan.layout.size, dtype=bool)
+    joint = optimise_stage(
+        plan.problem, vector, everything, plan.max_iterations, options, plan.settings
+    )
+    try:
+        while True:
+            done, value = next(joint)
+            yield plan.phase, iterations + done, value
+    except StopIteration as stop:
+        outcome: StageOutcome = stop.value
+    outcome = dataclasses.replace(outcome, iterations=iterations + outcome.iterations)
+    return StartResult(task.index, outcome, plan.problem.max_jitter)
+
+
+def run_first_stage(plan: StartPlan, task: StartTask) -> StartResult:
+    """:func:`first_stage` to the end, without progress (what a :data:`StartMap` runs)."""
+    return run_to_end(first_stage(plan, task))
+
+
+def serial_start_map(plan: StartPlan, tasks: Sequence[StartTask]) -> Iterator[StartResult]:
+    """The starts one after another, in this process."""
+    for task in tasks:
+        yield run_first_stage(plan, task)
+
+
 class FitRun:
-    """State of one fit; :meth:`events` is the generator behind :func:`core.manifold.iter_fit`."""
+    """State of one fit; :meth:`events` is the generator behind :func:`core.manifold.iter_fit`.
+
+    Args:
+        data: Training touches.
+        latent_dim: ds ≥ 1.
+        rng: Random generator (starts, screening subsample, DE).
+        options: Fit settings.
+        start_map: Runs the starts' first stage (:data:`StartMap`); ``None``: one after
+            another in this process, with streamed progress.
+    """
 
     def __init__(
         self,
@@ -189,6 +406,7 @@ class FitRun:
         latent_dim: int,
         rng: np.random.Generator,
         options: FitOptions,
+        start_map: StartMap | None = None,
     ) -> None:
         if not isinstance(data, TrainingData):
             raise InvalidInputError(f"data: expected TrainingData, received {type(data).__name__}.")
@@ -246,6 +464,9 @@ class FitRun:
                 )
         self.starts: list[Start] = []
         self.best_full = np.inf
+        self.start_map = start_map
+        #: The largest jitter the starts run by ``start_map`` needed (elsewhere).
+        self.remote_jitter = 0.0
 
     # -- set-up ------------------------------------------------------------------------------
 
@@ -304,10 +525,25 @@ class FitRun:
 
         # 1. Every L-BFGS start on the working data (screening subsample or all the data).
         limit = options.screen_iterations if self.screen is not None else options.max_iterations
-        for start in self.starts:
-            if start.kind == "data" and options.hyperparameter_iterations > 0:
-                yield from self._optimise_separately(start, working, n_starts)
-            yield from self._optimise(start, working, everything, limit, phase, n_starts)
+        settings = self._settings(working, phase)
+        data_starts = [s for s in self.starts if s.kind == "data"]
+        yield from self._first_stages(data_starts, working, limit, phase, n_starts, settings)
+        # The random restarts give up once they cannot reach the best healthy data-driven
+        # start (FitOptions.restart_reach_iterations): known before any of them runs, so
+        # the outcome does not depend on where they run.
+        healthy = [
+            s.screen_value
+            for s in data_starts
+            if np.isfinite(s.screen_value) and not self._is_degenerate(s.vector)
+        ]
+        if self.screen is not None and healthy and options.restart_reach_iterations > 0:
+            best = min(healthy)
+            margin = max(REACH_MARGIN_NATS, REACH_MARGIN_RELATIVE * abs(best))
+            settings = dataclasses.replace(
+                settings, reach=best + margin, reach_iterations=options.restart_reach_iterations
+            )
+        others = [s for s in self.starts if s.kind != "data"]
+        yield from self._first_stages(others, working, limit, phase, n_starts, settings)
 
         # 2. Differential evolution on the working data, seeded with the best start so far.
         if options.optimizer == "de":
@@ -411,6 +647,62 @@ class FitRun:
         self._record(start, problem, value)
         return self._progress(start, n_starts, start.iterations, value, f"{phase} done")
 
+    def _settings(self, problem: FitProblem, phase: str) -> RunSettings:
+        """Stall rule and memory of a joint run of ``phase`` on ``problem``: the runs that
+        end the fit stop within about a nat (``FitOptions.joint_stall_nats``)."""
+        options = self.options
+        final = problem is self.full and phase == "joint"
+        memory = DEFAULT_LBFGS_MEMORY
+        if problem is self.full:
+            polish = final and self.screen is not None and self.screen is not self.full
+            memory = options.polish_lbfgs_memory if polish else options.joint_lbfgs_memory
+        return RunSettings(
+            options.joint_stall_nats if final else options.stall_nats,
+            options.joint_stall_iterations if final else options.stall_iterations,
+            memory,
+        )
+
+    def _apply(self, start: Start, outcome: StageOutcome, initial_iterations: int) -> None:
+        start.vector = outcome.vector
+        start.iterations = initial_iterations + outcome.iterations
+        start.converged = outcome.converged
+        start.message = outcome.message
+
+    def _first_stages(
+        self,
+        starts: list[Start],
+        working: FitProblem,
+        max_iterations: int,
+        phase: str,
+        n_starts: int,
+        settings: RunSettings,
+    ) -> Generator[FitProgress, None, None]:
+        """The first stage of ``starts`` (:func:`first_stage`), in this process with
+        streamed progress, or by ``start_map`` with one event per start."""
+        if not starts:
+            return
+        plan = StartPlan(working, self.layout, self.options, max_iterations, phase, settings)
+        tasks = [StartTask(s.index, s.kind, s.vector) for s in starts]
+        if self.start_map is None:
+            for start, task in zip(starts, tasks, strict=True):
+                stream = first_stage(plan, task)
+                try:
+                    while True:
+                        stage, iteration, value = next(stream)
+                        if stage.endswith(" done"):
+                            self._record(start, working, value)
+                        yield self._progress(start, n_starts, iteration, value, stage)
+                except StopIteration as stop:
+                    result: StartResult = stop.value
+                self._apply(start, result.outcome, 0)
+                yield self._finished(start, working, result.outcome.value, phase, n_starts)
+            return
+        for result in self.start_map(plan, tasks):
+            start = self.starts[result.index]
+            self.remote_jitter = max(self.remote_jitter, result.max_jitter)
+            self._apply(start, result.outcome, 0)
+            yield self._finished(start, working, result.outcome.value, phase, n_starts)
+
     def _optimise(
         self,
         start: Start,
@@ -421,78 +713,41 @@ class FitRun:
         n_starts: int,
     ) -> Generator[FitProgress, None, None]:
         """L-BFGS-B on the ``free`` entries of ``start.vector``, streaming progress."""
-        options = self.options
-        base = start.vector.copy()
         initial_iterations = start.iterations
-        # The runs that end the fit stop within about a nat (FitOptions.joint_stall_nats).
-        final = problem is self.full and phase == "joint"
-        stall_nats = options.joint_stall_nats if final else options.stall_nats
-        stall_iterations = options.joint_stall_iterations if final else options.stall_iterations
-        memory = DEFAULT_LBFGS_MEMORY
-        if problem is self.full:
-            polish = final and self.screen is not None and self.screen is not self.full
-            memory = options.polish_lbfgs_memory if polish else options.joint_lbfgs_memory
-
-        def run(callback: Callable[[Any], None]) -> scipy.optimize.OptimizeResult:
-            return minimize_free(
-                problem.likelihood,
-                base,
-                free,
-                problem.lower,
-                problem.upper,
-                max_iterations,
-                options.ftol,
-                options.gtol,
-                callback,
-                stall_nats,
-                stall_iterations,
-                options.stall_relative,
-                memory,
-            )
-
-        stream = stream_optimiser(run, options.progress_every)
+        stream = optimise_stage(
+            problem,
+            start.vector,
+            free,
+            max_iterations,
+            self.options,
+            self._settings(problem, phase),
+        )
         try:
             while True:
                 iteration, value = next(stream)
                 yield self._progress(start, n_starts, initial_iterations + iteration, value, phase)
         except StopIteration as stop:
-            result: scipy.optimize.OptimizeResult = stop.value
-        finally:
-            stream.close()
-        start.vector = base.copy()
-        start.vector[free] = result.x
-        start.iterations = initial_iterations + int(result.nit)
-        start.converged = bool(result.success)
-        start.message = str(result.message)
-        yield self._finished(start, problem, float(result.fun), phase, n_starts)
+            outcome: StageOutcome = stop.value
+        self._apply(start, outcome, initial_iterations)
+        yield self._finished(start, problem, outcome.value, phase, n_starts)
 
     def _optimise_separately(
         self, start: Start, problem: FitProblem, n_starts: int
     ) -> Generator[FitProgress, None, None]:
         """The hyperparameters with S frozen, one feature at a time
-        (:func:`core.hyperparameter_fit.iter_fit_separately`)."""
-        options = self.options
+        (:func:`hyperparameter_stage`)."""
         initial_iterations = start.iterations
-        stream = problem.fit_separately(
-            start.vector, self.layout, options, options.hyperparameter_iterations
-        )
+        stream = hyperparameter_stage(problem, start.vector, self.layout, self.options)
         try:
             while True:
-                step = next(stream)
+                iterations, value = next(stream)
                 yield self._progress(
-                    start,
-                    n_starts,
-                    initial_iterations + step.iterations,
-                    step.value,
-                    "hyperparameters",
+                    start, n_starts, initial_iterations + iterations, value, "hyperparameters"
                 )
         except StopIteration as stop:
-            result: SeparableResult = stop.value
-        start.vector = result.vector
-        start.iterations = initial_iterations + result.iterations
-        start.converged = result.converged
-        start.message = result.message
-        yield self._finished(start, problem, result.value, "hyperparameters", n_starts)
+            outcome: StageOutcome = stop.value
+        self._apply(start, outcome, initial_iterations)
+        yield self._finished(start, problem, outcome.value, "hyperparameters", n_starts)
 
     def _differential_evolution(
         self, start: Start, problem: FitProblem, n_starts: int
@@ -570,7 +825,9 @@ class FitRun:
             converged=winner.converged,
             message=winner.message,
             jitter_used=max(
-                self.full.max_jitter, self.screen.max_jitter if self.screen is not None else 0.0
+                self.full.max_jitter,
+                self.screen.max_jitter if self.screen is not None else 0.0,
+                self.remote_jitter,
             ),
             hyperparameters_at_bounds=on_bounds,
         )

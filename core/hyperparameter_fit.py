@@ -56,6 +56,8 @@ def minimize_free(
     stall_iterations: int = 20,
     stall_relative: float = 0.0,
     memory: int = DEFAULT_LBFGS_MEMORY,
+    reach: float = -np.inf,
+    reach_iterations: int = 0,
 ) -> scipy.optimize.OptimizeResult:
     """L-BFGS-B with the analytic gradient over ``base[free]`` (the rest held fixed).
 
@@ -78,15 +80,29 @@ def minimize_free(
             ``stall_relative · stall_iterations · |value|`` (0 = never): a mean relative
             reduction per iteration, the windowed analogue of L-BFGS-B's ``ftol``.
         memory: Correction pairs L-BFGS-B keeps (scipy's ``maxcor``, ≥ 1).
+        reach, reach_iterations: Give up (unsuccessfully) once the run cannot reach the value
+            ``reach`` at its current pace: after at least ``reach_iterations`` iterations
+            (0 = never give up), the improvement of the last ``reach_iterations``, repeated
+            for every such window left before ``max_iterations``, would still end above
+            ``reach``. L-BFGS-B's pace only slows, so such a run (a random start far behind
+            the best start) would end behind it anyway.
     """
     vector = base.copy()
     history: list[float] = []
     stalled = False
+    abandoned = False
 
     def watch(intermediate_result: scipy.optimize.OptimizeResult) -> None:
-        nonlocal stalled
-        if stall_nats > 0 or stall_relative > 0:
+        nonlocal stalled, abandoned
+        if stall_nats > 0 or stall_relative > 0 or reach_iterations > 0:
             history.append(float(intermediate_result.fun))
+        if reach_iterations > 0 and len(history) > reach_iterations:
+            pace = history[-1 - reach_iterations] - history[-1]
+            windows_left = (max_iterations - len(history)) / reach_iterations
+            if history[-1] - pace * windows_left > reach:
+                abandoned = True
+                raise StopIteration
+        if stall_nats > 0 or stall_relative > 0:
             threshold = max(stall_nats, stall_relative * stall_iterations * abs(history[-1]))
             if (
                 len(history) > stall_iterations
@@ -115,7 +131,13 @@ def minimize_free(
         callback=watch,
         options={"maxiter": max_iterations, "ftol": ftol, "gtol": gtol, "maxcor": memory},
     )
-    if stalled:
+    if abandoned:
+        result.success = False
+        result.message = (
+            f"ABANDONED: at its pace over the last {reach_iterations} iterations the value "
+            f"would stay above {reach:.6g} (the best start's)"
+        )
+    elif stalled:
         result.success = True
         result.message = (
             f"CONVERGENCE: value improved by < max({stall_nats:g}, {stall_relative:g}·"

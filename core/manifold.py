@@ -15,7 +15,7 @@ import numpy as np
 
 from core.errors import ConvergenceError, CoreError, InvalidInputError
 from core.fit_options import OPTIMIZERS, FitOptions, FitProgress, Optimizer
-from core.fit_run import FitProblem, FitRun, at_bounds, normalise_latents
+from core.fit_run import FitProblem, FitRun, StartMap, at_bounds, normalise_latents
 from core.initialisation import normalise_spread
 from core.noise_model import NOISE_MODEL_CHOICES, NoiseModelChoice, iter_fit_noise_model
 from core.optimiser_stream import run_to_end
@@ -58,6 +58,7 @@ def iter_fit(
     rng: np.random.Generator,
     options: FitOptions = FitOptions(),
     noise_model: NoiseModelChoice | None = None,
+    start_map: StartMap | None = None,
 ) -> Generator[FitProgress, None, None]:
     """Fit the object manifold, yielding progress (a generator; see the module docstring).
 
@@ -75,6 +76,8 @@ def iter_fit(
             features, and whiten their correlated noise (:mod:`core.noise_model`); the model
             keeps the transform. Those run one fit (independent) or two (a first fit gives the
             residual noise covariance, then a refit), with the stage named in ``phase``.
+        start_map: Runs the first stage of the starts (:data:`core.fit_run.StartMap`, e.g. as
+            Dask tasks); ``None``: one after another here. The model does not depend on it.
 
     Yields:
         :class:`FitProgress` events.
@@ -85,14 +88,16 @@ def iter_fit(
         ConvergenceError: Every start failed.
     """
     if noise_model is None:
-        return FitRun(data, latent_dim, rng, options).events()
+        return FitRun(data, latent_dim, rng, options, start_map).events()
     if noise_model not in NOISE_MODEL_CHOICES:
         raise InvalidInputError(
             f"noise_model: expected one of {', '.join(NOISE_MODEL_CHOICES)} or None, received "
             f"{noise_model!r}."
         )
     return iter_fit_noise_model(
-        data, lambda model_data: FitRun(model_data, latent_dim, rng, options).events(), noise_model
+        data,
+        lambda model_data: FitRun(model_data, latent_dim, rng, options, start_map).events(),
+        noise_model,
     )
 
 
@@ -103,6 +108,7 @@ def fit_manifold(
     options: FitOptions = FitOptions(),
     callback: Callable[[FitProgress], bool | None] | None = None,
     noise_model: NoiseModelChoice | None = None,
+    start_map: StartMap | None = None,
 ) -> ManifoldModel:
     """Fit the object manifold (docs/method.md M2) and return the normalised model.
 
@@ -114,6 +120,7 @@ def fit_manifold(
         callback: Receives every :class:`FitProgress`; returning ``False`` (not ``None``)
             cancels the fit.
         noise_model: See :func:`iter_fit` (``None``: no observation transform).
+        start_map: See :func:`iter_fit`.
 
     Returns:
         The fitted model (latents normalised; ``diagnostics`` filled in).
@@ -124,9 +131,11 @@ def fit_manifold(
         InvalidInputError: Bad arguments.
         ConvergenceError: Every start failed.
     """
-    run = FitRun(data, latent_dim, rng, options) if noise_model is None else None
+    run = FitRun(data, latent_dim, rng, options, start_map) if noise_model is None else None
     events = (
-        run.events() if run is not None else iter_fit(data, latent_dim, rng, options, noise_model)
+        run.events()
+        if run is not None
+        else iter_fit(data, latent_dim, rng, options, noise_model, start_map)
     )
     model: ManifoldModel | None = None
     try:

@@ -11,6 +11,7 @@ import the module and hand it their arguments (:func:`_forward`).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import importlib
 import json
@@ -37,6 +38,8 @@ from app.cli.raw_data import FeaturesName, features_summary
 from app.cli.rig import rig_app
 
 if TYPE_CHECKING:
+    from app.services.fit_tasks import FitEngine
+    from core.fit_run import StartMap
     from core.latent_selection import LatentSelection
     from core.manifold import FitOptions, NoiseModelChoice
     from core.types import ManifoldModel, TrainingData
@@ -82,8 +85,12 @@ def fit_with_progress(
     seed: int,
     quiet: bool = False,
     noise_model: NoiseModelChoice | None = None,
+    start_map: StartMap | None = None,
 ) -> tuple[ManifoldModel, float]:
-    """Run :func:`core.manifold.iter_fit` with a progress bar; return the model and seconds."""
+    """Run :func:`core.manifold.iter_fit` with a progress bar; return the model and seconds.
+
+    With ``start_map`` (e.g. :meth:`app.services.fit_tasks.FitEngine.start_map`) the starts'
+    first stage runs there, with the same model."""
     import numpy as np
 
     from core.manifold import iter_fit
@@ -93,7 +100,7 @@ def fit_with_progress(
     model: ManifoldModel | None = None
     with progress_bar(disable=quiet) as bar:
         task = bar.add_task("fit", total=None, status="")
-        for event in iter_fit(data, latent_dim, rng, options, noise_model):
+        for event in iter_fit(data, latent_dim, rng, options, noise_model, start_map):
             # Starts are screened, then the best is polished: the start index is not monotone,
             # so the bar pulses and the status says which stage runs.
             best = event.best_log_likelihood
@@ -118,13 +125,14 @@ def select_latent_dim_with_progress(
     noise_model: NoiseModelChoice,
     workers: int | None = None,
     scheduler: str | None = None,
+    engine: FitEngine | None = None,
 ) -> LatentSelection:
     """Cross-validate ds (:func:`core.latent_selection.select_latent_dim`) with a progress bar.
 
     The folds use the requested noise model ("independent" for "auto", which the final fit
     decides). With ``workers`` or ``scheduler`` they run as Dask tasks
-    (:mod:`app.services.fit_tasks`), with the same result; the bar then advances as each fold
-    finishes.
+    (:mod:`app.services.fit_tasks`; on ``engine`` when given), with the same result; the bar
+    then advances as each fold finishes.
 
     Raises:
         BadInputError: The scheduler cannot be reached or has no worker.
@@ -162,7 +170,11 @@ def select_latent_dim_with_progress(
             rng,
             n_folds=n_folds,
             callback=report,
-            map=dask_fold_map(workers, scheduler) if on_cluster else serial_map,
+            map=engine.fold_map
+            if engine is not None
+            else dask_fold_map(workers, scheduler)
+            if on_cluster
+            else serial_map,
         )
 
 
@@ -237,12 +249,17 @@ def fit(
     workers: Annotated[
         int | None,
         typer.Option(
-            min=1, help="--latent-dim auto: run the folds on a LocalCluster of K processes."
+            min=1,
+            help="Run the starts of the fit (and the folds of --latent-dim auto) on a "
+            "LocalCluster of K processes.",
         ),
     ] = None,
     scheduler: Annotated[
         str | None,
-        typer.Option(help="--latent-dim auto: run the folds on a Dask scheduler, tcp://host:8786."),
+        typer.Option(
+            help="Run the starts of the fit (and the folds of --latent-dim auto) on a Dask "
+            "scheduler, tcp://host:8786."
+        ),
     ] = None,
     latent_uncertainty: Annotated[
         bool,
@@ -293,14 +310,26 @@ def fit(
         options = FitOptions(
             optimizer=optimizer.value, restarts=restarts, structure=structure, n_inducing=inducing
         )
-        if requested_dim is None:
-            selection = select_latent_dim_with_progress(
-                data, options, seed, noise_model, workers, scheduler
+        with contextlib.ExitStack() as stack:
+            engine = None
+            if workers is not None or scheduler is not None:
+                from app.services.fit_tasks import FitEngine
+
+                engine = stack.enter_context(FitEngine(workers, scheduler))
+            if requested_dim is None:
+                selection = select_latent_dim_with_progress(
+                    data, options, seed, noise_model, workers, scheduler, engine
+                )
+                requested_dim = selection.chosen
+            model, seconds = fit_with_progress(
+                data,
+                requested_dim,
+                options,
+                seed,
+                quiet=False,
+                noise_model=noise_model,
+                start_map=None if engine is None else engine.start_map,
             )
-            requested_dim = selection.chosen
-        model, seconds = fit_with_progress(
-            data, requested_dim, options, seed, quiet=False, noise_model=noise_model
-        )
         model, placement = with_placement_effect(model)
         laplace = None
         if latent_uncertainty:

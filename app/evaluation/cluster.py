@@ -14,7 +14,8 @@ back as they finish.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 from app.errors import BadInputError
@@ -120,6 +121,34 @@ def connect(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> Any:
     return client
 
 
+@contextmanager
+def open_client(workers: int | None, scheduler: str | None) -> Iterator[Any]:
+    """A client of the scheduler at ``scheduler``, or of a :func:`local_cluster` of ``workers``
+    processes started for it; on exit the client, and the local cluster, are closed (which
+    ends its worker processes and whatever ran there).
+
+    Raises:
+        BadInputError: The scheduler cannot be reached or has no worker.
+        ValueError: Neither a scheduler nor at least one worker.
+    """
+    from distributed import Client
+
+    cluster = None
+    if scheduler is not None:
+        client = connect(scheduler)
+    else:
+        if workers is None or workers < 1:
+            raise ValueError(f"workers: need at least 1 without a scheduler, received {workers!r}.")
+        cluster = local_cluster(workers)
+        client = Client(cluster, set_as_default=False)
+    try:
+        yield client
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
 def batches(keys: list[TrialKey], n_workers: int) -> list[list[TrialKey]]:
     """Split the trials into tasks of up to :data:`MAX_BATCH` trials, ≥ 4 tasks per worker.
 
@@ -146,16 +175,9 @@ def run_on_cluster(
     Raises:
         BadInputError: The scheduler cannot be reached or has no worker.
     """
-    from distributed import Client, as_completed
+    from distributed import as_completed
 
-    cluster = None
-    if scheduler is not None:
-        client = connect(scheduler)
-    else:
-        assert workers is not None
-        cluster = local_cluster(workers)
-        client = Client(cluster, set_as_default=False)
-    try:
+    with open_client(workers, scheduler) as client:
         n_workers = max(1, len(client.scheduler_info(n_workers=-1)["workers"]))
         [shared] = client.scatter([context], broadcast=True, hash=False)
         pending = iter(batches(keys, n_workers))
@@ -183,7 +205,3 @@ def run_on_cluster(
         if stopped:
             futures.clear()
         return stopped, n_workers
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()

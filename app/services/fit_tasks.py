@@ -1,24 +1,34 @@
-"""The folds of ``--latent-dim auto`` as tasks on Dask distributed, the engine evaluations run on.
+"""The folds of ``--latent-dim auto`` and the starts of a fit as tasks on Dask distributed, the
+engine evaluations run on.
 
 :func:`core.latent_selection.select_latent_dim` hands its independent folds to a ``map``
-(:data:`core.latent_selection.FoldMap`); :func:`dask_fold_map` is one that runs each fold — all
-its nested candidate fits, :func:`core.latent_selection.score_fold` — as one task, on a
-``LocalCluster`` of single-threaded processes or an existing scheduler
-(:mod:`app.evaluation.cluster`). The :class:`~core.latent_selection.FoldPlan` (data, folds, the
-fit) is scattered to every worker once (``broadcast=True``); a task carries only its fold's index
-and generator. Each fold has its own generator, so the result is the serial run's whatever
-worker ran which fold. A fold's candidates depend on each other (ds = k starts from ds = k - 1),
-so the fold is the unit of work; the final fit on all the data runs afterwards, in process.
+(:data:`core.latent_selection.FoldMap`), and a fit the first stage of its independent starts
+(:data:`core.fit_run.StartMap`: hyperparameters with the latents frozen, then the screening run).
+:class:`FitEngine` supplies both on one client — a ``LocalCluster`` of single-threaded
+processes started for it, or an existing scheduler (:func:`app.evaluation.cluster.open_client`):
+:meth:`FitEngine.fold_map` runs each fold — all its nested candidate fits,
+:func:`core.latent_selection.score_fold` — as one task, :meth:`FitEngine.start_map` each start
+(:func:`core.fit_run.run_first_stage`). What every task shares (the
+:class:`~core.latent_selection.FoldPlan`: data, folds, the fit; the
+:class:`~core.fit_run.StartPlan`: the screening problem and the options) is scattered to every
+worker once (``broadcast=True``); a task carries only its fold's index and generator, or its
+start's vector. Folds have their own generators and starts none, so the result is the serial
+run's whatever worker ran which task. A fold's candidates depend on each other (ds = k starts
+from ds = k - 1), so the fold is the unit of work there, but the starts of each of its fits run
+as tasks of their own (:func:`worker_start_map`), so the last folds of a run spread over every
+worker; the polish of a fit's best starts runs after its starts, where the fit runs.
 
 Stopping: the ``stop`` callable is polled every :data:`POLL_S` while tasks run; when it raises
 (or the caller is interrupted), the pending tasks are cancelled and a local cluster is closed,
-which ends the worker processes and the fits running in them. On an existing scheduler a fold
+which ends the worker processes and the fits running in them. On an existing scheduler a task
 already running finishes there and its result is dropped.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import functools
 import time
 import uuid
 from collections.abc import Callable, Iterator, Sequence
@@ -26,7 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from app.evaluation.cluster import connect, local_cluster
+from app.evaluation.cluster import open_client
+from core.fit_run import StartPlan, StartResult, StartTask, run_first_stage
 from core.latent_selection import FoldMap, FoldPlan, FoldResult, FoldTask, score_fold
 from core.manifold import FitOptions, NoiseModelChoice, fit_manifold
 from core.types import ManifoldModel, TrainingData
@@ -34,6 +45,9 @@ from core.validation import FloatArray
 
 #: Seconds between two looks at the folds' futures (and at ``stop``) while none has finished.
 POLL_S = 0.1
+
+#: The same inside a fold's task, for its fits' starts (and the run's stop event).
+WORKER_POLL_S = 0.5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,10 +58,16 @@ class FoldFit:
     Attributes:
         options: Fit options; the nested starts are added as ``initial_latents``.
         noise_model: Noise model of the fold fits.
+        starts_as_tasks: Run each fit's starts as tasks of their own on the cluster of the
+            fold's task (:func:`worker_start_map`); set by :meth:`FitEngine.fold_map`.
+        stop_event: Name of the Dask ``Event`` set when the run stops: a fold already running
+            then submits no more starts and ends (with ``starts_as_tasks``).
     """
 
     options: FitOptions
     noise_model: NoiseModelChoice
+    starts_as_tasks: bool = False
+    stop_event: str | None = None
 
     def __call__(
         self,
@@ -57,7 +77,150 @@ class FoldFit:
         rng: np.random.Generator,
     ) -> ManifoldModel:
         started = dataclasses.replace(self.options, initial_latents=starts)
-        return fit_manifold(train, latent_dim, rng, started, noise_model=self.noise_model)
+        return fit_manifold(
+            train,
+            latent_dim,
+            rng,
+            started,
+            noise_model=self.noise_model,
+            start_map=functools.partial(worker_start_map, stop_event=self.stop_event)
+            if self.starts_as_tasks
+            else None,
+        )
+
+
+class RunStoppedError(Exception):
+    """The run a fold belongs to was stopped (its ``stop_event`` is set)."""
+
+
+def worker_start_map(
+    plan: StartPlan, tasks: Sequence[StartTask], stop_event: str | None = None
+) -> Iterator[StartResult]:
+    """A :data:`core.fit_run.StartMap` for a fit that runs inside a Dask task (a fold): its
+    starts become tasks on the same cluster. The fold's task leaves its worker's thread pool
+    while they run (``worker_client`` secedes), so an idle worker takes some of them — the last
+    folds of a run then use every worker — and rejoins it for the polish.
+
+    Raises:
+        RunStoppedError: The Dask ``Event`` named ``stop_event`` is set (the run was stopped;
+            a running task cannot be cancelled, so it ends itself here).
+    """
+    from distributed import Event, worker_client
+
+    with worker_client() as client:
+        event = None if stop_event is None else Event(stop_event, client=client)
+        prefix = uuid.uuid4().hex[:8]
+        [remote] = client.scatter([plan], hash=False)
+        pending = {
+            client.submit(
+                run_first_stage, remote, task, pure=False, key=f"start-{task.index}-{prefix}"
+            )
+            for task in tasks
+        }
+        try:
+            while pending:
+                done = {future for future in pending if future.done()}
+                pending -= done
+                for future in done:
+                    yield future.result()
+                if not done:
+                    if event is not None and event.is_set():
+                        raise RunStoppedError(f"the run was stopped ({stop_event}).")
+                    time.sleep(WORKER_POLL_S)
+        finally:
+            if pending:
+                client.cancel(list(pending))
+
+
+class FitEngine:
+    """Folds and starts as Dask tasks on one client (module docstring); a context manager.
+
+    Args:
+        workers: Size of a ``LocalCluster`` started for the engine (when ``scheduler`` is None).
+        scheduler: Address of an existing Dask scheduler, ``tcp://host:8786``.
+        stop: Called between polls; it raises to stop the run (e.g. ``Job.checkpoint``).
+
+    Raises:
+        ValueError: Neither a scheduler nor at least one worker.
+        BadInputError: (on entry) the scheduler cannot be reached or has no worker.
+    """
+
+    def __init__(
+        self,
+        workers: int | None,
+        scheduler: str | None,
+        stop: Callable[[], None] | None = None,
+    ) -> None:
+        if scheduler is None and (workers is None or workers < 1):
+            raise ValueError(f"workers: need at least 1 without a scheduler, received {workers!r}.")
+        self.workers = workers
+        self.scheduler = scheduler
+        self.stop = stop
+        self._stack: contextlib.ExitStack | None = None
+        self._client: Any = None
+
+    def __enter__(self) -> FitEngine:
+        stack = contextlib.ExitStack()
+        self._client = stack.enter_context(open_client(self.workers, self.scheduler))
+        self._stack = stack
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._stack is not None:
+            self._stack.close()
+        self._stack, self._client = None, None
+
+    def fold_map(self, plan: FoldPlan, tasks: Sequence[FoldTask]) -> Iterator[FoldResult]:
+        """A :data:`core.latent_selection.FoldMap`: every fold as one task (and the starts of
+        its fits as tasks of their own when the fit is a :class:`FoldFit`)."""
+        stop_event = None
+        if isinstance(plan.fit, FoldFit):
+            stop_event = f"stop-{uuid.uuid4().hex[:8]}"
+            fit = dataclasses.replace(plan.fit, starts_as_tasks=True, stop_event=stop_event)
+            plan = dataclasses.replace(plan, fit=fit)
+        return self._run(score_fold, plan, [(f"fold-{t.fold}", t) for t in tasks], stop_event)
+
+    def start_map(self, plan: StartPlan, tasks: Sequence[StartTask]) -> Iterator[StartResult]:
+        """A :data:`core.fit_run.StartMap`: every start's first stage as one task."""
+        return self._run(run_first_stage, plan, [(f"start-{t.index}", t) for t in tasks])
+
+    def _run(
+        self,
+        function: Callable[[Any, Any], Any],
+        shared: Any,
+        tasks: list[tuple[str, Any]],
+        stop_event: str | None = None,
+    ) -> Iterator[Any]:
+        """``function(shared, task)`` of every task as Dask tasks, ``shared`` scattered once;
+        the results in the order they finish. Stopped early, the pending tasks are cancelled
+        and the Dask ``Event`` ``stop_event`` (if any) is set for the running ones."""
+        if self._client is None:
+            raise RuntimeError("FitEngine: use it in a `with` block.")
+        client = self._client
+        pending: set[Any] = set()
+        try:
+            [remote] = client.scatter([shared], broadcast=True, hash=False)
+            prefix = uuid.uuid4().hex[:8]
+            pending = {
+                client.submit(function, remote, task, pure=False, key=f"{name}-{prefix}")
+                for name, task in tasks
+            }
+            while pending:
+                done = {future for future in pending if future.done()}
+                if not done:
+                    time.sleep(POLL_S)
+                pending -= done
+                for future in done:
+                    yield future.result()
+                if self.stop is not None:
+                    self.stop()
+        finally:
+            if pending:
+                if stop_event is not None:
+                    from distributed import Event
+
+                    Event(stop_event, client=client).set()
+                client.cancel(list(pending))
 
 
 def dask_fold_map(
@@ -65,7 +228,7 @@ def dask_fold_map(
     scheduler: str | None,
     stop: Callable[[], None] | None = None,
 ) -> FoldMap:
-    """A fold map that runs every fold as a Dask task (module docstring).
+    """A fold map that runs every fold as a Dask task on a :class:`FitEngine` of its own.
 
     Args:
         workers: Size of a ``LocalCluster`` started for the run (when ``scheduler`` is None).
@@ -76,43 +239,13 @@ def dask_fold_map(
         The map; it yields the folds' results as they finish.
 
     Raises:
+        ValueError: Neither a scheduler nor at least one worker.
         BadInputError: (when the map runs) the scheduler cannot be reached or has no worker.
     """
-    if scheduler is None and (workers is None or workers < 1):
-        raise ValueError(f"workers: need at least 1 without a scheduler, received {workers!r}.")
+    engine = FitEngine(workers, scheduler, stop)
 
     def run(plan: FoldPlan, tasks: Sequence[FoldTask]) -> Iterator[FoldResult]:
-        from distributed import Client
-
-        cluster = None
-        if scheduler is not None:
-            client = connect(scheduler)
-        else:
-            assert workers is not None
-            cluster = local_cluster(workers)
-            client = Client(cluster, set_as_default=False)
-        pending: set[Any] = set()
-        try:
-            [shared] = client.scatter([plan], broadcast=True, hash=False)
-            prefix = f"fold-{uuid.uuid4().hex[:8]}"
-            pending = {
-                client.submit(score_fold, shared, task, pure=False, key=f"{prefix}-{task.fold}")
-                for task in tasks
-            }
-            while pending:
-                done = {future for future in pending if future.done()}
-                if not done:
-                    time.sleep(POLL_S)
-                pending -= done
-                for future in done:
-                    yield future.result()
-                if stop is not None:
-                    stop()
-        finally:
-            if pending:
-                client.cancel(list(pending))
-            client.close()
-            if cluster is not None:
-                cluster.close()
+        with engine:
+            yield from engine.fold_map(plan, tasks)
 
     return run

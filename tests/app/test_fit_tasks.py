@@ -1,5 +1,5 @@
-"""The folds of ``--latent-dim auto`` as Dask tasks (app/services/fit_tasks.py) equal the serial
-run, and a stop cancels them."""
+"""The folds of ``--latent-dim auto`` and the starts of a fit as Dask tasks
+(app/services/fit_tasks.py) equal the serial run, and a stop cancels them."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from app.services.fit_tasks import FoldFit, dask_fold_map
+from app.services.fit_tasks import FitEngine, FoldFit, dask_fold_map
 from core.latent_selection import select_latent_dim
-from core.manifold import FitOptions
+from core.manifold import FitOptions, fit_manifold
 from core.types import TrainingData
 from core.worlds import random_experiment2_world, sample_dataset
 
@@ -76,6 +76,69 @@ def test_a_stop_cancels_the_pending_folds(dask_cluster: Any) -> None:
 def test_workers_or_a_scheduler_is_needed() -> None:
     with pytest.raises(ValueError, match="workers"):
         dask_fold_map(None, None)
+    with pytest.raises(ValueError, match="workers"):
+        FitEngine(0, None)
+
+
+def test_the_starts_of_a_fit_on_a_cluster_give_the_serial_model(dask_cluster: Any) -> None:
+    rng = np.random.default_rng(5)
+    world = random_experiment2_world(
+        rng, n_objects=5, latent_dim=2, action_dim=1, observation_dim=2
+    )
+    data = sample_dataset(world, rng, touches_per_object=16)
+    # Screened on 6 touches per object: data-driven and random starts, then a polish.
+    options = FitOptions(restarts=2, screen_touches_per_object=6, max_iterations=200)
+    serial = fit_manifold(data, 2, np.random.default_rng(2), options, noise_model="correlated")
+    phases: list[str] = []
+    with FitEngine(None, dask_cluster.scheduler_address) as engine:
+        distributed = fit_manifold(
+            data,
+            2,
+            np.random.default_rng(2),
+            options,
+            lambda event: phases.append(event.phase),
+            noise_model="correlated",
+            start_map=engine.start_map,
+        )
+    assert distributed.log_likelihood == serial.log_likelihood
+    np.testing.assert_array_equal(distributed.latents, serial.latents)
+    for name in ("signal_variance", "noise_variance", "latent_lengthscales", "action_lengthscales"):
+        np.testing.assert_array_equal(
+            getattr(distributed.hyperparameters, name), getattr(serial.hyperparameters, name)
+        )
+    assert distributed.diagnostics == serial.diagnostics
+    # One event per start from the cluster (two fits: independent, then correlated).
+    assert phases.count("independent: screen done") == 3
+    assert phases.count("correlated: screen done") == 3
+    assert "independent: screen" not in phases
+
+
+def test_a_stop_cancels_the_pending_starts(dask_cluster: Any) -> None:
+    from distributed import Client
+
+    class StoppedError(Exception):
+        pass
+
+    def stop() -> None:
+        raise StoppedError
+
+    rng = np.random.default_rng(5)
+    world = random_experiment2_world(
+        rng, n_objects=5, latent_dim=2, action_dim=1, observation_dim=2
+    )
+    data = sample_dataset(world, rng, touches_per_object=16)
+    with (
+        pytest.raises(StoppedError),
+        FitEngine(None, dask_cluster.scheduler_address, stop) as engine,
+    ):
+        fit_manifold(
+            data, 2, np.random.default_rng(2), FitOptions(restarts=3), start_map=engine.start_map
+        )
+    with Client(dask_cluster.scheduler_address, set_as_default=False) as client:
+        left = client.run_on_scheduler(
+            lambda dask_scheduler: [str(k) for k in dask_scheduler.tasks]
+        )
+    assert not [k for k in left if k.startswith("start-")]
 
 
 def test_the_cli_takes_workers_or_a_scheduler_not_both(tmp_path: Any) -> None:

@@ -1,5 +1,5 @@
-"""The fit-cost settings: L-BFGS-B memory, the cap on the screening subsample and the stall
-test of the final joint runs."""
+"""The fit-cost settings: L-BFGS-B memory, the cap on the screening subsample, the stall
+test of the final joint runs and the random restarts that give up."""
 
 from __future__ import annotations
 
@@ -26,6 +26,61 @@ def test_more_joint_lbfgs_memory_reaches_the_optimum_in_fewer_iterations() -> No
     assert short.fun < 1e-10
     assert long.fun < 1e-10
     assert long.nit < 0.8 * short.nit
+
+
+def test_a_run_that_cannot_reach_the_target_at_its_pace_gives_up() -> None:
+    scales = np.logspace(0, 4, 30)
+
+    class Quadratic:  # minimum 100 at 0
+        def value_and_gradient(self, x: np.ndarray) -> tuple[float, np.ndarray]:
+            return float(100.0 + 0.5 * np.sum(scales * x**2)), scales * x
+
+    x0 = np.ones(30)
+    free = np.ones(30, dtype=bool)
+    bounds = (np.full(30, -10.0), np.full(30, 10.0))
+    full = minimize_free(Quadratic(), x0, free, *bounds, 500, 1e-15, 1e-12)
+    hopeless = minimize_free(
+        Quadratic(), x0, free, *bounds, 500, 1e-15, 1e-12, reach=50.0, reach_iterations=5
+    )
+    assert not hopeless.success
+    assert "ABANDONED" in hopeless.message
+    assert hopeless.nit < full.nit
+    # A reachable target changes nothing: the same path, to the end.
+    reachable = minimize_free(
+        Quadratic(), x0, free, *bounds, 500, 1e-15, 1e-12, reach=101.0, reach_iterations=5
+    )
+    assert reachable.nit == full.nit
+    np.testing.assert_array_equal(reachable.x, full.x)
+
+
+def test_random_restarts_give_up_behind_the_data_driven_starts() -> None:
+    rng = np.random.default_rng(2)
+    world = random_experiment2_world(
+        rng, n_objects=8, latent_dim=2, action_dim=1, observation_dim=2
+    )
+    data = sample_dataset(world, rng, touches_per_object=20)
+    runs = {}
+    for reach in (0, 10):
+        options = FitOptions(
+            restarts=3, screen_touches_per_object=8, restart_reach_iterations=reach
+        )
+        run = FitRun(data, 2, np.random.default_rng(1), options)
+        model = list(run.events())[-1].model
+        assert model is not None
+        runs[reach] = (run, model)
+    (never, kept), (gives_up, model) = runs[0], runs[10]
+    abandoned = [s for s in gives_up.starts if s.message.startswith("ABANDONED")]
+    assert abandoned
+    assert all(s.kind == "random" for s in abandoned)
+    assert gives_up.screen is not None
+    assert never.screen is not None
+    assert gives_up.screen.likelihood.evaluations < never.screen.likelihood.evaluations
+    # The data-driven start won both times, by the same path.
+    assert model.log_likelihood == kept.log_likelihood
+    np.testing.assert_array_equal(model.latents, kept.latents)
+    assert model.diagnostics is not None
+    assert kept.diagnostics is not None
+    assert model.diagnostics.best_start == kept.diagnostics.best_start == 1
 
 
 def _data(n_objects: int, touches: int) -> TrainingData:
