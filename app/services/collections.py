@@ -24,8 +24,8 @@ from sqlalchemy.orm import Session
 
 from app import crud, states
 from app.db import Database
+from app.db.tables import Run
 from app.errors import AppError, BadInputError, ConflictError
-from app.models import Run
 from app.rig_factory import CollectedTouch, TouchActions, iter_collect
 from app.schemas import CollectionCreate, Page, RunPublic
 from app.services import objects

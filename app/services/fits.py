@@ -23,9 +23,9 @@ from sqlalchemy.orm import Session
 
 from app import crud, states
 from app.db import Database
+from app.db.tables import utc_now
 from app.documents.model import latent_selection_dict
 from app.errors import BadInputError, ConflictError
-from app.models import utc_now
 from app.schemas import ModelAccepted, ModelCreate, ModelPublic
 from app.services import datasets
 from app.services.events import EventBus

@@ -25,13 +25,13 @@ from sqlalchemy.orm import Session
 
 from app import crud
 from app.db import Database
+from app.db.tables import ModelRecord, utc_now
 from app.documents.errors import DocumentError
 from app.documents.features import features_field, read_features_field
 from app.documents.model import model_from_document, model_to_document
 from app.documents.noise_model import noise_model_field, read_noise_model_field
 from app.documents.posterior import condition_as_recorded, posterior_field
 from app.errors import AppError, BadInputError, ConflictError
-from app.models import ModelRecord, utc_now
 from app.schemas import (
     FeatureHyperparameters,
     FeaturesPublic,

@@ -3,7 +3,7 @@
 A server-driven trial runs the trial engine (:func:`core.trial_engine.iter_trial`) over its touch
 source; a scripted trial drives the engine's step-wise core, the
 :class:`~core.recognition.RecognitionSession`, one posted observation at a time.
-Every touch is committed as a :class:`app.models.TrialStep` the moment it happens, under the
+Every touch is committed as a :class:`app.db.tables.TrialStep` the moment it happens, under the
 trial's run lock, so control requests (pause, resume, stop, abort) never interleave with a step.
 """
 
@@ -24,8 +24,8 @@ from sqlalchemy.orm import Session
 from app import crud, states
 from app.config import Settings
 from app.db import Database
+from app.db.tables import Trial, TrialStep
 from app.errors import AppError, BadInputError, ConflictError
-from app.models import Trial, TrialStep
 from app.schemas import (
     Belief,
     NextAction,

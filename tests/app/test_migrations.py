@@ -1,4 +1,4 @@
-"""Alembic migrations: head matches the tables of :mod:`app.models`; 0002 (``models.posterior``)
+"""Alembic migrations: head matches the tables of :mod:`app.db.tables`; 0002 (``models.posterior``)
 upgrades a database with models of revision 0001, which keep loading as before, and downgrades.
 """
 
@@ -16,8 +16,8 @@ from alembic.script import ScriptDirectory
 from sqlalchemy import inspect, text
 
 from app.db import Database, upgrade_to_head
+from app.db.tables import Base, ModelRecord
 from app.documents.model import model_to_document
-from app.models import Base, ModelRecord
 from app.services.events import EventBus
 from app.services.models import ModelStore
 from core.posterior import condition, predict

@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from app.models import ModelRecord
+from app.db.tables import ModelRecord
 from tests.app.conftest import TestClient, experiment1_csv
 
 API = "/api/v1"

@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 
 from app.config import Settings
+from app.db.tables import ModelRecord
 from app.documents.errors import DocumentError
 from app.documents.model import model_to_document
 from app.documents.posterior import condition_as_recorded, posterior_field
 from app.main import create_app
-from app.models import ModelRecord
 from app.services.events import EventBus
 from app.services.models import ModelStore, StoredModelError
 from core.posterior import condition, predict

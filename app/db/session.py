@@ -1,4 +1,5 @@
-"""The database of one app: engine (SQLite, WAL, foreign keys), sessions and migrations."""
+"""The database of one app: engine (SQLite, WAL, foreign keys), sessions and migrations (the
+tables are in :mod:`app.db.tables`)."""
 
 from __future__ import annotations
 
