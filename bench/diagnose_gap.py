@@ -55,7 +55,7 @@ from app.evaluation.context import TrialContext, TrialKey
 from app.evaluation.report import EvaluationReport
 from app.evaluation.rig_trial import RigTrial
 from app.evaluation.runner import run_evaluation
-from app.evaluation.spec import EvaluationSpec
+from app.evaluation.spec import EvaluationSpec, Placement
 from core.calibration import calibration
 from core.errors import TouchRefused
 from core.evaluation_records import RefusedTrial, TrialRecord
@@ -269,7 +269,7 @@ def touch_sequences(
     table_objects: tuple[str | TactileObject, ...],
     sequences: Sequence[TouchSequence],
     *,
-    replace_each_touch: bool,
+    placement: Placement,
 ) -> tuple[Touches, Touches, int]:
     """Touch each sequence on a fresh simulated rig and draw it from the model.
 
@@ -278,7 +278,7 @@ def touch_sequences(
         (each sequence one group), and the number of sequences the rig refused a touch of
         (their touches before the refusal are kept).
     """
-    from app.rig_factory import TouchActions
+    from app.rig.actions import TouchActions
 
     touch_actions = TouchActions.from_teaching()
     rig_touches, model_touches, refused = Touches.empty(), Touches.empty(), 0
@@ -289,7 +289,7 @@ def touch_sequences(
             table_objects,
             seq.target,
             seq.seed,
-            replace_each_touch=replace_each_touch,
+            placement=placement,
         )
         draw = ModelTouches(model, seq.target)
         rng = np.random.default_rng(seq.seed)
@@ -527,10 +527,13 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     residuals: dict[str, dict[str, Any]] = {}
     t0 = time.perf_counter()
     train_like = training_like_sequences(model, args.groups, args.group_size, args.seed + 1)
-    modes = (("training-like, placed once", False), ("training-like, placed anew", True))
-    for label, anew in modes:
+    modes: tuple[tuple[str, Placement], ...] = (
+        ("training-like, placed once", "trial"),
+        ("training-like, placed anew", "touch"),
+    )
+    for label, placement in modes:
         rig_t, model_t, refused = touch_sequences(
-            model, table_objects, train_like, replace_each_touch=anew
+            model, table_objects, train_like, placement=placement
         )
         residuals[label] = {
             "rig": rig_t.summary(model).to_dict(),

@@ -52,7 +52,8 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from app.documents.raw_touches import raw_touch_from_record
-from app.rig_factory import SimulationMode, TouchActions, open_rig
+from app.rig.actions import TouchActions
+from app.rig.build import SimulationMode, open_rig
 from app.services.collections import iter_collection
 from core.designs import random_design
 from core.features.pipeline import FeatureKind, fit_features

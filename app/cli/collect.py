@@ -48,7 +48,9 @@ from app.cli.output import messages as console
 from app.cli.rig import connected_rig, touch_actions
 
 if TYPE_CHECKING:
-    from app.rig_factory import CollectedTouch, RigHandle, TouchActions
+    from app.rig.actions import TouchActions
+    from app.rig.build import RigHandle
+    from app.rig.collection import CollectedTouch
     from app.services.collections import AdaptiveRounds as NextRound
     from core.designs import CollectionDesign
     from hardware.rig import RigLease

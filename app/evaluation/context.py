@@ -37,7 +37,7 @@ from hardware.errors import HardwareError
 
 if TYPE_CHECKING:
     from app.evaluation.spec import EvaluationSpec
-    from app.rig_factory import TouchActions
+    from app.rig.actions import TouchActions
     from hardware.sim.materials import Table
     from hardware.sim.noise import NoiseModel
 
@@ -140,7 +140,7 @@ class TrialContext:
     def _rig_actions(self) -> TouchActions:
         actions: TouchActions | None = getattr(self._local, "rig_actions", None)
         if actions is None:
-            from app.rig_factory import TouchActions
+            from app.rig.actions import TouchActions
 
             actions = TouchActions.from_teaching()
             self._local.rig_actions = actions
@@ -178,7 +178,7 @@ class TrialContext:
             rig_table(self.spec.table).slots,
             target,
             seed,
-            replace_each_touch=self.spec.placement == "touch",
+            placement=self.spec.placement,
             noise=self.rig_noise,
             features=self.model.features,
         )

@@ -21,7 +21,7 @@ from core.types import ManifoldModel
 
 if TYPE_CHECKING:
     from app.evaluation.report import EvaluationReport
-    from app.rig_factory import TouchActions
+    from app.rig.actions import TouchActions
 
 
 def _pyplot() -> Any:

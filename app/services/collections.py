@@ -26,7 +26,8 @@ from app import crud, states
 from app.db import Database
 from app.db.tables import Run
 from app.errors import AppError, BadInputError, ConflictError
-from app.rig_factory import CollectedTouch, TouchActions, iter_collect
+from app.rig.actions import TouchActions
+from app.rig.collection import CollectedTouch, iter_collect
 from app.schemas import CollectionCreate, Page, RunPublic
 from app.services import objects
 from app.services.events import EventBus
@@ -103,7 +104,7 @@ def iter_collection(
 
     Every design runs in rounds, the table turning between touches: a shared design (every
     object, the same M actions) action by action, each action on every object in turn
-    (:func:`app.rig_factory.iter_collect`); any other design takes each object's next action in
+    (:func:`app.rig.collection.iter_collect`); any other design takes each object's next action in
     turn. So every touch meets a fresh placement of its object, and the slow drift of the
     sensor and the room is spread over all the objects instead of being learned as one
     object's signature (docs/simulation.md: touching one object 30 times in a row moved its
@@ -125,7 +126,7 @@ def iter_collection(
         placements: P, placements per object (1..N_l); ``None``: a fresh placement per touch.
 
     Yields:
-        One :class:`~app.rig_factory.CollectedTouch` per touch (``index``/``total`` count the
+        One :class:`~app.rig.collection.CollectedTouch` per touch (``index``/``total`` count the
         whole design).
 
     Raises:

@@ -39,7 +39,7 @@ from app.services import datasets
 from app.services.evaluation_views import build_spec, require, to_public
 from app.services.events import EventBus
 from app.services.jobs import INTERRUPTED, Job, JobRunner
-from app.services.models import ModelStore
+from app.services.models import ReadyModels
 from core.errors import CoreError
 from core.evaluation_records import TrialOutcome, TrialRecord
 from core.types import ManifoldModel, TrainingData
@@ -68,7 +68,7 @@ class EvaluationService:
         settings: Settings,
         database: Database,
         events: EventBus,
-        models: ModelStore,
+        models: ReadyModels,
         jobs: JobRunner,
     ) -> None:
         self._scheduler = settings.dask_scheduler or None

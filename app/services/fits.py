@@ -31,7 +31,7 @@ from app.services import datasets
 from app.services.events import EventBus
 from app.services.fit_tasks import FoldFit, dask_fold_map
 from app.services.jobs import INTERRUPTED, Job, JobCancelled, JobRunner
-from app.services.models import ModelStore, require, store_fitted, to_public
+from app.services.models import ReadyModels, require, store_fitted, to_public
 from core.errors import CoreError
 from core.fit_options import FitProgress
 from core.latent_selection import (
@@ -88,7 +88,7 @@ class FitService:
         database: Database,
         events: EventBus,
         jobs: JobRunner,
-        models: ModelStore,
+        models: ReadyModels,
         max_training_touches: int = 5000,
         scheduler: str | None = None,
     ) -> None:

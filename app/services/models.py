@@ -3,7 +3,7 @@
 
 The GP posterior is not stored, only how it was conditioned (the row's ``posterior``: the model
 document's ``posterior`` field, :func:`app.documents.posterior.posterior_field`).
-:class:`ModelStore` rebuilds a :class:`ManifoldModel` from the dataset, latents, hyperparameters
+:class:`ReadyModels` rebuilds a :class:`ManifoldModel` from the dataset, latents, hyperparameters
 and that record (deterministic, :func:`app.documents.posterior.condition_as_recorded`), so a
 model predicts the same after it leaves the in-memory cache of recent ones. Rows from before the
 record existed (``posterior`` NULL) are rebuilt as :func:`core.posterior.condition` chooses by
@@ -49,9 +49,6 @@ from core.errors import CoreError
 from core.types import FitDiagnostics, Hyperparameters, ManifoldModel
 
 logger = logging.getLogger(__name__)
-
-#: Seconds between two progress events (and progress writes) of one fit.
-PROGRESS_INTERVAL_S = 0.25
 
 
 class StoredModelError(AppError):
@@ -268,8 +265,9 @@ def list_page(
     )
 
 
-class ModelStore:
-    """Rebuilds fitted models for use (cached), exports and imports model documents.
+class ReadyModels:
+    """The ready models: rebuilt from their rows for use (the recent ones cached), exported and
+    imported as model documents. Fitting is elsewhere (:class:`app.services.fits.FitService`).
 
     Args:
         database: Where models live.

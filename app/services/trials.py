@@ -37,7 +37,7 @@ from app.schemas import (
 )
 from app.services.events import EventBus
 from app.services.jobs import INTERRUPTED, Job, JobCancelled, JobRunner
-from app.services.models import ModelStore
+from app.services.models import ReadyModels
 from app.services.rig import RigService
 from app.services.trial_views import require, step_public, to_public, trial_result
 from app.services.worlds import TouchSource, WorldFactory
@@ -96,7 +96,7 @@ class TrialService:
         settings: Settings,
         database: Database,
         events: EventBus,
-        models: ModelStore,
+        models: ReadyModels,
         jobs: JobRunner,
         worlds: WorldFactory,
         rig: RigService,

@@ -7,7 +7,7 @@ what was felt.
 from __future__ import annotations
 
 from app.errors import BadInputError
-from app.rig_factory import SimulationMode, open_rig
+from app.rig.build import SimulationMode, open_rig
 from app.schemas import SimulationOptions
 from app.services.rig import RigService, RigTouchSource
 from app.services.touch import Touch, TouchSource

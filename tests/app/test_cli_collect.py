@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from app import rig_factory
 from app.cli.main import app
 from app.documents.raw_touches import featurise, read_raw_touches
 from app.documents.training_csv import read_training_csv
 from app.errors import BadInputError
-from app.rig_factory import RigHandle
+from app.rig import build
+from app.rig.build import RigHandle
 from app.services.collections import check_objects, iter_collection
 from core.designs import CollectionDesign, random_design, shared_design
 from core.features.pipeline import means_pipeline
@@ -248,7 +248,7 @@ def rig_with_trigger(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
         made["simulation"] = simulation
         return RigHandle(simulation.rig, simulation)
 
-    monkeypatch.setattr(rig_factory, "open_rig", open_rig)
+    monkeypatch.setattr(build, "open_rig", open_rig)
     return made
 
 

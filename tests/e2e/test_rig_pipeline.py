@@ -16,7 +16,8 @@ import time
 import numpy as np
 import pytest
 
-from app.rig_factory import TouchActions, iter_collect
+from app.rig.actions import TouchActions
+from app.rig.collection import iter_collect
 from core.manifold import FitOptions, fit_manifold
 from core.planning import ActivePolicy, Planner
 from core.recognition import RecognitionSession, RecognitionSettings
