@@ -22,9 +22,9 @@ model's own samples? This bench splits the gap into measurable parts (docs/metho
     group of touches and placed anew before every touch.
 (c) **Accuracy and calibration on worlds ``model`` and ``rig`` side by side**, per policy, with
     the evaluation engine (:func:`app.evaluation.runner.run_evaluation`, as ``activetouch
-    evaluate``) and :mod:`core.calibration` over every (trial, touch): accuracy after touch 1 and
-    T, expected calibration error, Brier score, log-loss, and the answers given with p ≥ the
-    confidence threshold that were wrong.
+    evaluate``) and :mod:`core.evaluation.calibration` over every (trial, touch): accuracy after
+    touch 1 and T, expected calibration error, Brier score, log-loss, and the answers given with p ≥
+    the confidence threshold that were wrong.
 
 Run: ``python -m bench.diagnose_gap --table cushions [--model M.json | --touches 40
 [--action-scale S]] [--trials 10] [--steps 6] [--policies active,discriminative,passive]
@@ -56,13 +56,11 @@ from app.evaluation.report import EvaluationReport
 from app.evaluation.rig_trial import RigTrial
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec, Placement
-from core.calibration import calibration
 from core.errors import TouchRefused
-from core.evaluation_records import RefusedTrial, TrialRecord
-from core.noise_model import loo_log_likelihoods
-from core.noise_model import standardised_residuals as loo_residuals
-from core.posterior import predict_model_space
-from core.trial_engine import ModelTouches, Touch
+from core.evaluation import ModelTouches, RefusedTrial, Touch, TrialRecord, calibration
+from core.gp import predict_model_space
+from core.gp.noise_model import loo_log_likelihoods
+from core.gp.noise_model import standardised_residuals as loo_residuals
 from core.types import ManifoldModel
 from core.validation import FloatArray
 from hardware.sim.materials import TactileObject
@@ -178,7 +176,7 @@ def standardised_residuals(
 
     Returns:
         ``(z, log_density, epistemic_share)``: z shape (n, dy); the per-touch log-density
-        Σ_a log N(y'_a; m_a, v_a) + log|det M| (as :func:`core.object_posterior
+        Σ_a log N(y'_a; m_a, v_a) + log|det M| (as :func:`core.recognition.object_posterior
         .touch_log_likelihoods`), shape (n,); (v − σ_n²) / v, shape (n, dy).
     """
     index = np.asarray(object_index, dtype=np.int64)

@@ -40,11 +40,9 @@ from threadpoolctl import threadpool_limits
 from app.evaluation.context import TrialContext
 from app.evaluation.spec import PLACEMENTS, EvaluationSpec, Placement
 from app.rig.actions import TouchActions
-from core.designs import random_design
-from core.evaluation_records import TrialOutcome, TrialRecord
-from core.evaluation_summary import summarise
-from core.manifold import FitOptions, fit_manifold
-from core.planning import EVALUATION_POLICIES, ActionBox
+from core.evaluation import TrialOutcome, TrialRecord, random_design, summarise
+from core.gp import FitOptions, fit_manifold
+from core.recognition import EVALUATION_POLICIES, ActionBox
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray
 from hardware.rig import RigConfig
@@ -63,7 +61,7 @@ QUIET = NoiseModel(
 """No noise at all: the mean responses (up to the heat history of earlier touches)."""
 
 CONFIDENCE = 0.95
-"""The confidence level handed to :func:`core.evaluation_summary.summarise` (its accuracies do
+"""The confidence level handed to :func:`core.evaluation.summary.summarise` (its accuracies do
 not depend on it)."""
 
 

@@ -11,8 +11,8 @@ Two parts:
    standardisation, PCA/LDA with dy by cross-validation) a manifold is fitted (ds =
    ``--latent-dim``, noise model auto) and passive replay is scored: ``--trials`` groups per
    object of 1 and of 3 distinct random held-out touches, the answer the most probable object
-   of the posterior (:func:`core.object_posterior.object_posterior`). Calibration: of the answers
-   given with p ≥ 0.95, the share that were right.
+   of the posterior (:func:`core.recognition.object_posterior.object_posterior`). Calibration: of
+   the answers given with p ≥ 0.95, the share that were right.
 2. **Fit time** (``--part fit``): 20 objects × 40 synthetic whole touches shaped like a
    multimodal fingertip's (19 electrodes and pressure/thermal channels at 100 Hz, a vibration
    at 2.2 kHz); the time to fit the feature pipeline (dy chosen by cross-validation), then the
@@ -55,11 +55,11 @@ from app.documents.raw_touches import raw_touch_from_record
 from app.rig.actions import TouchActions
 from app.rig.build import SimulationMode, open_rig
 from app.services.collections import iter_collection
-from core.designs import random_design
+from core.evaluation import random_design
 from core.features.pipeline import FeatureKind, fit_features
 from core.features.raw import RawTouch, raw_touch
-from core.manifold import FitOptions, fit_manifold
-from core.object_posterior import object_posterior
+from core.gp import FitOptions, fit_manifold
+from core.recognition import object_posterior
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray, IntArray
 from hardware.rig import RigConfig

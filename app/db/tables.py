@@ -138,7 +138,7 @@ class ModelRecord(Base):
     hyperparameters (deterministic), so the stored arrays are the whole model. ``posterior``
     records how it was conditioned (the model document's ``posterior`` field: structure and, for
     a sparse model, its inducing touches); ``None`` on rows from before revision 0002, which are
-    rebuilt with :func:`core.posterior.condition`'s default structure.
+    rebuilt with :func:`core.gp.posterior.condition`'s default structure.
     """
 
     __tablename__ = "models"

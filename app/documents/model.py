@@ -29,8 +29,8 @@ from app.documents.noise_model import noise_model_field, read_noise_model_field
 from app.documents.posterior import condition_as_recorded, posterior_field
 from app.documents.training_csv import MAX_NAME_CHARACTERS
 from core.errors import InvalidInputError
-from core.latent_selection import LatentSelection
-from core.placement_effect import check_placement_variance
+from core.gp import check_placement_variance
+from core.selection import LatentSelection
 from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
 
 MODEL_FORMAT = "activetouch-model/1"

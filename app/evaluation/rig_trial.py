@@ -17,8 +17,7 @@ import numpy as np
 
 from app.documents.raw_touches import record_observation
 from core.errors import TouchRefused
-from core.evaluation_records import seed_sequence
-from core.trial_engine import Touch
+from core.evaluation import Touch, seed_sequence
 from core.validation import FloatArray
 from hardware.errors import (
     HardwareError,
@@ -39,7 +38,7 @@ if TYPE_CHECKING:
 
 def rig_seed(seed: tuple[int, ...]) -> int:
     """The world seed of a trial's simulated rig, drawn from the trial's seed tuple
-    (:func:`core.evaluation_records.trial_seed`)."""
+    (:func:`core.evaluation.records.trial_seed`)."""
     return int(seed_sequence(seed).generate_state(1)[0])
 
 
@@ -107,8 +106,9 @@ class RigTrial:
         self.touched = 0  # touches asked for so far (the refused one included)
 
     def touch(self, action: FloatArray, rng: np.random.Generator) -> Touch:
-        """Touch the target with ``action`` (dx,) (a :class:`core.trial_engine.TouchSource`).
-        ``rng`` is unused: the simulation's own randomness makes the noise.
+        """Touch the target with ``action`` (dx,) (a
+        :class:`core.evaluation.trial_engine.TouchSource`). ``rng`` is unused: the simulation's own
+        randomness makes the noise.
 
         Raises:
             TouchRefused: The hardware refused this touch (:func:`is_refusal`).

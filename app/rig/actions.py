@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from core.dmp import BasisResponses, DMPActionSpace, action_space, basis_responses, fit_dmp
-from core.dmp import trajectory_for_action as dmp_trajectory
+from core.recognition import BasisResponses, DMPActionSpace, action_space, basis_responses, fit_dmp
+from core.recognition import trajectory_for_action as dmp_trajectory
 from hardware.records import TouchRecord
 from hardware.rig import RigLease, TouchProgress
 from hardware.teaching import PAPER_TOUCH_DURATION_S, teaching_trajectory

@@ -1,8 +1,8 @@
 """Collections: a dataset gathered on the rig as a run with progress.
 
 :func:`iter_collection` is the collection loop (a generator over the touches of a
-:class:`core.designs.CollectionDesign`); the server's runs here and ``activetouch collect``
-both drive the rig through it, and check their object lists with :func:`check_objects`.
+:class:`core.evaluation.designs.CollectionDesign`); the server's runs here and ``activetouch
+collect`` both drive the rig through it, and check their object lists with :func:`check_objects`.
 
 Each touch is stored as a sample (with its raw tactile series) the moment it is recorded; the
 dataset is ``collecting`` during the run, then ``ready`` (or ``failed`` if too little was
@@ -33,10 +33,15 @@ from app.services import objects
 from app.services.events import EventBus
 from app.services.jobs import INTERRUPTED, Job, JobCancelled, JobRunner
 from app.services.rig import RigService, raw_series, trace_preview
-from core.adaptive_design import planner_round, round_sizes
-from core.designs import CollectionDesign, random_design, shared_design
 from core.errors import CoreError
-from core.manifold import fit_manifold
+from core.evaluation import (
+    CollectionDesign,
+    planner_round,
+    random_design,
+    round_sizes,
+    shared_design,
+)
+from core.gp import fit_manifold
 from core.types import TrainingData
 from core.validation import FloatArray
 from hardware.errors import HardwareError
@@ -214,7 +219,7 @@ class AdaptiveRounds:
     """The adaptive design's rounds: fit the touches so far, plan the next round from the model.
 
     The fit is ``fit``'s default (ds = 2, noise model auto); the round's actions come from
-    :func:`core.adaptive_design.planner_round`, each on every object.
+    :func:`core.evaluation.adaptive_design.planner_round`, each on every object.
 
     Args:
         names: The objects, in the order of the design's object indices.
@@ -382,7 +387,7 @@ class CollectionService:
             self._finish(run_id, "failed", f"internal error: {type(exc).__name__}: {exc}")
 
     def _design(self, body: CollectionCreate) -> CollectionDesign:
-        """The request's design (:mod:`core.designs`), x ~ N(0, action_scale² I).
+        """The request's design (:mod:`core.evaluation.designs`), x ~ N(0, action_scale² I).
 
         ``random``: a fresh action for every touch (the paper's design; each object gets its own
         ``samples_per_object`` actions). ``shared``: M = ``samples_per_object`` actions

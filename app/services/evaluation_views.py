@@ -32,7 +32,7 @@ from app.schemas import (
     TrialRefusal,
 )
 from core.errors import CoreError
-from core.evaluation_records import RefusedTrial, TrialRecord, outcome_from_dict
+from core.evaluation import RefusedTrial, TrialRecord, outcome_from_dict
 
 
 def build_spec(body: EvaluationCreate) -> EvaluationSpec:

@@ -41,7 +41,7 @@ from app.services.events import EventBus
 from app.services.jobs import INTERRUPTED, Job, JobRunner
 from app.services.models import ReadyModels
 from core.errors import CoreError
-from core.evaluation_records import TrialOutcome, TrialRecord
+from core.evaluation import TrialOutcome, TrialRecord
 from core.types import ManifoldModel, TrainingData
 
 logger = logging.getLogger(__name__)

@@ -1,14 +1,15 @@
 """The folds of ``--latent-dim auto`` as tasks on Dask distributed, the engine evaluations run on.
 
-:func:`core.latent_selection.select_latent_dim` hands its independent folds to a ``map``
-(:data:`core.latent_selection.FoldMap`); :func:`dask_fold_map` is one that runs each fold — all
-its nested candidate fits, :func:`core.latent_selection.score_fold` — as one task, on a
-``LocalCluster`` of single-threaded processes or an existing scheduler
-(:mod:`app.evaluation.cluster`). The :class:`~core.latent_selection.FoldPlan` (data, folds, the
-fit) is scattered to every worker once (``broadcast=True``); a task carries only its fold's index
-and generator. Each fold has its own generator, so the result is the serial run's whatever
-worker ran which fold. A fold's candidates depend on each other (ds = k starts from ds = k - 1),
-so the fold is the unit of work; the final fit on all the data runs afterwards, in process.
+:func:`core.selection.latent_selection.select_latent_dim` hands its independent folds to a ``map``
+(:data:`core.selection.latent_selection.FoldMap`); :func:`dask_fold_map` is one that runs each fold
+— all its nested candidate fits, :func:`core.selection.latent_selection.score_fold` — as one task,
+on a ``LocalCluster`` of single-threaded processes or an existing scheduler
+(:mod:`app.evaluation.cluster`). The :class:`~core.selection.latent_selection.FoldPlan` (data,
+folds, the fit) is scattered to every worker once (``broadcast=True``); a task carries only its
+fold's index and generator. Each fold has its own generator, so the result is the serial run's
+whatever worker ran which fold. A fold's candidates depend on each other (ds = k starts from
+ds = k - 1), so the fold is the unit of work; the final fit on all the data runs afterwards, in
+process.
 
 Stopping: the ``stop`` callable is polled every :data:`POLL_S` while tasks run; when it raises
 (or the caller is interrupted), the pending tasks are cancelled and a local cluster is closed,
@@ -27,8 +28,8 @@ from typing import Any
 import numpy as np
 
 from app.evaluation.cluster import connect, local_cluster
-from core.latent_selection import FoldMap, FoldPlan, FoldResult, FoldTask, score_fold
-from core.manifold import FitOptions, NoiseModelChoice, fit_manifold
+from core.gp import FitOptions, NoiseModelChoice, fit_manifold
+from core.selection import FoldMap, FoldPlan, FoldResult, FoldTask, score_fold
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray
 
@@ -38,8 +39,8 @@ POLL_S = 0.1
 
 @dataclasses.dataclass(frozen=True)
 class FoldFit:
-    """The fit of one candidate in one fold (:data:`core.nested_fits.StartedFit`), picklable so
-    it can be sent to workers.
+    """The fit of one candidate in one fold (:data:`core.selection.nested_fits.StartedFit`),
+    picklable so it can be sent to workers.
 
     Attributes:
         options: Fit options; the nested starts are added as ``initial_latents``.

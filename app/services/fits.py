@@ -33,20 +33,15 @@ from app.services.fit_tasks import FoldFit, dask_fold_map
 from app.services.jobs import INTERRUPTED, Job, JobCancelled, JobRunner
 from app.services.models import ReadyModels, require, store_fitted, to_public
 from core.errors import CoreError
-from core.fit_options import FitProgress
-from core.latent_selection import (
-    DEFAULT_FOLDS,
-    DEFAULT_MAX_LATENT_DIM,
-    LatentSelection,
-    select_latent_dim,
-)
-from core.manifold import (
+from core.gp import (
     FitCancelledError,
     FitOptions,
+    FitProgress,
     NoiseModelChoice,
     fit_manifold,
     iter_fit,
 )
+from core.selection import DEFAULT_FOLDS, DEFAULT_MAX_LATENT_DIM, LatentSelection, select_latent_dim
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray
 

@@ -6,7 +6,7 @@ document's ``posterior`` field, :func:`app.documents.posterior.posterior_field`)
 :class:`ReadyModels` rebuilds a :class:`ManifoldModel` from the dataset, latents, hyperparameters
 and that record (deterministic, :func:`app.documents.posterior.condition_as_recorded`), so a
 model predicts the same after it leaves the in-memory cache of recent ones. Rows from before the
-record existed (``posterior`` NULL) are rebuilt as :func:`core.posterior.condition` chooses by
+record existed (``posterior`` NULL) are rebuilt as :func:`core.gp.posterior.condition` chooses by
 default, as they were then."""
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
 """Trials: scripted (the caller owns the robot), simulated and rig (the server drives).
 
-A server-driven trial runs the trial engine (:func:`core.trial_engine.iter_trial`) over its touch
-source; a scripted trial drives the engine's step-wise core, the
-:class:`~core.recognition.RecognitionSession`, one posted observation at a time.
+A server-driven trial runs the trial engine (:func:`core.evaluation.trial_engine.iter_trial`) over
+its touch source; a scripted trial drives the engine's step-wise core, the
+:class:`~core.recognition.session.RecognitionSession`, one posted observation at a time.
 Every touch is committed as a :class:`app.db.tables.TrialStep` the moment it happens, under the
 trial's run lock, so control requests (pause, resume, stop, abort) never interleave with a step.
 """
@@ -42,16 +42,19 @@ from app.services.rig import RigService
 from app.services.trial_views import require, step_public, to_public, trial_result
 from app.services.worlds import TouchSource, WorldFactory
 from core.errors import CoreError, InvalidInputError
+from core.evaluation import PlannedTouches, iter_trial
 from core.features.pipeline import means_pipeline
 from core.features.raw import raw_touch
-from core.planning import ActionBox, Planner, Policy, make_policy
 from core.recognition import (
+    ActionBox,
+    Planner,
+    Policy,
     RecognitionSession,
     RecognitionSettings,
     RecognitionStep,
     default_prior,
+    make_policy,
 )
-from core.trial_engine import PlannedTouches, iter_trial
 from core.types import GaussianBelief, ManifoldModel
 from hardware.errors import HardwareError
 

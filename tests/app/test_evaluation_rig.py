@@ -12,7 +12,7 @@ from app.evaluation.spec import EvaluationSpec, Placement
 from app.rig.actions import TouchActions
 from app.rig.build import SimulationMode, open_rig
 from app.rig.collection import iter_collect
-from core.manifold import FitOptions, fit_manifold
+from core.gp.manifold import FitOptions, fit_manifold
 from core.types import ManifoldModel, TrainingData
 
 OBJECTS = ("paper_cup", "ceramic_mug", "foam_sponge")

@@ -20,8 +20,8 @@ from app.db.tables import Base, ModelRecord
 from app.documents.model import model_to_document
 from app.services.events import EventBus
 from app.services.models import ReadyModels
-from core.posterior import condition, predict
-from core.worlds import sample_experiment1
+from core.evaluation.worlds import sample_experiment1
+from core.gp.posterior import condition, predict
 from tests.app.conftest import make_settings
 from tests.app.posterior_cases import HYPER, LATENTS
 

@@ -23,8 +23,8 @@ from app.documents.posterior import condition_as_recorded, posterior_field
 from app.main import create_app
 from app.services.events import EventBus
 from app.services.models import ReadyModels, StoredModelError
-from core.posterior import condition, predict
-from core.sparse import condition_sparse, select_inducing_points
+from core.gp.posterior import condition, predict
+from core.gp.sparse import condition_sparse, select_inducing_points
 from core.types import InducingPoints, ManifoldModel
 from tests.app.conftest import TestClient
 from tests.app.posterior_cases import (

@@ -20,7 +20,7 @@ from app.documents.raw_touches import (
 from core.errors import InvalidInputError
 from core.features.pipeline import fit_features
 from core.features.raw import raw_touch
-from core.manifold import FitOptions, fit_manifold
+from core.gp.manifold import FitOptions, fit_manifold
 from hardware.records import TouchRecord
 
 PATTERNS = {"fine": [1.0, 2.0, 3.0], "coarse": [3.0, 2.0, 1.0], "medium": [2.0, 2.0, 2.0]}

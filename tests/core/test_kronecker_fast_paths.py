@@ -8,12 +8,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core.designs import collect, shared_design
-from core.kronecker import KroneckerLikelihood, condition_kronecker
-from core.likelihood import ManifoldLikelihood
-from core.posterior import condition
+from core.evaluation.designs import collect, shared_design
+from core.evaluation.worlds import random_experiment2_world
+from core.gp.kronecker import KroneckerLikelihood, condition_kronecker
+from core.gp.likelihood import ManifoldLikelihood
+from core.gp.posterior import condition
 from core.types import Hyperparameters, TrainingData
-from core.worlds import random_experiment2_world
 
 TOLERANCE = 1e-8
 

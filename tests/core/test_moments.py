@@ -12,14 +12,14 @@ import pytest
 
 from bench.reference_moments import direct_moments_batch
 from core.errors import InvalidInputError
-from core.information_gradient import mutual_information_and_gradient
-from core.moments import (
+from core.gp.posterior import condition, predict
+from core.recognition.information_gradient import mutual_information_and_gradient
+from core.recognition.moments import (
     action_statistics,
     mutual_information,
     predictive_moments,
     update_belief,
 )
-from core.posterior import condition, predict
 from core.types import GaussianBelief, Hyperparameters, ManifoldModel, TrainingData
 
 

@@ -5,15 +5,15 @@ Two criteria (``criterion``), both fitting K times per candidate ds with the fit
 ``"touches"`` (the default): K-fold cross-validation over touches *within* objects. Each
 object's touches are dealt to the folds, a model is fitted on K - 1 folds and the held-out
 touches are scored by their log-density under their own object's learned latent
-(:func:`core.object_posterior.touch_log_likelihoods`, raw units, Jacobian included).
+(:func:`core.recognition.object_posterior.touch_log_likelihoods`, raw units, Jacobian included).
 
 ``"objects"``: leave-objects-out. The objects are dealt to the folds; a model is fitted on the
 objects of the other folds and every held-out object is met as a new one: its touches are split
 in two halves, its latent is placed from one half by maximising the likelihood over s with the
-model fixed (:func:`core.held_out_objects.place_latent`), and the other half is scored at that
-latent (:func:`core.held_out_objects.log_densities_at`); then the halves swap, so every touch
-is scored exactly once. It asks whether the manifold generalises to a new object, which is
-what recognition needs.
+model fixed (:func:`core.selection.held_out_objects.place_latent`), and the other half is scored at
+that latent (:func:`core.selection.held_out_objects.log_densities_at`); then the halves swap, so
+every touch is scored exactly once. It asks whether the manifold generalises to a new object, which
+is what recognition needs.
 
 The choice is the **smallest ds whose mean score is within one standard error of the best**
 (paired over folds: its fold-by-fold difference to the best, mean ≥ -1 s.e.), the
@@ -31,8 +31,8 @@ the fit cannot learn (length-scale 1.5 along x with 6-D actions: fresh touches p
 nats per touch below the truth) or with few objects (L = 8), ds = 3 was rarely found by any
 criterion tried; leave-objects-out leaned large there.
 
-Every fold's candidates are fitted nested by default (:mod:`core.nested_fits`): ds = k starts
-from the ds = k - 1 optimum too, so the training log-likelihood is non-decreasing in ds.
+Every fold's candidates are fitted nested by default (:mod:`core.selection.nested_fits`): ds = k
+starts from the ds = k - 1 optimum too, so the training log-likelihood is non-decreasing in ds.
 
 The folds are independent (each gets its own generator, spawned from the one passed in):
 :func:`score_fold` is one fold's work, a pure function, and ``map`` runs them — one after
@@ -51,14 +51,14 @@ from typing import Literal
 import numpy as np
 
 from core.errors import InvalidInputError
-from core.held_out_objects import (
+from core.recognition.object_posterior import touch_log_likelihoods
+from core.selection.held_out_objects import (
     held_out_scores,
     object_folds,
     objects_subset,
     split_halves,
 )
-from core.nested_fits import StartedFit, nested_fits
-from core.object_posterior import touch_log_likelihoods
+from core.selection.nested_fits import StartedFit, nested_fits
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray, IntArray
 
@@ -84,7 +84,7 @@ class CandidateScore:
         fit_log_likelihoods: Log-likelihood of each fold's training fit (with nested fits
             non-decreasing in ds fold by fold).
         carried_over: Folds in which the ds fit ended below the ds - 1 optimum, which was
-            kept instead (:mod:`core.nested_fits`; 0 without nesting).
+            kept instead (:mod:`core.selection.nested_fits`; 0 without nesting).
     """
 
     latent_dim: int
@@ -179,8 +179,9 @@ class FoldPlan:
             Shape (N,).
         dims: The candidate ds, increasing.
         criterion: ``"touches"`` or ``"objects"``.
-        nested: Whether each fold's candidates are fitted nested (:mod:`core.nested_fits`).
-        fit: The fit (:data:`core.nested_fits.StartedFit`).
+        nested: Whether each fold's candidates are fitted nested
+        (:mod:`core.selection.nested_fits`). fit: The fit
+        (:data:`core.selection.nested_fits.StartedFit`).
     """
 
     data: TrainingData
@@ -282,9 +283,9 @@ def select_latent_dim(
             is done (folds in the order they finish).
         criterion: ``"touches"`` (within objects) or ``"objects"`` (leave-objects-out).
         nested: Fit every fold's ds = 1..max(candidates) nested
-            (:func:`core.nested_fits.nested_fits`: each from the one below, then each smaller
-            one again from the one above, so the training log-likelihood is non-decreasing in
-            ds); ``False``: every candidate on its own, with no extra starts.
+            (:func:`core.selection.nested_fits.nested_fits`: each from the one below, then each
+            smaller one again from the one above, so the training log-likelihood is non-decreasing
+            in ds); ``False``: every candidate on its own, with no extra starts.
         map: Runs the folds (:data:`FoldMap`); the folds are independent, so the result does
             not depend on how or where they run.
 

@@ -320,8 +320,8 @@ class RefusedTrial:
             ) from None
 
 
-#: What one trial ends as (the one outcome type of :mod:`core.trial_engine`): completed, with why
-#: it stopped, or refused by the world.
+#: What one trial ends as (the one outcome type of :mod:`core.evaluation.trial_engine`): completed,
+#: with why it stopped, or refused by the world.
 TrialOutcome = TrialRecord | RefusedTrial
 
 

@@ -2,7 +2,7 @@
 
 :func:`stream_optimiser` turns a blocking ``scipy.optimize`` call that accepts a callback into a
 generator of (iteration, value) events whose return value is the optimiser's result, so a fit
-can report progress and be stopped by closing the generator (:mod:`core.fit_run`);
+can report progress and be stopped by closing the generator (:mod:`core.gp.fit_run`);
 :func:`run_to_end` exhausts such a generator when the progress is not wanted.
 """
 

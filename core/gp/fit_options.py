@@ -1,5 +1,5 @@
 """The settings of a manifold fit (:class:`FitOptions`) and its progress events
-(:class:`FitProgress`); the fit itself is :mod:`core.manifold` / :mod:`core.fit_run`."""
+(:class:`FitProgress`); the fit itself is :mod:`core.gp.manifold` / :mod:`core.gp.fit_run`."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from typing import Literal
 import numpy as np
 
 from core.errors import InvalidInputError
-from core.posterior import STRUCTURES, Structure
-from core.sparse import DEFAULT_INDUCING_POINTS
+from core.gp.posterior import STRUCTURES, Structure
+from core.gp.sparse import DEFAULT_INDUCING_POINTS
 from core.types import ManifoldModel
 from core.validation import FloatArray
 
@@ -33,8 +33,8 @@ class FitOptions:
         gtol: L-BFGS-B projected-gradient tolerance (> 0).
         screen_touches_per_object: Touches per object in the screening subsample (0 = no
             screening; otherwise ≥ 2). Where the subsample would not make an evaluation at
-            least :data:`core.fit_run.SCREEN_MIN_SAVING` times cheaper, screening runs on all
-            the data (see :mod:`core.fit_run`).
+            least :data:`core.gp.fit_run.SCREEN_MIN_SAVING` times cheaper, screening runs on all
+            the data (see :mod:`core.gp.fit_run`).
         screen_iterations: L-BFGS-B iteration limit of each start on the screening subsample
             (≥ 1); starts still crawling then are not promising.
         polish_starts: How many of the best screened starts (ranked by their likelihood on
@@ -48,17 +48,17 @@ class FitOptions:
             ``popsize``, ≥ 1).
         de_generations: Generations of differential evolution (≥ 1).
         progress_every: Yield a :class:`FitProgress` every this many optimiser iterations (≥ 1).
-        structure: How the likelihood is evaluated (:func:`core.posterior.resolve_structure`):
+        structure: How the likelihood is evaluated (:func:`core.gp.posterior.resolve_structure`):
             ``"auto"`` (default) uses the exact Kronecker path when every object was touched
             with the same actions, the dense path otherwise, and the sparse variational path
-            above :data:`core.posterior.AUTO_SPARSE_ABOVE` touches; ``"dense"``,
+            above :data:`core.gp.posterior.AUTO_SPARSE_ABOVE` touches; ``"dense"``,
             ``"kronecker"`` or ``"sparse"`` force one. The model is conditioned the same way.
             A Kronecker fit screens on a subsample of the design actions, the same for every
             object, so the screening data stay a shared design.
         n_inducing: Inducing points of the sparse path (≥ 1).
         hyperparameter_latent_lengthscales: Extra starting latent length-scales (in units of
             the latent spread, > 0) of every hyperparameter stage with S frozen, tried per
-            feature beside the current ones (:mod:`core.hyperparameter_fit`).
+            feature beside the current ones (:mod:`core.gp.hyperparameter_fit`).
         stall_nats: Stop an L-BFGS-B run once -log p improved by less than this over
             ``stall_iterations`` iterations (≥ 0; 0 = never).
         stall_iterations: The window of the stall test (≥ 1).
@@ -86,7 +86,7 @@ class FitOptions:
             screened), in place of ``stall_nats`` there (≥ 0; 0 = never). Those runs end
             the fit, so they stop once the remaining gain looks below about one nat, not
             a hundredth: on ``bench/fit_n800.py``'s data their last 19-45 % of evaluations
-            gained under one nat (see :mod:`core.fit_run`). The screening and
+            gained under one nat (see :mod:`core.gp.fit_run`). The screening and
             hyperparameter stages keep ``stall_nats``: they only choose and prepare starts,
             and their paths are left as they were. On Experiment 1 (``bench/fit_speed.py``,
             ten seeds, joint runs of ~30 iterations) the same log-likelihoods, with 0-3
@@ -108,8 +108,8 @@ class FitOptions:
             the fit (checked when the fit starts; here: 2-D and finite). Each is normalised
             (centred, unit RMS spread) and treated like the data-driven starts: the
             hyperparameters are fitted with it frozen first, then it is screened and, if it
-            ranks best, polished (:mod:`core.fit_run`). Used e.g. to start ds = k from the
-            ds = k - 1 optimum (:mod:`core.latent_selection`). Stored as read-only float
+            ranks best, polished (:mod:`core.gp.fit_run`). Used e.g. to start ds = k from the
+            ds = k - 1 optimum (:mod:`core.selection.latent_selection`). Stored as read-only float
             copies; excluded from ``==`` and ``hash`` (arrays have neither).
     """
 

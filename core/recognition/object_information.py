@@ -1,8 +1,8 @@
 """Information about *which object* a touch would give (the ``discriminative`` policy).
 
-The object posterior p_l over the L learned objects (:mod:`core.object_posterior`) treats a
-touch's observation under object l as y | l, x ~ N(m_l(x), V_l(x)): the GP predictive at the
-learned latent s_l with a point belief, V_l(x) diagonal (the features are independent given
+The object posterior p_l over the L learned objects (:mod:`core.recognition.object_posterior`)
+treats a touch's observation under object l as y | l, x ~ N(m_l(x), V_l(x)): the GP predictive at
+the learned latent s_l with a point belief, V_l(x) diagonal (the features are independent given
 (s, x)) and including the noise. Before the touch, y is distributed as the mixture
 Σ_l p_l N(m_l(x), V_l(x)), and the information it carries about the label is
 
@@ -22,9 +22,9 @@ where the mixture entropy H(y | x) has no closed form. Two principled estimates:
   and tend to the label entropy H(p) as the components separate.
 
 The predictive moments at a learned latent come from a planner's cached action statistics
-(:class:`core.moments.ActionStatistics`): with a point belief at s_l the moments of (M3) reduce to
-m_a = ȳ_a + σ_f,a² k_a(s_l)ᵀ u_a(x) and V_a = σ_f,a² − σ_f,a⁴ k_a(s_l)ᵀ T_a(x) k_a(s_l) + σ_n,a²,
-k_a(s_l)[l'] = exp(−½ |s_l − s_l'|²_{Λ^s_a}) (:func:`object_predictives`).
+(:class:`core.recognition.moments.ActionStatistics`): with a point belief at s_l the moments of (M3)
+reduce to m_a = ȳ_a + σ_f,a² k_a(s_l)ᵀ u_a(x) and V_a = σ_f,a² − σ_f,a⁴ k_a(s_l)ᵀ T_a(x) k_a(s_l) +
+σ_n,a², k_a(s_l)[l'] = exp(−½ |s_l − s_l'|²_{Λ^s_a}) (:func:`object_predictives`).
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ import numpy as np
 import scipy.special
 
 from core.errors import InvalidInputError
-from core.kernels import squared_exponential
-from core.moments import ActionStatistics
+from core.gp.kernels import squared_exponential
+from core.recognition.moments import ActionStatistics
 from core.types import ManifoldModel
 from core.validation import FloatArray, as_float_array
 
@@ -47,7 +47,7 @@ def object_predictives(
 ) -> tuple[FloatArray, FloatArray]:
     """Predictive mean and variance (with noise) of y at every learned latent and candidate.
 
-    Equal to :func:`core.posterior.predict` at (s_l, x) for every l and candidate x, computed
+    Equal to :func:`core.gp.posterior.predict` at (s_l, x) for every l and candidate x, computed
     from the action statistics in O(C · dy · L²).
 
     Args:

@@ -5,7 +5,7 @@
   scrambled Sobol set mapped through the action prior's inverse CDF (x = μ_x + L_x Φ⁻¹(u), L_x
   the Cholesky factor of Σ_x), so they fill the prior more evenly than M random draws. Every
   object then shares the Gram factor K^x and the fit and the planner run through the exact
-  Kronecker path of :mod:`core.kronecker` (docs/method.md, "Shared action designs"): hundreds of
+  Kronecker path of :mod:`core.gp.kronecker` (docs/method.md, "Shared action designs"): hundreds of
   objects × hundreds of actions instead of a few hundred touches in all.
 
 A :class:`CollectionDesign` is just the (object, action) list; :func:`collect` touches a
@@ -21,9 +21,9 @@ import scipy.special
 from scipy.stats import qmc
 
 from core.errors import InvalidInputError
+from core.evaluation.worlds import World
 from core.types import TrainingData
 from core.validation import FloatArray, IntArray, as_float_array
-from core.worlds import World
 
 #: Sobol points are kept this far from 0 and 1 before the inverse normal CDF.
 _UNIT_MARGIN = 1e-12

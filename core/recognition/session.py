@@ -4,10 +4,11 @@ Two beliefs are carried side by side:
 
 * the **Gaussian belief** s ~ N(μ, Σ) over the object latent (the paper's), updated by moment
   matching after every touch; it drives the choice of actions;
-* the **object posterior** p(l | D_t) over the L learned objects (:mod:`core.object_posterior`),
-  the exact GP likelihood of all touches so far under each object, by default jointly (the
-  touches share one uncertain function f and, when the model has a placement effect, one
-  placement: docs/calibration.md eq. (C3)); ``trial_likelihood="independent"`` multiplies them.
+* the **object posterior** p(l | D_t) over the L learned objects
+  (:mod:`core.recognition.object_posterior`), the exact GP likelihood of all touches so far under
+  each object, by default jointly (the touches share one uncertain function f and, when the model
+  has a placement effect, one placement: docs/calibration.md eq. (C3));
+  ``trial_likelihood="independent"`` multiplies them.
 
 The Gaussian is a local approximation and can settle near the wrong object; the most informative
 actions under that wrong belief then need not dislodge it (docs/method.md, "A known failure mode").
@@ -21,8 +22,8 @@ Gaussian's nearest object wrong in some trials where the posterior was right.) T
 to the posterior's best object (see :class:`RecognitionSettings`).
 
 :class:`RecognitionSession` is a step-wise state machine: a scripted trial (the caller owns the
-robot) drives it one observation at a time; :func:`core.trial_engine.iter_trial` is the one loop
-around it for every other trial.
+robot) drives it one observation at a time; :func:`core.evaluation.trial_engine.iter_trial` is the
+one loop around it for every other trial.
 """
 
 from __future__ import annotations
@@ -33,14 +34,19 @@ from typing import Literal
 import numpy as np
 
 from core.errors import CoreError, InvalidInputError
-from core.moments import action_statistics, mutual_information, predictive_moments, update_belief
-from core.object_posterior import (
+from core.recognition.moments import (
+    action_statistics,
+    mutual_information,
+    predictive_moments,
+    update_belief,
+)
+from core.recognition.object_posterior import (
     TrialLikelihood,
     check_trial_likelihood,
     normalise_log_probabilities,
     object_log_likelihoods,
 )
-from core.planning import PlannedAction, Planner
+from core.recognition.planning import PlannedAction, Planner
 from core.types import GaussianBelief, ManifoldModel
 from core.validation import FloatArray, as_float_array
 
@@ -85,11 +91,12 @@ class RecognitionSettings:
             the Gaussian as updated, but plan the next action under that mixture-matched belief.
             ``"ignore"``: the paper, always the Gaussian.
         trial_likelihood: How the object posterior scores the trial's touches
-            (:func:`core.object_posterior.object_log_likelihoods`). ``"joint"`` (default): one
-            Gaussian over all of them with the GP's full covariance of f (and the placement
-            variance σ_b², if the model has one and ``shared_placement``): the GP's uncertainty
-            at repeated or nearby actions counts once, not once per touch (docs/calibration.md,
-            "Fix 2"). ``"independent"``: the product of per-touch densities (the base model).
+            (:func:`core.recognition.object_posterior.object_log_likelihoods`). ``"joint"``
+            (default): one Gaussian over all of them with the GP's full covariance of f (and the
+            placement variance σ_b², if the model has one and ``shared_placement``): the GP's
+            uncertainty at repeated or nearby actions counts once, not once per touch
+            (docs/calibration.md, "Fix 2"). ``"independent"``: the product of per-touch densities
+            (the base model).
         shared_placement: Whether the trial's touches meet one placement of the object (a rig
             trial that places it once). ``False`` for touches that each met their own placement
             (a replay of a collection's touches, a rig trial placing before every touch): σ_b²
@@ -209,7 +216,7 @@ class RecognitionSession:
 
     Args:
         model: A conditioned model.
-        planner: A :class:`core.planning.Planner` built for ``model``.
+        planner: A :class:`core.recognition.planning.Planner` built for ``model``.
         prior: Initial Gaussian belief; :func:`default_prior` when ``None``.
         settings: Stopping and decision rules.
 

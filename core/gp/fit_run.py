@@ -1,15 +1,15 @@
 """How a manifold fit runs: starts, screening, differential evolution, choice, normalisation.
 
-The engine behind :func:`core.manifold.iter_fit` (:class:`FitRun`), for the objective of
+The engine behind :func:`core.gp.manifold.iter_fit` (:class:`FitRun`), for the objective of
 docs/method.md (M2). The measurements behind each choice below are in docs/fitting.md.
 
-1. **Starts.** The first starts are data-driven (:func:`core.initialisation.data_driven_starts`:
+1. **Starts.** The first starts are data-driven (:func:`core.gp.initialisation.data_driven_starts`:
    the PCA of the object profiles, and their Isomap from 8 objects on); the caller's
    ``FitOptions.initial_latents`` (normalised) join them; R more draw S ~ N(0, I)
    (``FitOptions.restarts``). Every start has unit latent spread, the data-relative initial
-   hyperparameters of :func:`core.parameters.initial_hyperparameters` and latent length-scales
+   hyperparameters of :func:`core.gp.parameters.initial_hyperparameters` and latent length-scales
    about 10× the spread. Data-driven starts first fit the hyperparameters with S frozen (one
-   small problem per feature, :mod:`core.hyperparameter_fit`), then everything jointly; random
+   small problem per feature, :mod:`core.gp.hyperparameter_fit`), then everything jointly; random
    starts go straight to the joint fit, because hyperparameters fitted to frozen random latents
    adapt to a meaningless arrangement and slow the joint fit down.
 2. **Screening.** When some object has more touches than ``screen_touches_per_object``, every
@@ -38,7 +38,7 @@ docs/method.md (M2). The measurements behind each choice below are in docs/fitti
    start's full-data log-likelihood.
 5. **Normalisation.** Latents are centred and scaled to RMS distance 1 from their centre, and the
    latent length-scales divided by the same factor, which leaves the likelihood unchanged; the
-   model is built with :func:`core.posterior.condition`.
+   model is built with :func:`core.gp.posterior.condition`.
 
 Every L-BFGS-B run also stops once it stalls (``FitOptions.stall_nats`` / ``stall_relative``):
 gains of hundredths of a nat per iteration along a flat ridge would otherwise cost most of the
@@ -51,7 +51,7 @@ feature's ℓ^s of that dimension (and to shifting S); its gradient is orthogona
 directions (tests/core/test_likelihood.py), so the fit leaves the symmetry alone and normalises
 at the end (5.).
 
-Bounds (log space, relative to the data): see :func:`core.parameters.parameter_bounds`.
+Bounds (log space, relative to the data): see :func:`core.gp.parameters.parameter_bounds`.
 """
 
 from __future__ import annotations
@@ -64,8 +64,8 @@ import numpy as np
 import scipy.optimize
 
 from core.errors import ConvergenceError, InvalidInputError, NotPositiveDefiniteError
-from core.fit_options import FitOptions, FitProgress
-from core.hyperparameter_fit import (
+from core.gp.fit_options import FitOptions, FitProgress
+from core.gp.hyperparameter_fit import (
     DEFAULT_LBFGS_MEMORY,
     FAILED_VALUE,
     SeparableProgress,
@@ -74,12 +74,12 @@ from core.hyperparameter_fit import (
     iter_fit_separately,
     minimize_free,
 )
-from core.initialisation import data_driven_starts, normalise_spread, random_latents
-from core.kronecker import find_shared_design
-from core.optimiser_stream import stream_optimiser
-from core.parameters import ParameterLayout, initial_hyperparameters, parameter_bounds
-from core.posterior import Likelihood, Structure, condition, make_likelihood, resolve_structure
-from core.sparse import DEFAULT_INDUCING_POINTS
+from core.gp.initialisation import data_driven_starts, normalise_spread, random_latents
+from core.gp.kronecker import find_shared_design
+from core.gp.optimiser_stream import stream_optimiser
+from core.gp.parameters import ParameterLayout, initial_hyperparameters, parameter_bounds
+from core.gp.posterior import Likelihood, Structure, condition, make_likelihood, resolve_structure
+from core.gp.sparse import DEFAULT_INDUCING_POINTS
 from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
 from core.validation import FloatArray, as_float_array
 
@@ -163,7 +163,7 @@ class FitProblem:
         self, vector: FloatArray, layout: ParameterLayout, options: FitOptions, max_iterations: int
     ) -> Generator[SeparableProgress, None, SeparableResult]:
         """The hyperparameters of ``vector`` fitted feature by feature, S fixed
-        (:func:`core.hyperparameter_fit.iter_fit_separately` with ``options``' settings)."""
+        (:func:`core.gp.hyperparameter_fit.iter_fit_separately` with ``options``' settings)."""
         return iter_fit_separately(
             self.feature_likelihoods(),
             layout,
@@ -181,7 +181,8 @@ class FitProblem:
 
 
 class FitRun:
-    """State of one fit; :meth:`events` is the generator behind :func:`core.manifold.iter_fit`."""
+    """State of one fit; :meth:`events` is the generator behind
+    :func:`core.gp.manifold.iter_fit`."""
 
     def __init__(
         self,
@@ -470,7 +471,7 @@ class FitRun:
         self, start: Start, problem: FitProblem, n_starts: int
     ) -> Generator[FitProgress, None, None]:
         """The hyperparameters with S frozen, one feature at a time
-        (:func:`core.hyperparameter_fit.iter_fit_separately`)."""
+        (:func:`core.gp.hyperparameter_fit.iter_fit_separately`)."""
         options = self.options
         initial_iterations = start.iterations
         stream = problem.fit_separately(

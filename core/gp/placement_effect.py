@@ -32,10 +32,10 @@ import numpy as np
 import scipy.linalg
 
 from core.errors import InvalidInputError
-from core.kernels import squared_exponential
-from core.kronecker import predictive_covariance_kronecker
-from core.linalg import cholesky_with_jitter
-from core.posterior import gram_matrix, predict_model_space, support_points
+from core.gp.kernels import squared_exponential
+from core.gp.kronecker import predictive_covariance_kronecker
+from core.gp.linalg import cholesky_with_jitter
+from core.gp.posterior import gram_matrix, predict_model_space, support_points
 from core.types import ManifoldModel
 from core.validation import FloatArray, IntArray, as_float_array
 
@@ -186,9 +186,9 @@ def predictive_covariance(
     V_a = σ_f,a² K^x_a(X, X) − k_a(Z*, Z) A_a k_a(Z, Z*) with Z* = (s, x_t) (the latent kernel
     is 1 between the touches: they share s) and A_a the posterior's matrix over its support
     points (K_a⁻¹ for dense and Kronecker posteriors). Its diagonal plus σ_n,a² is the variance of
-    :func:`core.posterior.predict_model_space`. A Kronecker posterior whose K⁻¹ is not
+    :func:`core.gp.posterior.predict_model_space`. A Kronecker posterior whose K⁻¹ is not
     materialised goes through its eigendecompositions instead
-    (:func:`core.kronecker.predictive_covariance_kronecker`), so K⁻¹ is never built for it here.
+    (:func:`core.gp.kronecker.predictive_covariance_kronecker`), so K⁻¹ is never built for it here.
 
     Args:
         model: A conditioned model.
@@ -225,7 +225,7 @@ def trial_log_likelihoods(
     N(y'_a; m_a(s_l, X), V_a(s_l, X) + σ_b,a² 11ᵀ + (σ_n,a² − σ_b,a²) I), summed over a, plus
     T · log|det M| (the Jacobian of the observation transform y' = M (y − c)). With T = 1 it
     equals the independent per-touch density of
-    :func:`core.object_posterior.object_log_likelihoods`.
+    :func:`core.recognition.object_posterior.object_log_likelihoods`.
 
     Args:
         model: A conditioned model.

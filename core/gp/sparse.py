@@ -43,7 +43,7 @@ import numpy as np
 import scipy.linalg
 
 from core.errors import InvalidInputError, NotPositiveDefiniteError
-from core.parameters import ParameterLayout
+from core.gp.parameters import ParameterLayout
 from core.types import (
     FitDiagnostics,
     GPPosterior,
@@ -138,7 +138,7 @@ class _FeatureState:
 
 class SparseLikelihood:
     """-F (the negative VFE bound) and its gradient, drop-in for
-    :class:`core.likelihood.ManifoldLikelihood` (same packed vector; see the module docstring).
+    :class:`core.gp.likelihood.ManifoldLikelihood` (same packed vector; see the module docstring).
 
     Args:
         data: Training touches.

@@ -2,10 +2,10 @@
 
 Every recognition trial — the API's server-driven trials (simulated world or rig), ``activetouch
 recognize``, the evaluations (``activetouch evaluate``, ``paper``, the server's jobs) and the
-benchmarks — runs :func:`iter_trial`: the :class:`~core.recognition.RecognitionSession` state
-machine (the step-wise core, which a scripted API trial drives directly, one posted observation at
-a time) fed by an observation source, one touch per step. It is a generator, so a caller records,
-streams, paces or stops the trial between touches.
+benchmarks — runs :func:`iter_trial`: the :class:`~core.recognition.session.RecognitionSession`
+state machine (the step-wise core, which a scripted API trial drives directly, one posted
+observation at a time) fed by an observation source, one touch per step. It is a generator, so a
+caller records, streams, paces or stops the trial between touches.
 
 An observation source (:class:`ObservationSource`) gives the next touch of a session:
 
@@ -14,12 +14,12 @@ An observation source (:class:`ObservationSource`) gives the next touch of a ses
   (:class:`ModelTouches`, the paper's Experiment 2 protocol), the simulated or the real rig
   (composed in ``app``);
 * :class:`ReplayTouches` picks among the target's recorded held-out touches without replacement,
-  by the policy's replay score (:data:`core.planning.POLICIES`; docs/method.md, "Evaluation
-  protocols").
+  by the policy's replay score (:data:`core.recognition.planning.POLICIES`; docs/method.md,
+  "Evaluation protocols").
 
 :func:`run_trial` runs a trial of an evaluation to its end and returns its outcome, a
-:class:`~core.evaluation_records.TrialRecord` (which says why it stopped) or a
-:class:`~core.evaluation_records.RefusedTrial` (a touch the world refused).
+:class:`~core.evaluation.records.TrialRecord` (which says why it stopped) or a
+:class:`~core.evaluation.records.RefusedTrial` (a touch the world refused).
 """
 
 from __future__ import annotations
@@ -31,11 +31,12 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 from core.errors import InvalidInputError, TouchRefused
-from core.evaluation_records import RefusedTrial, TrialOutcome, TrialRecord, trial_generators
-from core.object_posterior import TrialLikelihood
-from core.planning import EVALUATION_POLICIES, Planner, ReplayScore, policy_entry
-from core.posterior import predict_model_space
-from core.recognition import (
+from core.evaluation.records import RefusedTrial, TrialOutcome, TrialRecord, trial_generators
+from core.evaluation.worlds import World
+from core.gp.posterior import predict_model_space
+from core.recognition.object_posterior import TrialLikelihood
+from core.recognition.planning import EVALUATION_POLICIES, Planner, ReplayScore, policy_entry
+from core.recognition.session import (
     RecognitionSession,
     RecognitionSettings,
     RecognitionStep,
@@ -43,7 +44,6 @@ from core.recognition import (
 )
 from core.types import GaussianBelief, ManifoldModel, TrainingData
 from core.validation import FloatArray, as_float_array
-from core.worlds import World
 
 
 @dataclass(frozen=True)
@@ -62,7 +62,7 @@ class TouchSource(Protocol):
     """Performs an action on the target object: (action (dx,), the world's generator) → touch.
 
     It raises :class:`core.errors.TouchRefused` when the world refuses that one action (an
-    evaluation trial then ends as a :class:`~core.evaluation_records.RefusedTrial`); anything
+    evaluation trial then ends as a :class:`~core.evaluation.records.RefusedTrial`); anything
     else it raises propagates.
     """
 
@@ -174,7 +174,7 @@ class ModelTouches:
     """Draws from the learned GP's predictive distribution at the target's latent.
 
     y' ~ N(m(s_k, x), diag v(s_k, x)), the predictive mean and variance (noise included) of
-    :func:`core.posterior.predict_model_space`, mapped to raw units by the model's observation
+    :func:`core.gp.posterior.predict_model_space`, mapped to raw units by the model's observation
     transform (if any) — the paper's Experiment 2 protocol.
 
     Raises:
@@ -237,9 +237,9 @@ def replay_pools(data: TrainingData) -> dict[str, ReplayPool]:
 class ReplayTouches:
     """Each touch is an unused recorded touch of the target (without replacement).
 
-    ``score`` (a policy's :attr:`core.planning.PolicyEntry.replay_score`) picks the unused touch
-    with the largest score under the session's planning belief (active: the largest mutual
-    information), or, when ``None``, a random unused one (passive); the observation is that
+    ``score`` (a policy's :attr:`core.recognition.planning.PolicyEntry.replay_score`) picks the
+    unused touch with the largest score under the session's planning belief (active: the largest
+    mutual information), or, when ``None``, a random unused one (passive); the observation is that
     touch's recorded y.
 
     Args:
@@ -292,7 +292,8 @@ class TrialSettings:
             (``None``: never).
         prior_variance: Σ0 = prior_variance · I around the mean of the learned latents.
         trial_likelihood: How the object posterior scores a trial's touches
-            (:class:`core.recognition.RecognitionSettings`): ``"joint"`` or ``"independent"``.
+            (:class:`core.recognition.session.RecognitionSettings`): ``"joint"`` or
+            ``"independent"``.
         shared_placement: Whether a trial's touches meet one placement of the object.
     """
 
@@ -361,7 +362,7 @@ def run_trial(
         policy: The policy's name (recorded; a replay looks its replay score up by it).
         target: The object touched (a model object).
         trial: Index of the trial within its (policy, target) cell (recorded).
-        seed: The trial's seed tuple (:func:`core.evaluation_records.trial_seed`); the
+        seed: The trial's seed tuple (:func:`core.evaluation.records.trial_seed`); the
             planner's and the world's generators are spawned from it.
         settings: Stop rule and prior.
         touches: Where the planned touches happen.

@@ -9,7 +9,7 @@ By default the touches of a trial are scored as one joint Gaussian per object (`
 docs/calibration.md eq. (C3)): given s_l they share the same uncertain function f, so the GP
 posterior's full covariance V of f at the trial's actions enters once, not once per touch; a model
 with a placement effect (``model.placement_variance`` > 0, estimated from a collection that
-recorded placements: :mod:`core.placement_effect`) adds the placement's shared offset when the
+recorded placements: :mod:`core.gp.placement_effect`) adds the placement's shared offset when the
 touches share one placement. ``"independent"`` keeps the product of independent per-touch
 densities (the base model of docs/method.md (M1)). Every caller — the recognition session's
 answer, stop rule, re-centring and the discriminative policy's probabilities — goes through
@@ -24,8 +24,8 @@ import numpy as np
 import scipy.special
 
 from core.errors import InvalidInputError
-from core.placement_effect import trial_log_likelihoods
-from core.posterior import predict_model_space
+from core.gp.placement_effect import trial_log_likelihoods
+from core.gp.posterior import predict_model_space
 from core.types import ManifoldModel
 from core.validation import FloatArray, IntArray, as_float_array
 
@@ -45,7 +45,7 @@ def object_log_likelihoods(
     """log p(D_t | l) of one trial's touches D_t under every learned object l.
 
     ``"joint"`` (default): under object l the touches are one Gaussian per model-space feature
-    (docs/calibration.md eq. (C3), :func:`core.placement_effect.trial_log_likelihoods`),
+    (docs/calibration.md eq. (C3), :func:`core.gp.placement_effect.trial_log_likelihoods`),
 
         y'_·a ~ N(m_a(s_l, X), V_a(s_l, X) + σ_b,a² 11ᵀ + (σ_n,a² − σ_b,a²) I),
 
@@ -62,7 +62,7 @@ def object_log_likelihoods(
     The observations come in raw units and are mapped to the model space y' = M (y - c) of the
     model's observation transform (the identity for a model without one); m_a and v_a are the
     GP predictive mean and variance of f_a at the learned latent s_l and action x_t
-    (:func:`core.posterior.predict_model_space`, which adds the noise variance). The features of
+    (:func:`core.gp.posterior.predict_model_space`, which adds the noise variance). The features of
     y' are independent given (s, x); the Jacobian log|det M| (= -½ log det Σ_ε, docs/method.md "Real
     tactile data") makes the value a log-density of the raw observations.
 
@@ -190,7 +190,7 @@ def object_posterior(
     where y' = M (y - c) is the observation in the model's space (its observation transform;
     raw y without one), m_a(s_l, x_t) and v_a(s_l, x_t) are the GP predictive mean and variance
     of feature a at the learned latent s_l of object l and the action x_t
-    (:func:`core.posterior.predict_model_space`), and σ_n,a² is the feature's noise variance.
+    (:func:`core.gp.posterior.predict_model_space`), and σ_n,a² is the feature's noise variance.
     In raw units this is a Gaussian with the full covariance M⁻¹ diag(v + σ_n²) M⁻ᵀ.
     It is computed in log space and normalised with log-sum-exp. With no touches it is uniform.
 

@@ -11,7 +11,7 @@ depends on x only through the action statistics u_a(x) and T_a(x) of docs/method
 with m̃ the centred mean, and the chain rule through ∂e_ai/∂x = -e_ai (Λ^x_a)⁻¹ (x - x_i).
 
 On a Kronecker posterior T_a = U_a diag(t_a) U_aᵀ, so ∂U1/∂t_a[j] = -W_aa (U_aᵀ G_aa U_a)_jj and
-the derivatives of u and t come from :func:`core.kronecker.action_statistics_derivatives`
+the derivatives of u and t come from :func:`core.gp.kronecker.action_statistics_derivatives`
 (O(dy · dx · (M² + L·M)) per call instead of O(dy · N²)). On a sparse posterior the sums run
 over its inducing points.
 """
@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from core.kronecker import action_statistics_derivatives
-from core.moments import (
+from core.gp.kronecker import action_statistics_derivatives
+from core.gp.posterior import support_points
+from core.recognition.moments import (
     ActionStatistics,
     BeliefTerms,
     SupportBlocks,
@@ -30,7 +31,6 @@ from core.moments import (
     moments_from_terms,
     object_indicator,
 )
-from core.posterior import support_points
 from core.types import GaussianBelief, ManifoldModel
 from core.validation import FloatArray, as_float_array
 
@@ -159,7 +159,8 @@ def mutual_information_and_gradient(
         model: A conditioned model.
         belief: s ~ N(μ, Σ).
         action: The action x. Shape (dx,).
-        terms: Belief terms of ``belief`` (from :func:`core.moments.belief_terms`), to reuse
+        terms: Belief terms of ``belief`` (from :func:`core.recognition.moments.belief_terms`), to
+        reuse
             across calls with the same belief; computed when ``None``.
         cache: Per-model arrays (:class:`GradientCache`) to reuse across calls; built when
             ``None``.

@@ -29,7 +29,7 @@ import numpy as np
 import scipy.optimize
 
 from core.errors import NotPositiveDefiniteError
-from core.parameters import ParameterLayout
+from core.gp.parameters import ParameterLayout
 from core.types import TrainingData
 from core.validation import FloatArray
 

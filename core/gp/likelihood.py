@@ -3,7 +3,7 @@
     -log p(Y | S, X, γ) = Σ_a ½ y_aᵀ K_a⁻¹ y_a + ½ log det K_a + (N/2) log 2π   docs/method.md (M2)
 
 with K_a = σ_f,a² K^s_a[obj, obj] ∘ K^x_a + σ_n,a² I (eq. (M1)) and y_a centred on the
-per-feature observation mean (as :func:`core.posterior.condition` does).
+per-feature observation mean (as :func:`core.gp.posterior.condition` does).
 
 Gradient. With W_a = K_a⁻¹ - β_a β_aᵀ, ∂(-log p)/∂K_a = ½ W_a. Writing M_a = W_a ∘ K_f,a for the
 noise-free part K_f,a = K_a - σ_n,a² I, every derivative is a weighted sum of M_a:
@@ -19,7 +19,7 @@ shared by an object's touches, so its gradient sums theirs. Everything is O(N² 
 feature on top of the Cholesky factor and the inverse (computed once, from the factor).
 
 Cost. M is symmetric, so only one triangle of W is formed (K⁻¹ by
-:func:`core.linalg.inverse_from_cholesky`, ββᵀ subtracted by a rank-1 ``dsyr``) and multiplied
+:func:`core.gp.linalg.inverse_from_cholesky`, ββᵀ subtracted by a rank-1 ``dsyr``) and multiplied
 into K_f in place; with X that triangle, M = X + Xᵀ - diag(X) and every sum above is a sum over
 X. At N = 400 an evaluation costs about the factor and the inverse of each K_a (``dpotrf`` +
 ``dpotri`` timed alone: ``python -m bench.eval_speed``).
@@ -34,8 +34,8 @@ import scipy.linalg.blas
 import scipy.linalg.lapack
 
 from core.errors import InvalidInputError
-from core.linalg import cholesky_with_jitter, inverse_from_cholesky
-from core.parameters import ParameterLayout
+from core.gp.linalg import cholesky_with_jitter, inverse_from_cholesky
+from core.gp.parameters import ParameterLayout
 from core.types import Hyperparameters, TrainingData
 from core.validation import FloatArray, as_float_array
 
@@ -63,7 +63,7 @@ class LikelihoodGradient:
 
 class ManifoldLikelihood:
     """-log p(Y | S, X, γ) and its gradient at packed parameter vectors (see
-    :mod:`core.parameters`), with the data-only terms computed once.
+    :mod:`core.gp.parameters`), with the data-only terms computed once.
 
     Internally the touches are sorted by object (the likelihood does not depend on their order),
     so that the L × L latent Gram matrix expands into contiguous blocks and the block sums of
@@ -173,7 +173,7 @@ class ManifoldLikelihood:
         """-log p and its gradient with respect to the packed vector (same layout).
 
         Only one triangle of W = K⁻¹ - ββᵀ is formed (K⁻¹ from the factor by
-        :func:`core.linalg.inverse_from_cholesky`, then a rank-1 ``dsyr`` update): with X its
+        :func:`core.gp.linalg.inverse_from_cholesky`, then a rank-1 ``dsyr`` update): with X its
         lower triangle times K_f, M = X + Xᵀ - diag(X), so Σ M = 2 Σ X - tr X,
         ½ Σ M ∘ Δ = Σ X ∘ Δ for the zero-diagonal squared action differences Δ, and the block
         sums are Pᵀ X P + (Pᵀ X P)ᵀ minus the diagonal's.

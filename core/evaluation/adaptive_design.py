@@ -8,10 +8,10 @@ current model, so the next fit has data where the trials go; the rounds replace 
 random design's budget, not add to it.
 
 The planners' choices are scored on one scrambled Sobol candidate set in the planners' own box
-(:meth:`core.planning.ActionBox.from_model`), for the situations a trial meets:
+(:meth:`core.recognition.planning.ActionBox.from_model`), for the situations a trial meets:
 
 - ``active`` at the first touch: the mutual information (M4) under the trial's initial belief
-  (:func:`core.recognition.default_prior`);
+  (:func:`core.recognition.session.default_prior`);
 - ``discriminative`` at the first touch: the information about the object's identity under
   uniform object probabilities;
 - ``discriminative`` late in a trial, torn between two objects l and m: the same with
@@ -27,17 +27,17 @@ from itertools import combinations
 
 import numpy as np
 
-from core.designs import CollectionDesign
 from core.errors import InvalidInputError
-from core.moments import (
+from core.evaluation.designs import CollectionDesign
+from core.recognition.moments import (
     action_statistics,
     belief_terms,
     moments_from_terms,
     mutual_information,
 )
-from core.object_information import label_information_mc, object_predictives
-from core.planning import ActionBox, DiscriminativePolicy, sobol_candidates
-from core.recognition import default_prior
+from core.recognition.object_information import label_information_mc, object_predictives
+from core.recognition.planning import ActionBox, DiscriminativePolicy, sobol_candidates
+from core.recognition.session import default_prior
 from core.types import ManifoldModel
 from core.validation import FloatArray, as_float_array
 
@@ -45,8 +45,8 @@ from core.validation import FloatArray, as_float_array
 def situation_scores(model: ManifoldModel, candidates: FloatArray) -> FloatArray:
     """How much each planner situation wants each candidate. Shape (S, C).
 
-    Rows: active's mutual information under :func:`~core.recognition.default_prior`, then the
-    discriminative information about the object under uniform probabilities, then under
+    Rows: active's mutual information under :func:`~core.recognition.session.default_prior`, then
+    the discriminative information about the object under uniform probabilities, then under
     p = ½ on each pair (l, m), l < m, in lexicographic order (S = 2 + L(L − 1)/2).
 
     Args:

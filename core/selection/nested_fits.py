@@ -24,8 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.errors import InvalidInputError
-from core.initialisation import object_profiles
-from core.posterior import condition
+from core.gp.initialisation import object_profiles
+from core.gp.posterior import condition
 from core.types import Hyperparameters, ManifoldModel, TrainingData
 from core.validation import FloatArray
 
@@ -63,7 +63,7 @@ def appended_starts(model: ManifoldModel, rng: np.random.Generator) -> tuple[Flo
 
     1. Random: N(0, 1) values, centred, scaled to RMS :data:`NEW_COORDINATE_SCALE` (an exact
        constant column would sit on a saddle by symmetry).
-    2. Residual direction: the object profiles (:func:`core.initialisation.object_profiles`,
+    2. Residual direction: the object profiles (:func:`core.gp.initialisation.object_profiles`,
        L × R·dy) are centred and regressed linearly on the latents; the new coordinate is the
        leading left singular vector of the residual, scaled to RMS σ₁ / ‖profiles‖_F (the share
        of the profiles' spread it carries, at least :data:`NEW_COORDINATE_SCALE`). Left out
@@ -101,7 +101,7 @@ def embed_model(model: ManifoldModel) -> ManifoldModel:
 
     The new coordinate is 0 for every object, so every kernel value, prediction and the
     log-likelihood are unchanged (its length-scales, set to 1, then play no part). The model
-    is conditioned afresh (:func:`core.posterior.condition`) and keeps its observation
+    is conditioned afresh (:func:`core.gp.posterior.condition`) and keeps its observation
     transform and diagnostics.
 
     Args:

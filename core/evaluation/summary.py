@@ -2,7 +2,7 @@
 touches to confidence, calibration of the answers' probabilities, and the comparison of policies
 (docs/method.md, "Evaluation protocols").
 
-Pure functions of :class:`core.evaluation_records.TrialRecord` lists; the result is JSON-ready.
+Pure functions of :class:`core.evaluation.records.TrialRecord` lists; the result is JSON-ready.
 """
 
 from __future__ import annotations
@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from core.calibration import DEFAULT_BINS, calibration
 from core.errors import InvalidInputError
-from core.evaluation_records import TrialRecord
+from core.evaluation.calibration import DEFAULT_BINS, calibration
+from core.evaluation.records import TrialRecord
 
 #: z of a two-sided 95 % normal interval, Φ⁻¹(0.975).
 Z_95 = 1.959963984540054
@@ -187,7 +187,8 @@ def calibration_summary(
     threshold: float,
     n_bins: int = DEFAULT_BINS,
 ) -> dict[str, Any]:
-    """How far the probabilities of one policy's answers can be trusted (core.calibration).
+    """How far the probabilities of one policy's answers can be trusted
+    (core.evaluation.calibration).
 
     Every answer is scored with the object posterior behind it (``record.probabilities``, in the
     order of ``object_names``) against the trial's target. The answers are counted exactly as
@@ -206,7 +207,7 @@ def calibration_summary(
         n_bins: Bins of the reliability tables.
 
     Returns:
-        ``all_touches`` (:meth:`core.calibration.Calibration.to_dict` over every
+        ``all_touches`` (:meth:`core.evaluation.calibration.Calibration.to_dict` over every
         (trial, touch), n·T answers), ``final`` (the same at touch T, n answers) and
         ``by_touch`` [T] (per touch: ``answers``, ``accuracy``, ``ece``, ``brier``,
         ``log_loss``, ``sure_and_wrong``; the reliability table left out).

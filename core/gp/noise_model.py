@@ -30,9 +30,9 @@ from typing import Literal
 import numpy as np
 
 from core.errors import InvalidInputError
-from core.fit_options import FitProgress
+from core.gp.fit_options import FitProgress
+from core.gp.posterior import predict_model_space
 from core.observation_transform import ObservationTransform
-from core.posterior import predict_model_space
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray
 
@@ -272,7 +272,7 @@ def iter_fit_noise_model(
 
     Args:
         data: Raw training touches.
-        fit: Runs one manifold fit on model-space data (e.g. :func:`core.manifold.iter_fit`
+        fit: Runs one manifold fit on model-space data (e.g. :func:`core.gp.manifold.iter_fit`
             with the latent dimension, rng and options bound).
         noise_model: ``"independent"`` (standardise only), ``"correlated"`` (standardise and
             whiten the residual noise covariance of a first fit) or ``"auto"`` (both; keep the

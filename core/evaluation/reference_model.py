@@ -7,21 +7,21 @@ from __future__ import annotations
 
 import numpy as np
 
-from core.posterior import condition
+from core.evaluation.worlds import EXPERIMENT1_THETAS, sample_experiment1
+from core.gp.posterior import condition
 from core.types import Hyperparameters, ManifoldModel
-from core.worlds import EXPERIMENT1_THETAS, sample_experiment1
 
 
 def experiment1_at_true_latents(seed: int = 0, touches_per_object: int = 25) -> ManifoldModel:
     """Experiment 1's training touches conditioned at the true θ, without fitting.
 
     Latents are the true θ, normalised (centred, RMS 1) as a fit returns them; the
-    hyperparameters are those ``core.manifold.fit_hyperparameters`` finds for these latents on
+    hyperparameters are those ``core.gp.manifold.fit_hyperparameters`` finds for these latents on
     this data (seed 0, 25 touches per object), rounded. Recognition with it is a real GP
     computation; only the (slow) fit is skipped.
 
     Args:
-        seed: Seed of the training touches (:func:`core.worlds.sample_experiment1`).
+        seed: Seed of the training touches (:func:`core.evaluation.worlds.sample_experiment1`).
         touches_per_object: Training touches per object.
     """
     data = sample_experiment1(np.random.default_rng(seed), touches_per_object=touches_per_object)

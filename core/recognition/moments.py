@@ -20,7 +20,7 @@ Every posterior structure of :class:`core.types.GPPosterior` is supported: the d
 training touches, the sparse one over its inducing points (whose latents also take only L
 values: the sums over "touches" run over the support points), and the Kronecker one of a shared
 design, whose T_a(x) = U_s diag(t_a(x)) U_sᵀ is carried as the L-vector t_a(x) (the "trace
-spectrum", :func:`core.kronecker.action_statistics_spectral`) so that nothing of size L² per
+spectrum", :func:`core.gp.kronecker.action_statistics_spectral`) so that nothing of size L² per
 candidate is stored and tr(G_aa T_a) = Σ_j t_a[j] (U_sᵀ G_aa U_s)_jj.
 """
 
@@ -31,8 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.errors import InvalidInputError
-from core.kronecker import action_statistics_spectral
-from core.posterior import support_points
+from core.gp.kronecker import action_statistics_spectral
+from core.gp.posterior import support_points
 from core.types import GaussianBelief, ManifoldModel
 from core.validation import FloatArray, as_float_array
 

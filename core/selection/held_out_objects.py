@@ -1,5 +1,5 @@
 """Leave-objects-out scoring of a latent dimension (``criterion="objects"`` of
-:func:`core.latent_selection.select_latent_dim`).
+:func:`core.selection.latent_selection.select_latent_dim`).
 
 The objects are dealt to folds; a model fitted without a fold's objects meets each of them as
 a new object: its latent is placed from half its touches (:func:`place_latent`, the model
@@ -14,7 +14,7 @@ import numpy as np
 import scipy.optimize
 
 from core.errors import InvalidInputError
-from core.posterior import predict_model_space
+from core.gp.posterior import predict_model_space
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray, IntArray, as_float_array
 
@@ -81,7 +81,7 @@ def log_densities_at(
     """log p(y_t | s, x_t) of touches of one object at latent s, in raw units.
 
     Σ_a log N(y'_a; m_a, v_a) + log|det M| (the same density as
-    :func:`core.object_posterior.touch_log_likelihoods`, at any latent).
+    :func:`core.recognition.object_posterior.touch_log_likelihoods`, at any latent).
 
     Args:
         model: A conditioned model.

@@ -1,7 +1,7 @@
 """The Kronecker likelihood for few objects: L Cholesky blocks instead of eigendecomposing K^x.
 
 On a shared design the noisy Gram matrix of feature a is σ_f² K^s ⊗ K^x + σ_n² I
-(:mod:`core.kronecker`). Rotating by the eigenvectors of the small L × L latent kernel alone,
+(:mod:`core.gp.kronecker`). Rotating by the eigenvectors of the small L × L latent kernel alone,
 K^s = U_s Λ_s U_sᵀ, makes it block diagonal:
 
     (U_s ⊗ I)ᵀ K_a (U_s ⊗ I) = blockdiag_j B_j,    B_j = σ_f² λ_j K^x + σ_n² I    (M × M)
@@ -9,7 +9,7 @@ K^s = U_s Λ_s U_sᵀ, makes it block diagonal:
 so with Ŷ = U_sᵀ Y (L × M, rows ŷ_j) and A the L × M matrix of rows α_j = B_j⁻¹ ŷ_j:
 
 * log det K_a = Σ_j log det B_j;  yᵀ K_a⁻¹ y = Σ_j ŷ_j · α_j;  β = U_s A;
-* the block sums of W ∘ K_f that the gradient needs (:mod:`core.kronecker`'s docstring), with
+* the block sums of W ∘ K_f that the gradient needs (:mod:`core.gp.kronecker`'s docstring), with
   w_s[j] = ⟨K^x, B_j⁻¹⟩ (Frobenius):
 
       Ω_s = U_s (diag(w_s) - A K^x Aᵀ) U_sᵀ                                    (L × L)
@@ -33,7 +33,7 @@ import numpy as np
 import scipy.linalg.lapack
 
 from core.errors import NotPositiveDefiniteError
-from core.linalg import inverse_from_cholesky
+from core.gp.linalg import inverse_from_cholesky
 from core.validation import FloatArray
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
@@ -43,7 +43,7 @@ BLOCK_MAX_OBJECTS = 4
 BLOCK_MIN_ACTIONS = 50
 #: Blocks are used only where the eigendecomposition path would add no jitter: the noise
 #: variance above this fraction of σ_f² + σ_n² bounds every block's smallest eigenvalue away
-#: from that path's floor (1e-14 of σ_f² + σ_n², :mod:`core.kronecker`) by orders of
+#: from that path's floor (1e-14 of σ_f² + σ_n², :mod:`core.gp.kronecker`) by orders of
 #: magnitude.
 NOISE_FRACTION_FLOOR = 1e-10
 
@@ -61,7 +61,7 @@ def use_blocks(n_objects: int, n_actions: int) -> bool:
 
 @dataclass(frozen=True)
 class BlockSums:
-    """What the gradient of -log p needs, per feature (as :mod:`core.kronecker` computes it).
+    """What the gradient of -log p needs, per feature (as :mod:`core.gp.kronecker` computes it).
 
     Attributes:
         value: -log p.

@@ -2,9 +2,9 @@
 
 The public entry points: :func:`fit_manifold` (a fitted, normalised model), :func:`iter_fit`
 (the same fit as a generator of progress events) and :func:`fit_hyperparameters` (latents held
-fixed). Their settings are :class:`core.fit_options.FitOptions`; how a fit runs — data-driven and
+fixed). Their settings are :class:`core.gp.fit_options.FitOptions`; how a fit runs — data-driven and
 random starts, screening on a subsample, differential evolution, the choice of the winner and
-the normalisation of its latents — is described and implemented in :mod:`core.fit_run`.
+the normalisation of its latents — is described and implemented in :mod:`core.gp.fit_run`.
 """
 
 from __future__ import annotations
@@ -14,13 +14,13 @@ from collections.abc import Callable, Generator
 import numpy as np
 
 from core.errors import ConvergenceError, CoreError, InvalidInputError
-from core.fit_options import OPTIMIZERS, FitOptions, FitProgress, Optimizer
-from core.fit_run import FitProblem, FitRun, at_bounds, normalise_latents
-from core.initialisation import normalise_spread
-from core.noise_model import NOISE_MODEL_CHOICES, NoiseModelChoice, iter_fit_noise_model
-from core.optimiser_stream import run_to_end
-from core.parameters import initial_hyperparameters, parameter_bounds
-from core.posterior import condition, make_likelihood, resolve_structure
+from core.gp.fit_options import OPTIMIZERS, FitOptions, FitProgress, Optimizer
+from core.gp.fit_run import FitProblem, FitRun, at_bounds, normalise_latents
+from core.gp.initialisation import normalise_spread
+from core.gp.noise_model import NOISE_MODEL_CHOICES, NoiseModelChoice, iter_fit_noise_model
+from core.gp.optimiser_stream import run_to_end
+from core.gp.parameters import initial_hyperparameters, parameter_bounds
+from core.gp.posterior import condition, make_likelihood, resolve_structure
 from core.types import FitDiagnostics, ManifoldModel, TrainingData
 from core.validation import FloatArray, as_float_array
 
@@ -72,7 +72,7 @@ def iter_fit(
         options: Fit settings.
         noise_model: ``None`` (default): the GPs are fitted to the observations as given, no
             transform. ``"independent"``, ``"correlated"`` or ``"auto"``: standardise the
-            features, and whiten their correlated noise (:mod:`core.noise_model`); the model
+            features, and whiten their correlated noise (:mod:`core.gp.noise_model`); the model
             keeps the transform. Those run one fit (independent) or two (a first fit gives the
             residual noise covariance, then a refit), with the stage named in ``phase``.
 
@@ -156,7 +156,7 @@ def fit_hyperparameters(
     "randomly-set object parameter" baseline).
 
     The latents are normalised first (which does not change what the model can fit); the
-    hyperparameters start from :func:`core.parameters.initial_hyperparameters` and are
+    hyperparameters start from :func:`core.gp.parameters.initial_hyperparameters` and are
     optimised with L-BFGS-B on all the data (``options.max_iterations``, ``ftol``, ``gtol``).
 
     Args:

@@ -2,8 +2,8 @@
 
 Three posterior structures (:class:`core.types.GPPosterior`): ``"dense"`` (Cholesky of each
 N × N Gram matrix), ``"kronecker"`` (exact, for a complete shared action design:
-:mod:`core.kronecker`) and ``"sparse"`` (the approximate inducing-point posterior of
-:mod:`core.sparse`, for large data without a shared design). :func:`condition` picks one with
+:mod:`core.gp.kronecker`) and ``"sparse"`` (the approximate inducing-point posterior of
+:mod:`core.gp.sparse`, for large data without a shared design). :func:`condition` picks one with
 ``structure="auto"`` (see :func:`resolve_structure`); :func:`predict` works on all three.
 """
 
@@ -15,19 +15,19 @@ import numpy as np
 import scipy.linalg
 
 from core.errors import InvalidInputError
-from core.kernels import squared_exponential
-from core.kronecker import (
+from core.gp.kernels import squared_exponential
+from core.gp.kronecker import (
     KroneckerLikelihood,
     SharedDesign,
     condition_kronecker,
     find_shared_design,
     predict_kronecker,
 )
-from core.kronecker import require_shared_design as _require_shared_design
-from core.likelihood import ManifoldLikelihood
-from core.linalg import cholesky_with_jitter, log_det_from_cholesky
-from core.parameters import ParameterLayout
-from core.sparse import DEFAULT_INDUCING_POINTS, SparseLikelihood, condition_sparse
+from core.gp.kronecker import require_shared_design as _require_shared_design
+from core.gp.likelihood import ManifoldLikelihood
+from core.gp.linalg import cholesky_with_jitter, log_det_from_cholesky
+from core.gp.parameters import ParameterLayout
+from core.gp.sparse import DEFAULT_INDUCING_POINTS, SparseLikelihood, condition_sparse
 from core.types import (
     FitDiagnostics,
     GPPosterior,
@@ -53,7 +53,7 @@ def resolve_structure(
     """Which posterior structure to use for ``data``.
 
     ``"auto"``: ``"kronecker"`` when every object was touched with the same actions (a complete
-    shared design, :func:`core.kronecker.find_shared_design`); otherwise ``"dense"`` up to
+    shared design, :func:`core.gp.kronecker.find_shared_design`); otherwise ``"dense"`` up to
     :data:`AUTO_SPARSE_ABOVE` touches and ``"sparse"`` above. Missing touches (an object lacking
     some design actions) therefore fall back to dense (exact) or sparse (approximate).
 
@@ -83,9 +83,9 @@ def resolve_structure(
 
 
 class Likelihood(Protocol):
-    """What a fit needs from a likelihood: :class:`core.likelihood.ManifoldLikelihood` (dense),
-    :class:`core.kronecker.KroneckerLikelihood` (exact, shared design) or
-    :class:`core.sparse.SparseLikelihood` (the negative variational bound)."""
+    """What a fit needs from a likelihood: :class:`core.gp.likelihood.ManifoldLikelihood` (dense),
+    :class:`core.gp.kronecker.KroneckerLikelihood` (exact, shared design) or
+    :class:`core.gp.sparse.SparseLikelihood` (the negative variational bound)."""
 
     data: TrainingData
     layout: ParameterLayout
@@ -167,8 +167,8 @@ def condition(
     log-likelihood.
 
     The dense path factors each K_a (Cholesky) and stores K_a⁻¹. A complete shared design goes
-    through the eigendecompositions instead (exact, :func:`core.kronecker.condition_kronecker`);
-    ``"sparse"`` builds the inducing-point posterior (:func:`core.sparse.condition_sparse`,
+    through the eigendecompositions instead (exact, :func:`core.gp.kronecker.condition_kronecker`);
+    ``"sparse"`` builds the inducing-point posterior (:func:`core.gp.sparse.condition_sparse`,
     approximate; ``log_likelihood`` is then the variational bound).
 
     Args:

@@ -15,7 +15,7 @@ so with Y_a the centred observations as an L × M matrix and Ỹ = U_sᵀ Y_a U_
 
 * log det K_a = Σ log D_a;  y_aᵀ K_a⁻¹ y_a = Σ Ỹ² / D_a;  β_a = U_s (Ỹ / D_a) U_xᵀ (L × M);
 * the gradient of -log p needs only the block sums of W ∘ K_f of the dense path
-  (:mod:`core.likelihood`), which factor too. With B = β_a as an L × M matrix,
+  (:mod:`core.gp.likelihood`), which factor too. With B = β_a as an L × M matrix,
   w_s = (1/D) Λ_x and w_x = Λ_sᵀ (1/D):
 
       Σ_{m,m'} (W ∘ K_f)[(l,m), (l',m')] = σ_f² K^s[l,l'] · (U_s diag(w_s) U_sᵀ - B K^x Bᵀ)[l,l']
@@ -25,10 +25,10 @@ so with Y_a the centred observations as an L × M matrix and Ỹ = U_sᵀ Y_a U_
   action-length-scale gradients (the second, M × M); σ_n² needs tr W = Σ 1/D - ‖B‖².
   Implemented without B: with C̃ = Ỹ / D, B K^x Bᵀ = P_s Λ_x P_sᵀ for P_s = U_s C̃ and
   Bᵀ K^s B = P_x Λ_s P_xᵀ for P_x = U_x C̃ᵀ, each bracket one triangle from symmetric rank-k
-  updates (:func:`core.linalg.weighted_gram_difference`), and ‖B‖ = ‖C̃‖. The two
+  updates (:func:`core.gp.linalg.weighted_gram_difference`), and ‖B‖ = ‖C̃‖. The two
   eigendecompositions dominate (at L = 400, M = 100 about two thirds of an evaluation).
   For a few objects on many actions (L ≤ 4, M ≥ 50) the value and gradient come instead from
-  L Cholesky blocks of order M after rotating by U_s alone (:mod:`core.kronecker_blocks`):
+  L Cholesky blocks of order M after rotating by U_s alone (:mod:`core.gp.kronecker_blocks`):
   the same numbers, 1.1-1.9x faster per evaluation.
 
 Everything is O(dy (L³ + M³ + L·M·(L + M))) time and O(dy (L² + M² + L·M)) memory, against
@@ -46,8 +46,8 @@ t (the "trace spectrum") plus the per-model basis U_s, O(dy (M² + L·M)) per ca
 
 **Missing touches.** The structure needs the complete grid. When some object lacks some of the
 design actions (or has extra touches), :func:`find_shared_design` returns ``None`` and callers
-fall back to the dense path (:mod:`core.likelihood`, :func:`core.posterior.condition`), or to the
-sparse path (:mod:`core.sparse`) when the data are too large for it; the result is then exact
+fall back to the dense path (:mod:`core.gp.likelihood`, :func:`core.gp.posterior.condition`), or to
+the sparse path (:mod:`core.gp.sparse`) when the data are too large for it; the result is then exact
 (dense) or approximate (sparse), never a Kronecker result on an incomplete grid.
 """
 
@@ -58,9 +58,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.errors import InvalidInputError, NotPositiveDefiniteError
-from core.kronecker_blocks import BlockSums, block_sums, block_value, use_blocks
-from core.linalg import JITTER_LADDER, weighted_gram_difference
-from core.parameters import ParameterLayout
+from core.gp.kronecker_blocks import BlockSums, block_sums, block_value, use_blocks
+from core.gp.linalg import JITTER_LADDER, weighted_gram_difference
+from core.gp.parameters import ParameterLayout
 from core.types import (
     FitDiagnostics,
     GPPosterior,
@@ -179,7 +179,7 @@ class _Spectral:
 
 class KroneckerLikelihood:
     """-log p(Y | S, X, γ) and its gradient on a shared design, drop-in for
-    :class:`core.likelihood.ManifoldLikelihood` (same packed vector, same values to rounding).
+    :class:`core.gp.likelihood.ManifoldLikelihood` (same packed vector, same values to rounding).
 
     Args:
         data: Training touches on a complete shared design.
@@ -207,7 +207,7 @@ class KroneckerLikelihood:
         grid[:, self.design.grid_index] = centred.T
         self._grid_y = grid.reshape(data.observation_dim, data.n_objects, m)
         #: Evaluate through L Cholesky blocks (few objects) instead of eigendecomposing K^x
-        #: (:mod:`core.kronecker_blocks`); the eigendecompositions remain the fallback.
+        #: (:mod:`core.gp.kronecker_blocks`); the eigendecompositions remain the fallback.
         self.blocks = use_blocks(data.n_objects, m)
         self.max_jitter = 0.0
         self.evaluations = 0
@@ -347,7 +347,7 @@ class KroneckerLikelihood:
         """-log p and its gradient with respect to the packed vector (same layout).
 
         The block sums of W ∘ K_f (module docstring) come from L Cholesky blocks for few
-        objects (:mod:`core.kronecker_blocks`), else from the eigendecompositions
+        objects (:mod:`core.gp.kronecker_blocks`), else from the eigendecompositions
         (:meth:`_spectral_sums`); the gradient is assembled from them the same way.
         """
         self.evaluations += 1
@@ -403,7 +403,7 @@ def condition_kronecker(
 
     The posterior carries :class:`core.types.KroneckerFactors` (no dense K⁻¹; it is
     materialised on request for small N) and β in data order, so every consumer of
-    :func:`core.posterior.condition`'s models keeps working.
+    :func:`core.gp.posterior.condition`'s models keeps working.
 
     Args:
         data: Training touches on a complete shared design.

@@ -5,8 +5,8 @@ The active planner scores a fixed, scrambled Sobol set of candidate actions spre
 "Structure that makes it fast"), then refines the best few with L-BFGS-B inside the box using the
 analytic gradient of the mutual information. The discriminative policy scores the same
 candidates (and the same cached statistics) by the information the touch would give about *which
-object* it is, under the current object probabilities (:mod:`core.object_information`). The
-passive policy draws from the action prior and the fixed policy repeats one action; every policy
+object* it is, under the current object probabilities (:mod:`core.recognition.object_information`).
+The passive policy draws from the action prior and the fixed policy repeats one action; every policy
 reports the mutual information of its action under the belief it was given.
 
 :data:`POLICIES` is the one registry of policies by name (CLI, API, evaluations, benchmarks): how a
@@ -25,8 +25,8 @@ import scipy.optimize
 from scipy.stats import qmc
 
 from core.errors import InvalidInputError
-from core.information_gradient import GradientCache, mutual_information_and_gradient
-from core.moments import (
+from core.recognition.information_gradient import GradientCache, mutual_information_and_gradient
+from core.recognition.moments import (
     ActionStatistics,
     action_statistics,
     belief_terms,
@@ -34,7 +34,7 @@ from core.moments import (
     mutual_information,
     predictive_moments,
 )
-from core.object_information import label_information_mc, object_predictives
+from core.recognition.object_information import label_information_mc, object_predictives
 from core.types import GaussianBelief, ManifoldModel
 from core.validation import FloatArray, as_float_array
 
@@ -185,7 +185,7 @@ class DiscriminativePolicy:
 
     The score of an action x is I(l; y | x) under the current object probabilities p_l, each
     object's observation predicted by the GP at its learned latent s_l
-    (:mod:`core.object_information`), estimated by Monte Carlo with ``n_draws`` common
+    (:mod:`core.recognition.object_information`), estimated by Monte Carlo with ``n_draws`` common
     random numbers (fixed per planner, so the choice is deterministic).
 
     Attributes:
@@ -439,7 +439,7 @@ def label_information_score(
 ) -> FloatArray:
     """Estimated I(l; y | x) of each recorded action under the object posterior.
 
-    The discriminative policy's score (:mod:`core.object_information`), evaluated at the
+    The discriminative policy's score (:mod:`core.recognition.object_information`), evaluated at the
     recorded actions instead of the planner's candidates, with fixed standard-normal draws
     seeded by the planner's candidate seed (common random numbers: deterministic).
     """
