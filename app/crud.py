@@ -13,8 +13,7 @@ from typing import Any, TypeVar
 from sqlalchemy import delete, func, select, update
 from sqlalchemy.orm import Session
 
-from app.errors import NotFoundError
-from app.models import (
+from app.db.tables import (
     Dataset,
     Evaluation,
     EvaluationTrial,
@@ -29,6 +28,7 @@ from app.models import (
     TrialStep,
     utc_now,
 )
+from app.errors import NotFoundError
 from app.states import ACTIVE, MODEL_ACTIVE
 
 RowT = TypeVar("RowT", Dataset, ModelRecord, Trial, Run, Evaluation)

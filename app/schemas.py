@@ -326,7 +326,7 @@ class ActionBounds(BaseModel):
 
 
 #: Older spellings of the simulated worlds, still accepted (and read from stored trials) as the
-#: names of :data:`core.worlds.WORLD_NAMES` they stand for.
+#: names of :data:`core.evaluation.worlds.WORLD_NAMES` they stand for.
 WORLD_ALIASES: dict[str, str] = {"experiment1": "exp1", "experiment2": "exp2"}
 
 
@@ -525,13 +525,13 @@ class CollectionCreate(BaseModel):
 
     ``action_design``: ``random`` draws a fresh x ~ N(0, action_scale² I) for every touch (the
     paper's design; each object gets its own actions); ``shared`` draws ``samples_per_object``
-    actions from the same prior (scrambled Sobol, :func:`core.designs.shared_design`) and touches
-    every object with each of them (a shared design: fits and plans take the exact Kronecker
+    actions from the same prior (scrambled Sobol, :func:`core.evaluation.designs.shared_design`) and
+    touches every object with each of them (a shared design: fits and plans take the exact Kronecker
     path); ``teaching`` repeats the teaching action x = 0; ``adaptive`` touches the first half
     as ``random`` does, then (``samples_per_object`` ≥ 3) rounds at the actions the planners
     would choose from a model fitted to the touches so far (the same budget,
-    :mod:`core.adaptive_design`). ``action_design`` left out: ``adaptive``, or ``random`` with
-    fewer than 3 samples per object (:func:`app.services.collections.default_design`); the
+    :mod:`core.evaluation.adaptive_design`). ``action_design`` left out: ``adaptive``, or ``random``
+    with fewer than 3 samples per object (:func:`app.services.collections.default_design`); the
     run's ``params`` record the design used. ``action_scale`` left out: the simulated
     table's own spread on the mock rig (its ``action_std``), 1.0 on a real rig; the run's
     ``params`` record the spread used.

@@ -28,7 +28,7 @@ import httpx
 import numpy as np
 
 from app.documents.model import model_to_document
-from core.reference_model import experiment1_at_true_latents
+from core.evaluation import experiment1_at_true_latents
 
 ROOT = Path(__file__).resolve().parent.parent
 

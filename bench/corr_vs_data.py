@@ -26,13 +26,18 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from bench.reference_fit import joint_optimum
-from core.designs import collect, shared_design
-from core.initialisation import normalise_spread
-from core.manifold import FitOptions, fit_hyperparameters
-from core.metrics import abs_correlation
+from core.evaluation import (
+    EXPERIMENT1_THETAS,
+    Experiment1World,
+    abs_correlation,
+    collect,
+    sample_experiment1,
+    shared_design,
+)
+from core.gp import FitOptions, fit_hyperparameters
+from core.gp.initialisation import normalise_spread
 from core.types import TrainingData
 from core.validation import FloatArray
-from core.worlds import EXPERIMENT1_THETAS, Experiment1World, sample_experiment1
 
 
 def dataset(design: str, touches: int, seed: int, noise_std: float) -> TrainingData:
@@ -48,7 +53,7 @@ def dataset(design: str, touches: int, seed: int, noise_std: float) -> TrainingD
 
 
 def normalised(latents: FloatArray) -> FloatArray:
-    """The fit's reporting convention (:func:`core.initialisation.normalise_spread`), signed to
+    """The fit's reporting convention (:func:`core.gp.initialisation.normalise_spread`), signed to
     agree with θ. Shape (L,) for latents of shape (L, 1)."""
     s = normalise_spread(latents)[0][:, 0]
     theta = np.array(EXPERIMENT1_THETAS)

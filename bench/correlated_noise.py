@@ -1,6 +1,6 @@
 """Benchmark: correlated channel noise — recognition, held-out likelihood and calibration.
 
-On the correlated-noise world (:func:`core.worlds.correlated_noise_world`:
+On the correlated-noise world (:func:`core.evaluation.worlds.correlated_noise_world`:
 five tactile-like channels on scales 100…1 whose noise correlates up to 0.8, noise comparable to
 the differences between objects) and on Experiment-2-like worlds (independent noise), every model
 is fitted on training touches and judged on fresh held-out touches of the same objects:
@@ -34,17 +34,17 @@ import numpy as np
 import scipy.stats
 from threadpoolctl import threadpool_limits
 
-from core.manifold import FitOptions, fit_manifold
-from core.noise_model import (
+from core.evaluation.worlds import correlated_noise_world, random_experiment2_world, sample_dataset
+from core.gp import FitOptions, fit_manifold
+from core.gp.noise_model import (
     attach_transform,
     choose_noise_model,
     transform_data,
     within_object_transform,
 )
-from core.object_posterior import object_log_likelihoods, touch_log_likelihoods
+from core.recognition import object_log_likelihoods, touch_log_likelihoods
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray
-from core.worlds import correlated_noise_world, random_experiment2_world, sample_dataset
 
 #: Upper edges of the reliability bins of the answer's probability.
 BIN_EDGES = (0.5, 0.8, 0.95, 0.99, 1.0)

@@ -22,9 +22,9 @@ model's own samples? This bench splits the gap into measurable parts (docs/metho
     group of touches and placed anew before every touch.
 (c) **Accuracy and calibration on worlds ``model`` and ``rig`` side by side**, per policy, with
     the evaluation engine (:func:`app.evaluation.runner.run_evaluation`, as ``activetouch
-    evaluate``) and :mod:`core.calibration` over every (trial, touch): accuracy after touch 1 and
-    T, expected calibration error, Brier score, log-loss, and the answers given with p ≥ the
-    confidence threshold that were wrong.
+    evaluate``) and :mod:`core.evaluation.calibration` over every (trial, touch): accuracy after
+    touch 1 and T, expected calibration error, Brier score, log-loss, and the answers given with p ≥
+    the confidence threshold that were wrong.
 
 Run: ``python -m bench.diagnose_gap --table cushions [--model M.json | --touches 40
 [--action-scale S]] [--trials 10] [--steps 6] [--policies active,discriminative,passive]
@@ -55,14 +55,12 @@ from app.evaluation.context import TrialContext, TrialKey
 from app.evaluation.report import EvaluationReport
 from app.evaluation.rig_trial import RigTrial
 from app.evaluation.runner import run_evaluation
-from app.evaluation.spec import EvaluationSpec
-from core.calibration import calibration
+from app.evaluation.spec import EvaluationSpec, Placement
 from core.errors import TouchRefused
-from core.evaluation_records import RefusedTrial, TrialRecord
-from core.noise_model import loo_log_likelihoods
-from core.noise_model import standardised_residuals as loo_residuals
-from core.posterior import predict_model_space
-from core.trial_engine import ModelTouches, Touch
+from core.evaluation import ModelTouches, RefusedTrial, Touch, TrialRecord, calibration
+from core.gp import predict_model_space
+from core.gp.noise_model import loo_log_likelihoods
+from core.gp.noise_model import standardised_residuals as loo_residuals
 from core.types import ManifoldModel
 from core.validation import FloatArray
 from hardware.sim.materials import TactileObject
@@ -178,7 +176,7 @@ def standardised_residuals(
 
     Returns:
         ``(z, log_density, epistemic_share)``: z shape (n, dy); the per-touch log-density
-        Σ_a log N(y'_a; m_a, v_a) + log|det M| (as :func:`core.object_posterior
+        Σ_a log N(y'_a; m_a, v_a) + log|det M| (as :func:`core.recognition.object_posterior
         .touch_log_likelihoods`), shape (n,); (v − σ_n²) / v, shape (n, dy).
     """
     index = np.asarray(object_index, dtype=np.int64)
@@ -269,7 +267,7 @@ def touch_sequences(
     table_objects: tuple[str | TactileObject, ...],
     sequences: Sequence[TouchSequence],
     *,
-    replace_each_touch: bool,
+    placement: Placement,
 ) -> tuple[Touches, Touches, int]:
     """Touch each sequence on a fresh simulated rig and draw it from the model.
 
@@ -278,7 +276,7 @@ def touch_sequences(
         (each sequence one group), and the number of sequences the rig refused a touch of
         (their touches before the refusal are kept).
     """
-    from app.rig_factory import TouchActions
+    from app.rig.actions import TouchActions
 
     touch_actions = TouchActions.from_teaching()
     rig_touches, model_touches, refused = Touches.empty(), Touches.empty(), 0
@@ -289,7 +287,7 @@ def touch_sequences(
             table_objects,
             seq.target,
             seq.seed,
-            replace_each_touch=replace_each_touch,
+            placement=placement,
         )
         draw = ModelTouches(model, seq.target)
         rng = np.random.default_rng(seq.seed)
@@ -527,10 +525,13 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     residuals: dict[str, dict[str, Any]] = {}
     t0 = time.perf_counter()
     train_like = training_like_sequences(model, args.groups, args.group_size, args.seed + 1)
-    modes = (("training-like, placed once", False), ("training-like, placed anew", True))
-    for label, anew in modes:
+    modes: tuple[tuple[str, Placement], ...] = (
+        ("training-like, placed once", "trial"),
+        ("training-like, placed anew", "touch"),
+    )
+    for label, placement in modes:
         rig_t, model_t, refused = touch_sequences(
-            model, table_objects, train_like, replace_each_touch=anew
+            model, table_objects, train_like, placement=placement
         )
         residuals[label] = {
             "rig": rig_t.summary(model).to_dict(),

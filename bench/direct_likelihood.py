@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from core.parameters import ParameterLayout
+from core.gp.parameters import ParameterLayout
 from core.types import Hyperparameters, TrainingData
 from core.validation import FloatArray
 
@@ -20,7 +20,7 @@ from core.validation import FloatArray
 def direct_value_and_gradient(
     data: TrainingData, latents: FloatArray, hyperparameters: Hyperparameters
 ) -> tuple[float, FloatArray]:
-    """-log p(Y | S, X, γ) and its gradient in the packed layout of :mod:`core.parameters`.
+    """-log p(Y | S, X, γ) and its gradient in the packed layout of :mod:`core.gp.parameters`.
 
     Returns:
         The value and the gradient with respect to (S, log σ_f², log σ_n², log ℓ^s, log ℓ^x).

@@ -46,7 +46,7 @@ import numpy as np
 
 from app.documents.model import model_to_document
 from app.documents.training_csv import read_training_csv, write_training_csv
-from core.manifold import FitOptions, fit_manifold
+from core.gp import FitOptions, fit_manifold
 from core.types import TrainingData
 
 

@@ -37,8 +37,8 @@ from app.evaluation.context import TrialContext, run_trials_task
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
 from bench.harness import machine
-from core.manifold import FitOptions, fit_manifold
-from core.worlds import Experiment1World, sample_dataset
+from core.evaluation import Experiment1World, sample_dataset
+from core.gp import FitOptions, fit_manifold
 
 
 @contextmanager

@@ -2,9 +2,9 @@
 
 Cases (Experiment-2-like world, dx = 6, dy = 5, ds = 2, reference parameters):
 
-* ``dense_L4_N400``: :class:`core.likelihood.ManifoldLikelihood`, random design, L = 4, N = 400;
+* ``dense_L4_N400``: :class:`core.gp.likelihood.ManifoldLikelihood`, random design, L = 4, N = 400;
 * ``kron_L4_M100``, ``kron_L100_M100``, ``kron_L400_M100``:
-  :class:`core.kronecker.KroneckerLikelihood`, shared design (M = 100 actions per object);
+  :class:`core.gp.kronecker.KroneckerLikelihood`, shared design (M = 100 actions per object);
 
 beside GPy's ``_objective_grads`` summed over the five ``GPRegression`` models of the same data
 (:mod:`bench.gpy_models`; L = 4 cases only, skipped without GPy) and two floors:
@@ -34,9 +34,9 @@ import scipy.linalg.lapack
 from bench import scenarios
 from bench.gpy_models import build_models, load_gpy, value_and_gradient
 from bench.harness import blas_threads, gemm_rate, machine, measure
-from core.kernels import squared_exponential
-from core.kronecker import KroneckerLikelihood
-from core.likelihood import ManifoldLikelihood
+from core.gp.kernels import squared_exponential
+from core.gp.kronecker import KroneckerLikelihood
+from core.gp.likelihood import ManifoldLikelihood
 from core.types import Hyperparameters
 from core.validation import FloatArray
 

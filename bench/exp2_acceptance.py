@@ -32,7 +32,7 @@ from typing import Any
 from app.cli.main import load_model
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
-from core.evaluation_summary import wilson_interval
+from core.evaluation import wilson_interval
 
 
 def checks(summary: dict[str, Any], reference: str, other: str) -> dict[str, Any]:

@@ -1,9 +1,9 @@
 """Benchmark: the manifold fit on a real-sized random design (N = 800).
 
 20 objects × 40 touches (N = 800), a fresh action per touch (dx = 1), dy = 5, drawn from
-:func:`core.worlds.random_experiment2_world` (true ds = 3). For each fitted ds it runs the
-default fit (:class:`core.fit_run.FitRun`, default :class:`core.fit_options.FitOptions`) and
-prints the fit seconds (wall and CPU of the process), the log-likelihood reached, the
+:func:`core.evaluation.worlds.random_experiment2_world` (true ds = 3). For each fitted ds it runs
+the default fit (:class:`core.gp.fit_run.FitRun`, default :class:`core.gp.fit_options.FitOptions`)
+and prints the fit seconds (wall and CPU of the process), the log-likelihood reached, the
 likelihood evaluations and their seconds by problem size (all the data, the screening
 subsample, the one-feature problems of the hyperparameter stages), the L-BFGS-B iterations of
 the winning start, the seconds per stage, the time of one evaluation with gradient on all the
@@ -88,12 +88,12 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from core.fit_options import FitOptions
-from core.fit_run import FitRun
-from core.likelihood import ManifoldLikelihood
-from core.parameters import initial_hyperparameters
+from core.evaluation.worlds import random_experiment2_world, sample_dataset
+from core.gp import FitOptions
+from core.gp.fit_run import FitRun
+from core.gp.likelihood import ManifoldLikelihood
+from core.gp.parameters import initial_hyperparameters
 from core.types import TrainingData
-from core.worlds import random_experiment2_world, sample_dataset
 
 #: (N, dy) -> [evaluations, seconds] of every ManifoldLikelihood evaluation in the process.
 _COUNTS: dict[tuple[int, int, str], list[float]] = defaultdict(lambda: [0, 0.0])

@@ -1,10 +1,10 @@
 """Benchmark: manifold fitting on Experiment 1 (|corr| over data seeds) and one-start cost.
 
 For each data seed of Experiment 1 (4 objects × 100 touches, dx=1, dy=3, ds=1) it fits the
-manifold with the default :class:`core.manifold.FitOptions` and prints |corr(θ, s)|, the fit
+manifold with the default :class:`core.gp.manifold.FitOptions` and prints |corr(θ, s)|, the fit
 time and the log-likelihood, beside the log-likelihood with the true θ as fixed latents
 (hyperparameters fitted); then the paper's random-latent baseline (random S_w held fixed,
-hyperparameters fitted with :func:`core.manifold.fit_hyperparameters`). With ``--one-start`` it
+hyperparameters fitted with :func:`core.gp.manifold.fit_hyperparameters`). With ``--one-start`` it
 also times one L-BFGS start on all the data at L=4, N=400, dx=6, dy=5, ds=2.
 
 Wall-clock seconds depend on what else runs on the machine; the CPU seconds of the process
@@ -24,19 +24,19 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from bench.reference_fit import joint_optimum
-from core.fit_run import FitRun
-from core.initialisation import pca_latents, random_latents
-from core.likelihood import ManifoldLikelihood
-from core.manifold import FitOptions, fit_hyperparameters, fit_manifold
-from core.metrics import abs_correlation, procrustes_r2
-from core.parameters import initial_hyperparameters
-from core.types import ManifoldModel, TrainingData
-from core.worlds import (
+from core.evaluation import abs_correlation, procrustes_r2
+from core.evaluation.worlds import (
     EXPERIMENT1_THETAS,
     random_experiment2_world,
     sample_dataset,
     sample_experiment1,
 )
+from core.gp import FitOptions, fit_hyperparameters, fit_manifold
+from core.gp.fit_run import FitRun
+from core.gp.initialisation import pca_latents, random_latents
+from core.gp.likelihood import ManifoldLikelihood
+from core.gp.parameters import initial_hyperparameters
+from core.types import ManifoldModel, TrainingData
 
 
 def experiment1(seeds: int, noise_std: float, options: FitOptions) -> None:

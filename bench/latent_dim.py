@@ -1,15 +1,15 @@
 """Benchmark: does ``latent_dim="auto"`` pick the true ds on Experiment-2-like worlds?
 
-For worlds of true ds = 1, 2, 3 (:func:`core.worlds.random_experiment2_world` with
-``latent_dim``), sample training touches, run :func:`core.latent_selection.select_latent_dim`
-(``--criterion touches``: cross-validation over touches within objects, the app's default;
-``objects``: leave-objects-out; candidates 1..4) with the independent noise model, and print
-every candidate's held-out score, the best and the chosen ds, and whether it is the truth.
-``--likelihoods`` also fits every candidate on all the data and prints the maximised
-log-likelihoods and the choice of a BIC-like penalty (½ (L + dy) log N per latent dimension:
-L latent coordinates and dy length-scales).
-Fits are nested by default (:mod:`core.nested_fits`: ds = k from the ds = k - 1 optimum, in
-every fold and in the full-data fits); ``--independent-fits`` fits every candidate on its own.
+For worlds of true ds = 1, 2, 3 (:func:`core.evaluation.worlds.random_experiment2_world` with
+``latent_dim``), sample training touches, run
+:func:`core.selection.latent_selection.select_latent_dim` (``--criterion touches``: cross-validation
+over touches within objects, the app's default; ``objects``: leave-objects-out; candidates 1..4)
+with the independent noise model, and print every candidate's held-out score, the best and the
+chosen ds, and whether it is the truth. ``--likelihoods`` also fits every candidate on all the data
+and prints the maximised log-likelihoods and the choice of a BIC-like penalty (½ (L + dy) log N per
+latent dimension: L latent coordinates and dy length-scales).
+Fits are nested by default (:mod:`core.selection.nested_fits`: ds = k from the ds = k - 1 optimum,
+in every fold and in the full-data fits); ``--independent-fits`` fits every candidate on its own.
 
 The defaults are worlds where the question has an answer: the fit can learn the response
 (length-scale 3 along x for actions drawn from N(0, I) in dx = 6, 2 along s for latents drawn
@@ -35,12 +35,12 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from core.latent_selection import CRITERIA, select_latent_dim
-from core.manifold import FitOptions, fit_manifold
-from core.nested_fits import StartedFit, nested_fits
+from core.evaluation.worlds import random_experiment2_world, sample_dataset
+from core.gp import FitOptions, fit_manifold
+from core.selection import CRITERIA, select_latent_dim
+from core.selection.nested_fits import StartedFit, nested_fits
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray
-from core.worlds import random_experiment2_world, sample_dataset
 
 
 def main() -> None:

@@ -1,8 +1,9 @@
 """Benchmark: choosing one action, and the structured moments against the direct formula.
 
 Target: one active action at L = 4, N = 400, dx = 6, dy = 5, ds = 2 in ≤ 50 ms median,
-single-threaded. The model is conditioned on an Experiment-2-like world (``core.worlds``) with
-the true latents, normalised, and fixed hyperparameters, so the figure does not depend on fitting.
+single-threaded. The model is conditioned on an Experiment-2-like world (``core.evaluation.worlds``)
+with the true latents, normalised, and fixed hyperparameters, so the figure does not depend on
+fitting.
 
 Run: ``.venv/bin/python -m bench.plan_speed [--repeats 50] [--candidates 256] [--refine 2]``
 """
@@ -21,15 +22,16 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 
 from bench.reference_moments import direct_moments_batch  # noqa: E402
-from core.moments import (  # noqa: E402
+from core.evaluation.worlds import random_experiment2_world, sample_dataset  # noqa: E402
+from core.gp import condition  # noqa: E402
+from core.recognition import (  # noqa: E402
+    ActivePolicy,
+    Planner,
     action_statistics,
     mutual_information,
     predictive_moments,
 )
-from core.planning import ActivePolicy, Planner  # noqa: E402
-from core.posterior import condition  # noqa: E402
 from core.types import GaussianBelief, Hyperparameters, ManifoldModel  # noqa: E402
-from core.worlds import random_experiment2_world, sample_dataset  # noqa: E402
 
 
 def build_model(seed: int, touches_per_object: int = 100) -> ManifoldModel:

@@ -9,10 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from core.hyperparameter_fit import minimize_free
-from core.manifold import FitOptions
-from core.parameters import parameter_bounds
-from core.posterior import make_likelihood
+from core.gp import FitOptions, make_likelihood
+from core.gp.hyperparameter_fit import minimize_free
+from core.gp.parameters import parameter_bounds
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray
 
@@ -24,7 +23,7 @@ def joint_optimum(
 
     Args:
         data: Training touches.
-        start: Starting model, e.g. :func:`core.manifold.fit_hyperparameters` on the true
+        start: Starting model, e.g. :func:`core.gp.manifold.fit_hyperparameters` on the true
             latents.
         options: Bounds (``latent_bound``), ``max_iterations``, ``ftol``, ``gtol`` and the
             likelihood ``structure``.

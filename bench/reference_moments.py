@@ -1,11 +1,12 @@
 """The paper's appendix formula for U1 and U2, evaluated directly over all N touches.
 
-This is the reference the structured, batched implementation in :mod:`core.moments` is tested and
-benchmarked against. It follows the appendix (as restated in docs/method.md eq. (M3)–(M4)) term by
-term, with no use of the per-object structure: q_ai and Q_ab,ij are built for every touch i, j
-(vectorised over i and j, looped over the features a, b), β_a and K_a⁻¹ are recomputed from the
-Gram matrix, the cross-covariance comes from λ_a (C = Λ - μ mᵀ) and the mutual information from
-the determinant form ½ log(det S det Σ / det Σ̃). Slow on purpose: O(dy² N² ds) per action.
+This is the reference the structured, batched implementation in :mod:`core.recognition.moments` is
+tested and benchmarked against. It follows the appendix (as restated in docs/method.md eq.
+(M3)–(M4)) term by term, with no use of the per-object structure: q_ai and Q_ab,ij are built for
+every touch i, j (vectorised over i and j, looped over the features a, b), β_a and K_a⁻¹ are
+recomputed from the Gram matrix, the cross-covariance comes from λ_a (C = Λ - μ mᵀ) and the mutual
+information from the determinant form ½ log(det S det Σ / det Σ̃). Slow on purpose: O(dy² N² ds) per
+action.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from core.posterior import gram_matrix
+from core.gp import gram_matrix
 from core.types import GaussianBelief, ManifoldModel
 from core.validation import FloatArray
 

@@ -9,8 +9,8 @@ a. **Log-likelihood + gradient** at L = 4, N = 400: ours (dense path on the pape
 b. **A fit** at that shape. GPy cannot learn latents: its fit is ``optimize()`` of the five
    models on inputs [S; x] with S given. *Like for like*: S = our fitted latents held fixed,
    the same initial hyperparameters, one L-BFGS-B start each with GPy's stopping rule (ours:
-   :func:`core.manifold.fit_hyperparameters`; also with our default, tighter rule). *Full*:
-   our one-start :func:`core.manifold.fit_manifold` (``restarts=0``), which learns S too,
+   :func:`core.gp.manifold.fit_hyperparameters`; also with our default, tighter rule). *Full*:
+   our one-start :func:`core.gp.manifold.fit_manifold` (``restarts=0``), which learns S too,
    against the same GPy time.
 c. **Mutual information per candidate**: ours (fresh action statistics + moments + MI for 256
    candidates, divided by 256; and with the statistics reused) vs the direct appendix formula
@@ -50,16 +50,28 @@ from bench.harness import (
     run_child,
 )
 from bench.reference_moments import direct_moments_batch
-from core.initialisation import pca_latents
-from core.manifold import FitOptions, fit_hyperparameters, fit_manifold
-from core.metrics import procrustes_r2
-from core.moments import action_statistics, belief_terms, moments_from_terms, mutual_information
-from core.parameters import initial_hyperparameters
-from core.planning import ActionBox, ActivePolicy, Planner, sobol_candidates
-from core.posterior import Structure, condition, make_likelihood, predict
+from core.evaluation import procrustes_r2
+from core.evaluation.worlds import RandomFeatureWorld
+from core.gp import (
+    FitOptions,
+    Structure,
+    condition,
+    fit_hyperparameters,
+    fit_manifold,
+    make_likelihood,
+    predict,
+)
+from core.gp.initialisation import pca_latents
+from core.gp.parameters import initial_hyperparameters
 from core.recognition import RecognitionSession
+from core.recognition.moments import (
+    action_statistics,
+    belief_terms,
+    moments_from_terms,
+    mutual_information,
+)
+from core.recognition.planning import ActionBox, ActivePolicy, Planner, sobol_candidates
 from core.types import GaussianBelief, ManifoldModel, TrainingData
-from core.worlds import RandomFeatureWorld
 
 Progress = Callable[[str], None]
 
@@ -111,7 +123,7 @@ def structured_mi_flops(
     * the moments: 2·dy·L² per feature pair (u_aᵀ G_ab u_b), 2·L² (the trace), 3·L·ds (C);
     * the MI: dy³/3 + 2·ds·dy² + ds³ (Cholesky, solves, eigenvalues) per candidate.
 
-    With ``kronecker_design = M`` the statistics are those of :mod:`core.kronecker` instead:
+    With ``kronecker_design = M`` the statistics are those of :mod:`core.gp.kronecker` instead:
     kernels against the M design actions (4·M·dx + M), u = B e^x (2·L·M), ẽ = U_xᵀ e^x (2·M²),
     t = D⁻¹ ẽ² (2·L·M + M), and the trace is a dot product of length L.
 
@@ -201,13 +213,13 @@ def section_fit(options: Options, gpy: Any) -> dict[str, Any]:
 
     * **like for like** — the same problem on both sides: S = our fitted latents held fixed,
       the same initial hyperparameters (ℓ^s = the latent spread), one L-BFGS-B start each
-      (ours: :func:`core.manifold.fit_hyperparameters` with no fallback starts; GPy:
+      (ours: :func:`core.gp.manifold.fit_hyperparameters` with no fallback starts; GPy:
       ``optimize()``) and the same stopping rule, GPy's (factr 1e7, pgtol 1e-5, at most 1000
       iterations; ours also without the stall test). Ours with our default, tighter rule
       (ftol 1e-12, gtol 1e-6, stall test) is reported beside it. The log-likelihoods reached
       are reported beside the times, which are medians of :data:`FIT_REPEATS` alternating
       runs; the speed-ups are medians of the run-by-run ratios;
-    * **full fit** — ours learns S too: one start of :func:`core.manifold.fit_manifold`
+    * **full fit** — ours learns S too: one start of :func:`core.gp.manifold.fit_manifold`
       (``restarts=0``: PCA start, screening, hyperparameters, joint), against the same GPy time.
     """
     out: dict[str, Any] = {}

@@ -1,8 +1,8 @@
 """Benchmark problems on the Experiment-2-like world (ds = 2, dx = 6, dy = 5).
 
 ``Design.random`` is the paper's collection (a fresh x ~ N(0, I) per touch); ``Design.shared``
-applies the same M scrambled-Sobol actions to every object (:mod:`core.designs`), which the
-Kronecker path exploits.
+applies the same M scrambled-Sobol actions to every object (:mod:`core.evaluation.designs`), which
+the Kronecker path exploits.
 """
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ from typing import Literal
 
 import numpy as np
 
-from core.designs import collect, random_design, shared_design
-from core.posterior import Structure, condition
+from core.evaluation import collect, random_design, shared_design
+from core.evaluation.worlds import RandomFeatureWorld, random_experiment2_world
+from core.gp import Structure, condition
 from core.types import GaussianBelief, Hyperparameters, ManifoldModel, TrainingData
-from core.worlds import RandomFeatureWorld, random_experiment2_world
 
 DesignName = Literal["random", "shared"]
 

@@ -38,13 +38,11 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from app.evaluation.context import TrialContext
-from app.evaluation.spec import EvaluationSpec
-from app.rig_factory import TouchActions
-from core.designs import random_design
-from core.evaluation_records import TrialOutcome, TrialRecord
-from core.evaluation_summary import summarise
-from core.manifold import FitOptions, fit_manifold
-from core.planning import EVALUATION_POLICIES, ActionBox
+from app.evaluation.spec import PLACEMENTS, EvaluationSpec, Placement
+from app.rig.actions import TouchActions
+from core.evaluation import TrialOutcome, TrialRecord, random_design, summarise
+from core.gp import FitOptions, fit_manifold
+from core.recognition import EVALUATION_POLICIES, ActionBox
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray
 from hardware.rig import RigConfig
@@ -63,7 +61,7 @@ QUIET = NoiseModel(
 """No noise at all: the mean responses (up to the heat history of earlier touches)."""
 
 CONFIDENCE = 0.95
-"""The confidence level handed to :func:`core.evaluation_summary.summarise` (its accuracies do
+"""The confidence level handed to :func:`core.evaluation.summary.summarise` (its accuracies do
 not depend on it)."""
 
 
@@ -192,13 +190,13 @@ def policy_records(
     table: str,
     box: ActionBox | None = None,
     noise: NoiseModel | None = None,
-    reseat_each_touch: bool = False,
+    placement: Placement = "trial",
 ) -> list[TrialOutcome]:
     """``n_trials`` trials of every model object, run by the evaluation engine.
 
     An evaluation of world ``rig`` (every observation a touch of a fresh simulated rig seeded
-    from the trial, as ``activetouch evaluate --world rig``; with ``reseat_each_touch`` the object
-    is placed anew before every touch, else once per trial) or, with ``source="gp"``, of world
+    from the trial, as ``activetouch evaluate --world rig``; ``placement`` ``"touch"`` places the
+    object anew before every touch, ``"trial"`` once per trial) or, with ``source="gp"``, of world
     ``model`` (draws from the learned GP, the paper's protocol), T = ``steps``, no early stop,
     seed ``seed``. ``box`` narrows where the planner acts, ``noise`` the simulated rig's noise
     model; both are the evaluation's defaults when ``None``.
@@ -211,7 +209,7 @@ def policy_records(
         seed=seed,
         table=table if source != "gp" else None,
         tolerance=0.0,
-        placement="touch" if reseat_each_touch else "trial",
+        placement=placement,
     )
     context = TrialContext(model, spec, box=box, rig_noise=noise)
     return context.run_many(context.trial_keys())
@@ -227,7 +225,7 @@ def trials(
     noise: NoiseModel | None = None,
     box_std: float = 0.0,
     source: str = "rig",
-    reseat_each_touch: bool = False,
+    placement: Placement = "trial",
 ) -> dict[str, Any]:
     """Fit ds = 2, then trials per policy (observations from the rig or the learned GP);
     accuracy by touch, overall and per object."""
@@ -252,7 +250,7 @@ def trials(
             table=table,
             box=box,
             noise=noise,
-            reseat_each_touch=reseat_each_touch,
+            placement=placement,
         )
         # A trial whose touch the rig refused has no answer; it is counted apart.
         records = [r for r in outcomes if isinstance(r, TrialRecord)]
@@ -298,9 +296,18 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-drift", action="store_true", help="Switch the slow drift off.")
     parser.add_argument(
+        "--placement",
+        choices=PLACEMENTS,
+        default="trial",
+        help="In rig trials, place the object once per trial or anew before every touch "
+        "(as activetouch evaluate --placement).",
+    )
+    parser.add_argument(
         "--reseat-each-touch",
-        action="store_true",
-        help="In rig trials, turn the object away and back before every touch.",
+        dest="placement",
+        action="store_const",
+        const="touch",
+        help="The old spelling of --placement touch.",
     )
     parser.add_argument(
         "--no-session-effects",
@@ -396,7 +403,7 @@ def main(argv: list[str] | None = None) -> None:
                 noise,
                 args.box_std,
                 args.source,
-                args.reseat_each_touch,
+                args.placement,
             )
     if args.json:
         sys.stdout.write(json.dumps(report) + "\n")

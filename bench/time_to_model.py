@@ -1,16 +1,17 @@
 """Benchmark: time to a model — wall time of ``fit --latent-dim auto``, serial and on workers.
 
-A random design (every touch its own action) from :func:`core.worlds.random_experiment2_world`
-(true ds = 3, dx = 1) sampled at ``--objects`` × ``--touches`` (default 20 × 40, N = 800), for
-each ``--dy``. The run is what ``activetouch fit --latent-dim auto`` does: cross-validation of
-ds (:func:`core.latent_selection.select_latent_dim`, folds fitted with the independent noise
-model, :class:`app.services.fit_tasks.FoldFit`), then the final fit at the chosen ds with the
-noise model ``auto``: in process, or on a ``LocalCluster`` of ``--workers`` single-threaded
-processes (:class:`app.services.fit_tasks.FitEngine`: the folds as tasks, the starts of every
-fit as tasks of their own; the cluster's start-up is included). Printed per dy and worker
-count: the wall seconds of the selection and of the final fit, the ds chosen, the final
-log-likelihood, and whether the cluster chose the same ds with the same fold scores as the
-serial run. ``--fixed-ds K`` times one fit at ds = K instead (no selection).
+A random design (every touch its own action) from
+:func:`core.evaluation.worlds.random_experiment2_world` (true ds = 3, dx = 1) sampled at
+``--objects`` × ``--touches`` (default 20 × 40, N = 800), for each ``--dy``. The run is what
+``activetouch fit --latent-dim auto`` does: cross-validation of ds
+(:func:`core.selection.latent_selection.select_latent_dim`, folds fitted with the independent noise
+model, :class:`app.services.fit_tasks.FoldFit`), then the final fit at the chosen ds with the noise
+model ``auto``: in process, or on a ``LocalCluster`` of ``--workers`` single-threaded processes
+(:class:`app.services.fit_tasks.FitEngine`: the folds as tasks, the starts of every fit as tasks of
+their own; the cluster's start-up is included). Printed per dy and worker count: the wall seconds of
+the selection and of the final fit, the ds chosen, the final log-likelihood, and whether the cluster
+chose the same ds with the same fold scores as the serial run. ``--fixed-ds K`` times one fit at ds
+= K instead (no selection).
 
 The machine is shared: the load average before and after each run is printed; quote it.
 
@@ -29,10 +30,10 @@ import time
 import numpy as np
 
 from app.services.fit_tasks import FitEngine, FoldFit
-from core.latent_selection import LatentSelection, select_latent_dim, serial_map
-from core.manifold import FitOptions, fit_manifold
+from core.evaluation.worlds import random_experiment2_world, sample_dataset
+from core.gp import FitOptions, fit_manifold
+from core.selection import LatentSelection, select_latent_dim, serial_map
 from core.types import TrainingData
-from core.worlds import random_experiment2_world, sample_dataset
 
 TRUE_DIM = 3
 

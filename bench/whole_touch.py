@@ -44,12 +44,13 @@ from threadpoolctl import threadpool_limits
 from app.documents.raw_touches import raw_touch_from_record, read_raw_touches
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
-from app.rig_factory import SimulationMode, TouchActions, open_rig
+from app.rig.actions import TouchActions
+from app.rig.build import SimulationMode, open_rig
 from app.services.collections import iter_collection
-from core.designs import random_design
+from core.evaluation import random_design
 from core.features.pipeline import FeatureKind, fit_features
 from core.features.raw import RawTouch, raw_touch
-from core.manifold import FitOptions, fit_manifold
+from core.gp import FitOptions, fit_manifold
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray, IntArray
 from hardware.rig import RigConfig

@@ -5,12 +5,12 @@ Run: ``python -m bench.worker '{"objects": 100, "per_object": 100, "structure": 
 
 * ``evaluate_s``: median seconds of one likelihood value + gradient;
 * ``fit_s``, ``fit_iterations``, ``fit_log_likelihood``, ``fit_r2``: one L-BFGS start
-  (:func:`core.manifold.fit_manifold` with ``restarts=0``) and the Procrustes R² of its latents
+  (:func:`core.gp.manifold.fit_manifold` with ``restarts=0``) and the Procrustes R² of its latents
   against the truth; ``truth_log_likelihood``: the joint optimum reached from the true latents
   (hyperparameters fitted with them held fixed first), what the fit should reach — measured
   after ``peak_mb``;
 * ``plan_setup_s`` (the candidate statistics, once per model), ``plan_ms`` (median of one
-  active planning step, default :class:`core.planning.Planner` settings);
+  active planning step, default :class:`core.recognition.planning.Planner` settings);
 * ``peak_mb`` (``ru_maxrss`` of this process) and ``baseline_mb`` (after the imports).
 """
 
@@ -26,11 +26,9 @@ import numpy as np
 from bench import scenarios
 from bench.harness import measure, peak_rss_mb
 from bench.reference_fit import joint_optimum
-from core.manifold import FitOptions, fit_hyperparameters, fit_manifold
-from core.metrics import procrustes_r2
-from core.planning import ActivePolicy, Planner
-from core.posterior import make_likelihood
-from core.recognition import RecognitionSession
+from core.evaluation import procrustes_r2
+from core.gp import FitOptions, fit_hyperparameters, fit_manifold, make_likelihood
+from core.recognition import ActivePolicy, Planner, RecognitionSession
 from core.types import TrainingData
 
 

@@ -34,8 +34,8 @@ class TouchRefused(CoreError):  # noqa: N818
     """The observation source refused to perform one action (a device refused the touch).
 
     Raised by a touch source of an evaluation trial (e.g. the rig's, when a servo
-    overloads); :func:`core.trial_engine.run_trial` ends only that trial and records it as
-    refused. Anything else an observation source raises ends the whole evaluation.
+    overloads); :func:`core.evaluation.trial_engine.run_trial` ends only that trial and records it
+    as refused. Anything else an observation source raises ends the whole evaluation.
 
     Attributes:
         error: What refused it, e.g. the device error's class name (``"ServoHardwareError"``).

@@ -296,7 +296,7 @@ class GPPosterior:
       request for N ≤ :data:`DENSE_INVERSE_LIMIT`.
     * ``"sparse"``: Z = inducing points (:class:`InducingPoints`), β_a the weights of the
       variational posterior and A_a = K_uu⁻¹ - (K_uu + σ_n⁻² K_uf K_fu)⁻¹ (see
-      :mod:`core.sparse`).
+      :mod:`core.gp.sparse`).
 
     Attributes:
         beta: β_a over the support points (the touches in data order, or the inducing points).
@@ -347,7 +347,7 @@ class GPPosterior:
 
         Raises:
             CoreError: A Kronecker posterior with N > :data:`DENSE_INVERSE_LIMIT` (use the
-                structured paths of :mod:`core.kronecker` instead).
+                structured paths of :mod:`core.gp.kronecker` instead).
         """
         stored: FloatArray | None = getattr(self, "_gram_inverse")  # noqa: B009
         if stored is not None:
@@ -359,7 +359,7 @@ class GPPosterior:
             raise CoreError(
                 f"gram_inverse: this Kronecker posterior has N = {n} touches; its dense K⁻¹ "
                 f"(dy · N² floats) is not materialised above N = {DENSE_INVERSE_LIMIT}. Use the "
-                f"structured functions of core.kronecker."
+                f"structured functions of core.gp.kronecker."
             )
         dense = factors.dense_inverse()
         dense.flags.writeable = False
@@ -399,7 +399,7 @@ class FitDiagnostics:
 class ManifoldModel:
     """A fitted object manifold: latent points, GP hyperparameters and the conditioned GP.
 
-    Build it with :func:`core.posterior.condition` (or by fitting), never by hand, so that the
+    Build it with :func:`core.gp.posterior.condition` (or by fitting), never by hand, so that the
     posterior matches the data, latents and hyperparameters.
 
     Attributes:
@@ -419,15 +419,15 @@ class ManifoldModel:
         source_data: The raw training touches when ``transform`` is not ``None`` (``None``
             otherwise: ``data`` is raw).
         placement_variance: σ_b,a², the variance of the offset shared by the touches of one
-            placement, per model-space feature (:mod:`core.placement_effect`); ``None`` (or all
+            placement, per model-space feature (:mod:`core.gp.placement_effect`); ``None`` (or all
             zero) when not estimated: the touches of a trial are then independent given the
             object. Shape (dy,).
         latent_covariance: Σ_l, the Laplace covariance of every object's latent point
-            (:mod:`core.latent_uncertainty`, docs/method.md (L1)); ``None``: the latents are
-            taken as known and the object likelihood uses them as points. Shape (L, ds, ds).
+            (:mod:`core.recognition.latent_uncertainty`, docs/method.md (L1)); ``None``: the latents
+            are taken as known and the object likelihood uses them as points. Shape (L, ds, ds).
         tempering: β in (0, 1], the exponent on the object likelihood fitted by
-            cross-validation on the training touches (:mod:`core.tempering`, a last resort);
-            ``None``: untempered.
+            cross-validation on the training touches (:mod:`core.recognition.tempering`, a last
+            resort); ``None``: untempered.
         features: The feature pipeline that turns a raw touch into y
             (:mod:`core.features.pipeline`); ``None``: y is given as it is (the channel means).
     """

@@ -1,4 +1,4 @@
-"""Alembic environment: batch mode (SQLite), metadata from :mod:`app.models`.
+"""Alembic environment: batch mode (SQLite), metadata from :mod:`app.db.tables`.
 
 The app passes its own connection in ``config.attributes["connection"]``; run by hand, the URL
 comes from ``ACTIVETOUCH_DATABASE_URL`` or ``alembic.ini``.
@@ -11,7 +11,7 @@ import os
 from alembic import context
 from sqlalchemy import Connection, create_engine
 
-from app.models import Base
+from app.db.tables import Base
 
 config = context.config
 target_metadata = Base.metadata

@@ -1,4 +1,5 @@
-"""Every document the code cites is in the repository, and so is every label and section it names.
+"""Every document the code cites is in the repository, and so is every label and section it names;
+every module and file the documents name exists.
 
 The code cites the project's own ``docs/`` (``docs/method.md (M3)``, ``docs/method.md, "Evaluation
 protocols"``), never a file outside the repository, and carries no issue numbers: a reader must be
@@ -45,7 +46,7 @@ FILES = _code_files()
 
 def test_the_scan_sees_the_code() -> None:
     names = {p.relative_to(ROOT).as_posix() for p in FILES}
-    assert "core/recognition.py" in names
+    assert "core/recognition/session.py" in names
     assert any(n.startswith("frontend/js/") for n in names)
 
 
@@ -73,3 +74,35 @@ def test_citations_resolve(path: Path) -> None:
     for match in ISSUE_NUMBER.finditer(text):
         problems.append(f"carries an issue number ({match.group(0)!r})")
     assert not problems, "; ".join(problems)
+
+
+DOCS = [*sorted((ROOT / "docs").rglob("*.md")), ROOT / "README.md"]
+MODULE = re.compile(r"(?<![\w/.\-])((?:core|app|hardware|bench)(?:\.[A-Za-z_]\w*)+)")
+REPO_PATH = re.compile(
+    r"(?<![\w/.])((?:core|app|hardware|bench|tests|frontend|scripts|migrations)/[\w/.-]*\w)"
+)
+
+
+def _module_resolves(dotted: str) -> bool:
+    """Whether ``dotted`` starts with a module of ours (``core.gp.posterior.condition``)."""
+    parts = dotted.split(".")
+    for k in range(len(parts), 1, -1):
+        base = ROOT.joinpath(*parts[:k])
+        if base.with_suffix(".py").is_file() or (base / "__init__.py").is_file():
+            return True
+    return False
+
+
+def _path_resolves(path: str) -> bool:
+    """Whether ``path`` is a file or folder of the repository (``core/gp/posterior.py``), also
+    when cited with a name in it (``core/gp/posterior.predict``)."""
+    stem = re.sub(r"\.\w+$", "", path)
+    return any((ROOT / p).exists() for p in (path, f"{path}.py", stem, f"{stem}.py"))
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=lambda p: p.relative_to(ROOT).as_posix())
+def test_modules_and_paths_the_docs_name_exist(doc: Path) -> None:
+    text = doc.read_text(encoding="utf-8")
+    missing = [m.group(1) for m in MODULE.finditer(text) if not _module_resolves(m.group(1))]
+    missing += [m.group(1) for m in REPO_PATH.finditer(text) if not _path_resolves(m.group(1))]
+    assert not missing, f"{doc.name} names what is not in the repository: {sorted(set(missing))}"

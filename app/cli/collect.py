@@ -9,14 +9,14 @@
         --tactile-port /dev/ttyUSB1 --object mug=0 --object glass=1 --touches 30 --out lab.csv
 
 The touches come from :func:`app.services.collections.iter_collection`, the loop the server's
-collection runs use, on a design of :mod:`core.designs`: ``random`` draws a fresh action
+collection runs use, on a design of :mod:`core.evaluation.designs`: ``random`` draws a fresh action
 x ~ N(0, σ² I) for every touch (the paper's design; object by object), ``shared`` touches every
 object with the same M actions (a scrambled Sobol set of that prior; action by action), which
 lets the fit and the planner use the exact Kronecker path. ``adaptive`` touches each object
 with the first half of its budget as ``random`` does, fits the model (ds = 2, ``fit``'s
 defaults), then in rounds (:data:`app.services.collections.ADAPTIVE_ROUNDS`) touches every
 object at the actions the planners would choose from the current model
-(:func:`core.adaptive_design.planner_round`), refitting between rounds; the same budget.
+(:func:`core.evaluation.adaptive_design.planner_round`), refitting between rounds; the same budget.
 Without ``--design`` the design is ``adaptive``, or ``random`` where adaptive cannot run (fewer
 than 3 touches, or ``--placements``), said in a note and in the summary's ``design_note``
 (:func:`app.services.collections.default_design`).
@@ -51,9 +51,11 @@ from app.cli.output import messages as console
 from app.cli.rig import connected_rig, touch_actions
 
 if TYPE_CHECKING:
-    from app.rig_factory import CollectedTouch, RigHandle, TouchActions
+    from app.rig.actions import TouchActions
+    from app.rig.build import RigHandle
+    from app.rig.collection import CollectedTouch
     from app.services.collections import AdaptiveRounds as NextRound
-    from core.designs import CollectionDesign
+    from core.evaluation import CollectionDesign
     from hardware.rig import RigLease
 
 #: Action designs of ``collect``.
@@ -170,8 +172,8 @@ def adaptive_plan(
     """
     from app.services.collections import ADAPTIVE_ROUNDS
     from app.services.collections import AdaptiveRounds as NextRound
-    from core.adaptive_design import round_sizes
     from core.errors import InvalidInputError
+    from core.evaluation import round_sizes
 
     initial = max(2, touches // 2)
     try:
@@ -197,7 +199,7 @@ def make_design(
     """The collection design: x ~ N(0, action_scale² I), fresh per touch or shared by all."""
     import numpy as np
 
-    from core.designs import random_design, shared_design
+    from core.evaluation import random_design, shared_design
 
     rng = np.random.default_rng(seed)
     mean, cov = np.zeros(action_dim), action_scale**2 * np.eye(action_dim)

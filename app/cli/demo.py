@@ -45,7 +45,7 @@ from app.config import Settings, is_loopback
 from app.documents.training_csv import write_training_csv
 from app.main import API_PREFIX, create_app
 from app.viz.live import LiveView
-from core.worlds import sample_experiment1
+from core.evaluation import sample_experiment1
 
 #: Name of the dataset the demo collects (and finds again on the next start).
 DEMO_DATASET_NAME = "demo: simulated rig"

@@ -223,7 +223,7 @@ def evaluate_command(
     from app.evaluation.runner import run_evaluation
     from app.evaluation.spec import EvaluationSpec, Placement, world_name
     from core.errors import CoreError
-    from core.object_posterior import TrialLikelihood
+    from core.recognition import TrialLikelihood
 
     if workers is not None and scheduler is not None:
         raise fail("--workers and --scheduler: give one (a local cluster or an existing one)")

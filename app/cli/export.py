@@ -308,10 +308,10 @@ def model_command(
 ) -> None:
     """A fitted model as its self-contained model document (JSON)."""
     from app.services.events import EventBus
-    from app.services.models import ModelStore
+    from app.services.models import ReadyModels
 
     with open_session(db) as (database, session), _app_errors():
-        document = ModelStore(database, EventBus(database)).export_document(session, model_id)
+        document = ReadyModels(database, EventBus(database)).export_document(session, model_id)
     _write(json.dumps(document, indent=1), out, f"model {model_id}")
 
 

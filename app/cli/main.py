@@ -39,11 +39,10 @@ from app.cli.rig import rig_app
 
 if TYPE_CHECKING:
     from app.services.fit_tasks import FitEngine
-    from core.fit_run import StartMap
-    from core.latent_selection import LatentSelection
-    from core.manifold import FitOptions, NoiseModelChoice
+    from core.evaluation import World
+    from core.gp import FitOptions, NoiseModelChoice, StartMap
+    from core.selection import LatentSelection
     from core.types import ManifoldModel, TrainingData
-    from core.worlds import World
 
 app = typer.Typer(
     name="activetouch",
@@ -61,16 +60,17 @@ class Optimizer(StrEnum):
 
 
 class WorldName(StrEnum):
-    """Simulated worlds a trial or a dataset can come from (:data:`core.worlds.WORLD_NAMES`,
-    listed here so that ``--help`` does not load the numerics)."""
+    """Simulated worlds a trial or a dataset can come from
+    (:data:`core.evaluation.worlds.WORLD_NAMES`, listed here so that ``--help`` does not load the
+    numerics)."""
 
     exp1 = "exp1"
     exp2 = "exp2"
 
 
 class Policy(StrEnum):
-    """Action policies of a recognition trial (:data:`core.planning.POLICY_NAMES`, listed here
-    so that ``--help`` does not load the numerics)."""
+    """Action policies of a recognition trial (:data:`core.recognition.planning.POLICY_NAMES`,
+    listed here so that ``--help`` does not load the numerics)."""
 
     active = "active"
     discriminative = "discriminative"
@@ -87,13 +87,13 @@ def fit_with_progress(
     noise_model: NoiseModelChoice | None = None,
     start_map: StartMap | None = None,
 ) -> tuple[ManifoldModel, float]:
-    """Run :func:`core.manifold.iter_fit` with a progress bar; return the model and seconds.
+    """Run :func:`core.gp.manifold.iter_fit` with a progress bar; return the model and seconds.
 
     With ``start_map`` (e.g. :meth:`app.services.fit_tasks.FitEngine.start_map`) the starts'
     first stage runs there, with the same model."""
     import numpy as np
 
-    from core.manifold import iter_fit
+    from core.gp import iter_fit
 
     rng = np.random.default_rng(seed)
     started = time.perf_counter()
@@ -127,7 +127,8 @@ def select_latent_dim_with_progress(
     scheduler: str | None = None,
     engine: FitEngine | None = None,
 ) -> LatentSelection:
-    """Cross-validate ds (:func:`core.latent_selection.select_latent_dim`) with a progress bar.
+    """Cross-validate ds (:func:`core.selection.latent_selection.select_latent_dim`) with a progress
+    bar.
 
     The folds use the requested noise model ("independent" for "auto", which the final fit
     decides). With ``workers`` or ``scheduler`` they run as Dask tasks
@@ -141,7 +142,7 @@ def select_latent_dim_with_progress(
     import numpy as np
 
     from app.services.fit_tasks import FoldFit, dask_fold_map
-    from core.latent_selection import DEFAULT_FOLDS, candidate_dims, select_latent_dim, serial_map
+    from core.selection import DEFAULT_FOLDS, candidate_dims, select_latent_dim, serial_map
 
     fewest = int(data.touches_per_object().min())
     if fewest < 4:
@@ -287,10 +288,8 @@ def fit(
     from app.cli.raw_data import training_touches
     from app.documents.model import latent_selection_dict, model_to_document
     from core.errors import CoreError
-    from core.latent_uncertainty import with_latent_uncertainty
-    from core.manifold import FitOptions
-    from core.placement_effect import with_placement_effect
-    from core.tempering import fit_tempering
+    from core.gp import FitOptions, with_placement_effect
+    from core.recognition import fit_tempering, with_latent_uncertainty
 
     requested_dim = _parse_latent_dim(latent_dim)
     if workers is not None and scheduler is not None:
@@ -422,8 +421,8 @@ def load_model(path: Path) -> ManifoldModel:
 
 
 def make_world(world: WorldName, world_seed: int, noise_std: float | None) -> World:
-    """The simulated world named on the command line (:func:`core.worlds.make_world`)."""
-    from core.worlds import make_world as make_named_world
+    """The simulated world named on the command line (:func:`core.evaluation.worlds.make_world`)."""
+    from core.evaluation import make_world as make_named_world
 
     return make_named_world(world.value, world_seed=world_seed, noise_std=noise_std)
 
@@ -440,7 +439,7 @@ def simulate_dataset(
     import numpy as np
 
     from app.documents.training_csv import write_training_csv
-    from core.worlds import sample_dataset
+    from core.evaluation import sample_dataset
 
     data = sample_dataset(
         make_world(world, world_seed, noise_std), np.random.default_rng(seed), touches
@@ -483,9 +482,14 @@ def recognize(
     import numpy as np
 
     from core.errors import CoreError
-    from core.planning import Planner, make_policy
-    from core.recognition import RecognitionSession, RecognitionSettings, default_prior
-    from core.trial_engine import PlannedTouches, WorldTouches, iter_trial
+    from core.evaluation import PlannedTouches, WorldTouches, iter_trial
+    from core.recognition import (
+        Planner,
+        RecognitionSession,
+        RecognitionSettings,
+        default_prior,
+        make_policy,
+    )
 
     model = load_model(model_path)
     if target not in model.object_names:

@@ -22,7 +22,7 @@ import typer
 from app.cli.output import fail
 
 if TYPE_CHECKING:  # the drivers are imported when a command runs, not when the CLI starts
-    from app.rig_factory import RigHandle
+    from app.rig.build import RigHandle
     from hardware.sim.materials import Table
 
 PlacementOption = Annotated[
@@ -43,7 +43,7 @@ TrialLikelihoodOption = Annotated[
 ]
 """``--trial-likelihood``: see :class:`app.evaluation.spec.EvaluationSpec`."""
 
-#: How a simulated rig is wired (the values of :class:`app.rig_factory.SimulationMode`).
+#: How a simulated rig is wired (the values of :class:`app.rig.build.SimulationMode`).
 SimulationName = Literal["in-process", "pty"]
 
 TableName = Annotated[
@@ -177,7 +177,7 @@ class RigOptions:
 
     def open(self) -> RigHandle:
         """Build the rig (not connected yet)."""
-        from app.rig_factory import RigPorts, SimulationMode, open_rig
+        from app.rig.build import RigPorts, SimulationMode, open_rig
         from hardware.rig import RigConfig
 
         self.check()

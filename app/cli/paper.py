@@ -41,7 +41,7 @@ def paper_exp1(
     """Experiment 1 end to end: manifold, random-latent baseline, recognition; vs the paper."""
     from app.paper.exp1 import run_experiment1
     from core.errors import CoreError
-    from core.object_posterior import TRIAL_LIKELIHOODS
+    from core.recognition import TRIAL_LIKELIHOODS
 
     if trial_likelihood not in TRIAL_LIKELIHOODS:
         raise fail(

@@ -38,7 +38,8 @@ from app.cli.output import results as stdout
 if TYPE_CHECKING:  # the drivers, numpy and the DMPs are imported when a command runs
     import numpy as np
 
-    from app.rig_factory import RigHandle, TouchActions
+    from app.rig.actions import TouchActions
+    from app.rig.build import RigHandle
     from hardware.records import TouchRecord
     from hardware.rig import RigLease, RigStatus
 
@@ -209,7 +210,7 @@ def _touch_document(record: TouchRecord, action: np.ndarray) -> dict[str, Any]:
 
 def touch_actions(duration_s: float) -> TouchActions:
     """The rig's action → trajectory map for touches of ``duration_s`` (bad values exit 2)."""
-    from app.rig_factory import TouchActions
+    from app.rig.actions import TouchActions
     from core.errors import CoreError
     from hardware.rig import RigConfig
 

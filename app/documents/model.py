@@ -11,7 +11,7 @@ it scores a trial's touches as independent (σ_b² = 0). ``latent_uncertainty`` 
 the Laplace covariance Σ_l of every object's latent point (docs/method.md (L1)); a document with
 it integrates each s_l over N(s_l, Σ_l) in the object likelihood, one without takes s_l as known.
 ``tempering`` (optional) holds β, the exponent on the object likelihood fitted by cross-validation
-on the training touches (:mod:`core.tempering`, a last resort); without it, β = 1.
+on the training touches (:mod:`core.recognition.tempering`, a last resort); without it, β = 1.
 ``features`` (optional, :mod:`app.documents.features`) is the
 pipeline that turns a raw touch into y; without it y is the channel means.
 """
@@ -33,10 +33,9 @@ from app.documents.noise_model import noise_model_field, read_noise_model_field
 from app.documents.posterior import condition_as_recorded, posterior_field
 from app.documents.training_csv import MAX_NAME_CHARACTERS
 from core.errors import InvalidInputError
-from core.latent_selection import LatentSelection
-from core.latent_uncertainty import check_latent_covariance
-from core.placement_effect import check_placement_variance
-from core.tempering import check_exponent
+from core.gp import check_placement_variance
+from core.recognition import check_exponent, check_latent_covariance
+from core.selection import LatentSelection
 from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
 
 MODEL_FORMAT = "activetouch-model/1"
@@ -129,7 +128,10 @@ def model_to_document(
     if model.tempering is not None:
         document["tempering"] = {
             "exponent": float(model.tempering),
-            "method": "held-out log-loss of leave-touches-out training trials (core.tempering)",
+            "method": (
+                "held-out log-loss of leave-touches-out training trials "
+                "(core.recognition.tempering)"
+            ),
         }
     noise = noise_model_field(model.transform)
     if noise is not None:

@@ -4,7 +4,7 @@ as the original.
 ``{"structure": "dense"}``, ``{"structure": "kronecker"}`` or ``{"structure": "sparse",
 "n_inducing": m, "inducing_touches": [...]}`` (the training touches used as inducing points, in
 order). Documents written before the field existed still load: their posterior is chosen as
-:func:`core.posterior.condition` does by default (``structure="auto"``). The same field is stored
+:func:`core.gp.posterior.condition` does by default (``structure="auto"``). The same field is stored
 on a model row: :func:`posterior_field` writes it, :func:`read_posterior_field` parses it and
 :func:`condition_as_recorded` rebuilds the GP.
 """
@@ -20,10 +20,8 @@ import numpy.typing as npt
 
 from app.documents.errors import DocumentError, read_kind
 from core.errors import InvalidInputError
-from core.noise_model import attach_transform, transform_data
+from core.gp import Structure, attach_transform, condition, condition_sparse, transform_data
 from core.observation_transform import ObservationTransform
-from core.posterior import Structure, condition
-from core.sparse import condition_sparse
 from core.types import (
     FitDiagnostics,
     GPPosterior,
@@ -67,7 +65,7 @@ class RecordedPosterior:
         n_inducing: m for a sparse posterior (1 otherwise, unused).
         inducing: The recorded inducing points of a sparse posterior (training touches), or
             ``None``: dense, Kronecker, or sparse with only ``n_inducing`` recorded (the points
-            are then selected as :func:`core.posterior.condition` does).
+            are then selected as :func:`core.gp.posterior.condition` does).
     """
 
     structure: Structure
@@ -148,7 +146,7 @@ def condition_as_recorded(
         hyperparameters: Per-feature hyperparameters.
         diagnostics: Fit diagnostics to attach, if any.
         field: The ``posterior`` field; ``None`` (written before the field existed) conditions
-            as :func:`core.posterior.condition` chooses by default (``structure="auto"``).
+            as :func:`core.gp.posterior.condition` chooses by default (``structure="auto"``).
         where: What holds the field, to start error messages (``"model document"``).
         transform: The observation transform the model was fitted with (``None``: identity);
             the GP is conditioned on the transformed observations and keeps the transform.

@@ -4,8 +4,8 @@ existing scheduler.
 The :class:`~app.evaluation.context.TrialContext` (model, spec, replay pools) is scattered to
 every worker once (``broadcast=True``); a task carries only the keys (policy, target, index) of a
 batch of trials (up to :data:`MAX_BATCH`, at least :data:`TASKS_PER_WORKER` tasks per worker) and
-a reference to that context, and returns their :class:`~core.evaluation_records.TrialRecord`
-(or :class:`~core.evaluation_records.RefusedTrial`).
+a reference to that context, and returns their :class:`~core.evaluation.records.TrialRecord`
+(or :class:`~core.evaluation.records.RefusedTrial`).
 Planners and their candidate statistics are built once per worker process, on its first trial.
 At most a few tasks per worker are queued at a time, so a stop cancels little and results come
 back as they finish.
@@ -20,7 +20,7 @@ from typing import Any
 
 from app.errors import BadInputError
 from app.evaluation.context import TrialContext, TrialKey, run_trials_task
-from core.evaluation_records import TrialOutcome
+from core.evaluation import TrialOutcome
 
 #: Environment of every worker process: BLAS on one thread (the worker's one core).
 WORKER_ENVIRONMENT = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}

@@ -7,7 +7,7 @@ trial (policy, target, index). This module imports no web stack, so a worker sta
 
 A rig trial whose touch the hardware refuses (:func:`app.evaluation.rig_trial.is_refusal`: a
 servo overload, a command a servo refuses, a trajectory refused before it moved) ends as a
-:class:`~core.evaluation_records.RefusedTrial`; the evaluation goes on. Any other hardware error
+:class:`~core.evaluation.records.RefusedTrial`; the evaluation goes on. Any other hardware error
 (a lost device, a timeout, an alarm of the turntable) propagates, noted with the trial and touch
 it happened in, and ends the evaluation.
 """
@@ -21,23 +21,25 @@ from typing import TYPE_CHECKING, Any
 from threadpoolctl import threadpool_limits
 
 from app.evaluation.rig_trial import RigTrial, rig_seed
-from core.evaluation_records import TrialOutcome, trial_seed
-from core.planning import EVALUATION_POLICIES, ActionBox, Planner, policy_entry
-from core.trial_engine import (
+from core.evaluation import (
     ModelTouches,
     ReplayPool,
     TouchSource,
+    TrialOutcome,
+    World,
     WorldTouches,
+    make_world,
     replay_pools,
     run_trial,
+    trial_seed,
 )
+from core.recognition import EVALUATION_POLICIES, ActionBox, Planner, policy_entry
 from core.types import ManifoldModel, TrainingData
-from core.worlds import World, make_world
 from hardware.errors import HardwareError
 
 if TYPE_CHECKING:
     from app.evaluation.spec import EvaluationSpec
-    from app.rig_factory import TouchActions
+    from app.rig.actions import TouchActions
     from hardware.sim.materials import Table
     from hardware.sim.noise import NoiseModel
 
@@ -64,8 +66,8 @@ def rig_table(table: str | Table | None) -> Table:
 
 
 def synthetic_world(spec: EvaluationSpec) -> World:
-    """The ``exp1`` or ``exp2`` world of a spec (:func:`core.worlds.make_world`, as the server's
-    simulated trials and the command line make them)."""
+    """The ``exp1`` or ``exp2`` world of a spec (:func:`core.evaluation.worlds.make_world`, as the
+    server's simulated trials and the command line make them)."""
     return make_world(spec.world, world_seed=spec.world_seed, noise_std=spec.noise_std)
 
 
@@ -140,7 +142,7 @@ class TrialContext:
     def _rig_actions(self) -> TouchActions:
         actions: TouchActions | None = getattr(self._local, "rig_actions", None)
         if actions is None:
-            from app.rig_factory import TouchActions
+            from app.rig.actions import TouchActions
 
             actions = TouchActions.from_teaching()
             self._local.rig_actions = actions
@@ -178,7 +180,7 @@ class TrialContext:
             rig_table(self.spec.table).slots,
             target,
             seed,
-            replace_each_touch=self.spec.placement == "touch",
+            placement=self.spec.placement,
             noise=self.rig_noise,
             features=self.model.features,
         )

@@ -1,6 +1,6 @@
 """The result of an evaluation: its trials and their summary, as JSON and CSV.
 
-Trials the rig refused (:class:`~core.evaluation_records.RefusedTrial`: one touch refused by the
+Trials the rig refused (:class:`~core.evaluation.records.RefusedTrial`: one touch refused by the
 hardware, e.g. a servo overload) are kept beside the completed ones and counted per policy
 (``refused``); they are excluded from the accuracy, which is over the completed trials only
 (``trials``, its denominator) — a refused trial counts neither as right nor as wrong — and so is
@@ -9,7 +9,7 @@ trial counted as wrong is given beside it (``accuracy_if_refused_wrong``), and a
 whenever a trial was refused.
 
 Format ``activetouch-evaluation/2`` adds each policy's ``calibration``
-(:func:`core.evaluation_summary.calibration_summary`) to ``/1``; the rest is unchanged, so a
+(:func:`core.evaluation.summary.calibration_summary`) to ``/1``; the rest is unchanged, so a
 reader of ``/1`` documents reads ``/2`` ones, and a ``/1`` document is a ``/2`` one without
 calibration (:data:`FORMATS`).
 """
@@ -20,8 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from app.evaluation.spec import EvaluationSpec
-from core.evaluation_records import REFUSED, RefusedTrial, TrialRecord
-from core.evaluation_summary import comparison_sentence, summarise
+from core.evaluation import REFUSED, RefusedTrial, TrialRecord, comparison_sentence, summarise
 from hardware.sim.materials import table_name
 
 FORMAT = "activetouch-evaluation/2"
@@ -71,7 +70,7 @@ class EvaluationReport:
                 f"recorded touches of a target has {self.steps}."
             )
         if self.spec.world == "replay" and self.spec.trials_per_target > 1:
-            from core.planning import policy_entry
+            from core.recognition import policy_entry
 
             fixed = [p for p in self.spec.policies if policy_entry(p).replay_score is not None]
             if fixed:
@@ -117,7 +116,7 @@ class EvaluationReport:
         return notes
 
     def summary(self) -> dict[str, dict[str, Any]]:
-        """:func:`core.evaluation_summary.summarise` of the completed trials, per policy, with
+        """:func:`core.evaluation.summary.summarise` of the completed trials, per policy, with
         ``refused`` (trials refused by the rig, not in ``trials``) and
         ``accuracy_if_refused_wrong`` (final accuracy over ``trials + refused``) added.
 

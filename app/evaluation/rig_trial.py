@@ -2,8 +2,8 @@
 
 Used by the evaluation engine (:class:`app.evaluation.context.TrialContext`, world ``rig``) and
 by ``bench/sim_tables.py``. Every trial gets a fresh in-process rig (virtual time) seeded from
-the trial's own seed (:func:`rig_seed`), so a trial can be re-run alone. With
-``replace_each_touch`` the object is placed anew before every touch, as a collection does.
+the trial's own seed (:func:`rig_seed`), so a trial can be re-run alone. With placement
+``"touch"`` the object is placed anew before every touch, as a collection does.
 A touch the hardware refuses (:func:`is_refusal`) is raised as
 :class:`~core.errors.TouchRefused`, which ends only that trial.
 """
@@ -17,8 +17,7 @@ import numpy as np
 
 from app.documents.raw_touches import record_observation
 from core.errors import TouchRefused
-from core.evaluation_records import seed_sequence
-from core.trial_engine import Touch
+from core.evaluation import Touch, seed_sequence
 from core.validation import FloatArray
 from hardware.errors import (
     HardwareError,
@@ -29,7 +28,8 @@ from hardware.errors import (
 )
 
 if TYPE_CHECKING:
-    from app.rig_factory import TouchActions
+    from app.evaluation.spec import Placement
+    from app.rig.actions import TouchActions
     from core.features.pipeline import FeaturePipeline
     from hardware.records import TouchRecord
     from hardware.sim.materials import TactileObject
@@ -38,7 +38,7 @@ if TYPE_CHECKING:
 
 def rig_seed(seed: tuple[int, ...]) -> int:
     """The world seed of a trial's simulated rig, drawn from the trial's seed tuple
-    (:func:`core.evaluation_records.trial_seed`)."""
+    (:func:`core.evaluation.records.trial_seed`)."""
     return int(seed_sequence(seed).generate_state(1)[0])
 
 
@@ -62,7 +62,7 @@ def is_refusal(error: HardwareError) -> bool:
 class RigTrial:
     """One trial's simulated rig: a fresh in-process rig seeded from the trial's seed.
 
-    With ``replace_each_touch`` the table turns to the next slot and back before every touch
+    With placement ``"touch"`` the table turns to the next slot and back before every touch
     after the first, so each touch meets a fresh placement of the object (as in a collection).
 
     Attributes:
@@ -70,7 +70,8 @@ class RigTrial:
         objects: The table's objects (preset names or objects), slot 0 first.
         target: The name of the object touched (one of ``objects``).
         rig_seed: World seed of the simulated rig (:func:`rig_seed`).
-        replace_each_touch: Place the object anew before every touch, not once per trial.
+        placement: How often the object is placed anew: once per trial (``"trial"``) or before
+            every touch (``"touch"``), as :attr:`app.evaluation.spec.EvaluationSpec.placement`.
         noise: Noise model of the simulated world (``None``: the simulator's default).
         features: The model's feature pipeline, which makes y of each touch (``None``: the
             channel means).
@@ -80,12 +81,12 @@ class RigTrial:
     objects: tuple[str | TactileObject, ...]
     target: str
     rig_seed: int
-    replace_each_touch: bool = False
+    placement: Placement = "trial"
     noise: NoiseModel | None = None
     features: FeaturePipeline | None = None
 
     def __post_init__(self) -> None:
-        from app.rig_factory import SimulationMode, open_rig
+        from app.rig.build import SimulationMode, open_rig
 
         self._handle = open_rig(
             simulate=SimulationMode.in_process,
@@ -105,8 +106,9 @@ class RigTrial:
         self.touched = 0  # touches asked for so far (the refused one included)
 
     def touch(self, action: FloatArray, rng: np.random.Generator) -> Touch:
-        """Touch the target with ``action`` (dx,) (a :class:`core.trial_engine.TouchSource`).
-        ``rng`` is unused: the simulation's own randomness makes the noise.
+        """Touch the target with ``action`` (dx,) (a
+        :class:`core.evaluation.trial_engine.TouchSource`). ``rng`` is unused: the simulation's own
+        randomness makes the noise.
 
         Raises:
             TouchRefused: The hardware refused this touch (:func:`is_refusal`).
@@ -125,7 +127,7 @@ class RigTrial:
 
     def _touch(self, action: FloatArray) -> TouchRecord:
         target = self._target_slot
-        if self._slot is None and self.replace_each_touch and len(self.objects) > 1:
+        if self._slot is None and self.placement == "touch" and len(self.objects) > 1:
             self._lease.move_to_slot((target + 1) % len(self.objects))
             self._slot = target
         record = self.actions.touch(self._lease, action, slot=self._slot)

@@ -1,10 +1,10 @@
 """Run an evaluation: every trial of a spec, in process or as tasks on Dask distributed.
 
-Each trial draws from its own ``SeedSequence`` (:func:`core.evaluation_records.trial_seed`), so the
+Each trial draws from its own ``SeedSequence`` (:func:`core.evaluation.records.trial_seed`), so the
 records do not depend on where or in which order trials run: a cluster run equals a local one,
 trial by trial.
 
-A trial whose touch the rig refuses is kept as a :class:`~core.evaluation_records.RefusedTrial`
+A trial whose touch the rig refuses is kept as a :class:`~core.evaluation.records.RefusedTrial`
 and the evaluation goes on; a hardware error that is not such a refusal ends the evaluation with
 :class:`~app.errors.DeviceUnavailableError` naming the trial and touch.
 """
@@ -18,7 +18,7 @@ from app.errors import BadInputError, DeviceUnavailableError
 from app.evaluation.context import TrialContext
 from app.evaluation.report import EvaluationReport
 from app.evaluation.spec import EvaluationSpec
-from core.evaluation_records import RefusedTrial, TrialOutcome, TrialRecord
+from core.evaluation import RefusedTrial, TrialOutcome, TrialRecord
 from core.types import ManifoldModel, TrainingData
 from hardware.errors import HardwareError
 

@@ -6,17 +6,16 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal, cast, get_args
 
 from app.errors import BadInputError
-from core.object_posterior import TRIAL_LIKELIHOODS, TrialLikelihood
-from core.planning import EVALUATION_POLICIES
-from core.trial_engine import TrialSettings
+from core.evaluation import TrialSettings
+from core.evaluation import WorldName as SyntheticWorld
+from core.recognition import EVALUATION_POLICIES, TRIAL_LIKELIHOODS, TrialLikelihood
 from core.types import ManifoldModel, TrainingData
-from core.worlds import WorldName as SyntheticWorld
 
 if TYPE_CHECKING:
     from hardware.sim.materials import Table
 
-#: The synthetic worlds of :func:`core.worlds.make_world` (``exp1``, ``exp2``), the simulated rig,
-#: the learned GP's samples and a replay of recorded touches.
+#: The synthetic worlds of :func:`core.evaluation.worlds.make_world` (``exp1``, ``exp2``), the
+#: simulated rig, the learned GP's samples and a replay of recorded touches.
 WorldName = Literal[SyntheticWorld, "rig", "model", "replay"]
 Placement = Literal["trial", "touch"]
 
@@ -36,7 +35,7 @@ class EvaluationSpec:
             drawn from ``world_seed``), ``rig`` (the simulated rig, in process, virtual time),
             ``model`` (samples of the learned GP at the target's latent), ``replay`` (recorded
             held-out touches, without replacement).
-        policies: Policy names (see :data:`core.planning.EVALUATION_POLICIES`).
+        policies: Policy names (see :data:`core.recognition.planning.EVALUATION_POLICIES`).
         trials_per_target: Trials per (policy, target).
         steps: T, touches per trial at most (capped by the replay pool).
         confidence: Threshold of "touches to confidence" and of the compared accuracy level.
@@ -46,7 +45,7 @@ class EvaluationSpec:
             (:mod:`hardware.sim.table_file`); the default table when ``None``.
         world_seed: Seed that draws the ``exp2`` world (as the server's simulated trials do).
         noise_std: Observation noise of ``exp1``/``exp2`` (their
-            :data:`core.worlds.DEFAULT_NOISE_STD` when ``None``).
+            :data:`core.evaluation.worlds.DEFAULT_NOISE_STD` when ``None``).
         tolerance: Stop when the belief mean moves less (normalised latent units; 0 disables).
         stop_at_confidence: Also stop a trial when the answer's probability reaches
             ``confidence`` (answers are carried forward to T).

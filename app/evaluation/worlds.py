@@ -6,8 +6,8 @@ from typing import TYPE_CHECKING
 
 from app.errors import BadInputError
 from app.evaluation.context import rig_tables, synthetic_world
+from core.evaluation import WORLD_NAMES
 from core.types import ManifoldModel, TrainingData
-from core.worlds import WORLD_NAMES
 from hardware.sim.materials import table_name
 
 if TYPE_CHECKING:

@@ -8,7 +8,7 @@ from typing import Any
 def calibration_text(summary: dict[str, Any]) -> str:
     """ "ECE 0.031, Brier 0.120, log-loss 0.41 nats; sure (p ≥ 0.95) and wrong: 3 of 120
     (2.5 %)" over every (trial, touch) of a policy's summary
-    (:func:`core.evaluation_summary.summarise`)."""
+    (:func:`core.evaluation.summary.summarise`)."""
     scored = summary["calibration"]["all_touches"]
     sure = scored["sure_and_wrong"]
 

@@ -19,13 +19,17 @@ from rich.table import Table
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
 from app.paper.calibration import calibration_text
-from core.evaluation_records import TrialRecord
-from core.evaluation_summary import summarise, wilson_interval
-from core.manifold import FitOptions, fit_hyperparameters, fit_manifold
-from core.metrics import abs_correlation
-from core.object_posterior import TrialLikelihood
+from core.evaluation import (
+    Experiment1World,
+    TrialRecord,
+    abs_correlation,
+    sample_dataset,
+    summarise,
+    wilson_interval,
+)
+from core.gp import FitOptions, fit_hyperparameters, fit_manifold
+from core.recognition import TrialLikelihood
 from core.types import ManifoldModel
-from core.worlds import Experiment1World, sample_dataset
 
 #: The paper's figures for Experiment 1 (§III-A).
 PAPER_CORRELATION = 0.9995
@@ -35,7 +39,7 @@ PAPER_RANDOM_CORRELATION = 0.3449
 @dataclass
 class PolicyFigures:
     """Accuracy of one policy pooled over seeds, and the calibration of its answers
-    (:func:`core.evaluation_summary.calibration_summary`, "sure and wrong" at p ≥ 0.95)."""
+    (:func:`core.evaluation.summary.calibration_summary`, "sure and wrong" at p ≥ 0.95)."""
 
     accuracy_by_touch: list[float] = field(default_factory=list)
     nearest_accuracy_by_touch: list[float] = field(default_factory=list)

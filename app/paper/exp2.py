@@ -25,10 +25,11 @@ from app.evaluation.report import EvaluationReport
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec, Placement
 from app.paper.calibration import calibration_text
-from app.rig_factory import SimulationMode, TouchActions, open_rig
-from core.designs import random_design
-from core.manifold import FitOptions, fit_manifold
-from core.planning import EVALUATION_POLICIES
+from app.rig.actions import TouchActions
+from app.rig.build import SimulationMode, open_rig
+from core.evaluation import random_design
+from core.gp import FitOptions, fit_manifold
+from core.recognition import EVALUATION_POLICIES
 from core.types import ManifoldModel, TrainingData
 from hardware.sim.materials import Table as SimTable
 from hardware.sim.materials import table_name

@@ -21,7 +21,7 @@ from core.types import ManifoldModel
 
 if TYPE_CHECKING:
     from app.evaluation.report import EvaluationReport
-    from app.rig_factory import TouchActions
+    from app.rig.actions import TouchActions
 
 
 def _pyplot() -> Any:
@@ -47,8 +47,7 @@ def one_touch_latents(model: ManifoldModel, prior_variance: float = 5.0) -> np.n
     One Gaussian update (docs/method.md (M5)) of the prior μ0 = mean of S, Σ0 = prior_variance · I
     with the touch's (x, y).
     """
-    from core.moments import action_statistics, predictive_moments, update_belief
-    from core.recognition import default_prior
+    from core.recognition import action_statistics, default_prior, predictive_moments, update_belief
 
     prior = default_prior(model, prior_variance)
     data = model.data

@@ -36,7 +36,7 @@ GATHER_S = 0.25
 
 @dataclass(frozen=True)
 class AuditEntry:
-    """One recorded request (the columns of :class:`app.models.RequestAudit`)."""
+    """One recorded request (the columns of :class:`app.db.tables.RequestAudit`)."""
 
     time: datetime
     client: str | None

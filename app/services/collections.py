@@ -1,8 +1,8 @@
 """Collections: a dataset gathered on the rig as a run with progress.
 
 :func:`iter_collection` is the collection loop (a generator over the touches of a
-:class:`core.designs.CollectionDesign`); the server's runs here and ``activetouch collect``
-both drive the rig through it, and check their object lists with :func:`check_objects`.
+:class:`core.evaluation.designs.CollectionDesign`); the server's runs here and ``activetouch
+collect`` both drive the rig through it, and check their object lists with :func:`check_objects`.
 
 Each touch is stored as a sample (with its raw tactile series) the moment it is recorded; the
 dataset is ``collecting`` during the run, then ``ready`` (or ``failed`` if too little was
@@ -24,18 +24,24 @@ from sqlalchemy.orm import Session
 
 from app import crud, states
 from app.db import Database
+from app.db.tables import Run
 from app.errors import AppError, BadInputError, ConflictError
-from app.models import Run
-from app.rig_factory import CollectedTouch, TouchActions, iter_collect
+from app.rig.actions import TouchActions
+from app.rig.collection import CollectedTouch, iter_collect
 from app.schemas import CollectionCreate, Page, RunPublic
 from app.services import objects
 from app.services.events import EventBus
 from app.services.jobs import INTERRUPTED, Job, JobCancelled, JobRunner
 from app.services.rig import RigService, raw_series, trace_preview
-from core.adaptive_design import planner_round, round_sizes
-from core.designs import CollectionDesign, random_design, shared_design
 from core.errors import CoreError
-from core.manifold import fit_manifold
+from core.evaluation import (
+    CollectionDesign,
+    planner_round,
+    random_design,
+    round_sizes,
+    shared_design,
+)
+from core.gp import fit_manifold
 from core.types import TrainingData
 from core.validation import FloatArray
 from hardware.errors import HardwareError
@@ -137,7 +143,7 @@ def iter_collection(
 
     Every design runs in rounds, the table turning between touches: a shared design (every
     object, the same M actions) action by action, each action on every object in turn
-    (:func:`app.rig_factory.iter_collect`); any other design takes each object's next action in
+    (:func:`app.rig.collection.iter_collect`); any other design takes each object's next action in
     turn. So every touch meets a fresh placement of its object, and the slow drift of the
     sensor and the room is spread over all the objects instead of being learned as one
     object's signature (docs/simulation.md: touching one object 30 times in a row moved its
@@ -159,7 +165,7 @@ def iter_collection(
         placements: P, placements per object (1..N_l); ``None``: a fresh placement per touch.
 
     Yields:
-        One :class:`~app.rig_factory.CollectedTouch` per touch (``index``/``total`` count the
+        One :class:`~app.rig.collection.CollectedTouch` per touch (``index``/``total`` count the
         whole design).
 
     Raises:
@@ -247,7 +253,7 @@ class AdaptiveRounds:
     """The adaptive design's rounds: fit the touches so far, plan the next round from the model.
 
     The fit is ``fit``'s default (ds = 2, noise model auto); the round's actions come from
-    :func:`core.adaptive_design.planner_round`, each on every object.
+    :func:`core.evaluation.adaptive_design.planner_round`, each on every object.
 
     Args:
         names: The objects, in the order of the design's object indices.
@@ -419,7 +425,7 @@ class CollectionService:
             self._finish(run_id, "failed", f"internal error: {type(exc).__name__}: {exc}")
 
     def _design(self, body: CollectionCreate) -> CollectionDesign:
-        """The request's design (:mod:`core.designs`), x ~ N(0, action_scale² I).
+        """The request's design (:mod:`core.evaluation.designs`), x ~ N(0, action_scale² I).
 
         ``random``: a fresh action for every touch (the paper's design; each object gets its own
         ``samples_per_object`` actions). ``shared``: M = ``samples_per_object`` actions

@@ -13,7 +13,7 @@ from app.services.evaluations import EvaluationService
 from app.services.events import EventBus
 from app.services.fits import FitService
 from app.services.jobs import JobRunner
-from app.services.models import ModelStore
+from app.services.models import ReadyModels
 from app.services.rig import RigService
 from app.services.trial_views import TrialViews
 from app.services.trials import TrialService
@@ -31,7 +31,7 @@ class AppContext:
     database: Database
     events: EventBus
     jobs: JobRunner
-    models: ModelStore
+    models: ReadyModels
     fits: FitService
     trials: TrialService
     trial_views: TrialViews
@@ -62,7 +62,7 @@ def start_context(settings: Settings) -> AppContext:
                 {f"{kind.rstrip('s')}_id": item_id, "status": "failed", "reason": INTERRUPTED},
             )
     jobs = JobRunner(limits={"fit": settings.max_concurrent_fits})
-    models = ModelStore(database, events, max_training_touches=settings.max_training_touches)
+    models = ReadyModels(database, events, max_training_touches=settings.max_training_touches)
     rig = RigService(settings, jobs, events)
     trials = TrialService(settings, database, events, models, jobs, WorldFactory(rig), rig)
     return AppContext(

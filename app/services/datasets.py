@@ -14,6 +14,7 @@ import numpy as np
 from sqlalchemy.orm import Session
 
 from app import crud
+from app.db.tables import Dataset
 from app.documents.raw_touches import (
     channels_field,
     featurise,
@@ -24,7 +25,6 @@ from app.documents.raw_touches import (
 )
 from app.documents.training_csv import TrainingCsvWriter, read_training_csv
 from app.errors import BadInputError, ConflictError
-from app.models import Dataset
 from app.schemas import DatasetCreate, DatasetPublic, Page, SampleIn
 from app.services.events import EventBus
 from core.errors import InvalidInputError

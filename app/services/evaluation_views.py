@@ -19,10 +19,10 @@ from typing import Any
 from sqlalchemy.orm import Session
 
 from app import crud
+from app.db.tables import Evaluation, EvaluationTrial, utc_now
 from app.errors import BadInputError, NotFoundError
 from app.evaluation.report import FORMAT, EvaluationReport
 from app.evaluation.spec import EvaluationSpec
-from app.models import Evaluation, EvaluationTrial, utc_now
 from app.schemas import (
     EvaluationCreate,
     EvaluationPublic,
@@ -32,7 +32,7 @@ from app.schemas import (
     TrialRefusal,
 )
 from core.errors import CoreError
-from core.evaluation_records import RefusedTrial, TrialRecord, outcome_from_dict
+from core.evaluation import RefusedTrial, TrialRecord, outcome_from_dict
 
 
 def build_spec(body: EvaluationCreate) -> EvaluationSpec:

@@ -3,7 +3,7 @@
 :class:`EvaluationService` checks a request (model, world, replay dataset, policies), stores the
 evaluation and runs :func:`app.evaluation.runner.run_evaluation` as a job of the job runner
 (:mod:`app.services.jobs`). Each
-trial is committed as an :class:`app.models.EvaluationTrial` the moment the engine reports it
+trial is committed as an :class:`app.db.tables.EvaluationTrial` the moment the engine reports it
 (``on_trial``) and announced as ``evaluation.progress`` (at most every
 :data:`PROGRESS_INTERVAL_S`, and for the last trial); ``POST /evaluations/{id}/stop`` makes the
 engine start no further trial (``should_stop``), the finished ones are kept. Trials run on the
@@ -29,19 +29,19 @@ from sqlalchemy.orm import Session
 from app import crud, states
 from app.config import Settings
 from app.db import Database
+from app.db.tables import Evaluation
 from app.errors import AppError, BadInputError, ConflictError
 from app.evaluation.report import EvaluationReport
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
-from app.models import Evaluation
 from app.schemas import EvaluationCreate, EvaluationPublic
 from app.services import datasets
 from app.services.evaluation_views import build_spec, require, to_public
 from app.services.events import EventBus
 from app.services.jobs import INTERRUPTED, Job, JobRunner
-from app.services.models import ModelStore
+from app.services.models import ReadyModels
 from core.errors import CoreError
-from core.evaluation_records import TrialOutcome, TrialRecord
+from core.evaluation import TrialOutcome, TrialRecord
 from core.types import ManifoldModel, TrainingData
 
 logger = logging.getLogger(__name__)
@@ -68,7 +68,7 @@ class EvaluationService:
         settings: Settings,
         database: Database,
         events: EventBus,
-        models: ModelStore,
+        models: ReadyModels,
         jobs: JobRunner,
     ) -> None:
         self._scheduler = settings.dask_scheduler or None

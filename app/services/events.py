@@ -23,7 +23,7 @@ from typing import Any
 
 from app import crud
 from app.db import Database
-from app.models import utc_now
+from app.db.tables import utc_now
 
 
 @dataclass(frozen=True)

@@ -1,16 +1,16 @@
 """The folds of ``--latent-dim auto`` and the starts of a fit as tasks on Dask distributed, the
 engine evaluations run on.
 
-:func:`core.latent_selection.select_latent_dim` hands its independent folds to a ``map``
-(:data:`core.latent_selection.FoldMap`), and a fit the first stage of its independent starts
-(:data:`core.fit_run.StartMap`: hyperparameters with the latents frozen, then the screening run).
-:class:`FitEngine` supplies both on one client — a ``LocalCluster`` of single-threaded
-processes started for it, or an existing scheduler (:func:`app.evaluation.cluster.open_client`):
-:meth:`FitEngine.fold_map` runs each fold — all its nested candidate fits,
-:func:`core.latent_selection.score_fold` — as one task, :meth:`FitEngine.start_map` each start
-(:func:`core.fit_run.run_first_stage`). What every task shares (the
-:class:`~core.latent_selection.FoldPlan`: data, folds, the fit; the
-:class:`~core.fit_run.StartPlan`: the screening problem and the options) is scattered to every
+:func:`core.selection.latent_selection.select_latent_dim` hands its independent folds to a ``map``
+(:data:`core.selection.latent_selection.FoldMap`), and a fit the first stage of its independent
+starts (:data:`core.gp.fit_run.StartMap`: hyperparameters with the latents frozen, then the
+screening run). :class:`FitEngine` supplies both on one client — a ``LocalCluster`` of
+single-threaded processes started for it, or an existing scheduler
+(:func:`app.evaluation.cluster.open_client`): :meth:`FitEngine.fold_map` runs each fold — all its
+nested candidate fits, :func:`core.selection.latent_selection.score_fold` — as one task,
+:meth:`FitEngine.start_map` each start (:func:`core.gp.fit_run.run_first_stage`). What every task
+shares (the :class:`~core.selection.latent_selection.FoldPlan`: data, folds, the fit; the
+:class:`~core.gp.fit_run.StartPlan`: the screening problem and the options) is scattered to every
 worker once (``broadcast=True``); a task carries only its fold's index and generator, or its
 start's vector. Folds have their own generators and starts none, so the result is the serial
 run's whatever worker ran which task. A fold's candidates depend on each other (ds = k starts
@@ -37,9 +37,16 @@ from typing import Any
 import numpy as np
 
 from app.evaluation.cluster import open_client
-from core.fit_run import StartPlan, StartResult, StartTask, run_first_stage
-from core.latent_selection import FoldMap, FoldPlan, FoldResult, FoldTask, score_fold
-from core.manifold import FitOptions, NoiseModelChoice, fit_manifold
+from core.gp import (
+    FitOptions,
+    NoiseModelChoice,
+    StartPlan,
+    StartResult,
+    StartTask,
+    fit_manifold,
+    run_first_stage,
+)
+from core.selection import FoldMap, FoldPlan, FoldResult, FoldTask, score_fold
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray
 
@@ -52,8 +59,8 @@ WORKER_POLL_S = 0.5
 
 @dataclasses.dataclass(frozen=True)
 class FoldFit:
-    """The fit of one candidate in one fold (:data:`core.nested_fits.StartedFit`), picklable so
-    it can be sent to workers.
+    """The fit of one candidate in one fold (:data:`core.selection.nested_fits.StartedFit`),
+    picklable so it can be sent to workers.
 
     Attributes:
         options: Fit options; the nested starts are added as ``initial_latents``.
@@ -96,7 +103,7 @@ class RunStoppedError(Exception):
 def worker_start_map(
     plan: StartPlan, tasks: Sequence[StartTask], stop_event: str | None = None
 ) -> Iterator[StartResult]:
-    """A :data:`core.fit_run.StartMap` for a fit that runs inside a Dask task (a fold): its
+    """A :data:`core.gp.fit_run.StartMap` for a fit that runs inside a Dask task (a fold): its
     starts become tasks on the same cluster. The fold's task leaves its worker's thread pool
     while they run (``worker_client`` secedes), so an idle worker takes some of them — the last
     folds of a run then use every worker — and rejoins it for the polish.
@@ -171,8 +178,8 @@ class FitEngine:
         self._stack, self._client = None, None
 
     def fold_map(self, plan: FoldPlan, tasks: Sequence[FoldTask]) -> Iterator[FoldResult]:
-        """A :data:`core.latent_selection.FoldMap`: every fold as one task (and the starts of
-        its fits as tasks of their own when the fit is a :class:`FoldFit`)."""
+        """A :data:`core.selection.latent_selection.FoldMap`: every fold as one task (and the starts
+        of its fits as tasks of their own when the fit is a :class:`FoldFit`)."""
         stop_event = None
         if isinstance(plan.fit, FoldFit):
             stop_event = f"stop-{uuid.uuid4().hex[:8]}"
@@ -181,7 +188,7 @@ class FitEngine:
         return self._run(score_fold, plan, [(f"fold-{t.fold}", t) for t in tasks], stop_event)
 
     def start_map(self, plan: StartPlan, tasks: Sequence[StartTask]) -> Iterator[StartResult]:
-        """A :data:`core.fit_run.StartMap`: every start's first stage as one task."""
+        """A :data:`core.gp.fit_run.StartMap`: every start's first stage as one task."""
         return self._run(run_first_stage, plan, [(f"start-{t.index}", t) for t in tasks])
 
     def _run(

@@ -23,32 +23,27 @@ from sqlalchemy.orm import Session
 
 from app import crud, states
 from app.db import Database
+from app.db.tables import utc_now
 from app.documents.model import latent_selection_dict
 from app.errors import BadInputError, ConflictError
-from app.models import utc_now
 from app.schemas import ModelAccepted, ModelCreate, ModelPublic
 from app.services import datasets
 from app.services.events import EventBus
 from app.services.fit_tasks import FoldFit, dask_fold_map
 from app.services.jobs import INTERRUPTED, Job, JobCancelled, JobRunner
-from app.services.models import ModelStore, require, store_fitted, to_public
+from app.services.models import ReadyModels, require, store_fitted, to_public
 from core.errors import CoreError, InvalidInputError
 from core.features.pipeline import check_touches, fit_features
 from core.features.raw import RawTouch
-from core.fit_options import FitProgress
-from core.latent_selection import (
-    DEFAULT_FOLDS,
-    DEFAULT_MAX_LATENT_DIM,
-    LatentSelection,
-    select_latent_dim,
-)
-from core.manifold import (
+from core.gp import (
     FitCancelledError,
     FitOptions,
+    FitProgress,
     NoiseModelChoice,
     fit_manifold,
     iter_fit,
 )
+from core.selection import DEFAULT_FOLDS, DEFAULT_MAX_LATENT_DIM, LatentSelection, select_latent_dim
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray
 
@@ -92,7 +87,7 @@ class FitService:
         database: Database,
         events: EventBus,
         jobs: JobRunner,
-        models: ModelStore,
+        models: ReadyModels,
         max_training_touches: int = 5000,
         scheduler: str | None = None,
     ) -> None:

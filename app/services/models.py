@@ -3,10 +3,10 @@
 
 The GP posterior is not stored, only how it was conditioned (the row's ``posterior``: the model
 document's ``posterior`` field, :func:`app.documents.posterior.posterior_field`).
-:class:`ModelStore` rebuilds a :class:`ManifoldModel` from the dataset, latents, hyperparameters
+:class:`ReadyModels` rebuilds a :class:`ManifoldModel` from the dataset, latents, hyperparameters
 and that record (deterministic, :func:`app.documents.posterior.condition_as_recorded`), so a
 model predicts the same after it leaves the in-memory cache of recent ones. Rows from before the
-record existed (``posterior`` NULL) are rebuilt as :func:`core.posterior.condition` chooses by
+record existed (``posterior`` NULL) are rebuilt as :func:`core.gp.posterior.condition` chooses by
 default, as they were then."""
 
 from __future__ import annotations
@@ -25,13 +25,13 @@ from sqlalchemy.orm import Session
 
 from app import crud
 from app.db import Database
+from app.db.tables import ModelRecord, utc_now
 from app.documents.errors import DocumentError
 from app.documents.features import features_field, read_features_field
 from app.documents.model import model_from_document, model_to_document
 from app.documents.noise_model import noise_model_field, read_noise_model_field
 from app.documents.posterior import condition_as_recorded, posterior_field
 from app.errors import AppError, BadInputError, ConflictError
-from app.models import ModelRecord, utc_now
 from app.schemas import (
     FeatureHyperparameters,
     FeaturesPublic,
@@ -49,9 +49,6 @@ from core.errors import CoreError
 from core.types import FitDiagnostics, Hyperparameters, ManifoldModel
 
 logger = logging.getLogger(__name__)
-
-#: Seconds between two progress events (and progress writes) of one fit.
-PROGRESS_INTERVAL_S = 0.25
 
 
 class StoredModelError(AppError):
@@ -116,7 +113,7 @@ def store_fitted(
 
     ``featurised``: the model's y were made by its pipeline from the dataset's raw touches (not
     the y stored with the dataset); recorded as ``featurised_from_raw``, so that
-    :meth:`ModelStore.load` makes them again the same way."""
+    :meth:`ReadyModels.load` makes them again the same way."""
     h = model.hyperparameters
     row.latent_dim = model.latent_dim
     row.latents = model.latents
@@ -288,8 +285,9 @@ def list_page(
     )
 
 
-class ModelStore:
-    """Rebuilds fitted models for use (cached), exports and imports model documents.
+class ReadyModels:
+    """The ready models: rebuilt from their rows for use (the recent ones cached), exported and
+    imported as model documents. Fitting is elsewhere (:class:`app.services.fits.FitService`).
 
     Args:
         database: Where models live.

@@ -23,7 +23,8 @@ import numpy as np
 from app.config import Settings
 from app.documents.raw_touches import record_observation
 from app.errors import ConflictError, DeviceUnavailableError
-from app.rig_factory import RigHandle, RigPorts, SimulationMode, TouchActions, open_rig
+from app.rig.actions import TouchActions
+from app.rig.build import RigHandle, RigPorts, SimulationMode, open_rig
 from app.schemas import RigPublic
 from app.services.events import EventBus
 from app.services.jobs import JobRunner

@@ -6,15 +6,15 @@ from typing import Protocol
 
 import numpy as np
 
-from core.trial_engine import Touch
+from core.evaluation import Touch
 from core.validation import FloatArray
 
 __all__ = ["Touch", "TouchSource"]
 
 
 class TouchSource(Protocol):
-    """Something that touches the target object (a :class:`core.trial_engine.TouchSource` that
-    holds something to release)."""
+    """Something that touches the target object (a :class:`core.evaluation.trial_engine.TouchSource`
+    that holds something to release)."""
 
     def touch(self, action: FloatArray, rng: np.random.Generator) -> Touch:
         """Perform ``action`` (dx,) and return the touch."""

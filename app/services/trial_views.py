@@ -11,7 +11,7 @@ from sqlalchemy.orm import Session
 
 from app import crud
 from app.db import Database
-from app.models import Trial, TrialStep
+from app.db.tables import Trial, TrialStep
 from app.schemas import (
     ActionBounds,
     Belief,

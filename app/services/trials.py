@@ -1,9 +1,9 @@
 """Trials: scripted (the caller owns the robot), simulated and rig (the server drives).
 
-A server-driven trial runs the trial engine (:func:`core.trial_engine.iter_trial`) over its touch
-source; a scripted trial drives the engine's step-wise core, the
-:class:`~core.recognition.RecognitionSession`, one posted observation at a time.
-Every touch is committed as a :class:`app.models.TrialStep` the moment it happens, under the
+A server-driven trial runs the trial engine (:func:`core.evaluation.trial_engine.iter_trial`) over
+its touch source; a scripted trial drives the engine's step-wise core, the
+:class:`~core.recognition.session.RecognitionSession`, one posted observation at a time.
+Every touch is committed as a :class:`app.db.tables.TrialStep` the moment it happens, under the
 trial's run lock, so control requests (pause, resume, stop, abort) never interleave with a step.
 """
 
@@ -24,8 +24,8 @@ from sqlalchemy.orm import Session
 from app import crud, states
 from app.config import Settings
 from app.db import Database
+from app.db.tables import Trial, TrialStep
 from app.errors import AppError, BadInputError, ConflictError
-from app.models import Trial, TrialStep
 from app.schemas import (
     Belief,
     NextAction,
@@ -37,21 +37,24 @@ from app.schemas import (
 )
 from app.services.events import EventBus
 from app.services.jobs import INTERRUPTED, Job, JobCancelled, JobRunner
-from app.services.models import ModelStore
+from app.services.models import ReadyModels
 from app.services.rig import RigService
 from app.services.trial_views import require, step_public, to_public, trial_result
 from app.services.worlds import TouchSource, WorldFactory
 from core.errors import CoreError, InvalidInputError
+from core.evaluation import PlannedTouches, iter_trial
 from core.features.pipeline import means_pipeline
 from core.features.raw import raw_touch
-from core.planning import ActionBox, Planner, Policy, make_policy
 from core.recognition import (
+    ActionBox,
+    Planner,
+    Policy,
     RecognitionSession,
     RecognitionSettings,
     RecognitionStep,
     default_prior,
+    make_policy,
 )
-from core.trial_engine import PlannedTouches, iter_trial
 from core.types import GaussianBelief, ManifoldModel
 from hardware.errors import HardwareError
 
@@ -96,7 +99,7 @@ class TrialService:
         settings: Settings,
         database: Database,
         events: EventBus,
-        models: ModelStore,
+        models: ReadyModels,
         jobs: JobRunner,
         worlds: WorldFactory,
         rig: RigService,

@@ -1,4 +1,4 @@
-"""Touch sources of server-driven trials: synthetic worlds (core.worlds) and the rig.
+"""Touch sources of server-driven trials: synthetic worlds (core.evaluation.worlds) and the rig.
 
 A :class:`~app.services.touch.TouchSource` performs an action on the target object and returns
 what was felt.
@@ -8,21 +8,20 @@ from __future__ import annotations
 
 from app.documents.raw_touches import raw_channel_names
 from app.errors import BadInputError
-from app.rig_factory import SimulationMode, open_rig
+from app.rig.build import SimulationMode, open_rig
 from app.schemas import SimulationOptions
 from app.services.rig import RigService, RigTouchSource
 from app.services.touch import Touch, TouchSource
 from core.errors import InvalidInputError
-from core.trial_engine import WorldTouches
+from core.evaluation import World, WorldTouches, make_world
 from core.types import ManifoldModel
-from core.worlds import World, make_world
 from hardware.rig import RigLease
 
 __all__ = ["Touch", "TouchSource", "WorldFactory", "simulated_world"]
 
 
 def simulated_world(options: SimulationOptions) -> World:
-    """The synthetic world of a simulated trial (:func:`core.worlds.make_world`).
+    """The synthetic world of a simulated trial (:func:`core.evaluation.worlds.make_world`).
 
     Raises:
         BadInputError: Not a synthetic world (the field is named).

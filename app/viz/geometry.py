@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from core.posterior import predict
+from core.gp import predict
 from core.types import ManifoldModel
 from core.validation import as_float_array
 

@@ -651,8 +651,8 @@ def select_feature_dim(
     Gaussian classifier with one pooled covariance (:func:`gaussian_classify`) on its first dy
     features. The score of a candidate is the share recognised. The choice is the smallest dy
     whose fold-by-fold difference to the best candidate is ≥ −1 standard error (the
-    one-standard-error rule, as :mod:`core.latent_selection` uses for ds), looking at PCA first:
-    LDA is chosen only when no PCA candidate comes within that margin.
+    one-standard-error rule, as :mod:`core.selection.latent_selection` uses for ds), looking at PCA
+    first: LDA is chosen only when no PCA candidate comes within that margin.
 
     Args:
         reduced: Reduced features of the training touches. Shape (N, R).

@@ -19,8 +19,8 @@ with warnings.catch_warnings():
 from app.config import Settings
 from app.documents.model import model_to_document
 from app.main import create_app
-from core.reference_model import experiment1_at_true_latents
-from core.worlds import sample_experiment1
+from core.evaluation.reference_model import experiment1_at_true_latents
+from core.evaluation.worlds import sample_experiment1
 
 
 def make_settings(tmp_path: Path, **overrides: object) -> Settings:
@@ -58,7 +58,8 @@ def experiment1_csv(seed: int = 0, touches_per_object: int = 12) -> str:
 
 
 def experiment1_document(seed: int = 0, touches_per_object: int = 25) -> dict[str, object]:
-    """The document of :func:`core.reference_model.experiment1_at_true_latents` (no fit)."""
+    """The document of :func:`core.evaluation.reference_model.experiment1_at_true_latents`
+    (no fit)."""
     return model_to_document(experiment1_at_true_latents(seed, touches_per_object))
 
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from core.designs import collect, shared_design
+from core.evaluation.designs import collect, shared_design
+from core.evaluation.worlds import Experiment1World, sample_experiment1
 from core.types import Hyperparameters, TrainingData
-from core.worlds import Experiment1World, sample_experiment1
 
 TOLERANCE = 1e-10
 HYPER = Hyperparameters(

@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 
 from app.cli.main import app
 from app.documents.training_csv import write_training_csv
-from core.worlds import sample_experiment1
+from core.evaluation.worlds import sample_experiment1
 
 runner = CliRunner()
 
@@ -208,8 +208,8 @@ def test_messages_show_bracketed_names_verbatim(tmp_path, csv_path):
 def test_the_cli_names_the_policies_and_worlds_of_the_registries() -> None:
     """The command line lists them itself (``--help`` loads no numerics); they must agree."""
     from app.cli.main import Policy, WorldName
-    from core.planning import POLICY_NAMES
-    from core.worlds import WORLD_NAMES
+    from core.evaluation.worlds import WORLD_NAMES
+    from core.recognition.planning import POLICY_NAMES
 
     assert tuple(p.value for p in Policy) == POLICY_NAMES
     assert tuple(w.value for w in WorldName) == WORLD_NAMES

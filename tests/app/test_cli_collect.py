@@ -11,16 +11,16 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from app import rig_factory
 from app.cli.main import app
 from app.documents.raw_touches import featurise, read_raw_touches
 from app.documents.training_csv import read_training_csv
 from app.errors import BadInputError
-from app.rig_factory import RigHandle
+from app.rig import build
+from app.rig.build import RigHandle
 from app.services.collections import check_objects, iter_collection
-from core.designs import CollectionDesign, random_design, shared_design
+from core.evaluation.designs import CollectionDesign, random_design, shared_design
 from core.features.pipeline import means_pipeline
-from core.kronecker import find_shared_design
+from core.gp.kronecker import find_shared_design
 from hardware.clock import VirtualClock
 from hardware.errors import ServoHardwareErrorFlags
 from hardware.sim.rig import SimulatedRig, in_process_rig
@@ -64,8 +64,8 @@ def test_random_design_writes_the_csv_the_raw_series_and_a_summary(tmp_path: Pat
     assert summary["channels"][3] == "heat_flux_mw"
     data = read_training_csv(out.read_text())
     assert data.object_names == NAMES
-    # The paper's design from core.designs, written exactly, touched in rounds (each object's
-    # next action in turn, so every touch meets a fresh placement).
+    # The paper's design from core.evaluation.designs, written exactly, touched in rounds (each
+    # object's next action in turn, so every touch meets a fresh placement).
     expected = random_design(3, 3, np.zeros(DX), np.eye(DX), np.random.default_rng(1))
     np.testing.assert_array_equal(data.object_index, [0, 1, 2] * 3)
     for obj in range(3):
@@ -283,7 +283,7 @@ def rig_with_trigger(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
         made["simulation"] = simulation
         return RigHandle(simulation.rig, simulation)
 
-    monkeypatch.setattr(rig_factory, "open_rig", open_rig)
+    monkeypatch.setattr(build, "open_rig", open_rig)
     return made
 
 

@@ -20,8 +20,8 @@ from app.db import Database
 from app.documents.model import model_from_document
 from app.documents.training_csv import read_training_csv
 from app.main import create_app
-from core.posterior import predict
-from core.worlds import Experiment1World
+from core.evaluation.worlds import Experiment1World
+from core.gp.posterior import predict
 from tests.app.conftest import experiment1_csv, experiment1_document, make_settings
 
 API = "/api/v1"

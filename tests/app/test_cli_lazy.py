@@ -17,7 +17,7 @@ from app.cli.demo import demo_command
 from app.cli.main import app
 from app.cli.options import SimulationName
 from app.cli.serve import serve_command
-from app.rig_factory import SimulationMode
+from app.rig.build import SimulationMode
 from tests.app.conftest import experiment1_csv
 
 runner = CliRunner()

@@ -1,8 +1,9 @@
 """Collection designs on the simulated rig: what the stored dataset's actions are.
 
-``random`` draws a fresh action for every touch (the paper's design, ``core.designs.random_design``:
-each object its own actions); ``shared`` touches every object with the same M actions
-(``core.designs.shared_design``); ``teaching`` repeats x = 0.
+``random`` draws a fresh action for every touch (the paper's design,
+``core.evaluation.designs.random_design``: each object its own actions); ``shared`` touches every
+object with the same M actions (``core.evaluation.designs.shared_design``); ``teaching`` repeats x =
+0.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import pytest
 from app.documents.training_csv import read_training_csv
 from app.main import create_app
 from app.schemas import CollectionCreate
-from core.designs import random_design, shared_design
+from core.evaluation.designs import random_design, shared_design
 from core.types import TrainingData
 from tests.app.conftest import TestClient, make_settings
 
@@ -73,7 +74,8 @@ def test_random_design_draws_every_touch_afresh(client: TestClient) -> None:
     for a in range(len(CUPS)):
         for b in range(a + 1, len(CUPS)):
             assert not np.allclose(actions[a], actions[b])
-    # The paper's design of core.designs, touched in rounds (each object's next action in turn).
+    # The paper's design of core.evaluation.designs, touched in rounds (each object's next action in
+    # turn).
     cov = SCALE**2 * np.eye(data.action_dim)
     expected = random_design(
         len(CUPS), TOUCHES, np.zeros(data.action_dim), cov, np.random.default_rng(SEED)

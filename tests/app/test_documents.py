@@ -10,9 +10,9 @@ import pytest
 from app.documents.errors import DocumentError
 from app.documents.model import model_from_document, model_to_document
 from app.documents.training_csv import read_training_csv, write_training_csv
-from core.posterior import condition, predict
+from core.evaluation.worlds import sample_experiment1
+from core.gp.posterior import condition, predict
 from core.types import Hyperparameters
-from core.worlds import sample_experiment1
 from tests.app.posterior_cases import HYPER, LATENTS
 
 

@@ -15,7 +15,7 @@ from app.cli.main import app
 from app.documents.errors import DocumentError
 from app.documents.model import model_from_document, model_to_document
 from app.documents.training_csv import write_training_csv
-from core.reference_model import experiment1_at_true_latents
+from core.evaluation.reference_model import experiment1_at_true_latents
 
 runner = CliRunner()
 

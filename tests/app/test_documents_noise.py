@@ -10,10 +10,10 @@ import pytest
 
 from app.documents.errors import DocumentError
 from app.documents.model import model_from_document, model_to_document
-from core.noise_model import attach_transform, transform_data, whitening_transform
-from core.noise_model import standardising_transform as standardise
-from core.object_posterior import object_log_likelihoods
-from core.posterior import condition, predict
+from core.gp.noise_model import attach_transform, transform_data, whitening_transform
+from core.gp.noise_model import standardising_transform as standardise
+from core.gp.posterior import condition, predict
+from core.recognition.object_posterior import object_log_likelihoods
 from core.types import ManifoldModel
 from tests.app.posterior_cases import HYPER, LATENTS, QUERY_S, QUERY_X, random_data, shared_data
 

@@ -14,8 +14,8 @@ import pytest
 
 from app.documents.errors import DocumentError
 from app.documents.model import model_from_document, model_to_document
-from core.posterior import condition, predict
-from core.sparse import condition_sparse, select_inducing_points
+from core.gp.posterior import condition, predict
+from core.gp.sparse import condition_sparse, select_inducing_points
 from core.types import InducingPoints, ManifoldModel, TrainingData
 from tests.app import posterior_cases as cases
 from tests.app.posterior_cases import HYPER, LATENTS, QUERY_S, QUERY_X, TOLERANCE

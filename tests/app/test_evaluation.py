@@ -12,9 +12,9 @@ from app.errors import BadInputError
 from app.evaluation.report import FORMAT, EvaluationReport
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
-from core.posterior import condition
+from core.evaluation.worlds import random_experiment2_world, sample_dataset, sample_experiment1
+from core.gp.posterior import condition
 from core.types import Hyperparameters, ManifoldModel
-from core.worlds import random_experiment2_world, sample_dataset, sample_experiment1
 from tests.app.conftest import experiment1_document
 
 

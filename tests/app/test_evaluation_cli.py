@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from app.cli.evaluate import calibration_cells
 from app.cli.main import app
-from core.worlds import random_experiment2_world, sample_dataset
+from core.evaluation.worlds import random_experiment2_world, sample_dataset
 from tests.app.conftest import experiment1_csv, experiment1_document
 from tests.app.test_cli_lazy import probe
 

@@ -13,8 +13,8 @@ from app.errors import BadInputError
 from app.evaluation.cluster import batches
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
+from core.evaluation.worlds import sample_experiment1
 from core.types import ManifoldModel
-from core.worlds import sample_experiment1
 from tests.app.conftest import experiment1_document
 
 

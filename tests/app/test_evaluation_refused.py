@@ -14,7 +14,7 @@ from app.evaluation.context import TrialContext, TrialKey, rig_table
 from app.evaluation.rig_trial import RigTrial
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
-from core.evaluation_records import RefusedTrial, TrialRecord
+from core.evaluation.records import RefusedTrial, TrialRecord
 from core.types import ManifoldModel
 from core.validation import FloatArray
 from hardware.errors import DeviceDisconnected, ServoHardwareErrorFlags

@@ -14,7 +14,7 @@ from app.evaluation.context import TrialKey, rig_tables
 from app.evaluation.rig_trial import RigTrial
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
-from core.evaluation_records import RefusedTrial
+from core.evaluation.records import RefusedTrial
 from tests.app.test_evaluation_refused import (
     REFUSED_KEYS,
     SPEC,

@@ -8,9 +8,11 @@ import pytest
 from app.errors import BadInputError
 from app.evaluation.context import rig_tables
 from app.evaluation.runner import run_evaluation
-from app.evaluation.spec import EvaluationSpec
-from app.rig_factory import SimulationMode, TouchActions, iter_collect, open_rig
-from core.manifold import FitOptions, fit_manifold
+from app.evaluation.spec import EvaluationSpec, Placement
+from app.rig.actions import TouchActions
+from app.rig.build import SimulationMode, open_rig
+from app.rig.collection import iter_collect
+from core.gp.manifold import FitOptions, fit_manifold
 from core.types import ManifoldModel, TrainingData
 
 OBJECTS = ("paper_cup", "ceramic_mug", "foam_sponge")
@@ -102,9 +104,9 @@ def test_tables_come_by_name_from_the_simulator() -> None:
 
 # Placements count every object's arrivals under the finger: once per trial, or for touches 2
 # and 3 the neighbour's arrival and the target's return (1 + 2 · 2).
-@pytest.mark.parametrize(("replace_each_touch", "placements"), [(False, 1), (True, 5)])
+@pytest.mark.parametrize(("placement", "placements"), [("trial", 1), ("touch", 5)])
 def test_a_rig_trial_places_its_object_once_or_before_every_touch(
-    replace_each_touch: bool, placements: int
+    placement: Placement, placements: int
 ) -> None:
     from app.evaluation.rig_trial import RigTrial
 
@@ -113,7 +115,7 @@ def test_a_rig_trial_places_its_object_once_or_before_every_touch(
         rig_tables()["default"],
         "paper_cup",
         rig_seed=5,
-        replace_each_touch=replace_each_touch,
+        placement=placement,
     )
     try:
         for _ in range(3):
@@ -208,7 +210,7 @@ def test_the_sim_tables_bench_runs_the_engines_trials(rig_model, source: str, wo
         4,
         source=source,
         table="default",
-        reseat_each_touch=placement == "touch",
+        placement=placement,
     )
     assert len(bench) == len(rig_model.object_names) == 3
     assert sorted(bench, key=lambda r: r.key) == sorted(engine.records, key=lambda r: r.key)

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from app.services.fit_tasks import FitEngine, FoldFit, dask_fold_map
-from core.latent_selection import select_latent_dim
-from core.manifold import FitOptions, fit_manifold
+from core.evaluation.worlds import random_experiment2_world, sample_dataset
+from core.gp.manifold import FitOptions, fit_manifold
+from core.selection.latent_selection import select_latent_dim
 from core.types import TrainingData
-from core.worlds import random_experiment2_world, sample_dataset
 
 FIT = FoldFit(FitOptions(restarts=1, max_iterations=150), "independent")
 

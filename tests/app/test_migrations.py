@@ -1,4 +1,4 @@
-"""Alembic migrations: head matches the tables of :mod:`app.models`; 0002 (``models.posterior``)
+"""Alembic migrations: head matches the tables of :mod:`app.db.tables`; 0002 (``models.posterior``)
 upgrades a database with models of revision 0001, which keep loading as before, and downgrades.
 """
 
@@ -16,12 +16,12 @@ from alembic.script import ScriptDirectory
 from sqlalchemy import inspect, text
 
 from app.db import Database, upgrade_to_head
+from app.db.tables import Base, ModelRecord
 from app.documents.model import model_to_document
-from app.models import Base, ModelRecord
 from app.services.events import EventBus
-from app.services.models import ModelStore
-from core.posterior import condition, predict
-from core.worlds import sample_experiment1
+from app.services.models import ReadyModels
+from core.evaluation.worlds import sample_experiment1
+from core.gp.posterior import condition, predict
 from tests.app.conftest import make_settings
 from tests.app.posterior_cases import HYPER, LATENTS
 
@@ -70,7 +70,7 @@ def test_models_of_revision_0001_upgrade_and_load_as_before(tmp_path: Path) -> N
     auto = condition(data, LATENTS, HYPER)  # what a 0001 server rebuilt: dense at N = 60
     try:
         upgrade_to_head(database.engine, settings.migrations_dir)
-        store = ModelStore(database, EventBus(database))
+        store = ReadyModels(database, EventBus(database))
         with database.session() as session:
             document = json.loads(json.dumps(model_to_document(sparse)))
             model_id = store.import_document(session, document).id
@@ -83,7 +83,7 @@ def test_models_of_revision_0001_upgrade_and_load_as_before(tmp_path: Path) -> N
         migrate(database, settings.migrations_dir, "head")
         assert revision_of(database) == head_revision(settings.migrations_dir)
         assert "posterior" in model_columns(database)
-        store = ModelStore(database, EventBus(database))
+        store = ReadyModels(database, EventBus(database))
         with database.session() as session:
             row = session.get(ModelRecord, model_id)
             assert row is not None

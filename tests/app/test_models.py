@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from app.models import ModelRecord
+from app.db.tables import ModelRecord
 from tests.app.conftest import TestClient, experiment1_csv
 from tests.app.waits import wait_until
 

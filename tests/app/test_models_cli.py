@@ -12,8 +12,8 @@ from typer.testing import CliRunner
 from app.cli.main import app
 from app.documents.model import model_from_document
 from app.documents.training_csv import write_training_csv
+from core.evaluation.worlds import correlated_noise_world, sample_dataset, sample_experiment1
 from core.types import TrainingData
-from core.worlds import correlated_noise_world, sample_dataset, sample_experiment1
 
 runner = CliRunner()
 

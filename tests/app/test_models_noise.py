@@ -87,7 +87,7 @@ def test_imported_correlated_model_survives_a_fresh_app(settings: Settings) -> N
 
 
 def test_a_model_without_transform_reports_identity(client: TestClient) -> None:
-    from core.posterior import condition
+    from core.gp.posterior import condition
     from tests.app.posterior_cases import HYPER, LATENTS, random_data
 
     document = json.loads(json.dumps(model_to_document(condition(random_data(), LATENTS, HYPER))))

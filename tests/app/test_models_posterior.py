@@ -16,15 +16,15 @@ import numpy as np
 import pytest
 
 from app.config import Settings
+from app.db.tables import ModelRecord
 from app.documents.errors import DocumentError
 from app.documents.model import model_to_document
 from app.documents.posterior import condition_as_recorded, posterior_field
 from app.main import create_app
-from app.models import ModelRecord
 from app.services.events import EventBus
-from app.services.models import ModelStore, StoredModelError
-from core.posterior import condition, predict
-from core.sparse import condition_sparse, select_inducing_points
+from app.services.models import ReadyModels, StoredModelError
+from core.gp.posterior import condition, predict
+from core.gp.sparse import condition_sparse, select_inducing_points
 from core.types import InducingPoints, ManifoldModel
 from tests.app.conftest import TestClient
 from tests.app.posterior_cases import (
@@ -94,7 +94,7 @@ def test_evicted_model_predicts_as_imported(client: TestClient, which: str) -> N
     model_id = import_document(client, original)
     context = client.app.state.context  # type: ignore[attr-defined]
     # A store with an empty cache of one model: the second load evicts the first.
-    store = ModelStore(context.database, EventBus(context.database), cache_size=1)
+    store = ReadyModels(context.database, EventBus(context.database), cache_size=1)
     other_id = import_document(client, condition(random_data(), LATENTS, HYPER))
     with context.database.session() as session:
         row = session.get(ModelRecord, model_id)
@@ -171,7 +171,7 @@ def test_a_corrupted_row_is_a_server_error_naming_the_model(client: TestClient) 
         assert row is not None
         row.posterior = {"structure": "kronecker"}  # random data: not a shared design
         session.commit()
-    store = ModelStore(context.database, EventBus(context.database))
+    store = ReadyModels(context.database, EventBus(context.database))
     with (
         context.database.session() as session,
         pytest.raises(StoredModelError, match=f"Model {model_id} cannot be rebuilt") as info,

@@ -21,7 +21,7 @@ from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
 from app.paper.calibration import calibration_text
 from app.paper.exp2 import Experiment2Settings, run_experiment2, write_figures
-from core.evaluation_summary import wilson_interval
+from core.evaluation.summary import wilson_interval
 from core.validation import FloatArray
 from hardware.errors import ServoHardwareErrorFlags
 from hardware.records import TouchRecord

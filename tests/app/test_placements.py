@@ -16,7 +16,7 @@ from app.documents.model import model_from_document, model_to_document
 from app.documents.training_csv import read_training_csv, write_training_csv
 from app.errors import BadInputError
 from app.services.collections import placement_runs
-from core.reference_model import experiment1_at_true_latents
+from core.evaluation.reference_model import experiment1_at_true_latents
 from core.types import TrainingData
 
 runner = CliRunner()

@@ -24,7 +24,7 @@ from app.evaluation.worlds import table_objects
 from core.errors import InvalidInputError
 from core.features.pipeline import fit_features
 from core.features.raw import RawTouch, raw_touch
-from core.manifold import FitOptions, fit_manifold
+from core.gp.manifold import FitOptions, fit_manifold
 from core.types import ManifoldModel, TrainingData
 from hardware.records import TouchRecord
 from hardware.sim.rig import table_channel_names

@@ -14,7 +14,7 @@ from app.documents.model import model_from_document, model_to_document
 from app.documents.raw_touches import featurise, read_raw_touches
 from app.main import create_app
 from core.features.pipeline import fit_features
-from core.manifold import FitOptions, fit_manifold
+from core.gp.manifold import FitOptions, fit_manifold
 from tests.app.conftest import TestClient, experiment1_csv, make_settings
 from tests.app.test_raw_touches import raw_file, touch_line, twins_channel_model
 

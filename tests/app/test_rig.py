@@ -10,7 +10,7 @@ import numpy as np
 
 from app.documents.model import model_to_document
 from app.documents.training_csv import read_training_csv
-from core.posterior import condition
+from core.gp.posterior import condition
 from core.types import Hyperparameters
 from hardware.frames import CHANNELS
 from tests.app.conftest import TestClient

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from app.main import create_app
-from core.worlds import Experiment1World
+from core.evaluation.worlds import Experiment1World
 from tests.app.conftest import TestClient, import_model, make_settings
 from tests.app.waits import wait_until
 
@@ -361,8 +361,8 @@ def test_the_api_names_the_policies_and_worlds_of_the_registries() -> None:
     from typing import get_args
 
     from app.schemas import SimulationOptions, TrialCreate
-    from core.planning import POLICY_NAMES
-    from core.worlds import WORLD_NAMES
+    from core.evaluation.worlds import WORLD_NAMES
+    from core.recognition.planning import POLICY_NAMES
 
     assert get_args(TrialCreate.model_fields["policy"].annotation) == POLICY_NAMES
     worlds = get_args(SimulationOptions.model_fields["world"].annotation)

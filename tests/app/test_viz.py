@@ -23,9 +23,9 @@ from app.viz.geometry import (
     trajectory_plot_points,
 )
 from app.viz.view import ManifoldView
-from core.posterior import condition, predict
+from core.evaluation.worlds import EXPERIMENT1_THETAS, sample_experiment1
+from core.gp.posterior import condition, predict
 from core.types import GaussianBelief, Hyperparameters, ManifoldModel
-from core.worlds import EXPERIMENT1_THETAS, sample_experiment1
 
 
 def _mahalanobis(points: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
@@ -204,7 +204,7 @@ def test_response_grid_follows_the_world() -> None:
     """Conditioned on Experiment 1 data, the surface along an object's slice tracks h(θ, x)."""
     model = _model(latent_dim=1)
     grid = response_grid(model, feature=0, n_latent=41, n_action=9, margin=0.0)
-    from core.worlds import experiment1_h
+    from core.evaluation.worlds import experiment1_h
 
     errors = []
     for theta in EXPERIMENT1_THETAS:

@@ -12,9 +12,9 @@ from bench.diagnose_gap import (
     standardised_residuals,
     summarise,
 )
-from core.object_posterior import touch_log_likelihoods
-from core.reference_model import experiment1_at_true_latents
-from core.trial_engine import ModelTouches
+from core.evaluation.reference_model import experiment1_at_true_latents
+from core.evaluation.trial_engine import ModelTouches
+from core.recognition.object_posterior import touch_log_likelihoods
 
 
 def test_icc_balanced_by_hand() -> None:

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 
 from bench.reference_moments import direct_moments_batch
-from core.kronecker import KroneckerLikelihood
-from core.likelihood import ManifoldLikelihood
-from core.moments import (
+from core.gp.kronecker import KroneckerLikelihood
+from core.gp.likelihood import ManifoldLikelihood
+from core.recognition.moments import (
     PredictiveMoments,
     action_statistics,
     mutual_information,

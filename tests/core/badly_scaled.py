@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from core.hyperparameter_fit import minimize_free
+from core.gp.hyperparameter_fit import minimize_free
 
 SIZE = 30
 SCALES = np.logspace(0, 4, SIZE)
@@ -24,7 +24,7 @@ class BadlyScaledQuadratic:
 
 
 def minimize_quadratic(**options: Any) -> Any:
-    """:func:`~core.hyperparameter_fit.minimize_free` from ``x = 1`` in the box [-10, 10]^30
+    """:func:`~core.gp.hyperparameter_fit.minimize_free` from ``x = 1`` in the box [-10, 10]^30
     (10 000 iterations at most, tolerances 1e-15 and 1e-12), with ``options`` passed on."""
     return minimize_free(
         BadlyScaledQuadratic(),

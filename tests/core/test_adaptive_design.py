@@ -5,11 +5,22 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core.adaptive_design import planner_round, round_sizes, situation_scores, take_in_turns
 from core.errors import InvalidInputError
-from core.planning import ActionBox, ActivePolicy, DiscriminativePolicy, Planner, sobol_candidates
-from core.recognition import default_prior
-from core.reference_model import experiment1_at_true_latents
+from core.evaluation.adaptive_design import (
+    planner_round,
+    round_sizes,
+    situation_scores,
+    take_in_turns,
+)
+from core.evaluation.reference_model import experiment1_at_true_latents
+from core.recognition.planning import (
+    ActionBox,
+    ActivePolicy,
+    DiscriminativePolicy,
+    Planner,
+    sobol_candidates,
+)
+from core.recognition.session import default_prior
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from core.calibration import (
+from core.errors import InvalidInputError
+from core.evaluation.calibration import (
     answer_confidence,
     brier_score,
     calibration,
@@ -16,7 +17,6 @@ from core.calibration import (
     reliability_table,
     sure_and_wrong,
 )
-from core.errors import InvalidInputError
 
 # Four answers over three objects (truth: 0, 1, 2, 0).
 P = np.array(

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core.designs import collect, random_design, shared_design, sobol_normal_actions
 from core.errors import InvalidInputError
-from core.kronecker import find_shared_design
-from core.worlds import Experiment1World, random_experiment2_world
+from core.evaluation.designs import collect, random_design, shared_design, sobol_normal_actions
+from core.evaluation.worlds import Experiment1World, random_experiment2_world
+from core.gp.kronecker import find_shared_design
 
 MEAN = np.array([0.5, -1.0])
 COV = np.array([[2.0, 0.6], [0.6, 1.0]])

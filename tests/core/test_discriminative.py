@@ -6,13 +6,14 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
-from core.moments import action_statistics
-from core.object_information import (
+from core.gp.posterior import condition, predict
+from core.recognition.moments import action_statistics
+from core.recognition.object_information import (
     label_information_bounds,
     label_information_mc,
     object_predictives,
 )
-from core.planning import (
+from core.recognition.planning import (
     POLICY_NAMES,
     ActivePolicy,
     DiscriminativePolicy,
@@ -21,8 +22,7 @@ from core.planning import (
     Planner,
     make_policy,
 )
-from core.posterior import condition, predict
-from core.recognition import RecognitionSession, default_prior
+from core.recognition.session import RecognitionSession, default_prior
 from core.types import Hyperparameters, ManifoldModel, TrainingData
 from tests.core.test_moments import small_model
 

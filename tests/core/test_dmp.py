@@ -1,11 +1,13 @@
-"""Dynamic Movement Primitives (core/dmp.py): fit, reproduction, action offsets, validation."""
+"""Dynamic Movement Primitives (core/recognition/dmp.py): fit, reproduction, action offsets,
+validation."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from core.dmp import (
+from core.errors import InvalidInputError
+from core.recognition.dmp import (
     DMP,
     DMPGains,
     action_space,
@@ -15,7 +17,6 @@ from core.dmp import (
     trajectory_for_action,
     weights_for_action,
 )
-from core.errors import InvalidInputError
 
 DT = 0.02
 DURATION = 14.4

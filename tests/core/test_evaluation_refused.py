@@ -6,18 +6,13 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError, TouchRefused
-from core.evaluation_records import (
-    RefusedTrial,
-    TrialRecord,
-    outcome_from_dict,
-    trial_seed,
-)
-from core.planning import Planner, policy_entry
-from core.reference_model import experiment1_at_true_latents
-from core.trial_engine import Touch, TouchSource, TrialSettings, WorldTouches, run_trial
+from core.evaluation.records import RefusedTrial, TrialRecord, outcome_from_dict, trial_seed
+from core.evaluation.reference_model import experiment1_at_true_latents
+from core.evaluation.trial_engine import Touch, TouchSource, TrialSettings, WorldTouches, run_trial
+from core.evaluation.worlds import Experiment1World
+from core.recognition.planning import Planner, policy_entry
 from core.types import ManifoldModel
 from core.validation import FloatArray
-from core.worlds import Experiment1World
 
 SETTINGS = TrialSettings(steps=5, tolerance=0.0)
 

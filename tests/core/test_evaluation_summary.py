@@ -8,8 +8,8 @@ import math
 import pytest
 
 from core.errors import InvalidInputError
-from core.evaluation_records import TrialRecord, trial_seed
-from core.evaluation_summary import (
+from core.evaluation.records import TrialRecord, trial_seed
+from core.evaluation.summary import (
     calibration_summary,
     comparison_sentence,
     median_touches,

@@ -8,13 +8,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from core import fit_run
 from core.errors import InvalidInputError
-from core.fit_options import FitOptions
-from core.fit_run import FitRun
-from core.hyperparameter_fit import minimize_free
+from core.evaluation.worlds import random_experiment2_world, sample_dataset
+from core.gp import fit_run
+from core.gp.fit_options import FitOptions
+from core.gp.fit_run import FitRun
+from core.gp.hyperparameter_fit import minimize_free
 from core.types import TrainingData
-from core.worlds import random_experiment2_world, sample_dataset
 from tests.core.badly_scaled import minimize_quadratic
 
 
@@ -134,7 +134,7 @@ def test_the_joint_stall_test_and_polish_memory_apply_to_the_final_runs_only(
     monkeypatch: pytest.MonkeyPatch, screened: bool
 ) -> None:
     # Every L-BFGS-B run of FitRun goes through fit_run.minimize_free (the hyperparameter
-    # stages call it from core.hyperparameter_fit, unaffected). Screening runs must keep
+    # stages call it from core.gp.hyperparameter_fit, unaffected). Screening runs must keep
     # stall_nats / stall_iterations and scipy's 10 pairs; the joint runs on all the data use
     # the joint stall test, with polish_lbfgs_memory after a subsample screening and
     # joint_lbfgs_memory without screening.

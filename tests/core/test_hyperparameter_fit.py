@@ -8,20 +8,20 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-from core.designs import collect, shared_design
 from core.errors import InvalidInputError
-from core.hyperparameter_fit import (
+from core.evaluation.designs import collect, shared_design
+from core.evaluation.worlds import random_experiment2_world, sample_dataset
+from core.gp.hyperparameter_fit import (
     feature_data,
     feature_indices,
     iter_fit_separately,
     minimize_free,
 )
-from core.initialisation import normalise_spread
-from core.manifold import FitOptions, fit_hyperparameters
-from core.parameters import ParameterLayout, initial_hyperparameters, parameter_bounds
-from core.posterior import make_likelihood
+from core.gp.initialisation import normalise_spread
+from core.gp.manifold import FitOptions, fit_hyperparameters
+from core.gp.parameters import ParameterLayout, initial_hyperparameters, parameter_bounds
+from core.gp.posterior import make_likelihood
 from core.types import TrainingData
-from core.worlds import random_experiment2_world, sample_dataset
 from tests.core.badly_scaled import minimize_quadratic
 
 

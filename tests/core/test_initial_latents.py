@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
-from core.fit_options import FitOptions
-from core.fit_run import FitRun
-from core.initialisation import data_driven_starts
-from core.manifold import fit_hyperparameters, fit_manifold
+from core.evaluation.worlds import RandomFeatureWorld, random_experiment2_world, sample_dataset
+from core.gp.fit_options import FitOptions
+from core.gp.fit_run import FitRun
+from core.gp.initialisation import data_driven_starts
+from core.gp.manifold import fit_hyperparameters, fit_manifold
 from core.types import TrainingData
-from core.worlds import RandomFeatureWorld, random_experiment2_world, sample_dataset
 
 
 def _world(touches: int) -> tuple[RandomFeatureWorld, TrainingData]:

@@ -1,13 +1,15 @@
-"""Data-driven starts (core.initialisation): PCA, Isomap and the choice between them."""
+"""Data-driven starts (core.gp.initialisation): PCA, Isomap and the choice between them."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from core.designs import collect, shared_design
 from core.errors import InvalidInputError
-from core.initialisation import (
+from core.evaluation.designs import collect, shared_design
+from core.evaluation.metrics import procrustes_r2
+from core.evaluation.worlds import random_experiment2_world, sample_experiment1
+from core.gp.initialisation import (
     ISOMAP_MIN_OBJECTS,
     _geodesic_distances,
     _pairwise_distances,
@@ -17,9 +19,7 @@ from core.initialisation import (
     object_profiles,
     pca_latents,
 )
-from core.metrics import procrustes_r2
 from core.types import TrainingData
-from core.worlds import random_experiment2_world, sample_experiment1
 
 
 def curved_world_data(n_objects: int, seed: int = 0) -> tuple[TrainingData, np.ndarray]:

@@ -7,11 +7,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from core.designs import collect, shared_design
 from core.errors import CoreError, InvalidInputError
-from core.fit_run import FitRun, evaluation_cost
-from core.information_gradient import mutual_information_and_gradient
-from core.kronecker import (
+from core.evaluation.designs import collect, shared_design
+from core.evaluation.worlds import random_experiment2_world
+from core.gp.fit_run import FitRun, evaluation_cost
+from core.gp.kronecker import (
     KroneckerLikelihood,
     action_statistics_derivatives,
     action_statistics_spectral,
@@ -21,19 +21,19 @@ from core.kronecker import (
     predictive_covariance_kronecker,
     require_shared_design,
 )
-from core.manifold import FitOptions, fit_manifold
-from core.moments import (
+from core.gp.manifold import FitOptions, fit_manifold
+from core.gp.placement_effect import predictive_covariance
+from core.gp.posterior import condition, predict, resolve_structure
+from core.recognition.information_gradient import mutual_information_and_gradient
+from core.recognition.moments import (
     ActionStatistics,
     action_statistics,
     mutual_information,
     predictive_moments,
 )
-from core.placement_effect import predictive_covariance
-from core.planning import ActivePolicy, Planner
-from core.posterior import condition, predict, resolve_structure
-from core.recognition import RecognitionSession
+from core.recognition.planning import ActivePolicy, Planner
+from core.recognition.session import RecognitionSession
 from core.types import GaussianBelief, Hyperparameters, ManifoldModel, TrainingData
-from core.worlds import random_experiment2_world
 from tests.core.agreement import (
     KRONECKER_TOLERANCE,
     assert_kronecker_matches_dense,
@@ -374,7 +374,9 @@ def test_screening_that_would_not_save_runs_on_all_the_data() -> None:
 
 
 def test_many_objects_moments_match_the_direct_appendix_formula() -> None:
-    case = Case("forty", 40, 3, 2, 2, 2)  # above the element-wise threshold of core.moments
+    case = Case(
+        "forty", 40, 3, 2, 2, 2
+    )  # above the element-wise threshold of core.recognition.moments
     data, latents, hyper = make_problem(case, seed=23)
     model = condition(data, latents, hyper)
     assert model.posterior.structure == "kronecker"

@@ -1,4 +1,4 @@
-"""The few-objects Kronecker evaluation (L Cholesky blocks, :mod:`core.kronecker_blocks`)
+"""The few-objects Kronecker evaluation (L Cholesky blocks, :mod:`core.gp.kronecker_blocks`)
 matches the dense path and the eigendecomposition path, and falls back where it must."""
 
 from __future__ import annotations
@@ -6,17 +6,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import core.kronecker
-from core.kronecker import KroneckerLikelihood
-from core.kronecker_blocks import (
+import core.gp.kronecker
+from core.gp.kronecker import KroneckerLikelihood
+from core.gp.kronecker_blocks import (
     BLOCK_MAX_OBJECTS,
     BLOCK_MIN_ACTIONS,
     NOISE_FRACTION_FLOOR,
     block_sums,
     use_blocks,
 )
-from core.likelihood import ManifoldLikelihood
-from core.manifold import FitOptions, fit_hyperparameters
+from core.gp.likelihood import ManifoldLikelihood
+from core.gp.manifold import FitOptions, fit_hyperparameters
 from core.types import Hyperparameters, TrainingData
 from tests.core.finite_differences import central_differences
 from tests.core.test_kronecker import CASES, TOLERANCE, Case, make_problem, relative
@@ -108,7 +108,7 @@ def test_a_hyperparameter_fit_reaches_the_same_optimum_through_the_blocks(
     data, latents, _ = make_problem(FEW_OBJECTS, seed=8, shuffle=False)
     options = FitOptions(hyperparameter_latent_lengthscales=())
     with_blocks = fit_hyperparameters(data, latents, options)
-    monkeypatch.setattr(core.kronecker, "use_blocks", lambda n_objects, n_actions: False)
+    monkeypatch.setattr(core.gp.kronecker, "use_blocks", lambda n_objects, n_actions: False)
     without = fit_hyperparameters(data, latents, options)
     assert with_blocks.posterior.structure == without.posterior.structure == "kronecker"
     assert with_blocks.log_likelihood == pytest.approx(without.log_likelihood, abs=1e-3)

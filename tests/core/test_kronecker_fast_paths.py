@@ -8,11 +8,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core.designs import collect, shared_design
-from core.kronecker import condition_kronecker
-from core.posterior import condition
+from core.evaluation.designs import collect, shared_design
+from core.evaluation.worlds import random_experiment2_world
+from core.gp.kronecker import condition_kronecker
+from core.gp.posterior import condition
 from core.types import Hyperparameters, TrainingData
-from core.worlds import random_experiment2_world
 from tests.core.agreement import assert_kronecker_matches_dense
 
 TOLERANCE = 1e-8

@@ -1,4 +1,4 @@
-"""Choosing the latent dimension by cross-validation (core/latent_selection.py)."""
+"""Choosing the latent dimension by cross-validation (core/selection/latent_selection.py)."""
 
 from __future__ import annotations
 
@@ -8,24 +8,24 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
-from core.held_out_objects import (
+from core.evaluation.worlds import EXPERIMENT1_THETAS, sample_experiment1
+from core.gp.manifold import FitOptions, fit_manifold
+from core.gp.posterior import condition
+from core.recognition.object_posterior import touch_log_likelihoods
+from core.selection.held_out_objects import (
     held_out_scores,
     log_densities_at,
     object_folds,
     place_latent,
     split_halves,
 )
-from core.latent_selection import (
+from core.selection.latent_selection import (
     _summarise,
     candidate_dims,
     fold_assignment,
     select_latent_dim,
 )
-from core.manifold import FitOptions, fit_manifold
-from core.object_posterior import touch_log_likelihoods
-from core.posterior import condition
 from core.types import Hyperparameters, ManifoldModel, TrainingData
-from core.worlds import EXPERIMENT1_THETAS, sample_experiment1
 
 THETA = np.asarray(EXPERIMENT1_THETAS)[:, None]
 Starts = tuple[np.ndarray, ...]

@@ -9,8 +9,12 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
-from core.kernels import squared_exponential
-from core.latent_uncertainty import (
+from core.gp.kernels import squared_exponential
+from core.gp.likelihood import negative_log_likelihood
+from core.gp.placement_effect import trial_log_likelihoods as point_trial_log_likelihoods
+from core.gp.posterior import condition
+from core.recognition import RecognitionSession, RecognitionSettings
+from core.recognition.latent_uncertainty import (
     check_latent_covariance,
     laplace_latents,
     latent_hessians,
@@ -18,12 +22,8 @@ from core.latent_uncertainty import (
     trial_moments,
     with_latent_uncertainty,
 )
-from core.likelihood import negative_log_likelihood
-from core.object_posterior import object_log_likelihoods
-from core.placement_effect import trial_log_likelihoods as point_trial_log_likelihoods
-from core.planning import PassivePolicy, Planner
-from core.posterior import condition
-from core.recognition import RecognitionSession, RecognitionSettings
+from core.recognition.object_posterior import object_log_likelihoods
+from core.recognition.planning import PassivePolicy, Planner
 from core.types import Hyperparameters, ManifoldModel, TrainingData
 
 _LATENTS = np.array([[1.0, 0.0], [-0.5, 0.8], [-0.5, -0.8]])

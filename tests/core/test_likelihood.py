@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
-from core.likelihood import (
+from core.gp.likelihood import (
     ManifoldLikelihood,
     negative_log_likelihood,
     negative_log_likelihood_and_gradient,
 )
-from core.parameters import ParameterLayout, initial_hyperparameters, parameter_bounds
-from core.posterior import condition
+from core.gp.parameters import ParameterLayout, initial_hyperparameters, parameter_bounds
+from core.gp.posterior import condition
 from core.types import Hyperparameters, TrainingData
 
 

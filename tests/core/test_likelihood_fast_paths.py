@@ -1,7 +1,7 @@
 """The fast evaluation paths of the dense likelihood agree with the textbook formulas.
 
-:class:`core.likelihood.ManifoldLikelihood` forms one triangle of W = K⁻¹ - ββᵀ (the inverse
-from the Cholesky factor by recursive GEMMs, :func:`core.linalg.inverse_from_cholesky`) and
+:class:`core.gp.likelihood.ManifoldLikelihood` forms one triangle of W = K⁻¹ - ββᵀ (the inverse
+from the Cholesky factor by recursive GEMMs, :func:`core.gp.linalg.inverse_from_cholesky`) and
 contracts it blockwise; :mod:`bench.direct_likelihood` builds every ∂K/∂θ densely and uses
 :func:`numpy.linalg.inv`. Both are exact, so they agree to round-off.
 """
@@ -12,16 +12,12 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-import core.linalg
+import core.gp.linalg
 from bench.direct_likelihood import direct_value_and_gradient
 from core.errors import NotPositiveDefiniteError
-from core.likelihood import ManifoldLikelihood
-from core.linalg import (
-    inverse_from_cholesky,
-    upper_triangular_inverse,
-    weighted_gram_difference,
-)
-from core.parameters import ParameterLayout, initial_hyperparameters
+from core.gp.likelihood import ManifoldLikelihood
+from core.gp.linalg import inverse_from_cholesky, upper_triangular_inverse, weighted_gram_difference
+from core.gp.parameters import ParameterLayout, initial_hyperparameters
 from core.types import TrainingData
 
 #: Relative agreement of two exact evaluations (values are O(10²), gradients O(10²)).
@@ -134,10 +130,10 @@ def test_recursive_and_lapack_inverse_branches_agree(monkeypatch: pytest.MonkeyP
     matrix = _spd(90, seed=1)
     upper = np.asfortranarray(scipy.linalg.cholesky(matrix, lower=False))
     recursive = inverse_from_cholesky(upper)
-    monkeypatch.setattr(core.linalg, "RECURSIVE_INVERSE_MAX", 10)
+    monkeypatch.setattr(core.gp.linalg, "RECURSIVE_INVERSE_MAX", 10)
     lapack = inverse_from_cholesky(upper)
-    monkeypatch.setattr(core.linalg, "RECURSIVE_INVERSE_MAX", 1024)
-    monkeypatch.setattr(core.linalg, "TRIANGULAR_BLOCK", 4)  # five levels of halving
+    monkeypatch.setattr(core.gp.linalg, "RECURSIVE_INVERSE_MAX", 1024)
+    monkeypatch.setattr(core.gp.linalg, "TRIANGULAR_BLOCK", 4)  # five levels of halving
     deep = inverse_from_cholesky(upper)
     assert _relative(recursive, lapack) < 1e-12
     assert _relative(deep, lapack) < 1e-12

@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
-from core.fit_run import FitRun
-from core.initialisation import normalise_spread, pca_latents, random_latents
-from core.likelihood import ManifoldLikelihood
-from core.manifold import (
+from core.evaluation.worlds import EXPERIMENT1_THETAS, sample_experiment1
+from core.gp.fit_run import FitRun
+from core.gp.initialisation import normalise_spread, pca_latents, random_latents
+from core.gp.likelihood import ManifoldLikelihood
+from core.gp.manifold import (
     FitCancelledError,
     FitOptions,
     FitProgress,
@@ -21,10 +22,9 @@ from core.manifold import (
     iter_fit,
     normalise_latents,
 )
-from core.parameters import ParameterLayout, initial_hyperparameters
-from core.posterior import condition
+from core.gp.parameters import ParameterLayout, initial_hyperparameters
+from core.gp.posterior import condition
 from core.types import Hyperparameters, ManifoldModel, TrainingData
-from core.worlds import EXPERIMENT1_THETAS, sample_experiment1
 
 THETA = np.array(EXPERIMENT1_THETAS)
 

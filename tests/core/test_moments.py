@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
-from core.information_gradient import mutual_information_and_gradient
-from core.moments import (
+from core.gp.posterior import condition, predict
+from core.recognition.information_gradient import mutual_information_and_gradient
+from core.recognition.moments import (
     action_statistics,
     mutual_information,
     predictive_moments,
     update_belief,
 )
-from core.posterior import condition, predict
 from core.types import GaussianBelief, Hyperparameters, ManifoldModel, TrainingData
 from tests.core.agreement import assert_moments_match_direct
 

@@ -1,5 +1,5 @@
-"""Nested warm starts over the latent dimension (core/nested_fits.py) and their use in
-cross-validation (core/latent_selection.py)."""
+"""Nested warm starts over the latent dimension (core/selection/nested_fits.py) and their use in
+cross-validation (core/selection/latent_selection.py)."""
 
 from __future__ import annotations
 
@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
-from core.latent_selection import select_latent_dim
-from core.manifold import FitOptions, fit_manifold
-from core.nested_fits import appended_starts, embed_model, nested_fits, projected_start
-from core.object_posterior import touch_log_likelihoods
-from core.posterior import condition
+from core.evaluation.worlds import random_experiment2_world, sample_dataset
+from core.gp.manifold import FitOptions, fit_manifold
+from core.gp.posterior import condition
+from core.recognition.object_posterior import touch_log_likelihoods
+from core.selection.latent_selection import select_latent_dim
+from core.selection.nested_fits import appended_starts, embed_model, nested_fits, projected_start
 from core.types import Hyperparameters, ManifoldModel, TrainingData
-from core.worlds import random_experiment2_world, sample_dataset
 
 Starts = tuple[np.ndarray, ...]
 OPTIONS = FitOptions(restarts=0, max_iterations=300)

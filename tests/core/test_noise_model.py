@@ -1,4 +1,4 @@
-"""The observation transform and the correlated noise model (core/noise_model.py)."""
+"""The observation transform and the correlated noise model (core/gp/noise_model.py)."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import pytest
 import scipy.stats
 
 from core.errors import InvalidInputError
-from core.manifold import FitOptions, fit_manifold
-from core.moments import action_statistics, mutual_information, predictive_moments, update_belief
-from core.noise_model import (
+from core.evaluation.worlds import correlated_noise_world, sample_dataset
+from core.gp.manifold import FitOptions, fit_manifold
+from core.gp.noise_model import (
     attach_transform,
     correlated_transform,
     loo_log_likelihoods,
@@ -17,13 +17,22 @@ from core.noise_model import (
     transform_data,
     whitening_transform,
 )
-from core.object_posterior import object_log_likelihoods, object_posterior, touch_log_likelihoods
+from core.gp.posterior import condition, gram_matrix, predict, predict_model_space
 from core.observation_transform import ObservationTransform
-from core.planning import FixedPolicy, Planner
-from core.posterior import condition, gram_matrix, predict, predict_model_space
-from core.recognition import RecognitionSession
+from core.recognition.moments import (
+    action_statistics,
+    mutual_information,
+    predictive_moments,
+    update_belief,
+)
+from core.recognition.object_posterior import (
+    object_log_likelihoods,
+    object_posterior,
+    touch_log_likelihoods,
+)
+from core.recognition.planning import FixedPolicy, Planner
+from core.recognition.session import RecognitionSession
 from core.types import GaussianBelief, Hyperparameters, ManifoldModel, TrainingData
-from core.worlds import correlated_noise_world, sample_dataset
 
 HYPER = Hyperparameters(
     signal_variance=np.array([1.0, 0.8, 1.2]),
@@ -255,9 +264,9 @@ def test_correlated_fit_recovers_the_noise_correlation() -> None:
 
 
 def test_kronecker_inverse_diagonal_matches_the_dense_one() -> None:
-    from core.designs import collect, shared_design
-    from core.noise_model import gram_inverse_diagonal
-    from core.worlds import Experiment1World
+    from core.evaluation.designs import collect, shared_design
+    from core.evaluation.worlds import Experiment1World
+    from core.gp.noise_model import gram_inverse_diagonal
 
     rng = np.random.default_rng(8)
     design = shared_design(4, 6, np.zeros(1), np.eye(1), rng)

@@ -10,25 +10,25 @@ import pytest
 import scipy.stats
 
 from core.errors import InvalidInputError
-from core.kernels import squared_exponential
-from core.object_posterior import (
-    normalise_log_probabilities,
-    object_log_likelihoods,
-    object_posterior,
-)
-from core.placement_effect import (
+from core.evaluation.reference_model import experiment1_at_true_latents
+from core.evaluation.worlds import EXPERIMENT1_THETAS, Experiment1World, sample_experiment1
+from core.gp.kernels import squared_exponential
+from core.gp.placement_effect import (
     estimate_placement_variance,
     placement_groups,
     predictive_covariance,
     trial_log_likelihoods,
     with_placement_effect,
 )
-from core.planning import PassivePolicy, Planner
-from core.posterior import condition, predict_model_space
-from core.recognition import RecognitionSession, RecognitionSettings
-from core.reference_model import experiment1_at_true_latents
+from core.gp.posterior import condition, predict_model_space
+from core.recognition.object_posterior import (
+    normalise_log_probabilities,
+    object_log_likelihoods,
+    object_posterior,
+)
+from core.recognition.planning import PassivePolicy, Planner
+from core.recognition.session import RecognitionSession, RecognitionSettings
 from core.types import Hyperparameters, ManifoldModel, TrainingData
-from core.worlds import EXPERIMENT1_THETAS, Experiment1World, sample_experiment1
 
 
 @pytest.fixture(scope="module")

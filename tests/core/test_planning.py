@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
-from core.planning import (
+from core.recognition.planning import (
     ActionBox,
     ActionPrior,
     ActivePolicy,

@@ -12,20 +12,20 @@ import pytest
 import scipy.stats
 
 from core.errors import InvalidInputError
-from core.moments import action_statistics, predictive_moments, update_belief
-from core.object_posterior import object_posterior
-from core.planning import ActivePolicy, FixedPolicy, PassivePolicy, Planner
-from core.posterior import condition, predict
-from core.recognition import (
+from core.evaluation.trial_engine import PlannedTouches, WorldTouches, iter_trial
+from core.evaluation.worlds import EXPERIMENT1_THETAS, Experiment1World, sample_experiment1
+from core.gp.posterior import condition, predict
+from core.recognition.moments import action_statistics, predictive_moments, update_belief
+from core.recognition.object_posterior import object_posterior
+from core.recognition.planning import ActivePolicy, FixedPolicy, PassivePolicy, Planner
+from core.recognition.session import (
     DisagreementRule,
     RecognitionFinishedError,
     RecognitionSession,
     RecognitionSettings,
     default_prior,
 )
-from core.trial_engine import PlannedTouches, WorldTouches, iter_trial
 from core.types import GaussianBelief, Hyperparameters, ManifoldModel
-from core.worlds import EXPERIMENT1_THETAS, Experiment1World, sample_experiment1
 
 WORLD = Experiment1World(noise_std=0.1)
 

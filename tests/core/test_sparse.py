@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
-from core.information_gradient import mutual_information_and_gradient
-from core.likelihood import ManifoldLikelihood
-from core.manifold import FitOptions, fit_manifold
-from core.moments import action_statistics, mutual_information, predictive_moments
-from core.posterior import AUTO_SPARSE_ABOVE, condition, predict, resolve_structure
-from core.sparse import SparseLikelihood, condition_sparse, select_inducing_points
+from core.evaluation.worlds import random_experiment2_world, sample_dataset
+from core.gp.likelihood import ManifoldLikelihood
+from core.gp.manifold import FitOptions, fit_manifold
+from core.gp.posterior import AUTO_SPARSE_ABOVE, condition, predict, resolve_structure
+from core.gp.sparse import SparseLikelihood, condition_sparse, select_inducing_points
+from core.recognition.information_gradient import mutual_information_and_gradient
+from core.recognition.moments import action_statistics, mutual_information, predictive_moments
 from core.types import GaussianBelief, Hyperparameters, TrainingData
-from core.worlds import random_experiment2_world, sample_dataset
 from tests.core.finite_differences import central_differences
 
 

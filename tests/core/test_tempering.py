@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
-from core.object_posterior import object_log_likelihoods, object_posterior
-from core.reference_model import experiment1_at_true_latents
-from core.tempering import (
+from core.evaluation.reference_model import experiment1_at_true_latents
+from core.recognition.object_posterior import object_log_likelihoods, object_posterior
+from core.recognition.tempering import (
     check_exponent,
     choose_exponent,
     fit_tempering,

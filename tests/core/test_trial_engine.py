@@ -6,19 +6,9 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
-from core.evaluation_records import TrialRecord, outcome_from_dict, trial_seed
-from core.planning import (
-    EVALUATION_POLICIES,
-    POLICIES,
-    POLICY_NAMES,
-    Planner,
-    label_information_score,
-    policy_entry,
-)
-from core.posterior import predict
-from core.recognition import RecognitionSession, RecognitionSettings, default_prior
-from core.reference_model import experiment1_at_true_latents
-from core.trial_engine import (
+from core.evaluation.records import TrialRecord, outcome_from_dict, trial_seed
+from core.evaluation.reference_model import experiment1_at_true_latents
+from core.evaluation.trial_engine import (
     ModelTouches,
     PlannedTouches,
     ReplayPool,
@@ -28,14 +18,24 @@ from core.trial_engine import (
     replay_pools,
     run_trial,
 )
-from core.types import ManifoldModel
-from core.worlds import (
+from core.evaluation.worlds import (
     DEFAULT_NOISE_STD,
     WORLD_NAMES,
     Experiment1World,
     make_world,
     sample_experiment1,
 )
+from core.gp.posterior import predict
+from core.recognition.planning import (
+    EVALUATION_POLICIES,
+    POLICIES,
+    POLICY_NAMES,
+    Planner,
+    label_information_score,
+    policy_entry,
+)
+from core.recognition.session import RecognitionSession, RecognitionSettings, default_prior
+from core.types import ManifoldModel
 
 
 @pytest.fixture(scope="module")
@@ -75,7 +75,7 @@ def test_a_trial_rerun_alone_equals_the_same_trial_after_others(model, policy):
 def test_policies_share_the_world_noise_of_a_trial(model):
     # Same actions would give the same observations: the fixed policy repeats one action, so
     # two runs with different policy names but the same (target, trial) see the same noise.
-    from core.planning import FixedPolicy
+    from core.recognition.planning import FixedPolicy
 
     fixed = Planner(model, FixedPolicy(np.array([0.3])))
     first = trial(model, fixed, "x", "O2", 0)

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core.manifold import FitOptions, fit_manifold
-from core.metrics import abs_correlation
-from core.planning import ActivePolicy, Planner
-from core.recognition import RecognitionSession, RecognitionSettings, default_prior
-from core.trial_engine import PlannedTouches, WorldTouches, iter_trial
-from core.worlds import Experiment1World, sample_dataset
+from core.evaluation.metrics import abs_correlation
+from core.evaluation.trial_engine import PlannedTouches, WorldTouches, iter_trial
+from core.evaluation.worlds import Experiment1World, sample_dataset
+from core.gp.manifold import FitOptions, fit_manifold
+from core.recognition.planning import ActivePolicy, Planner
+from core.recognition.session import RecognitionSession, RecognitionSettings, default_prior
 
 
 @pytest.fixture(scope="module")

@@ -16,10 +16,11 @@ import time
 import numpy as np
 import pytest
 
-from app.rig_factory import TouchActions, iter_collect
-from core.manifold import FitOptions, fit_manifold
-from core.planning import ActivePolicy, Planner
-from core.recognition import RecognitionSession, RecognitionSettings
+from app.rig.actions import TouchActions
+from app.rig.collection import iter_collect
+from core.gp.manifold import FitOptions, fit_manifold
+from core.recognition.planning import ActivePolicy, Planner
+from core.recognition.session import RecognitionSession, RecognitionSettings
 from core.types import TrainingData
 from hardware.records import TouchRecord
 from hardware.rig import RigConfig

@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from app.rig_factory import TouchActions
+from app.rig.actions import TouchActions
 from bench.sim_tables import QUIET, touch_all
 from hardware.errors import ConfigurationError
 from hardware.sim.materials import (

@@ -9,7 +9,8 @@ import pytest
 from typer.testing import CliRunner
 
 from app.cli.main import app
-from app.rig_factory import SimulationMode, TouchActions, open_rig
+from app.rig.actions import TouchActions
+from app.rig.build import SimulationMode, open_rig
 from bench.sim_tables import QUIET, touch_all
 from hardware.errors import ConfigurationError
 from hardware.sim.materials import (

@@ -1,0 +1,437 @@
+"""The trial engine: the one loop that runs a recognition trial over an observation source.
+
+Every recognition trial — the API's server-driven trials (simulated world or rig), ``activetouch
+recognize``, the evaluations (``activetouch evaluate``, ``paper``, the server's jobs) and the
+benchmarks — runs :func:`iter_trial`: the :class:`~core.recognition.session.RecognitionSession`
+state machine (the step-wise core, which a scripted API trial drives directly, one posted
+observation at a time) fed by an observation source, one touch per step. It is a generator, so a
+caller records, streams, paces or stops the trial between touches.
+
+An observation source (:class:`ObservationSource`) gives the next touch of a session:
+
+* :class:`PlannedTouches` asks the session's planner for the action and performs it on a
+  :class:`TouchSource` — a synthetic world (:class:`WorldTouches`), draws from the learned GP
+  (:class:`ModelTouches`, the paper's Experiment 2 protocol), the simulated or the real rig
+  (composed in ``app``);
+* :class:`ReplayTouches` picks among the target's recorded held-out touches without replacement,
+  by the policy's replay score (:data:`core.recognition.planning.POLICIES`; docs/method.md,
+  "Evaluation protocols").
+
+:func:`run_trial` runs a trial of an evaluation to its end and returns its outcome, a
+:class:`~core.evaluation.records.TrialRecord` (which says why it stopped) or a
+:class:`~core.evaluation.records.RefusedTrial` (a touch the world refused).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any, NamedTuple, Protocol
+
+import numpy as np
+
+from core.errors import InvalidInputError, TouchRefused
+from core.evaluation.records import RefusedTrial, TrialOutcome, TrialRecord, trial_generators
+from core.evaluation.worlds import World
+from core.gp.posterior import predict_model_space
+from core.recognition.object_posterior import TrialLikelihood
+from core.recognition.planning import EVALUATION_POLICIES, Planner, ReplayScore, policy_entry
+from core.recognition.session import (
+    RecognitionSession,
+    RecognitionSettings,
+    RecognitionStep,
+    default_prior,
+)
+from core.types import GaussianBelief, ManifoldModel, TrainingData
+from core.validation import FloatArray, as_float_array
+
+
+@dataclass(frozen=True)
+class Touch:
+    """One touch: the action performed (dx,), the observation (dy,), optional trajectory.
+
+    The action performed may differ from the one asked for (a rig clips it to what it can do).
+    """
+
+    action: FloatArray
+    observation: FloatArray
+    trajectory: dict[str, Any] | None = None
+
+
+class TouchSource(Protocol):
+    """Performs an action on the target object: (action (dx,), the world's generator) → touch.
+
+    It raises :class:`core.errors.TouchRefused` when the world refuses that one action (an
+    evaluation trial then ends as a :class:`~core.evaluation.records.RefusedTrial`); anything
+    else it raises propagates.
+    """
+
+    def touch(self, action: FloatArray, rng: np.random.Generator) -> Touch:
+        """Perform ``action`` (dx,) and return the touch."""
+        ...
+
+
+class ObservationSource(Protocol):
+    """Gives the next touch of a running session."""
+
+    def next_touch(
+        self,
+        session: RecognitionSession,
+        policy_rng: np.random.Generator,
+        world_rng: np.random.Generator,
+    ) -> Touch:
+        """The next touch (its action chosen with ``policy_rng``, observed with ``world_rng``)."""
+        ...
+
+
+class EngineStep(NamedTuple):
+    """One step of :func:`iter_trial`: the session's step and the touch it was given."""
+
+    step: RecognitionStep
+    touch: Touch
+
+
+@dataclass
+class PlannedTouches:
+    """The session's planner chooses each action; ``source`` performs it.
+
+    Attributes:
+        source: Where the touches happen.
+        asked: The last action asked of ``source`` (the refused one, after a refusal).
+    """
+
+    source: TouchSource
+    asked: FloatArray | None = None
+
+    def next_touch(
+        self,
+        session: RecognitionSession,
+        policy_rng: np.random.Generator,
+        world_rng: np.random.Generator,
+    ) -> Touch:
+        """Plan with ``policy_rng``, then touch with ``world_rng``."""
+        planned = session.suggest(policy_rng)
+        self.asked = planned.action
+        return self.source.touch(planned.action, world_rng)
+
+
+def iter_trial(
+    session: RecognitionSession,
+    source: ObservationSource,
+    policy_rng: np.random.Generator,
+    world_rng: np.random.Generator,
+) -> Iterator[EngineStep]:
+    """Run a trial: touch, update, decide, until the session stops; stop iterating to cancel.
+
+    Args:
+        session: A session that has not stopped (it may already hold touches).
+        source: Gives each touch.
+        policy_rng: The planner's (and a replay's choice's) randomness.
+        world_rng: The observation noise's randomness; may be ``policy_rng`` itself (one
+            stream for both, as the API's simulated trials and ``activetouch recognize`` use).
+
+    Yields:
+        One :class:`EngineStep` per touch; the last one's step has ``done`` set. Whatever the
+        source raises propagates (the steps before it have been yielded).
+    """
+    while not session.done:
+        touch = source.next_touch(session, policy_rng, world_rng)
+        yield EngineStep(session.observe(touch.action, touch.observation), touch)
+
+
+# --- observation sources ----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class WorldTouches:
+    """Touches of object ``target`` (by name) of a synthetic world: h(θ, x) + noise.
+
+    Raises:
+        InvalidInputError: ``target`` is not an object of the world.
+    """
+
+    world: World
+    target: str
+
+    def __post_init__(self) -> None:
+        _check_target(self.world.object_names, self.target, "world")
+
+    def touch(self, action: FloatArray, rng: np.random.Generator) -> Touch:
+        """y = h(target, x) + noise."""
+        index = self.world.object_names.index(self.target)
+        observation = self.world.observe(index, action[None, :], rng)[0]
+        return Touch(
+            action=np.asarray(action, dtype=np.float64),
+            observation=np.asarray(observation, dtype=np.float64),
+        )
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
+@dataclass(frozen=True)
+class ModelTouches:
+    """Draws from the learned GP's predictive distribution at the target's latent.
+
+    y' ~ N(m(s_k, x), diag v(s_k, x)), the predictive mean and variance (noise included) of
+    :func:`core.gp.posterior.predict_model_space`, mapped to raw units by the model's observation
+    transform (if any) — the paper's Experiment 2 protocol.
+
+    Raises:
+        InvalidInputError: ``target`` is not an object of the model.
+    """
+
+    model: ManifoldModel
+    target: str
+
+    def __post_init__(self) -> None:
+        _check_target(self.model.object_names, self.target, "model")
+
+    def touch(self, action: FloatArray, rng: np.random.Generator) -> Touch:
+        """One draw at ``action`` (dx,)."""
+        model = self.model
+        latent = model.latents[model.object_names.index(self.target)][None, :]
+        # Drawn where the GPs' features are independent (the model space y' of a noise model)
+        # and mapped to raw units: with correlated noise the raw predictive is not diagonal.
+        mean, variance = predict_model_space(model, latent, action[None, :])
+        noise = rng.standard_normal(mean.shape[1])
+        draw = mean + np.sqrt(variance) * noise
+        if model.transform is not None:
+            draw = model.transform.restore_mean(draw)
+        return Touch(action=action, observation=np.asarray(draw[0], dtype=np.float64))
+
+
+@dataclass(frozen=True)
+class ReplayPool:
+    """The recorded held-out touches of one object.
+
+    Attributes:
+        actions: Shape (n, dx).
+        observations: Shape (n, dy).
+    """
+
+    actions: FloatArray
+    observations: FloatArray
+
+    def __post_init__(self) -> None:
+        actions = as_float_array(self.actions, "replay actions", (None, None))
+        as_float_array(self.observations, "replay observations", (actions.shape[0], None))
+
+    @property
+    def size(self) -> int:
+        """n, the number of recorded touches."""
+        return int(self.actions.shape[0])
+
+
+def replay_pools(data: TrainingData) -> dict[str, ReplayPool]:
+    """The pool of every object of a held-out data set, by name."""
+    return {
+        name: ReplayPool(
+            actions=data.actions[data.object_index == k],
+            observations=data.observations[data.object_index == k],
+        )
+        for k, name in enumerate(data.object_names)
+    }
+
+
+class ReplayTouches:
+    """Each touch is an unused recorded touch of the target (without replacement).
+
+    ``score`` (a policy's :attr:`core.recognition.planning.PolicyEntry.replay_score`) picks the
+    unused touch with the largest score under the session's planning belief (active: the largest
+    mutual information), or, when ``None``, a random unused one (passive); the observation is that
+    touch's recorded y.
+
+    Args:
+        pool: The target's recorded touches.
+        score: How the policy scores them; ``None``: at random.
+    """
+
+    def __init__(self, pool: ReplayPool, score: ReplayScore | None) -> None:
+        self.pool = pool
+        self.score = score
+        self.unused = list(range(pool.size))
+
+    def next_touch(
+        self,
+        session: RecognitionSession,
+        policy_rng: np.random.Generator,
+        world_rng: np.random.Generator,
+    ) -> Touch:
+        """The chosen recorded touch (``world_rng`` is unused: the noise is recorded).
+
+        Raises:
+            InvalidInputError: Every recorded touch has been used.
+        """
+        if not self.unused:
+            raise InvalidInputError(
+                f"replay: all {self.pool.size} recorded touches are used; ask fewer steps."
+            )
+        if self.score is None:
+            chosen = int(policy_rng.integers(len(self.unused)))
+        else:
+            candidates = self.pool.actions[self.unused]
+            belief = session.planning_belief()
+            scores = self.score(session.planner, belief, session.probabilities, candidates)
+            chosen = int(np.argmax(scores))
+        index = self.unused.pop(chosen)
+        return Touch(action=self.pool.actions[index], observation=self.pool.observations[index])
+
+
+# --- evaluation trials ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TrialSettings:
+    """Stop rule and prior of every trial of an evaluation.
+
+    Attributes:
+        steps: T, the largest number of touches.
+        tolerance: Stop when the Gaussian mean moves less (normalised latent units; 0 disables).
+        stop_confidence: Stop when the object posterior's largest probability reaches it
+            (``None``: never).
+        prior_variance: Σ0 = prior_variance · I around the mean of the learned latents.
+        trial_likelihood: How the object posterior scores a trial's touches
+            (:class:`core.recognition.session.RecognitionSettings`): ``"joint"`` or
+            ``"independent"``.
+        shared_placement: Whether a trial's touches meet one placement of the object.
+    """
+
+    steps: int
+    tolerance: float = 1e-3
+    stop_confidence: float | None = None
+    prior_variance: float = 5.0
+    trial_likelihood: TrialLikelihood = "joint"
+    shared_placement: bool = True
+
+    def recognition(self, steps: int | None = None) -> RecognitionSettings:
+        """The recognition settings (``steps`` overrides T, e.g. capped by a replay pool)."""
+        return RecognitionSettings(
+            max_steps=self.steps if steps is None else steps,
+            tolerance=self.tolerance,
+            confidence_threshold=self.stop_confidence,
+            trial_likelihood=self.trial_likelihood,
+            shared_placement=self.shared_placement,
+        )
+
+    def prior(self, model: ManifoldModel) -> GaussianBelief:
+        """The initial belief of a trial."""
+        return default_prior(model, self.prior_variance)
+
+
+def _check_target(names: Sequence[str], target: str, where: str) -> None:
+    """Raise :class:`InvalidInputError` unless ``target`` is one of ``names`` (of the ``where``)."""
+    if target not in names:
+        raise InvalidInputError(
+            f"target: {target!r} is not an object of the {where} {list(names)}."
+        )
+
+
+def _per_touch(model: ManifoldModel, steps: Sequence[RecognitionStep]) -> dict[str, Any]:
+    names = model.object_names
+    return {
+        "answers": tuple(names[s.answer] for s in steps),
+        "probabilities": tuple(tuple(float(p) for p in s.probabilities) for s in steps),
+        "actions": tuple(tuple(float(v) for v in s.action) for s in steps),
+        "mutual_information": tuple(float(s.mutual_information) for s in steps),
+    }
+
+
+def run_trial(
+    model: ManifoldModel,
+    planner: Planner,
+    *,
+    policy: str,
+    target: str,
+    trial: int,
+    seed: tuple[int, ...],
+    settings: TrialSettings,
+    touches: TouchSource | None = None,
+    replay: ReplayPool | None = None,
+    steps: int | None = None,
+) -> TrialOutcome:
+    """One evaluation trial, run to its end by :func:`iter_trial`.
+
+    Exactly one of ``touches`` (the planner chooses each action, ``touches`` answers it) and
+    ``replay`` (each touch is an unused recorded touch of the target, chosen by the policy's
+    replay score) is given.
+
+    Args:
+        model: A conditioned model.
+        planner: A planner for ``model`` under ``policy``.
+        policy: The policy's name (recorded; a replay looks its replay score up by it).
+        target: The object touched (a model object).
+        trial: Index of the trial within its (policy, target) cell (recorded).
+        seed: The trial's seed tuple (:func:`core.evaluation.records.trial_seed`); the
+            planner's and the world's generators are spawned from it.
+        settings: Stop rule and prior.
+        touches: Where the planned touches happen.
+        replay: The target's recorded touches.
+        steps: Touches at most (≤ the replay pool's size); ``settings.steps`` when ``None``.
+
+    Returns:
+        The trial's record (with why it stopped), or a :class:`RefusedTrial` (with the touches
+        performed before it) when ``touches`` refused one (:class:`core.errors.TouchRefused`).
+
+    Raises:
+        InvalidInputError: Not exactly one source, a target not in the model, an unknown policy
+            (replay), a replay pool of the wrong dimensions, or more steps than recorded touches.
+    """
+    if (touches is None) == (replay is None):
+        raise InvalidInputError("run_trial: give exactly one of touches and replay.")
+    _check_target(model.object_names, target, "model")
+    limit = settings.steps if steps is None else steps
+    source: ObservationSource
+    planned: PlannedTouches | None = None
+    if replay is not None:
+        entry = policy_entry(policy, EVALUATION_POLICIES)
+        h = model.hyperparameters
+        actual = (replay.actions.shape[1], replay.observations.shape[1])
+        if actual != (h.action_dim, h.observation_dim):
+            raise InvalidInputError(
+                f"replay pool of {target!r}: has dx={actual[0]}, dy={actual[1]}; the model has "
+                f"dx={h.action_dim}, dy={h.observation_dim}."
+            )
+        if limit > replay.size:
+            raise InvalidInputError(
+                f"steps: {limit} touches asked but {target!r} has only {replay.size} recorded "
+                "touches."
+            )
+        source = ReplayTouches(replay, entry.replay_score)
+    else:
+        assert touches is not None
+        source = planned = PlannedTouches(touches)
+    policy_rng, world_rng = trial_generators(seed)
+    session = RecognitionSession(model, planner, settings.prior(model), settings.recognition(limit))
+    done: list[RecognitionStep] = []
+    try:
+        for step, _ in iter_trial(session, source, policy_rng, world_rng):
+            done.append(step)
+    except TouchRefused as refusal:
+        assert planned is not None
+        assert planned.asked is not None
+        return RefusedTrial(
+            policy=policy,
+            target=target,
+            trial=trial,
+            seed=tuple(seed),
+            touch=len(done) + 1,
+            action=tuple(float(v) for v in planned.asked),
+            error=refusal.error,
+            reason=refusal.reason,
+            **_per_touch(model, done),
+        )
+    per_touch = _per_touch(model, done)
+    last = done[-1]
+    assert last.stop_reason is not None
+    return TrialRecord(
+        policy=policy,
+        target=target,
+        trial=trial,
+        seed=tuple(seed),
+        touches=len(done),
+        stop_reason=last.stop_reason,
+        correct=per_touch["answers"][-1] == target,
+        nearest=tuple(model.object_names[s.nearest_object] for s in done),
+        **per_touch,
+    )

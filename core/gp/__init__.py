@@ -1,0 +1,63 @@
+"""The GP object manifold and its fit (docs/method.md (M1), (M2)).
+
+The model: kernels (``kernels``), the structured linear algebra (``linalg``, ``kronecker``,
+``kronecker_blocks``, ``sparse``), the hyperparameter layout (``parameters``), the marginal
+likelihood (``likelihood``) and the posterior it conditions (``posterior``). Its fit: options and
+progress (``fit_options``), the optimisation (``fit_run``, ``hyperparameter_fit``,
+``optimiser_stream``), starting latents (``initialisation``), the entry points (``manifold``), the
+noise model (``noise_model``) and the placement effect (``placement_effect``).
+
+Callers outside ``core`` use the names below; tests and benchmarks may reach the modules.
+"""
+
+from core.gp.fit_options import FitOptions, FitProgress
+from core.gp.fit_run import StartMap, StartPlan, StartResult, StartTask, run_first_stage
+from core.gp.manifold import FitCancelledError, fit_hyperparameters, fit_manifold, iter_fit
+from core.gp.noise_model import (
+    NoiseModelChoice,
+    attach_transform,
+    choose_noise_model,
+    transform_data,
+)
+from core.gp.placement_effect import (
+    check_placement_variance,
+    estimate_placement_variance,
+    with_placement_effect,
+)
+from core.gp.posterior import (
+    Structure,
+    condition,
+    gram_matrix,
+    make_likelihood,
+    predict,
+    predict_model_space,
+)
+from core.gp.sparse import condition_sparse
+
+__all__ = [
+    "FitCancelledError",
+    "FitOptions",
+    "FitProgress",
+    "NoiseModelChoice",
+    "StartMap",
+    "StartPlan",
+    "StartResult",
+    "StartTask",
+    "Structure",
+    "attach_transform",
+    "check_placement_variance",
+    "choose_noise_model",
+    "condition",
+    "condition_sparse",
+    "estimate_placement_variance",
+    "fit_hyperparameters",
+    "fit_manifold",
+    "gram_matrix",
+    "iter_fit",
+    "make_likelihood",
+    "predict",
+    "predict_model_space",
+    "run_first_stage",
+    "transform_data",
+    "with_placement_effect",
+]

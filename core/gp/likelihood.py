@@ -1,0 +1,291 @@
+"""Negative log marginal likelihood of the object manifold and its analytic gradient (M2).
+
+    -log p(Y | S, X, γ) = Σ_a ½ y_aᵀ K_a⁻¹ y_a + ½ log det K_a + (N/2) log 2π   docs/method.md (M2)
+
+with K_a = σ_f,a² K^s_a[obj, obj] ∘ K^x_a + σ_n,a² I (eq. (M1)) and y_a centred on the
+per-feature observation mean (as :func:`core.gp.posterior.condition` does).
+
+Gradient. With W_a = K_a⁻¹ - β_a β_aᵀ, ∂(-log p)/∂K_a = ½ W_a. Writing M_a = W_a ∘ K_f,a for the
+noise-free part K_f,a = K_a - σ_n,a² I, every derivative is a weighted sum of M_a:
+
+* log σ_f²:   ½ Σ_ij M_ij
+* log σ_n²:   ½ σ_n² tr W
+* log ℓ^x_d:  ½ Σ_ij M_ij (x_id - x_jd)² / ℓ_d²  =  (Σ_i r_i x_id² - x_dᵀ M x_d) / ℓ_d², r = M 1
+* log ℓ^s_d:  ½ Σ_ll' B_ll' (s_ld - s_l'd)² / ℓ_d²
+* s_ld:       -Σ_l' B_ll' (s_ld - s_l'd) / ℓ_d²
+
+where B = Pᵀ M P (P the N × L object indicator) holds the L × L block sums of M: the latent is
+shared by an object's touches, so its gradient sums theirs. Everything is O(N² dx) per
+feature on top of the Cholesky factor and the inverse (computed once, from the factor).
+
+Cost. M is symmetric, so only one triangle of W is formed (K⁻¹ by
+:func:`core.gp.linalg.inverse_from_cholesky`, ββᵀ subtracted by a rank-1 ``dsyr``) and multiplied
+into K_f in place; with X that triangle, M = X + Xᵀ - diag(X) and every sum above is a sum over
+X. At N = 400 an evaluation costs about the factor and the inverse of each K_a (``dpotrf`` +
+``dpotri`` timed alone: ``python -m bench.eval_speed``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg.blas
+import scipy.linalg.lapack
+
+from core.errors import InvalidInputError
+from core.gp.linalg import cholesky_with_jitter, inverse_from_cholesky
+from core.gp.parameters import ParameterLayout
+from core.types import Hyperparameters, TrainingData
+from core.validation import FloatArray, as_float_array
+
+_LOG_2PI = float(np.log(2.0 * np.pi))
+
+
+@dataclass(frozen=True)
+class LikelihoodGradient:
+    """∂(-log p)/∂ of every group of unknowns.
+
+    Attributes:
+        latents: With respect to S. Shape (L, ds).
+        log_signal_variance: With respect to log σ_f². Shape (dy,).
+        log_noise_variance: With respect to log σ_n². Shape (dy,).
+        log_latent_lengthscales: With respect to log ℓ^s. Shape (dy, ds).
+        log_action_lengthscales: With respect to log ℓ^x. Shape (dy, dx).
+    """
+
+    latents: FloatArray
+    log_signal_variance: FloatArray
+    log_noise_variance: FloatArray
+    log_latent_lengthscales: FloatArray
+    log_action_lengthscales: FloatArray
+
+
+class ManifoldLikelihood:
+    """-log p(Y | S, X, γ) and its gradient at packed parameter vectors (see
+    :mod:`core.gp.parameters`), with the data-only terms computed once.
+
+    Internally the touches are sorted by object (the likelihood does not depend on their order),
+    so that the L × L latent Gram matrix expands into contiguous blocks and the block sums of
+    the gradient are two ``reduceat`` passes.
+
+    Not a result type: it counts evaluations and remembers the largest jitter it needed
+    (:attr:`max_jitter`), which a fit reports.
+
+    Args:
+        data: Training touches.
+        latent_dim: ds ≥ 1.
+    """
+
+    #: Above this many entries (dx · N²) the per-dimension squared action differences are not
+    #: cached and are recomputed at every evaluation.
+    CACHE_LIMIT = 16_000_000
+
+    def __init__(self, data: TrainingData, latent_dim: int) -> None:
+        if isinstance(latent_dim, bool) or int(latent_dim) != latent_dim or latent_dim < 1:
+            raise InvalidInputError(f"latent_dim: must be an integer ≥ 1, received {latent_dim}.")
+        self.data = data
+        self.layout = ParameterLayout.for_data(data, int(latent_dim))
+        order = np.argsort(data.object_index, kind="stable")
+        # Centred actions: squared distances are shift invariant and lose less precision.
+        actions = data.actions[order] - data.actions.mean(axis=0)
+        self._actions = np.ascontiguousarray(actions)
+        self._centred = np.ascontiguousarray((data.observations[order] - data.observation_mean).T)
+        self._counts = data.touches_per_object()
+        self._starts = np.concatenate([[0], np.cumsum(self._counts)[:-1]]).astype(np.intp)
+        n, dx = actions.shape
+        self._sq_actions: FloatArray | None = None
+        if dx * n * n <= self.CACHE_LIMIT:
+            diff = actions.T[:, :, None] - actions.T[:, None, :]  # (dx, N, N)
+            self._sq_actions = np.ascontiguousarray((diff**2).reshape(dx, n * n))
+        self._diag = np.arange(n) * (n + 1)
+        self.max_jitter = 0.0
+        self.evaluations = 0
+
+    def noise_free_gram(self, vector: FloatArray) -> FloatArray:
+        """K_f,a = σ_f,a² K^s_a[obj, obj] ∘ K^x_a for every feature, docs/method.md eq. (M1).
+
+        Rows and columns are in the internal (object-sorted) order. Built as one exponential
+        per entry: exp(log σ_f² - ½ Σ_d (s_d - s_d')²/ℓ^s_d² - ½ Σ_d (x_d - x_d')²/ℓ^x_d²), the
+        action part by one GEMM over the cached squared differences, the latent part (constant
+        on object blocks) added block row by block row. Shape (dy, N, N).
+        """
+        latents, log_sf, _, log_ls, log_lx = self.layout.split(vector)
+        dy = self.layout.observation_dim
+        n = self.data.n_touches
+        inv_lx2 = np.exp(-2.0 * log_lx)  # (dy, dx)
+        if self._sq_actions is not None:
+            exponent = ((-0.5 * inv_lx2) @ self._sq_actions).reshape(dy, n, n)
+        else:
+            x_scaled = self._actions[None, :, :] * np.sqrt(inv_lx2)[:, None, :]
+            half_norms = -0.5 * np.sum(x_scaled**2, axis=2)  # (dy, N)
+            exponent = np.empty((dy, n, n))
+            for a in range(dy):
+                # -½ |x - x'|² = x·x' - ½|x|² - ½|x'|², never above 0
+                np.matmul(x_scaled[a], x_scaled[a].T, out=exponent[a])
+                exponent[a] += half_norms[a][:, None]
+                exponent[a] += half_norms[a][None, :]
+            np.minimum(exponent, 0.0, out=exponent)
+        diff = latents[:, None, :] - latents[None, :, :]  # (L, L, ds)
+        latent_part = np.einsum("lmd,ad->alm", diff**2, -0.5 * np.exp(-2.0 * log_ls))
+        latent_part += log_sf[:, None, None]  # log(σ_f² K^s), (dy, L, L)
+        rows = np.repeat(latent_part, self._counts, axis=2)  # (dy, L, N)
+        for obj, (first, count) in enumerate(zip(self._starts, self._counts, strict=True)):
+            if count:
+                exponent[:, first : first + count, :] += rows[:, obj, None, :]
+        return np.asarray(np.exp(exponent, out=exponent), dtype=np.float64)
+
+    def _factor(self, gram_free: FloatArray, noise: float, feature: int) -> FloatArray:
+        """Upper Cholesky factor U of K_a = K_f,a + σ_n² I = UᵀU, Fortran-ordered with a zero
+        strictly lower triangle (what LAPACK reads without copying); jitter only if needed."""
+        gram = gram_free.copy()
+        gram.ravel()[self._diag] += noise
+        # Fast path: plain LAPACK in place on the symmetric matrix (its transpose is itself, so
+        # the C-ordered copy is read as Fortran). Jitter ladder only on failure.
+        upper, info = scipy.linalg.lapack.dpotrf(gram.T, lower=0, clean=1, overwrite_a=1)
+        if info == 0:
+            return np.asarray(upper, dtype=np.float64)
+        gram = gram_free.copy()
+        gram.ravel()[self._diag] += noise
+        factor, jitter = cholesky_with_jitter(gram, what=f"Gram matrix of feature {feature}")
+        self.max_jitter = max(self.max_jitter, jitter)
+        return np.asarray(factor.T, dtype=np.float64)
+
+    def value(self, vector: FloatArray) -> float:
+        """-log p at a packed vector (no gradient: one Cholesky factor per feature)."""
+        self.evaluations += 1
+        _, _, log_sn, _, _ = self.layout.split(vector)
+        gram_free = self.noise_free_gram(vector)
+        n = self.data.n_touches
+        total = 0.0
+        for a in range(self.layout.observation_dim):
+            upper = self._factor(gram_free[a], float(np.exp(log_sn[a])), a)
+            # α = U⁻ᵀ y, so yᵀ K⁻¹ y = |α|²
+            alpha, info = scipy.linalg.lapack.dtrtrs(upper, self._centred[a], lower=0, trans=1)
+            if info:  # pragma: no cover - the factor came from a successful Cholesky
+                raise InvalidInputError(f"dtrtrs failed on feature {a}.")
+            log_det = 2.0 * float(np.sum(np.log(upper.ravel(order="F")[self._diag])))
+            # docs/method.md eq. (M2)
+            total += 0.5 * float(alpha @ alpha) + 0.5 * log_det + 0.5 * n * _LOG_2PI
+        return total
+
+    def value_and_gradient(self, vector: FloatArray) -> tuple[float, FloatArray]:
+        """-log p and its gradient with respect to the packed vector (same layout).
+
+        Only one triangle of W = K⁻¹ - ββᵀ is formed (K⁻¹ from the factor by
+        :func:`core.gp.linalg.inverse_from_cholesky`, then a rank-1 ``dsyr`` update): with X its
+        lower triangle times K_f, M = X + Xᵀ - diag(X), so Σ M = 2 Σ X - tr X,
+        ½ Σ M ∘ Δ = Σ X ∘ Δ for the zero-diagonal squared action differences Δ, and the block
+        sums are Pᵀ X P + (Pᵀ X P)ᵀ minus the diagonal's.
+        """
+        self.evaluations += 1
+        layout = self.layout
+        latents, _, log_sn, log_ls, log_lx = layout.split(vector)
+        noise = np.exp(log_sn)
+        inv_ls2 = np.exp(-2.0 * log_ls)  # (dy, ds)
+        inv_lx2 = np.exp(-2.0 * log_lx)  # (dy, dx)
+        gram_free = self.noise_free_gram(vector)
+        n = self.data.n_touches
+        dy = layout.observation_dim
+        g_sn = np.empty(dy)
+        total = 0.0
+        for a in range(dy):
+            upper = self._factor(gram_free[a], float(noise[a]), a)
+            y = self._centred[a]
+            beta, info = scipy.linalg.lapack.dpotrs(upper, y, lower=0)
+            if info:  # pragma: no cover - the factor came from a successful Cholesky
+                raise InvalidInputError(f"dpotrs failed on feature {a}.")
+            # docs/method.md eq. (M2)
+            log_det = 2.0 * float(np.sum(np.log(upper.ravel(order="F")[self._diag])))
+            total += 0.5 * float(y @ beta) + 0.5 * log_det + 0.5 * n * _LOG_2PI
+            # Upper triangle (Fortran) of W = K⁻¹ - ββᵀ: ∂(-log p)/∂K = ½ W. Its C-ordered
+            # transpose holds W in the lower triangle and zeros above.
+            inverse = inverse_from_cholesky(upper, overwrite=True)  # the factor is done
+            inverse = scipy.linalg.blas.dsyr(-1.0, beta, lower=0, a=inverse, overwrite_a=1)
+            half = inverse.T
+            g_sn[a] = 0.5 * noise[a] * float(half.ravel()[self._diag].sum())
+            gram_free[a] *= half  # X_a = tril(W_a) ∘ K_f,a, in place of K_f,a
+        halves = gram_free.reshape(dy, n * n)
+        diagonals = halves[:, self._diag]  # (dy, N)
+        lower_blocks = np.add.reduceat(
+            np.add.reduceat(gram_free, self._starts, axis=2), self._starts, axis=1
+        )  # Pᵀ X P, (dy, L, L)
+        g_sf = np.sum(lower_blocks, axis=(1, 2)) - 0.5 * np.sum(diagonals, axis=1)
+        if self._sq_actions is not None:
+            # Σ X ∘ Δ_d for all features in one GEMM (the cached differences read once).
+            g_lx = (self._sq_actions @ halves.T).T * inv_lx2
+        else:
+            x = self._actions
+            squares = x**2
+            g_lx = (np.sum(gram_free, axis=2) + np.sum(gram_free, axis=1)) @ squares
+            g_lx -= 2.0 * np.einsum("and,nd->ad", gram_free @ x, x)
+            g_lx *= inv_lx2
+        blocks = lower_blocks + np.swapaxes(lower_blocks, 1, 2)  # B = Pᵀ M P
+        diagonal_blocks = np.add.reduceat(diagonals, self._starts, axis=1)  # (dy, L)
+        blocks -= diagonal_blocks[:, :, None] * np.eye(layout.n_objects)
+        sq_pair = (latents[:, None, :] - latents[None, :, :]) ** 2  # (L, L, ds)
+        g_ls = 0.5 * np.einsum("alm,lmd->ad", blocks, sq_pair) * inv_ls2
+        row_sums = blocks.sum(axis=2)  # (dy, L)
+        # ∂/∂s_l = -Σ_a Σ_l' B_a[l,l'] (s_l - s_l') / ℓ_a²
+        g_latents = -(
+            latents * (row_sums.T @ inv_ls2) - np.einsum("ald,ad->ld", blocks @ latents, inv_ls2)
+        )
+        grad = np.empty(layout.size)
+        grad[layout.latents] = g_latents.ravel()
+        grad[layout.log_signal_variance] = g_sf
+        grad[layout.log_noise_variance] = g_sn
+        grad[layout.log_latent_lengthscales] = g_ls.ravel()
+        grad[layout.log_action_lengthscales] = g_lx.ravel()
+        return total, grad
+
+
+def negative_log_likelihood(
+    data: TrainingData, latents: FloatArray, hyperparameters: Hyperparameters
+) -> float:
+    """-Σ_a log p(y_a | S, X, γ_a), docs/method.md eq. (M2).
+
+    Args:
+        data: Training touches (N of them, L objects).
+        latents: Object latents. Shape (L, ds).
+        hyperparameters: Per-feature hyperparameters.
+
+    Returns:
+        The negative log marginal likelihood; equals ``-condition(...).log_likelihood``.
+    """
+    likelihood, vector = _prepare(data, latents, hyperparameters)
+    return likelihood.value(vector)
+
+
+def negative_log_likelihood_and_gradient(
+    data: TrainingData, latents: FloatArray, hyperparameters: Hyperparameters
+) -> tuple[float, LikelihoodGradient]:
+    """-log p and its analytic gradient with respect to S and the log-hyperparameters.
+
+    Args:
+        data: Training touches.
+        latents: Object latents. Shape (L, ds).
+        hyperparameters: Per-feature hyperparameters.
+
+    Returns:
+        The value and a :class:`LikelihoodGradient` (gradients with respect to the logs of
+        σ_f², σ_n² and of the length-scales themselves, not of their squares).
+    """
+    likelihood, vector = _prepare(data, latents, hyperparameters)
+    value, grad = likelihood.value_and_gradient(vector)
+    s, sf, sn, ls, lx = likelihood.layout.split(grad)
+    return value, LikelihoodGradient(
+        latents=s.copy(),
+        log_signal_variance=sf.copy(),
+        log_noise_variance=sn.copy(),
+        log_latent_lengthscales=ls.copy(),
+        log_action_lengthscales=lx.copy(),
+    )
+
+
+def _prepare(
+    data: TrainingData, latents: FloatArray, hyperparameters: Hyperparameters
+) -> tuple[ManifoldLikelihood, FloatArray]:
+    h = hyperparameters
+    latents = as_float_array(latents, "latents", (data.n_objects, h.latent_dim))
+    likelihood = ManifoldLikelihood(data, h.latent_dim)
+    return likelihood, likelihood.layout.pack(latents, h)

@@ -1,0 +1,265 @@
+"""The placement effect: a random offset shared by the touches of one placement of an object.
+
+The base model (docs/method.md, (M1)) treats the touches of a trial as independent given the
+object. On a rig they are not: the object is set down once per trial (its pose and contact point
+shift a little every time) and the sensor drifts slowly, so every touch of a trial is shifted
+alike. Per model-space feature a (docs/calibration.md, eq. (C1)–(C3)):
+
+    y_ta = f_a(s_l, x_t) + b_a + ε_ta,   b_a ~ N(0, σ_b,a²) once per placement,
+    ε_ta ~ N(0, σ_w,a²) per touch,        σ_w,a² = σ_n,a² − σ_b,a².
+
+σ_n,a² of (M1) was fitted with every touch's noise independent, on touches that met many
+placements, so it estimates the whole per-touch variance σ_b,a² + σ_w,a²: the split keeps each
+touch's own predictive density as it was and moves σ_b,a² into a covariance shared by the touches
+of one placement. Under object l the T touches of a trial are then one joint Gaussian per feature,
+
+    y_a ~ N(m_a(s_l, X), V_a(s_l, X) + σ_b,a² 11ᵀ + σ_w,a² I),
+
+with m_a and V_a the GP predictive mean and full T × T covariance of f_a at (s_l, x_1..x_T) (the
+GP's cross-covariances between the touches included). The evidence of repeated touches then
+saturates: a shared offset counts once, not once per touch.
+
+σ_b² is estimated from a collection that records placements (several touches per placement):
+:func:`estimate_placement_variance`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from core.errors import InvalidInputError
+from core.gp.kernels import squared_exponential
+from core.gp.kronecker import predictive_covariance_kronecker
+from core.gp.linalg import cholesky_with_jitter
+from core.gp.posterior import gram_matrix, predict_model_space, support_points
+from core.types import ManifoldModel
+from core.validation import FloatArray, IntArray, as_float_array
+
+#: σ_b,a² is kept at or below this fraction of σ_n,a², so that σ_w,a² stays positive.
+MAX_PLACEMENT_FRACTION = 0.95
+
+
+@dataclass(frozen=True)
+class PlacementEstimate:
+    """σ_b² estimated from touches grouped by placement (:func:`estimate_placement_variance`).
+
+    Attributes:
+        variance: σ_b,a², model space, after clipping to [0, MAX_PLACEMENT_FRACTION · σ_n,a²].
+            Shape (dy,).
+        raw_variance: The moment estimate before clipping (may be negative). Shape (dy,).
+        groups: Placements with at least two touches (those that inform the estimate).
+        pairs: Ordered pairs (i ≠ j) of touches sharing a placement, Σ_G n_G (n_G − 1).
+    """
+
+    variance: FloatArray
+    raw_variance: FloatArray
+    groups: int
+    pairs: int
+
+
+def placement_groups(object_index: IntArray, placement_index: IntArray) -> list[IntArray]:
+    """Touch indices of every placement, a placement being one (object, placement number).
+
+    Args:
+        object_index: Object of every touch. Shape (N,).
+        placement_index: Placement number of every touch. Shape (N,).
+
+    Returns:
+        One index array per placement, in order of first appearance.
+    """
+    keys = np.stack([np.asarray(object_index), np.asarray(placement_index)], axis=1)
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    order = np.argsort(first)
+    return [np.flatnonzero(inverse == g) for g in order]
+
+
+def estimate_placement_variance(
+    model: ManifoldModel, placement_index: IntArray
+) -> PlacementEstimate:
+    """σ_b,a² from the leave-one-placement-out residuals of the training touches.
+
+    For a placement G (its touches' indices), the GP conditioned on all the other touches
+    predicts y_G with residual r_G = (K⁻¹)_GG⁻¹ β_G and, under the fitted model, covariance
+    A_G = (K⁻¹)_GG⁻¹ = V_G + σ_n² I (the standard block leave-out identities; K the noisy Gram
+    matrix, β = K⁻¹ (y − mean)). Under the placement model (eq. (C1)) the touches of G also
+    share b, so E[r_i r_j] = A_G,ij + σ_b² for i ≠ j in G. The method-of-moments estimate pools
+    every within-placement pair (docs/calibration.md, eq. (C4)):
+
+        σ_b,a² = Σ_G Σ_{i≠j∈G} (r_i r_j − A_G,ij) / Σ_G n_G (n_G − 1),
+
+    unbiased whatever the GP's own uncertainty at the held-out touches (it is subtracted), then
+    clipped to [0, MAX_PLACEMENT_FRACTION · σ_n,a²]. Leaving the whole placement out matters:
+    leaving one touch out would let its placement-mates' shared offset leak into the prediction.
+
+    Args:
+        model: A model fitted on the touches (dense, Kronecker or sparse: the Gram matrices are
+            rebuilt here, O(N³) per feature).
+        placement_index: Placement number of every training touch (with the object it forms the
+            placement). Shape (N,).
+
+    Returns:
+        The estimate; ``variance`` is zero when no placement has two touches.
+
+    Raises:
+        InvalidInputError: ``placement_index`` is not N integers ≥ 0.
+    """
+    data = model.data
+    placement = np.asarray(placement_index)
+    if placement.shape != (data.n_touches,) or not np.issubdtype(placement.dtype, np.integer):
+        raise InvalidInputError(
+            f"placement_index: expected {data.n_touches} integers, received dtype "
+            f"{placement.dtype} with shape {placement.shape}."
+        )
+    groups = [g for g in placement_groups(data.object_index, placement) if g.size >= 2]
+    h = model.hyperparameters
+    dy = h.observation_dim
+    pairs = int(sum(g.size * (g.size - 1) for g in groups))
+    if not groups:
+        zero = np.zeros(dy)
+        return PlacementEstimate(variance=zero, raw_variance=zero.copy(), groups=0, pairs=0)
+    centred = data.observations - data.observation_mean
+    identity = np.eye(data.n_touches)
+    raw = np.empty(dy)
+    for a in range(dy):
+        factor, _ = cholesky_with_jitter(
+            gram_matrix(data, model.latents, h, a), what=f"Gram matrix of feature {a}"
+        )
+        inverse = scipy.linalg.cho_solve((factor, True), identity, check_finite=False)
+        beta = inverse @ centred[:, a]
+        total = 0.0
+        for g in groups:
+            held_out_cov = np.linalg.inv(inverse[np.ix_(g, g)])
+            residual = held_out_cov @ beta[g]
+            cross = float(residual.sum() ** 2 - residual @ residual)
+            expected = float(held_out_cov.sum() - np.trace(held_out_cov))
+            total += cross - expected
+        raw[a] = total / pairs
+    variance = np.clip(raw, 0.0, MAX_PLACEMENT_FRACTION * h.noise_variance)
+    return PlacementEstimate(variance=variance, raw_variance=raw, groups=len(groups), pairs=pairs)
+
+
+def with_placement_effect(
+    model: ManifoldModel,
+) -> tuple[ManifoldModel, PlacementEstimate | None]:
+    """The model with σ_b² estimated from its training touches' placements, if they were recorded.
+
+    Args:
+        model: A fitted model; its raw training data may carry ``placement_index``.
+
+    Returns:
+        The model with ``placement_variance`` set, and the estimate; the model unchanged and
+        ``None`` when the training touches have no placements.
+    """
+    placement = model.raw_data.placement_index
+    if placement is None:
+        return model, None
+    estimate = estimate_placement_variance(model, placement)
+    return dataclasses.replace(model, placement_variance=estimate.variance), estimate
+
+
+def check_placement_variance(model: ManifoldModel, variance: FloatArray) -> FloatArray:
+    """σ_b² as a checked array: dy values in [0, σ_n²). Shape (dy,).
+
+    Raises:
+        InvalidInputError: Wrong length, negative, or not below the noise variance.
+    """
+    h = model.hyperparameters
+    value = as_float_array(variance, "placement_variance", (h.observation_dim,))
+    if np.any(value < 0) or np.any(value >= h.noise_variance):
+        raise InvalidInputError(
+            f"placement_variance: every σ_b,a² must lie in [0, σ_n,a²) = [0, "
+            f"{h.noise_variance.tolist()}), received {value.tolist()}."
+        )
+    return value
+
+
+def predictive_covariance(
+    model: ManifoldModel, latent: FloatArray, actions: FloatArray
+) -> FloatArray:
+    """Full GP predictive covariance of f_a (noise not included) at (s, x_1..x_T), per feature.
+
+    V_a = σ_f,a² K^x_a(X, X) − k_a(Z*, Z) A_a k_a(Z, Z*) with Z* = (s, x_t) (the latent kernel
+    is 1 between the touches: they share s) and A_a the posterior's matrix over its support
+    points (K_a⁻¹ for dense and Kronecker posteriors). Its diagonal plus σ_n,a² is the variance of
+    :func:`core.gp.posterior.predict_model_space`. A Kronecker posterior whose K⁻¹ is not
+    materialised goes through its eigendecompositions instead
+    (:func:`core.gp.kronecker.predictive_covariance_kronecker`), so K⁻¹ is never built for it here.
+
+    Args:
+        model: A conditioned model.
+        latent: s. Shape (ds,).
+        actions: x_1..x_T. Shape (T, dx).
+
+    Returns:
+        V_a for every feature. Shape (dy, T, T).
+    """
+    if model.posterior.kronecker is not None and not model.posterior.has_dense_inverse:
+        return predictive_covariance_kronecker(model, latent, actions)
+    h = model.hyperparameters
+    s = as_float_array(latent, "latent", (h.latent_dim,))
+    x = as_float_array(actions, "actions", (None, h.action_dim))
+    support_objects, support_actions = support_points(model)
+    gram_inverse = model.posterior.gram_inverse
+    out = np.empty((h.observation_dim, x.shape[0], x.shape[0]))
+    for a in range(h.observation_dim):
+        k_latent = squared_exponential(s[None, :], model.latents, h.latent_lengthscales[a])[0]
+        k_action = squared_exponential(x, support_actions, h.action_lengthscales[a])
+        cross = h.signal_variance[a] * k_latent[support_objects][None, :] * k_action
+        prior = h.signal_variance[a] * squared_exponential(x, x, h.action_lengthscales[a])
+        cov = prior - cross @ gram_inverse[a] @ cross.T
+        out[a] = 0.5 * (cov + cov.T)
+    return out
+
+
+def trial_log_likelihoods(
+    model: ManifoldModel, actions: FloatArray, observations: FloatArray, variance: FloatArray
+) -> FloatArray:
+    """log p(y_1..y_T | l) of one trial's touches under every object, with a placement effect.
+
+    Per object l and model-space feature a, one joint Gaussian over the T touches (eq. (C3)):
+    N(y'_a; m_a(s_l, X), V_a(s_l, X) + σ_b,a² 11ᵀ + (σ_n,a² − σ_b,a²) I), summed over a, plus
+    T · log|det M| (the Jacobian of the observation transform y' = M (y − c)). With T = 1 it
+    equals the independent per-touch density of
+    :func:`core.recognition.object_posterior.object_log_likelihoods`.
+
+    Args:
+        model: A conditioned model.
+        actions: The trial's actions. Shape (T, dx).
+        observations: Their raw observations. Shape (T, dy).
+        variance: σ_b,a² in model space (:func:`check_placement_variance`). Shape (dy,).
+
+    Returns:
+        Log-likelihood of the trial under each object. Shape (L,).
+    """
+    h = model.hyperparameters
+    x = as_float_array(actions, "actions", (None, h.action_dim))
+    y = as_float_array(observations, "observations", (x.shape[0], h.observation_dim))
+    sigma_b = check_placement_variance(model, variance)
+    n_objects, t = model.latents.shape[0], x.shape[0]
+    if t == 0:
+        return np.zeros(n_objects)
+    y_model = model.to_model_space(y)
+    within = h.noise_variance - sigma_b
+    jacobian = 0.0 if model.transform is None else model.transform.log_jacobian
+    ones = np.ones((t, t))
+    out = np.empty(n_objects)
+    for obj in range(n_objects):
+        latent = model.latents[obj]
+        mean, _ = predict_model_space(model, np.tile(latent, (t, 1)), x)
+        cov_f = predictive_covariance(model, latent, x)
+        total = 0.0
+        for a in range(h.observation_dim):
+            cov = cov_f[a] + sigma_b[a] * ones + within[a] * np.eye(t)
+            factor, _ = cholesky_with_jitter(cov, what=f"trial covariance of feature {a}")
+            residual = scipy.linalg.solve_triangular(
+                factor, y_model[:, a] - mean[:, a], lower=True, check_finite=False
+            )
+            total += -0.5 * float(residual @ residual) - float(np.sum(np.log(np.diag(factor))))
+            total -= 0.5 * t * np.log(2.0 * np.pi)
+        out[obj] = total + t * jacobian
+    return out

@@ -1,0 +1,271 @@
+"""Uncertainty of each object's latent point, carried into the object likelihood.
+
+The object posterior (:mod:`core.recognition.object_posterior`) scores a trial's touches under
+object l at its learned latent s_l as if s_l were known exactly. It is a point estimate from the
+l-th object's training touches: docs/method.md, "Latent uncertainty in the object likelihood"
+(L1)–(L3).
+
+* (L1) **Laplace approximation.** Given the hyperparameters and the other objects' latents, the
+  conditional posterior of s_l (flat prior) is approximated by N(s_l*, Σ_l) with
+  Σ_l = H_l⁻¹, H_l the ds × ds Hessian of -log p(Y | S, X, γ) (docs/method.md (M2)) with respect
+  to s_l at the fitted latents. H_l is the central difference of the analytic gradient
+  (:func:`core.gp.likelihood.negative_log_likelihood_and_gradient`). Eigenvalues of H_l below
+  1 / ``max_variance`` (a flat or non-convex direction: a latent direction no feature resolves)
+  are raised to it: the latent is then no more uncertain than the spread of all objects
+  (normalised latents have RMS distance 1 from their centre).
+* (L2) **The predictive for object l integrates over s_l**: the touches' joint distribution under
+  s_l ~ N(s_l*, Σ_l) is matched by a Gaussian with the exact first two moments, the Gaussian-input
+  moments of docs/method.md (M3) extended to several actions at once (cross-covariances between
+  the touches and between the features), :func:`trial_moments`.
+* (L3) The trial log-likelihood is that Gaussian's log-density (:func:`trial_log_likelihoods`).
+
+With Σ_l → 0 it reduces to today's joint likelihood (docs/calibration.md (C3)).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from core.errors import InvalidInputError
+from core.gp.kernels import squared_exponential
+from core.gp.likelihood import negative_log_likelihood_and_gradient
+from core.gp.linalg import cholesky_with_jitter
+from core.recognition.moments import action_kernels, belief_terms, object_indicator
+from core.types import GaussianBelief, ManifoldModel
+from core.validation import FloatArray, as_float_array
+
+#: Largest variance of a latent direction, normalised latent units (the objects' own spread).
+MAX_LATENT_VARIANCE = 1.0
+
+#: Central-difference step, as a fraction of the smallest latent length-scale of the model.
+_STEP_FRACTION = 1e-3
+
+
+@dataclass(frozen=True)
+class LatentLaplace:
+    """The Laplace approximation of every object's latent point (docs/method.md (L1)).
+
+    Attributes:
+        covariance: Σ_l, normalised latent units. Shape (L, ds, ds).
+        hessian: H_l, the curvature of -log p with respect to s_l. Shape (L, ds, ds).
+        floored: How many eigenvalues of each H_l were raised to 1 / ``max_variance``. Shape (L,).
+    """
+
+    covariance: FloatArray
+    hessian: FloatArray
+    floored: tuple[int, ...]
+
+
+def latent_hessians(model: ManifoldModel) -> FloatArray:
+    """H_l = ∂²(-log p(Y | S, X, γ)) / ∂s_l ∂s_lᵀ at the fitted latents, hyperparameters fixed.
+
+    Central differences of the analytic gradient (one pair of gradient evaluations per latent
+    coordinate), step 1e-3 × the smallest latent length-scale; symmetrised. Always the exact
+    dense likelihood of the training touches in the model's space (O(dy N³) per evaluation).
+
+    Args:
+        model: A fitted model (its latents at an optimum of (M2)).
+
+    Returns:
+        One ds × ds matrix per object. Shape (L, ds, ds).
+    """
+    h = model.hyperparameters
+    latents = np.array(model.latents, dtype=np.float64)
+    n_objects, ds = latents.shape
+    step = _STEP_FRACTION * float(np.min(h.latent_lengthscales))
+    out = np.empty((n_objects, ds, ds))
+    for obj in range(n_objects):
+        for d in range(ds):
+            gradients = []
+            for sign in (1.0, -1.0):
+                moved = latents.copy()
+                moved[obj, d] += sign * step
+                _, gradient = negative_log_likelihood_and_gradient(model.data, moved, h)
+                gradients.append(gradient.latents[obj])
+            out[obj, :, d] = (gradients[0] - gradients[1]) / (2.0 * step)
+    return np.asarray(0.5 * (out + np.swapaxes(out, 1, 2)), dtype=np.float64)
+
+
+def laplace_latents(
+    model: ManifoldModel, max_variance: float = MAX_LATENT_VARIANCE
+) -> LatentLaplace:
+    """Σ_l = H_l⁻¹, H_l's eigenvalues kept at or above 1 / ``max_variance`` (docs/method.md (L1)).
+
+    Args:
+        model: A fitted model.
+        max_variance: Largest variance along any latent direction, normalised units.
+
+    Raises:
+        InvalidInputError: ``max_variance`` not finite and > 0.
+    """
+    if not np.isfinite(max_variance) or max_variance <= 0:
+        raise InvalidInputError(f"max_variance: must be finite and > 0, received {max_variance}.")
+    hessian = latent_hessians(model)
+    covariance = np.empty_like(hessian)
+    floored = []
+    for obj, block in enumerate(hessian):
+        values, vectors = np.linalg.eigh(block)
+        kept = np.maximum(values, 1.0 / max_variance)
+        floored.append(int(np.sum(values < 1.0 / max_variance)))
+        cov = (vectors / kept) @ vectors.T
+        covariance[obj] = 0.5 * (cov + cov.T)
+    return LatentLaplace(covariance=covariance, hessian=hessian, floored=tuple(floored))
+
+
+def check_latent_covariance(model: ManifoldModel, covariance: FloatArray) -> FloatArray:
+    """Σ_l as a checked array: L symmetric positive definite ds × ds matrices.
+
+    Raises:
+        InvalidInputError: Wrong shape, non-finite, not symmetric or not positive definite.
+    """
+    n_objects, ds = model.latents.shape
+    value = as_float_array(covariance, "latent_covariance", (n_objects, ds, ds))
+    if not np.allclose(value, np.swapaxes(value, 1, 2), rtol=1e-8, atol=1e-12):
+        raise InvalidInputError("latent_covariance: every Σ_l must be symmetric.")
+    smallest = np.linalg.eigvalsh(value).min(axis=1)
+    if np.any(smallest <= 0):
+        bad = int(np.flatnonzero(smallest <= 0)[0])
+        raise InvalidInputError(
+            f"latent_covariance: every Σ_l must be positive definite; object {bad} has smallest "
+            f"eigenvalue {smallest[bad]:.3g}."
+        )
+    return value
+
+
+def with_latent_uncertainty(model: ManifoldModel) -> tuple[ManifoldModel, LatentLaplace]:
+    """The model with ``latent_covariance`` set to the Laplace Σ_l of :func:`laplace_latents`."""
+    laplace = laplace_latents(model)
+    return dataclasses.replace(model, latent_covariance=laplace.covariance), laplace
+
+
+def trial_moments(
+    model: ManifoldModel, latent: FloatArray, covariance: FloatArray, actions: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Mean and covariance of f(s, x_1..x_T) over every feature for s ~ N(latent, covariance).
+
+    docs/method.md (L2): with the action statistics of (M3) (u_a(x)[l], the belief terms c_a and
+    G_ab of the belief N(latent, covariance)) and the cross-action traces
+    T_a(x_t, x_t')[l, l'] = Σ_{i∈l, j∈l'} (K_a⁻¹)_ij e_ai(x_t) e_aj(x_t'),
+
+        E[f_a(x_t)] = ȳ_a + c_aᵀ u_a(x_t)
+        Cov[f_a(x_t), f_b(x_t')] = u_a(x_t)ᵀ G_ab u_b(x_t') − (c_aᵀ u_a(x_t)) (c_bᵀ u_b(x_t'))
+            + δ_ab (σ_f,a² k^x_a(x_t, x_t') − Σ_ll' G_aa[l, l'] T_a(x_t, x_t')[l, l']).
+
+    The noise is not included. As the covariance → 0 the mean is the GP predictive mean at
+    (latent, x_t), the features are uncorrelated and each block is the GP's full T × T
+    covariance V_a (:func:`core.gp.placement_effect.predictive_covariance`).
+
+    Args:
+        model: A conditioned model (dense, sparse or Kronecker with a materialisable K⁻¹).
+        latent: Mean of s. Shape (ds,).
+        covariance: Covariance of s. Shape (ds, ds).
+        actions: x_1..x_T. Shape (T, dx).
+
+    Returns:
+        Mean in model space, shape (T, dy); covariance ordered feature-major (index a·T + t),
+        shape (dy·T, dy·T).
+    """
+    h = model.hyperparameters
+    ds = h.latent_dim
+    s = as_float_array(latent, "latent", (ds,))
+    cov_s = as_float_array(covariance, "covariance", (ds, ds))
+    x = as_float_array(actions, "actions", (None, h.action_dim))
+    return _moments(model, s, cov_s, x, *_action_terms(model, x))
+
+
+def _moments(
+    model: ManifoldModel,
+    latent: FloatArray,
+    covariance: FloatArray,
+    x: FloatArray,
+    responses: FloatArray,
+    traces: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`trial_moments` from precomputed action terms (:func:`_action_terms`)."""
+    h = model.hyperparameters
+    dy, t = h.observation_dim, x.shape[0]
+    terms = belief_terms(model, GaussianBelief(mean=latent, cov=covariance))
+    centred = np.einsum("al,atl->ta", terms.weights, responses)  # c_aᵀ u_a(x_t)
+    # u_a(x_t)ᵀ G_ab u_b(x_t') for every (a, t, b, t')
+    cov = np.einsum("atl,ablm,bum->atbu", responses, terms.pair_weights, responses)
+    cov -= centred.T[:, :, None, None] * centred.T[None, None, :, :]
+    for a in range(dy):
+        prior = h.signal_variance[a] * squared_exponential(x, x, h.action_lengthscales[a])
+        trace = np.einsum("lm,tlum->tu", terms.pair_weights[a, a], traces[a])
+        cov[a, :, a, :] += prior - trace
+    flat = cov.reshape(dy * t, dy * t)
+    return centred + model.data.observation_mean, 0.5 * (flat + flat.T)
+
+
+def _action_terms(model: ManifoldModel, actions: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """u_a(x_t)[l] (dy, T, L) and the cross-action traces T_a(x_t, x_t')[l, l'] (dy, T, L, T, L)."""
+    kernels = action_kernels(model, actions)  # (dy, T, N)
+    indicator = object_indicator(model)  # (N, L)
+    beta = model.posterior.beta  # (dy, N)
+    gram_inverse = model.posterior.gram_inverse  # (dy, N, N)
+    dy, t, n = kernels.shape
+    n_objects = indicator.shape[1]
+    responses = np.einsum("atn,an,nl->atl", kernels, beta, indicator)
+    traces = np.empty((dy, t, n_objects, t, n_objects))
+    for a in range(dy):
+        masked = kernels[a][:, None, :] * indicator.T[None, :, :]  # (T, L, N)
+        rows = masked.reshape(t * n_objects, n)
+        traces[a] = (rows @ gram_inverse[a] @ rows.T).reshape(t, n_objects, t, n_objects)
+    return responses, traces
+
+
+def trial_log_likelihoods(
+    model: ManifoldModel,
+    actions: FloatArray,
+    observations: FloatArray,
+    placement_variance: FloatArray,
+    latent_covariance: FloatArray,
+) -> FloatArray:
+    """log p(y_1..y_T | l) of one trial's touches with s_l ~ N(s_l*, Σ_l) (docs/method.md (L3)).
+
+    Under object l the model-space observations y' (feature-major, dy·T) are Gaussian with the
+    mean and covariance of :func:`trial_moments` at (s_l*, Σ_l), plus per feature
+    σ_b,a² 11ᵀ + (σ_n,a² − σ_b,a²) I (docs/calibration.md (C3)); plus T · log|det M|. With every
+    Σ_l = 0 this equals :func:`core.gp.placement_effect.trial_log_likelihoods`.
+
+    Args:
+        model: A conditioned model.
+        actions: The trial's actions. Shape (T, dx).
+        observations: Their raw observations. Shape (T, dy).
+        placement_variance: σ_b,a², model space (zeros for none). Shape (dy,).
+        latent_covariance: Σ_l. Shape (L, ds, ds).
+
+    Returns:
+        Log-likelihood of the trial under each object. Shape (L,).
+    """
+    h = model.hyperparameters
+    x = as_float_array(actions, "actions", (None, h.action_dim))
+    y = as_float_array(observations, "observations", (x.shape[0], h.observation_dim))
+    sigma_b = as_float_array(placement_variance, "placement_variance", (h.observation_dim,))
+    covariances = check_latent_covariance(model, latent_covariance)
+    n_objects, t = model.latents.shape[0], x.shape[0]
+    if t == 0:
+        return np.zeros(n_objects)
+    target = model.to_model_space(y).T.reshape(-1)  # feature-major
+    noise = np.kron(np.diag(h.noise_variance - sigma_b), np.eye(t))
+    noise += np.kron(np.diag(sigma_b), np.ones((t, t)))
+    jacobian = 0.0 if model.transform is None else model.transform.log_jacobian
+    action_terms = _action_terms(model, x)
+    out = np.empty(n_objects)
+    for obj in range(n_objects):
+        mean, cov = _moments(model, model.latents[obj], covariances[obj], x, *action_terms)
+        factor, _ = cholesky_with_jitter(cov + noise, what="trial covariance")
+        residual = scipy.linalg.solve_triangular(
+            factor, target - mean.T.reshape(-1), lower=True, check_finite=False
+        )
+        out[obj] = (
+            -0.5 * float(residual @ residual)
+            - float(np.sum(np.log(np.diag(factor))))
+            - 0.5 * target.size * np.log(2.0 * np.pi)
+            + t * jacobian
+        )
+    return out

@@ -1,0 +1,424 @@
+"""Choose the latent dimension ds by cross-validated held-out predictive likelihood.
+
+Two criteria (``criterion``), both fitting K times per candidate ds with the fit passed in:
+
+``"touches"`` (the default): K-fold cross-validation over touches *within* objects. Each
+object's touches are dealt to the folds, a model is fitted on K - 1 folds and the held-out
+touches are scored by their log-density under their own object's learned latent
+(:func:`core.recognition.object_posterior.touch_log_likelihoods`, raw units, Jacobian included).
+
+``"objects"``: leave-objects-out. The objects are dealt to the folds; a model is fitted on the
+objects of the other folds and every held-out object is met as a new one: its touches are split
+in two halves, its latent is placed from one half by maximising the likelihood over s with the
+model fixed (:func:`core.selection.held_out_objects.place_latent`), and the other half is scored at
+that latent (:func:`core.selection.held_out_objects.log_densities_at`); then the halves swap, so
+every touch is scored exactly once. It asks whether the manifold generalises to a new object, which
+is what recognition needs.
+
+The choice is the **smallest ds whose mean score is within one standard error of the best**
+(paired over folds: its fold-by-fold difference to the best, mean ≥ -1 s.e.), the
+one-standard-error rule of Hastie, Tibshirani & Friedman (§7.10): a larger latent space must
+predict held-out touches better by more than the folds' noise. ``best`` keeps the candidate with
+the best mean score, and the explanation names both when they differ.
+
+Measured (docs/noise-model.md, ``bench/latent_dim.py``): on Experiment-2-like worlds whose
+response the fit can learn and whose objects span the latent space (L = 12 objects × 30
+touches, dx = 6, dy = 5, response length-scales 2 along s and 3 along x, 5 folds) the rule
+picks the true ds on 17 of 18 worlds (ds = 1: 6 of 6, ds = 2: 6 of 6, ds = 3: 5 of 6; the best
+mean on 16: a ds = 1 world went to 2 by 0.020 ± 0.023 nats per touch); leave-objects-out with
+the same rule on 18 of 18 (the best mean on 14). On worlds whose response
+the fit cannot learn (length-scale 1.5 along x with 6-D actions: fresh touches predicted 12
+nats per touch below the truth) or with few objects (L = 8), ds = 3 was rarely found by any
+criterion tried; leave-objects-out leaned large there.
+
+Every fold's candidates are fitted nested by default (:mod:`core.selection.nested_fits`): ds = k
+starts from the ds = k - 1 optimum too, so the training log-likelihood is non-decreasing in ds.
+
+The folds are independent (each gets its own generator, spawned from the one passed in):
+:func:`score_fold` is one fold's work, a pure function, and ``map`` runs them — one after
+another by default, or elsewhere (the app runs them as Dask tasks) with the same result.
+
+Pure maths: the fit is a function argument, randomness comes in as a generator.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from core.errors import InvalidInputError
+from core.recognition.object_posterior import touch_log_likelihoods
+from core.selection.held_out_objects import (
+    held_out_scores,
+    object_folds,
+    objects_subset,
+    split_halves,
+)
+from core.selection.nested_fits import StartedFit, nested_fits
+from core.types import ManifoldModel, TrainingData
+from core.validation import FloatArray, IntArray
+
+#: Largest candidate ds tried by default (candidates 1..min(this, L - 1)).
+DEFAULT_MAX_LATENT_DIM = 5
+DEFAULT_FOLDS = 5
+
+Criterion = Literal["touches", "objects"]
+CRITERIA: tuple[Criterion, ...] = ("touches", "objects")
+
+
+@dataclass(frozen=True)
+class CandidateScore:
+    """Cross-validated score of one latent dimension.
+
+    Attributes:
+        latent_dim: ds.
+        fold_scores: Mean log-density per held-out touch (nats) of each fold.
+        mean: Mean of ``fold_scores``.
+        standard_error: Standard error of ``mean`` over the folds.
+        difference: Mean over folds of this candidate's score minus the best candidate's.
+        difference_standard_error: Standard error of ``difference`` (0 for the best).
+        fit_log_likelihoods: Log-likelihood of each fold's training fit (with nested fits
+            non-decreasing in ds fold by fold).
+        carried_over: Folds in which the ds fit ended below the ds - 1 optimum, which was
+            kept instead (:mod:`core.selection.nested_fits`; 0 without nesting).
+    """
+
+    latent_dim: int
+    fold_scores: tuple[float, ...]
+    mean: float
+    standard_error: float
+    difference: float
+    difference_standard_error: float
+    fit_log_likelihoods: tuple[float, ...] = ()
+    carried_over: int = 0
+
+
+@dataclass(frozen=True)
+class LatentSelection:
+    """The outcome of :func:`select_latent_dim`.
+
+    Attributes:
+        chosen: The chosen ds: the smallest within one standard error of ``best``.
+        best: The ds with the best mean held-out score (≥ ``chosen``).
+        n_folds: K.
+        candidates: Every candidate's scores, in increasing ds.
+        explanation: One sentence saying why ``chosen`` was chosen.
+    """
+
+    chosen: int
+    best: int
+    n_folds: int
+    candidates: tuple[CandidateScore, ...]
+    explanation: str
+
+
+def candidate_dims(n_objects: int, max_latent_dim: int = DEFAULT_MAX_LATENT_DIM) -> tuple[int, ...]:
+    """1..min(max_latent_dim, L - 1): L objects are placed exactly by L - 1 dimensions."""
+    top = min(int(max_latent_dim), int(n_objects) - 1)
+    if top < 1:
+        raise InvalidInputError(
+            f"latent dimension candidates: need L ≥ 2 objects and max_latent_dim ≥ 1, received "
+            f"L={n_objects}, max_latent_dim={max_latent_dim}."
+        )
+    return tuple(range(1, top + 1))
+
+
+def fold_assignment(object_index: IntArray, n_folds: int, rng: np.random.Generator) -> IntArray:
+    """Fold of every touch: each object's touches shuffled and dealt round-robin to K folds.
+
+    Args:
+        object_index: Object of every touch. Shape (N,).
+        n_folds: K ≥ 2.
+        rng: Random generator (the shuffle).
+
+    Returns:
+        Fold of every touch, 0..K-1. Shape (N,).
+
+    Raises:
+        InvalidInputError: K < 2, or an object with fewer than K + 2 touches (every fold's
+            training set needs at least 2 touches of every object and every fold one held-out
+            touch of it).
+    """
+    index = np.asarray(object_index, dtype=np.int64)
+    if int(n_folds) < 2:
+        raise InvalidInputError(f"n_folds: need at least 2, received {n_folds}.")
+    folds = np.empty(index.shape[0], dtype=np.int64)
+    for obj in np.unique(index):
+        touches = np.flatnonzero(index == obj)
+        if touches.shape[0] < n_folds + 2:
+            raise InvalidInputError(
+                f"cross-validation with {n_folds} folds: object {int(obj)} has "
+                f"{touches.shape[0]} touches, at least {n_folds + 2} are needed."
+            )
+        folds[rng.permutation(touches)] = np.arange(touches.shape[0]) % n_folds
+    return folds
+
+
+def _subset(data: TrainingData, keep: IntArray) -> TrainingData:
+    return TrainingData(
+        object_names=data.object_names,
+        object_index=data.object_index[keep],
+        actions=data.actions[keep],
+        observations=data.observations[keep],
+    )
+
+
+@dataclass(frozen=True)
+class FoldPlan:
+    """What every fold of one cross-validation shares (sent to a worker once).
+
+    Attributes:
+        data: Raw training touches.
+        folds: Fold of every touch (``"touches"``) or of every object (``"objects"``).
+            Shape (N,) or (L,).
+        halves: Half (0 or 1) of every touch, for ``"objects"``; ``None`` for ``"touches"``.
+            Shape (N,).
+        dims: The candidate ds, increasing.
+        criterion: ``"touches"`` or ``"objects"``.
+        nested: Whether each fold's candidates are fitted nested
+        (:mod:`core.selection.nested_fits`). fit: The fit
+        (:data:`core.selection.nested_fits.StartedFit`).
+    """
+
+    data: TrainingData
+    folds: IntArray
+    halves: IntArray | None
+    dims: tuple[int, ...]
+    criterion: Criterion
+    nested: bool
+    fit: StartedFit
+
+
+@dataclass(frozen=True)
+class FoldTask:
+    """One fold's work: its index and its own random generator (folds are independent)."""
+
+    fold: int
+    rng: np.random.Generator
+
+
+@dataclass(frozen=True)
+class FoldResult:
+    """Every candidate's outcome on one fold, in the order of ``FoldPlan.dims``.
+
+    Attributes:
+        fold: The fold's index.
+        scores: Mean log-density per held-out touch (nats) of every candidate.
+        fit_log_likelihoods: Log-likelihood of every candidate's training fit.
+        carried_over: Whether every candidate's fit was carried over from ds - 1.
+    """
+
+    fold: int
+    scores: tuple[float, ...]
+    fit_log_likelihoods: tuple[float, ...]
+    carried_over: tuple[bool, ...]
+
+
+#: Runs ``score_fold(plan, task)`` for every task, yielding the results in any order (serially
+#: by default, :func:`serial_map`; the app supplies one that runs them as Dask tasks).
+FoldMap = Callable[[FoldPlan, Sequence[FoldTask]], Iterable[FoldResult]]
+
+
+def score_fold(plan: FoldPlan, task: FoldTask) -> FoldResult:
+    """Fit every candidate on the training part of one fold and score its held-out part.
+
+    A pure function of the plan and the task: where it runs does not change its result.
+    """
+    data, k = plan.data, task.fold
+    held = np.flatnonzero(plan.folds == k)
+    if plan.criterion == "objects":
+        train = objects_subset(data, np.flatnonzero(plan.folds != k))
+    else:
+        train = _subset(data, np.flatnonzero(plan.folds != k))
+    scores, fitted, carried = [], [], []
+    for _, _, model, was_carried in _fold_models(train, plan.dims, plan.fit, task.rng, plan.nested):
+        if plan.criterion == "objects":
+            assert plan.halves is not None
+            values = held_out_scores(model, data, held, plan.halves)
+        else:
+            values = touch_log_likelihoods(
+                model, data.object_index[held], data.actions[held], data.observations[held]
+            )
+        scores.append(float(values.mean()))
+        fitted.append(float(model.log_likelihood))
+        carried.append(bool(was_carried))
+    return FoldResult(k, tuple(scores), tuple(fitted), tuple(carried))
+
+
+def serial_map(plan: FoldPlan, tasks: Sequence[FoldTask]) -> Iterator[FoldResult]:
+    """The folds one after another, in this process."""
+    for task in tasks:
+        yield score_fold(plan, task)
+
+
+def select_latent_dim(
+    data: TrainingData,
+    fit: StartedFit,
+    rng: np.random.Generator,
+    candidates: Sequence[int] | None = None,
+    n_folds: int = DEFAULT_FOLDS,
+    callback: Callable[[int, int, float], None] | None = None,
+    criterion: Criterion = "touches",
+    nested: bool = True,
+    map: FoldMap = serial_map,
+) -> LatentSelection:
+    """Choose ds by cross-validation (module docstring).
+
+    Args:
+        data: Raw training touches.
+        fit: Fits a model to training touches at a latent dimension, with extra starting
+            latents (each (L, ds), e.g. passed on as ``FitOptions.initial_latents``) and the
+            fold's random generator (raw data in, a model that maps raw observations itself
+            out, e.g. with a noise model).
+        rng: Random generator (the folds, the halves for ``"objects"``, and one independent
+            generator per fold, spawned from it, for the nested starts and the fits).
+        candidates: The ds to try; default :func:`candidate_dims` (of the smallest training
+            set for ``"objects"``).
+        n_folds: K ≥ 2; for ``"objects"`` lowered to L when there are fewer objects.
+        callback: Called with (ds, fold, score) for every candidate of a fold when the fold
+            is done (folds in the order they finish).
+        criterion: ``"touches"`` (within objects) or ``"objects"`` (leave-objects-out).
+        nested: Fit every fold's ds = 1..max(candidates) nested
+            (:func:`core.selection.nested_fits.nested_fits`: each from the one below, then each
+            smaller one again from the one above, so the training log-likelihood is non-decreasing
+            in ds); ``False``: every candidate on its own, with no extra starts.
+        map: Runs the folds (:data:`FoldMap`); the folds are independent, so the result does
+            not depend on how or where they run.
+
+    Returns:
+        The scores and the choice. Cost: K · len(candidates) fits (K · (2 max(candidates) - 1)
+        when nested; plus, for ``"objects"``, two latent placements per held-out object and
+        candidate).
+
+    Raises:
+        InvalidInputError: Bad criterion, candidates or folds (too few touches or objects).
+    """
+    if criterion not in CRITERIA:
+        raise InvalidInputError(
+            f"criterion: expected one of {', '.join(CRITERIA)}, received {criterion!r}."
+        )
+    halves: IntArray | None = None
+    if criterion == "objects":
+        n_folds = min(int(n_folds), data.n_objects)
+        folds = object_folds(data.n_objects, n_folds, rng)
+        halves = split_halves(data.object_index, rng)
+        n_models = data.n_objects - int(np.bincount(folds).max())
+    else:
+        folds = fold_assignment(data.object_index, n_folds, rng)
+        n_models = data.n_objects
+    dims = tuple(candidates) if candidates is not None else candidate_dims(n_models)
+    if not dims or any(int(d) != d or d < 1 for d in dims) or len(set(dims)) != len(dims):
+        raise InvalidInputError(
+            f"candidates: expected distinct integers ≥ 1, received {list(dims)}."
+        )
+    dims = tuple(sorted(int(d) for d in dims))
+    plan = FoldPlan(data, folds, halves, dims, criterion, nested, fit)
+    tasks = [FoldTask(k, fold_rng) for k, fold_rng in enumerate(rng.spawn(n_folds))]
+    scores = np.full((len(dims), n_folds), np.nan)
+    fitted = np.full((len(dims), n_folds), np.nan)
+    carried = np.zeros(len(dims), dtype=np.int64)
+    for result in map(plan, tasks):
+        k = result.fold
+        scores[:, k] = result.scores
+        fitted[:, k] = result.fit_log_likelihoods
+        carried += np.asarray(result.carried_over, dtype=np.int64)
+        if callback is not None:
+            for c, ds in enumerate(dims):
+                callback(ds, k, float(scores[c, k]))
+    missing = np.flatnonzero(np.isnan(scores).any(axis=0))
+    if missing.size:
+        raise InvalidInputError(
+            f"map: no result for fold(s) {', '.join(str(int(k)) for k in missing)}."
+        )
+    selection = _summarise(dims, scores, criterion)
+    return dataclasses.replace(
+        selection,
+        candidates=tuple(
+            dataclasses.replace(
+                r,
+                fit_log_likelihoods=tuple(float(v) for v in fitted[c]),
+                carried_over=int(carried[c]),
+            )
+            for c, r in enumerate(selection.candidates)
+        ),
+    )
+
+
+def _fold_models(
+    train: TrainingData,
+    dims: tuple[int, ...],
+    fit: StartedFit,
+    rng: np.random.Generator,
+    nested: bool,
+) -> Iterator[tuple[int, int, ManifoldModel, bool]]:
+    """(row, ds, model, carried over) of every candidate fitted on ``train``, in order."""
+    if not nested:
+        for c, ds in enumerate(dims):
+            yield c, ds, fit(train, ds, (), rng), False
+        return
+    rungs = nested_fits(train, max(dims), fit, rng)
+    for c, ds in enumerate(dims):
+        yield c, ds, rungs[ds - 1].model, rungs[ds - 1].carried_over
+
+
+def _summarise(dims: tuple[int, ...], scores: FloatArray, criterion: Criterion) -> LatentSelection:
+    """Means, standard errors, paired differences and the choice from (candidate, fold) scores."""
+    n_folds = scores.shape[1]
+    means = scores.mean(axis=1)
+    best_row = int(np.argmax(means))
+    root_k = np.sqrt(n_folds)
+    results = []
+    for c, ds in enumerate(dims):
+        difference = scores[c] - scores[best_row]
+        results.append(
+            CandidateScore(
+                latent_dim=ds,
+                fold_scores=tuple(float(v) for v in scores[c]),
+                mean=float(means[c]),
+                standard_error=float(scores[c].std(ddof=1) / root_k),
+                difference=float(difference.mean()),
+                difference_standard_error=float(difference.std(ddof=1) / root_k),
+            )
+        )
+    # The smallest ds within one standard error of the best (paired over folds); exact ties
+    # (within round-off) count as within.
+    tolerance = 1e-9 * (1.0 + abs(float(means.max())))
+    best = results[best_row]
+    chosen = next(r for r in results if r.difference >= -r.difference_standard_error - tolerance)
+    what = (
+        "held-out objects' touches, each object placed from half its touches and scored on "
+        "the other half"
+        if criterion == "objects"
+        else "held-out touches"
+    )
+    if chosen is best:
+        explanation = (
+            f"ds = {chosen.latent_dim}: the best mean log-likelihood of {what} "
+            f"({chosen.mean:.3f} ± {chosen.standard_error:.3f} nats per touch over {n_folds} "
+            "folds)"
+        )
+        if chosen.latent_dim > dims[0]:
+            explanation += (
+                "; every smaller ds is worse by more than one standard error (paired over folds)."
+            )
+        else:
+            explanation += "; every larger ds predicts held-out touches worse."
+    else:
+        explanation = (
+            f"ds = {chosen.latent_dim}: the smallest ds within one standard error of the best, "
+            f"ds = {best.latent_dim} (log-likelihood of {what} {-chosen.difference:.3f} ± "
+            f"{chosen.difference_standard_error:.3f} nats per touch below it, paired over "
+            f"{n_folds} folds); the larger latent space does not predict better by more than "
+            "the folds' noise."
+        )
+    return LatentSelection(
+        chosen=chosen.latent_dim,
+        best=results[best_row].latent_dim,
+        n_folds=int(n_folds),
+        candidates=tuple(results),
+        explanation=explanation,
+    )
