@@ -65,10 +65,5 @@ def direct_value_and_gradient(
                 # ∂K_ij/∂s_ld = -K_ij (s_oi,d - s_oj,d) / ℓ_d² ([o_i = k] - [o_j = k])
                 d_gram = -k_free * signed[d] / scales[d] ** 2 * indicator
                 g_latents[k, d] += 0.5 * np.sum(w * d_gram)
-    grad = np.empty(layout.size)
-    grad[layout.latents] = g_latents.ravel()
-    grad[layout.log_signal_variance] = g_sf
-    grad[layout.log_noise_variance] = g_sn
-    grad[layout.log_latent_lengthscales] = g_ls.ravel()
-    grad[layout.log_action_lengthscales] = g_lx.ravel()
+    grad = layout.join(g_latents, g_sf, g_sn, g_ls, g_lx)
     return float(total), grad

@@ -383,12 +383,7 @@ class KroneckerLikelihood:
             latents * (row_sums.T @ inv_ls2) - np.einsum("ald,ad->ld", products[:, :, 1:], inv_ls2)
         )
         g_lx = (action_half.reshape(dy, m * m) @ self._sq_design.T) * inv_lx2
-        grad = np.empty(layout.size)
-        grad[layout.latents] = g_latents.ravel()
-        grad[layout.log_signal_variance] = g_sf
-        grad[layout.log_noise_variance] = g_sn
-        grad[layout.log_latent_lengthscales] = g_ls.ravel()
-        grad[layout.log_action_lengthscales] = g_lx.ravel()
+        grad = layout.join(g_latents, g_sf, g_sn, g_ls, g_lx)
         return sums.value, grad
 
 

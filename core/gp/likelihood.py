@@ -230,12 +230,7 @@ class ManifoldLikelihood:
         g_latents = -(
             latents * (row_sums.T @ inv_ls2) - np.einsum("ald,ad->ld", blocks @ latents, inv_ls2)
         )
-        grad = np.empty(layout.size)
-        grad[layout.latents] = g_latents.ravel()
-        grad[layout.log_signal_variance] = g_sf
-        grad[layout.log_noise_variance] = g_sn
-        grad[layout.log_latent_lengthscales] = g_ls.ravel()
-        grad[layout.log_action_lengthscales] = g_lx.ravel()
+        grad = layout.join(g_latents, g_sf, g_sn, g_ls, g_lx)
         return total, grad
 
 

@@ -118,6 +118,32 @@ class ParameterLayout:
             ]
         )
 
+    def join(
+        self,
+        latents: FloatArray,
+        log_signal_variance: FloatArray,
+        log_noise_variance: FloatArray,
+        log_latent_lengthscales: FloatArray,
+        log_action_lengthscales: FloatArray,
+    ) -> FloatArray:
+        """One vector of length :attr:`size` from its five groups, in :meth:`split`'s order
+        (a gradient with respect to the packed vector is assembled this way).
+
+        Args:
+            latents: Shape (L, ds) or (L·ds,).
+            log_signal_variance: Shape (dy,).
+            log_noise_variance: Shape (dy,).
+            log_latent_lengthscales: Shape (dy, ds) or (dy·ds,).
+            log_action_lengthscales: Shape (dy, dx) or (dy·dx,).
+        """
+        vector = np.empty(self.size)
+        vector[self.latents] = np.ravel(latents)
+        vector[self.log_signal_variance] = log_signal_variance
+        vector[self.log_noise_variance] = log_noise_variance
+        vector[self.log_latent_lengthscales] = np.ravel(log_latent_lengthscales)
+        vector[self.log_action_lengthscales] = np.ravel(log_action_lengthscales)
+        return vector
+
     def split(
         self, vector: FloatArray
     ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:

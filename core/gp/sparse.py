@@ -382,12 +382,7 @@ class SparseLikelihood:
             g_ls[a] = np.einsum("lm,lmd->d", blocks, sq_pair) * inv_ls2[a]
             sym = blocks + blocks.T
             g_latents -= (latents * sym.sum(axis=1)[:, None] - sym @ latents) * inv_ls2[a]
-        grad = np.empty(layout.size)
-        grad[layout.latents] = g_latents.ravel()
-        grad[layout.log_signal_variance] = g_sf
-        grad[layout.log_noise_variance] = g_sn
-        grad[layout.log_latent_lengthscales] = g_ls.ravel()
-        grad[layout.log_action_lengthscales] = g_lx.ravel()
+        grad = layout.join(g_latents, g_sf, g_sn, g_ls, g_lx)
         return -total, -grad
 
 

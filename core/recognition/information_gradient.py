@@ -100,13 +100,7 @@ def _statistics_with_derivatives(
     n_objects = indicator.shape[1]
     located = cache.located_actions @ (e[:, :, None] * partial)  # (dy, dx·L, L)
     located = located.reshape(dy, dx, n_objects, n_objects)
-    half = action[None, :, None, None] * trace_blocks[:, None, :, :] - located
-    half *= -cache.inverse_sq_lengthscales[:, :, None, None]
-    d_trace = half + np.swapaxes(half, 2, 3)
-    stats = ActionStatistics(
-        actions=action[None, :], responses=responses[None], trace_blocks=trace_blocks[None]
-    )
-    return stats, d_responses, d_trace
+    return _finish(action, responses, d_responses, trace_blocks, located, cache)
 
 
 def _block_statistics_with_derivatives(
@@ -135,6 +129,28 @@ def _block_statistics_with_derivatives(
         located_l[obj] = flat[block].T @ actions[block]
     dy = weighted.shape[1]
     located = np.moveaxis(located_l.reshape(n_objects, dy, n_objects, -1), (0, 3), (2, 1))
+    return _finish(action, responses, d_responses, trace_blocks, located, cache)
+
+
+def _finish(
+    action: FloatArray,
+    responses: FloatArray,
+    d_responses: FloatArray,
+    trace_blocks: FloatArray,
+    located: FloatArray,
+    cache: GradientCache,
+) -> tuple[ActionStatistics, FloatArray, FloatArray]:
+    """The statistics at one action and dT = half + halfᵀ, where half is
+    -(x ⊗ T - Σ x_i e_i Y) / ℓ^x² per feature (both statistics paths end here).
+
+    Args:
+        action: x. Shape (dx,).
+        responses: Shape (dy, L).
+        d_responses: Shape (dy, dx, L).
+        trace_blocks: T. Shape (dy, L, L).
+        located: Σ_{i∈l} x_id e_ai Y[i, l']. Shape (dy, dx, L, L).
+        cache: The model's gradient cache.
+    """
     half = action[None, :, None, None] * trace_blocks[:, None, :, :] - located
     half *= -cache.inverse_sq_lengthscales[:, :, None, None]
     d_trace = half + np.swapaxes(half, 2, 3)
