@@ -104,5 +104,5 @@ def import_raw_command(
     stdout.print(
         f"imported {public.n_samples:d} touches of {len(public.objects):d} objects from "
         f"{escape(str(path))} as dataset {public.id:d} ({escape(public.name)!r}); fit it with "
-        f'POST /models {{"dataset_id": {public.id:d}, "features": "{features}"}}'
+        f'POST /models {{"dataset_id": {public.id:d}, "features": "{escape(str(features))}"}}'
     )

@@ -381,13 +381,13 @@ def fit(
         stdout.print(
             f"latent uncertainty (Laplace): RMS std per object "
             f"{escape(np.array2string(spread, precision=3))}"
-            + (f", {sum(laplace.floored)} flat direction(s) capped" if any(laplace.floored) else "")
+            + (f", {sum(laplace.floored):d} flat direction(s) capped" if any(laplace.floored) else "")
         )
     if tempering_fit is not None:
         stdout.print(
             f"tempering β = {tempering_fit.exponent:.3f} (held-out log-loss "
             f"{tempering_fit.log_loss:.3f} vs {tempering_fit.log_loss_untempered:.3f} nats "
-            f"untempered, {tempering_fit.answers} answers)"
+            f"untempered, {tempering_fit.answers:d} answers)"
         )
     stdout.print(
         f"fitted {len(model.object_names):d} objects, ds={model.latent_dim:d}, "
