@@ -381,7 +381,11 @@ def fit(
         stdout.print(
             f"latent uncertainty (Laplace): RMS std per object "
             f"{escape(np.array2string(spread, precision=3))}"
-            + (f", {sum(laplace.floored):d} flat direction(s) capped" if any(laplace.floored) else "")
+            + (
+                f", {sum(laplace.floored):d} flat direction(s) capped"
+                if any(laplace.floored)
+                else ""
+            )
         )
     if tempering_fit is not None:
         stdout.print(
