@@ -3,9 +3,10 @@
 
 ``moments`` (predicting an observation from a Gaussian belief, the mutual information, the
 belief update), ``information_gradient``, ``object_information``, ``object_posterior`` (the
-posterior over the learned objects), ``planning`` (the policies: ``POLICIES``), ``session`` (a
-recognition session: :class:`RecognitionSession`) and ``dmp`` (actions as offsets of the DMPs of
-a teaching trajectory).
+posterior over the learned objects), ``latent_uncertainty`` and ``tempering`` (options of the
+object likelihood, docs/method.md (L1)–(L3)), ``planning`` (the policies: ``POLICIES``),
+``session`` (a recognition session: :class:`RecognitionSession`) and ``dmp`` (actions as offsets
+of the DMPs of a teaching trajectory).
 """
 
 from core.recognition.dmp import (
