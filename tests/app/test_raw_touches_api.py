@@ -34,6 +34,22 @@ def whole_touch_model(client: TestClient) -> int:
     return model_id
 
 
+def scripted_answer(
+    client: TestClient, model_id: int, seed: int, surface: str, frequency_hz: float
+) -> str:
+    """The answer of a scripted trial on ``model_id`` after one raw touch of ``surface``."""
+    trial = client.post(
+        f"{API}/trials", json={"model_id": model_id, "mode": "scripted", "seed": 1}
+    ).json()
+    line = json.loads(touch_line(np.random.default_rng(seed), surface, frequency_hz))
+    response = client.post(
+        f"{API}/trials/{trial['id']}/observations",
+        json={"action": line["action"], "channels": line["channels"]},
+    )
+    assert response.status_code == 200, response.text
+    return str(response.json()["answer"])
+
+
 def test_a_model_shows_its_features_and_a_scripted_trial_takes_raw_touches(
     client: TestClient,
 ) -> None:
@@ -110,16 +126,7 @@ def test_a_stored_model_keeps_its_pipeline_after_a_restart(tmp_path: Path) -> No
         model_id = whole_touch_model(client)
     with TestClient(create_app(settings)) as client:  # a new server: the model is rebuilt
         assert client.get(f"{API}/models/{model_id}").json()["features"]["kind"] == "whole"
-        trial = client.post(
-            f"{API}/trials", json={"model_id": model_id, "mode": "scripted", "seed": 1}
-        ).json()
-        line = json.loads(touch_line(np.random.default_rng(2), "fine", 200.0))
-        response = client.post(
-            f"{API}/trials/{trial['id']}/observations",
-            json={"action": line["action"], "channels": line["channels"]},
-        )
-        assert response.status_code == 200, response.text
-        assert response.json()["answer"] == "fine"
+        assert scripted_answer(client, model_id, 2, "fine", 200.0) == "fine"
 
 
 def test_a_raw_upload_is_checked_against_the_pipeline_it_is_meant_for(client: TestClient) -> None:
@@ -215,16 +222,7 @@ def test_a_stored_raw_dataset_is_fitted_from_its_whole_touches_without_uploading
         again = client.get(f"{API}/models/{whole['id']}").json()
         assert again["features"] == whole["features"]
         assert client.get(f"{API}/models/{whole['id']}/export").json() == document
-        trial = client.post(
-            f"{API}/trials", json={"model_id": whole["id"], "mode": "scripted", "seed": 1}
-        ).json()
-        line = json.loads(touch_line(np.random.default_rng(4), "medium", 100.0))
-        response = client.post(
-            f"{API}/trials/{trial['id']}/observations",
-            json={"action": line["action"], "channels": line["channels"]},
-        )
-        assert response.status_code == 200, response.text
-        assert response.json()["answer"] == "medium"
+        assert scripted_answer(client, whole["id"], 4, "medium", 100.0) == "medium"
 
 
 def test_features_need_raw_touches_that_the_pipeline_can_take(client: TestClient) -> None:
