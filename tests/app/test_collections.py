@@ -21,6 +21,7 @@ from app.schemas import CollectionCreate
 from core.evaluation.designs import random_design, shared_design
 from core.types import TrainingData
 from tests.app.conftest import TestClient, make_settings
+from tests.app.waits import finished, wait_until
 
 API = "/api/v1"
 CUPS = ["paper_cup", "bumpy_glass", "stainless_cup"]
@@ -48,11 +49,7 @@ def collect_with(client: TestClient, design: str, touches: int) -> TrainingData:
     )
     assert created.status_code == 201, created.text
     assert created.json()["total"] == len(CUPS) * touches
-    deadline = time.monotonic() + 120
-    run: dict[str, Any] = created.json()
-    while run["status"] in ("queued", "running") and time.monotonic() < deadline:
-        time.sleep(0.05)
-        run = client.get(f"{API}/collections/{run['id']}").json()
+    run = wait_until(client, f"{API}/collections/{created.json()['id']}", finished)
     assert run["status"] == "completed", run
     assert client.get(f"{API}/datasets/{run['dataset_id']}").json()["status"] == "ready"
     data = read_training_csv(client.get(f"{API}/datasets/{run['dataset_id']}/export").text)
@@ -141,11 +138,7 @@ def test_without_action_design_the_run_is_adaptive_or_random_below_three(
         created = client.post(f"{API}/collections", json={**body, "samples_per_object": touches})
         assert created.status_code == 201, created.text
         assert created.json()["params"]["action_design"] == design
-        deadline = time.monotonic() + 120
-        run: dict[str, Any] = created.json()
-        while run["status"] in ("queued", "running") and time.monotonic() < deadline:
-            time.sleep(0.05)
-            run = client.get(f"{API}/collections/{run['id']}").json()
+        run = wait_until(client, f"{API}/collections/{created.json()['id']}", finished)
         assert run["status"] == "completed", run
     assert CollectionCreate.model_fields["action_design"].default is None
 
