@@ -367,7 +367,7 @@ def collect_command(
             "placements": placements,
         }
         recorded, error, code, seconds = _collect(
-            handle, lease, actions, slots, plan, out, raw, force, placements, next_round
+            handle, lease, actions, slots, plan, out, raw, force, placements, next_round, seed
         )
         summary["rig_state"] = str(handle.rig.state)
     counts = Counter(touch.object_name for touch in recorded)
@@ -396,6 +396,7 @@ def _collect(
     force: bool,
     placements: int | None = None,
     next_round: NextRound | None = None,
+    seed: int = 0,
 ) -> tuple[list[CollectedTouch], str | None, int, float]:
     """Run the collection into the files; return the touches, the error, exit code, seconds."""
     from app.cli.output import progress_bar
@@ -424,7 +425,7 @@ def _collect(
             task = bar.add_task("collect", total=total, status="connected")
             try:
                 for touch in _rounds(
-                    lease, actions, slots, plan, recorded, next_round, bar, task, placements
+                    lease, actions, slots, plan, recorded, next_round, bar, task, placements, seed
                 ):
                     writer.write(
                         touch.object_name,
@@ -478,14 +479,18 @@ def _rounds(
     bar: Any,
     task: Any,
     placements: int | None = None,
+    seed: int = 0,
 ) -> Iterator[CollectedTouch]:
     """The touches of ``plan`` (at ``placements`` per object, if given), then of each round
-    ``next_round`` plans from ``recorded``."""
+    ``next_round`` plans from ``recorded`` (a shared design's order seeded by ``seed`` plus the
+    round's number)."""
     from app.services.collections import iter_collection
 
     current: CollectionDesign | None = plan
+    order_seed = seed
     while current is not None:
-        yield from iter_collection(lease, actions, slots, current, placements)
+        yield from iter_collection(lease, actions, slots, current, placements, order_seed)
+        order_seed += 1
         if next_round is None:
             return
         bar.update(task, status="fitting the model to plan the next round")

@@ -49,17 +49,26 @@ def iter_collect(
     actions: TouchActions,
     slots: dict[str, int],
     action_design: npt.ArrayLike,
+    order_seed: int = 0,
 ) -> Iterator[CollectedTouch]:
     """Touch every object with every action of a design, turning the table between touches.
 
-    The order is action-major (each action on every object, as the turntable makes natural),
-    which also gives the shared-action-design (Kronecker) structure of docs/method.md.
+    It runs in rounds: round t touches every object in turn, object l with action π_l(t) of
+    its own random permutation π_l of the design (drawn from ``order_seed``). Every object still
+    gets every action once, which is all the shared-design (Kronecker) structure of
+    docs/method.md needs (a set of actions per object, not an order). What the permutations
+    avoid is touching one action on every object in a row: the slow drift of the sensor and of
+    the room over those minutes is then shared by that action's touches, so the fit learns the
+    drift as part of the response to the action, with a noise variance too small for what a
+    later touch at that action shows, and the recogniser trusts it (docs/calibration.md,
+    "Drift and the collection order").
 
     Args:
         lease: A lease on a connected rig.
         actions: The action → trajectory map.
         slots: Object name → slot.
         action_design: The actions. Shape (M, dx).
+        order_seed: Seed of the objects' permutations (the same seed, the same order).
 
     Yields:
         One :class:`CollectedTouch` per touch, as soon as it is recorded.
@@ -71,10 +80,14 @@ def iter_collect(
         )
     if not slots:
         raise ConfigurationError("slots: at least one object is needed.")
-    total = design.shape[0] * len(slots)
+    n_actions = design.shape[0]
+    total = n_actions * len(slots)
+    rng = np.random.default_rng(order_seed)
+    orders = [rng.permutation(n_actions) for _ in slots]
     index = 0
-    for action in design:
-        for name, slot in slots.items():
+    for turn in range(n_actions):
+        for (name, slot), order in zip(slots.items(), orders, strict=True):
+            action = design[order[turn]]
             record = actions.touch(lease, action, slot=slot)
             yield CollectedTouch(index, total, name, slot, action.copy(), record)
             index += 1

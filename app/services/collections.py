@@ -138,17 +138,19 @@ def iter_collection(
     slots: Mapping[str, int],
     design: CollectionDesign,
     placements: int | None = None,
+    order_seed: int = 0,
 ) -> Iterator[CollectedTouch]:
     """Touch the objects on the rig as ``design`` says, one event per touch as it is recorded.
 
     Every design runs in rounds, the table turning between touches: a shared design (every
-    object, the same M actions) action by action, each action on every object in turn
-    (:func:`app.rig.collection.iter_collect`); any other design takes each object's next action in
-    turn. So every touch meets a fresh placement of its object, and the slow drift of the
-    sensor and the room is spread over all the objects instead of being learned as one
-    object's signature (docs/simulation.md: touching one object 30 times in a row moved its
-    mean pressure by 0.1, as much as a deep press separates two cushions). An interrupted
-    collection keeps whole rounds.
+    object, the same M actions) each object at its own random permutation of the actions
+    (:func:`app.rig.collection.iter_collect`, seeded by ``order_seed``), so that no action's
+    touches follow each other; any other design takes each object's next action in turn. So
+    every touch meets a fresh placement of its object, and the slow drift of the sensor and
+    the room is spread over all the objects and actions instead of being learned as one
+    object's signature or as part of one action's response (docs/simulation.md: touching one
+    object 30 times in a row moved its mean pressure by 0.1, as much as a deep press separates
+    two cushions). An interrupted collection keeps whole rounds.
 
     With ``placements`` = P, each object is instead placed P times and touched N_l / P times in
     a row at each placement (the table stays put), placement by placement in rounds over the
@@ -163,6 +165,7 @@ def iter_collection(
         slots: Object name → slot; object l of the design is the l-th entry.
         design: Which action touches which object (``object_index`` indexes ``slots``).
         placements: P, placements per object (1..N_l); ``None``: a fresh placement per touch.
+        order_seed: Seed of a shared design's order (vary it between rounds of one collection).
 
     Yields:
         One :class:`~app.rig.collection.CollectedTouch` per touch (``index``/``total`` count the
@@ -206,7 +209,7 @@ def iter_collection(
                     done += 1
         return
     if design.shared:
-        yield from iter_collect(lease, actions, dict(slots), design.actions[rows[0]])
+        yield from iter_collect(lease, actions, dict(slots), design.actions[rows[0]], order_seed)
         return
     for turn in range(max(len(r) for r in rows)):
         for name, object_rows in zip(names, rows, strict=True):
@@ -399,8 +402,13 @@ class CollectionService:
                 self._announce(run)
                 recorded: list[CollectedTouch] = []
                 current: CollectionDesign | None = design
+                order_seed = body.seed or 0
                 while current is not None:
-                    for touch in iter_collection(lease, self._rig.actions(), slots, current):
+                    touches = iter_collection(
+                        lease, self._rig.actions(), slots, current, order_seed=order_seed
+                    )
+                    order_seed += 1
+                    for touch in touches:
                         self._store(run_id, touch.object_name, touch.action, touch.record)
                         recorded.append(touch)
                         if touch.index + 1 < touch.total or rounds is not None:

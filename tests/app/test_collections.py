@@ -86,8 +86,8 @@ def test_random_design_draws_every_touch_afresh(client: TestClient) -> None:
 def test_shared_designs_give_every_object_the_same_actions(client: TestClient, design: str) -> None:
     data = collect(client, design)
     actions = per_object(data)
-    for other in actions[1:]:
-        np.testing.assert_array_equal(other, actions[0])
+    for other in actions[1:]:  # the same actions, each object in its own order
+        np.testing.assert_array_equal(np.unique(other, axis=0), np.unique(actions[0], axis=0))
     if design == "teaching":
         np.testing.assert_array_equal(actions[0], np.zeros_like(actions[0]))
         return
@@ -96,7 +96,12 @@ def test_shared_designs_give_every_object_the_same_actions(client: TestClient, d
     expected = shared_design(
         len(CUPS), TOUCHES, np.zeros(data.action_dim), cov, np.random.default_rng(SEED)
     )
-    np.testing.assert_array_equal(actions[0], expected.actions[expected.object_index == 0])
+    np.testing.assert_array_equal(
+        np.unique(actions[0], axis=0),
+        np.unique(expected.actions[expected.object_index == 0], axis=0),
+    )
+    # One action's touches do not follow each other on the turntable (drift, iter_collect).
+    assert not all(np.array_equal(other, actions[0]) for other in actions[1:])
 
 
 def test_the_spread_defaults_to_the_simulated_tables_own(tmp_path: Path) -> None:
