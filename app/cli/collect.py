@@ -11,7 +11,8 @@
 The touches come from :func:`app.services.collections.iter_collection`, the loop the server's
 collection runs use, on a design of :mod:`core.evaluation.designs`: ``random`` draws a fresh action
 x ~ N(0, σ² I) for every touch (the paper's design; object by object), ``shared`` touches every
-object with the same M actions (a scrambled Sobol set of that prior; action by action), which
+object with the same M actions (a scrambled Sobol set of that prior; each object in its own
+random order, so the drift is not learned as part of one action's response), which
 lets the fit and the planner use the exact Kronecker path. ``adaptive`` touches each object
 with the first half of its budget as ``random`` does, fits the model (ds = 2, ``fit``'s
 defaults), then in rounds (:data:`app.services.collections.ADAPTIVE_ROUNDS`) touches every

@@ -15,7 +15,8 @@ const DESIGN_HELP = {
   random: "Random: a fresh action x ~ N(0, σ²I) for every touch, so each object gets its own actions.",
   shared:
     "Shared: “touches per object” actions drawn once (Sobol points through N(0, σ²I)) and applied to " +
-    "every object, action by action; fits and plans then take the exact Kronecker path.",
+    "every object, each in its own random order (so slow drift is not learned as part of an " +
+    "action's response); fits and plans then take the exact Kronecker path.",
   teaching: "Teaching: the teaching action x = 0, repeated on every object.",
   adaptive:
     "Adaptive: the first half random, then rounds at the actions the planners would choose from a " +
