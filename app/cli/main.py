@@ -477,7 +477,13 @@ def recognize(
     confidence: Annotated[
         float | None, typer.Option(help="Stop when an object's probability reaches this.")
     ] = None,
-    prior_variance: Annotated[float, typer.Option(help="Σ0 = this · I (normalised units).")] = 5.0,
+    prior_variance: Annotated[
+        float | None,
+        typer.Option(
+            help="Σ0 = this · I (normalised units; the paper's 5). Default: the objects' prior "
+            "(their centre and spread, docs/method.md)."
+        ),
+    ] = None,
     world_seed: Annotated[int, typer.Option(help="Seed that drew the exp2 world.")] = 0,
     noise_std: Annotated[float | None, typer.Option(help="Observation noise std.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the trial as JSON.")] = False,

@@ -49,7 +49,8 @@ class EvaluationSpec:
         tolerance: Stop when the belief mean moves less (normalised latent units; 0 disables).
         stop_at_confidence: Also stop a trial when the answer's probability reaches
             ``confidence`` (answers are carried forward to T).
-        prior_variance: Σ0 = prior_variance · I.
+        prior_variance: Σ0 = prior_variance · I (the paper's); ``None``: the objects' prior
+            (:func:`core.recognition.session.default_prior`).
         placement: ``rig`` only: ``"trial"`` places the object once per trial (the table stays
             at it between touches); ``"touch"`` turns the table away and back before every
             touch, as a collection does, so every touch meets a fresh placement.
@@ -72,7 +73,7 @@ class EvaluationSpec:
     noise_std: float | None = None
     tolerance: float = 1e-3
     stop_at_confidence: bool = False
-    prior_variance: float = 5.0
+    prior_variance: float | None = None
     placement: Placement = "trial"
     trial_likelihood: TrialLikelihood = "joint"
 

@@ -290,7 +290,9 @@ class TrialSettings:
         tolerance: Stop when the Gaussian mean moves less (normalised latent units; 0 disables).
         stop_confidence: Stop when the object posterior's largest probability reaches it
             (``None``: never).
-        prior_variance: Σ0 = prior_variance · I around the mean of the learned latents.
+        prior_variance: Σ0 = prior_variance · I around the mean of the learned latents (the
+            paper's); ``None``: the objects' prior
+            (:func:`core.recognition.session.default_prior`).
         trial_likelihood: How the object posterior scores a trial's touches
             (:class:`core.recognition.session.RecognitionSettings`): ``"joint"`` or
             ``"independent"``.
@@ -300,7 +302,7 @@ class TrialSettings:
     steps: int
     tolerance: float = 1e-3
     stop_confidence: float | None = None
-    prior_variance: float = 5.0
+    prior_variance: float | None = None
     trial_likelihood: TrialLikelihood = "joint"
     shared_placement: bool = True
 

@@ -173,14 +173,36 @@ class RecognitionStep:
     recentred: bool = False
 
 
-def default_prior(model: ManifoldModel, variance: float = 5.0) -> GaussianBelief:
-    """The paper's initial belief: μ0 = mean of the learned latents, Σ0 = variance · I.
+#: Variance (normalised latent units, per dimension) of each object's component in the objects'
+#: prior: small against the objects' spacing (O(1)), so the prior's spread is the objects' own.
+OBJECT_COMPONENT_VARIANCE = 0.05
+
+
+def default_prior(model: ManifoldModel, variance: float | None = None) -> GaussianBelief:
+    """The initial belief of a recognition.
+
+    By default (``variance=None``) **the objects' prior**: the Gaussian with the moments of the
+    uniform mixture (1/L) Σ_l N(s_l, c·I) over the learned latents (c =
+    :data:`OBJECT_COMPONENT_VARIANCE`), i.e. every known object equally likely: mean the
+    latents' centre, covariance their spread plus c·I (docs/method.md, "Recommended
+    defaults"). With ``variance`` the paper's belief: μ0 = mean of the learned latents, Σ0 =
+    variance · I (the paper's Σ0 = 5; the paper's experiments use it).
+
+    The paper's Σ0 = 5·I, in the normalised units where the objects lie about 1 from their
+    centre, puts most of its mass where no object is; on a manifold whose latent length-scales
+    are shorter than that, the mutual information under it (M4) is about where the latent lies
+    among those empty regions, and the active policy chose nearly uninformative touches
+    (docs/calibration.md, "The objects' prior").
 
     Args:
         model: A conditioned model (latents normalised: centred, RMS spread 1).
-        variance: Prior variance per latent dimension, in normalised latent units (the paper's
-            Σ0 = 5).
+        variance: Prior variance per latent dimension, in normalised latent units; ``None``:
+            the objects' prior.
     """
+    if variance is None:
+        n_objects = model.latents.shape[0]
+        uniform = np.full(n_objects, 1.0 / n_objects)
+        return mixture_belief(model, uniform, OBJECT_COMPONENT_VARIANCE * np.eye(model.latent_dim))
     if not np.isfinite(variance) or variance <= 0:
         raise InvalidInputError(f"variance: must be finite and > 0, received {variance}.")
     ds = model.latent_dim

@@ -19,6 +19,7 @@ from core.recognition.moments import action_statistics, predictive_moments, upda
 from core.recognition.object_posterior import object_posterior
 from core.recognition.planning import ActivePolicy, FixedPolicy, PassivePolicy, Planner
 from core.recognition.session import (
+    OBJECT_COMPONENT_VARIANCE,
     DisagreementRule,
     RecognitionFinishedError,
     RecognitionSession,
@@ -206,6 +207,21 @@ def test_default_prior_is_centred_on_the_latents(model: ManifoldModel) -> None:
     prior = default_prior(model, variance=5.0)
     np.testing.assert_allclose(prior.mean, model.latents.mean(axis=0))
     np.testing.assert_array_equal(prior.cov, 5.0 * np.eye(1))
+
+
+def test_the_objects_prior_has_the_moments_of_the_uniform_mixture(model: ManifoldModel) -> None:
+    # Monte Carlo of (1/L) Σ_l N(s_l, c I): pick an object uniformly, then draw around it.
+    prior = default_prior(model)
+    rng = np.random.default_rng(0)
+    n = 400_000
+    picks = rng.integers(model.latents.shape[0], size=n)
+    draws = model.latents[picks] + np.sqrt(OBJECT_COMPONENT_VARIANCE) * rng.standard_normal(
+        (n, model.latent_dim)
+    )
+    np.testing.assert_allclose(prior.mean, draws.mean(axis=0), atol=5e-3)
+    np.testing.assert_allclose(prior.cov, np.cov(draws.T).reshape(prior.cov.shape), rtol=1e-2)
+    # Narrower than the paper's Σ0 = 5 I: the objects lie about 1 from their centre.
+    assert np.all(np.linalg.eigvalsh(prior.cov) < 5.0)
 
 
 def test_bad_input_is_rejected_with_the_argument_named(

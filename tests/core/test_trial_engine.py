@@ -152,7 +152,7 @@ def test_replay_draws_recorded_touches_without_replacement(model, held_out, poli
 def test_active_replay_picks_the_largest_information_first(model, held_out):
     pool, record = replay(model, held_out, "active")
     planner = Planner(model, policy_entry("active").make())
-    scores = planner.mutual_information(default_prior(model, 5.0), pool.actions)
+    scores = planner.mutual_information(default_prior(model), pool.actions)
     assert record.actions[0] == tuple(pool.actions[int(np.argmax(scores))])
     assert record.mutual_information[0] == pytest.approx(float(scores.max()), rel=1e-9)
 
