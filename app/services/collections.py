@@ -348,19 +348,16 @@ class CollectionService:
             total=len(body.objects) * body.samples_per_object,
             dataset_id=dataset.id,
         )
-        try:
-            lease = self._rig.take(f"{KIND} {run.id}")
-        except AppError:
-            session.rollback()  # nothing of the refused collection is kept
-            raise
-        session.commit()
-        self._announce(run)
         run_id = run.id
-        try:
-            self._jobs.start(KIND, run_id, lambda job: self._collect(job, run_id), lease=lease)
-        except AppError as exc:
-            self._finish(run_id, "failed", f"could not start: {exc.message}")
-            raise
+        self._jobs.commit_and_start(
+            session,
+            KIND,
+            run_id,
+            lambda job: self._collect(job, run_id),
+            announce=lambda: self._announce(run),
+            fail=lambda reason: self._finish(run_id, "failed", reason),
+            take_rig=self._rig.take,
+        )
         session.refresh(run)
         return to_public(run)
 
