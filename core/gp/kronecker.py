@@ -60,7 +60,7 @@ import numpy as np
 from core.errors import InvalidInputError, NotPositiveDefiniteError
 from core.gp.kronecker_blocks import BlockSums, block_sums, block_value, use_blocks
 from core.gp.linalg import JITTER_LADDER, weighted_gram_difference
-from core.gp.parameters import ParameterLayout
+from core.gp.parameters import ParameterLayout, check_conditioning
 from core.types import (
     FitDiagnostics,
     GPPosterior,
@@ -412,12 +412,7 @@ def condition_kronecker(
         NotPositiveDefiniteError: A Gram matrix is singular even with jitter.
     """
     h = hyperparameters
-    latents = as_float_array(latents, "latents", (data.n_objects, h.latent_dim))
-    if h.action_dim != data.action_dim or h.observation_dim != data.observation_dim:
-        raise InvalidInputError(
-            f"hyperparameters are for dx={h.action_dim}, dy={h.observation_dim} but the data "
-            f"has dx={data.action_dim}, dy={data.observation_dim}."
-        )
+    latents = check_conditioning(data, latents, h)
     likelihood = KroneckerLikelihood(data, h.latent_dim, design)
     sp, beta_grid = likelihood.spectral(likelihood.layout.pack(latents, h))
     log_likelihood = -likelihood._value(sp)
