@@ -54,39 +54,35 @@ BAD_VALUES: dict[str, bytes] = {
 #: Bad values that are still plain JSON a free-form record (a touch's ``trajectory``) may hold.
 WELL_FORMED_IN_A_RECORD = {"list of 5000 numbers"}
 
+#: Bodies sent as ``application/json`` that are not the JSON object any route wants.
+BAD_JSON: dict[str, bytes] = {
+    "empty": b"",
+    "not JSON": b"this is not JSON",
+    "truncated JSON": b'{"name": [1, 2',
+    "JSON array": b"[1, 2, 3]",
+    "JSON string": b'"text"',
+    "JSON null": b"null",
+    "JSON number": b"42",
+    "bare NaN": b"NaN",
+    "object of non-finite numbers": b'{"a": NaN, "b": Infinity, "c": -Infinity, "d": 1e400}',
+    "5000-digit integer": b'{"a": ' + b"9" * 5000 + b"}",
+    "array nested 100000 deep": b"[" * 100_000 + b"]" * 100_000,
+    "object nested 100000 deep": b'{"a": ' * 100_000 + b"1" + b"}" * 100_000,
+    "invalid UTF-8": b'{"name": "\xff\xfe\xc3("}',
+    "UTF-16": '{"name": "x"}'.encode("utf-16"),
+    "lone surrogate escape": b'{"name": "\\ud800"}',
+    "over the upload limit": b'{"name": "' + b"n" * UPLOAD_LIMIT_BYTES + b'"}',
+}
+
 #: Whole bodies that are not the JSON object any route wants: (content type, bytes).
 BAD_BODIES: dict[str, tuple[str | None, bytes]] = {
-    "empty": ("application/json", b""),
-    "not JSON": ("application/json", b"this is not JSON"),
-    "truncated JSON": ("application/json", b'{"name": [1, 2'),
-    "JSON array": ("application/json", b"[1, 2, 3]"),
-    "JSON string": ("application/json", b'"text"'),
-    "JSON null": ("application/json", b"null"),
-    "JSON number": ("application/json", b"42"),
-    "bare NaN": ("application/json", b"NaN"),
-    "object of non-finite numbers": (
-        "application/json",
-        b'{"a": NaN, "b": Infinity, "c": -Infinity, "d": 1e400}',
-    ),
-    "5000-digit integer": ("application/json", b'{"a": ' + b"9" * 5000 + b"}"),
-    "array nested 100000 deep": ("application/json", b"[" * 100_000 + b"]" * 100_000),
-    "object nested 100000 deep": (
-        "application/json",
-        b'{"a": ' * 100_000 + b"1" + b"}" * 100_000,
-    ),
-    "invalid UTF-8": ("application/json", b'{"name": "\xff\xfe\xc3("}'),
-    "UTF-16": ("application/json", '{"name": "x"}'.encode("utf-16")),
-    "lone surrogate escape": ("application/json", b'{"name": "\\ud800"}'),
+    **{case: ("application/json", body) for case, body in BAD_JSON.items()},
     "no content type": (None, b"\xff\x00 not JSON"),
     "text/plain": ("text/plain", b"\xff\xfe not UTF-8"),
     "XML": ("application/xml", b"<name>x</name>"),
     "form": ("application/x-www-form-urlencoded", b"name=x&name=%FF"),
     "multipart without parts": ("multipart/form-data; boundary=xyz", b"--xyz\r\nnonsense"),
     "multipart without boundary": ("multipart/form-data", b"--xyz\r\n\r\n--xyz--"),
-    "over the upload limit": (
-        "application/json",
-        b'{"name": "' + b"n" * UPLOAD_LIMIT_BYTES + b'"}',
-    ),
 }
 
 
