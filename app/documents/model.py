@@ -19,6 +19,7 @@ pipeline that turns a raw touch into y; without it y is the channel means.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import reprlib
 from collections.abc import Callable, Mapping
 from typing import Any, TypeVar
@@ -298,6 +299,25 @@ def _field(document: Mapping[str, Any], name: str, where: str = "model document"
     return document[name]
 
 
+#: The optional calibration fields of a model document: (field, its key, the
+#: :class:`ManifoldModel` attribute it sets, the check of its value against the model so far).
+_CALIBRATIONS: tuple[tuple[str, str, str, Callable[[ManifoldModel, Any], Any]], ...] = (
+    (
+        "latent_uncertainty",
+        "covariance",
+        "latent_covariance",
+        lambda model, value: check_latent_covariance(model, np.asarray(value, dtype=np.float64)),
+    ),
+    ("tempering", "exponent", "tempering", lambda _model, value: check_exponent(value)),
+    (
+        "placement_effect",
+        "variance",
+        "placement_variance",
+        lambda model, value: check_placement_variance(model, np.asarray(value, dtype=np.float64)),
+    ),
+)
+
+
 def _read_calibration(
     document: Mapping[str, Any], name: str, key: str, check: Callable[[Any], _T]
 ) -> _T | None:
@@ -431,23 +451,8 @@ def model_from_document(document: Any) -> ManifoldModel:
     )
     if features is not None:
         model = dataclasses.replace(model, features=features)
-    covariance = _read_calibration(
-        document,
-        "latent_uncertainty",
-        "covariance",
-        lambda value: check_latent_covariance(model, np.asarray(value, dtype=np.float64)),
-    )
-    if covariance is not None:
-        model = dataclasses.replace(model, latent_covariance=covariance)
-    exponent = _read_calibration(document, "tempering", "exponent", check_exponent)
-    if exponent is not None:
-        model = dataclasses.replace(model, tempering=exponent)
-    variance = _read_calibration(
-        document,
-        "placement_effect",
-        "variance",
-        lambda value: check_placement_variance(model, np.asarray(value, dtype=np.float64)),
-    )
-    if variance is not None:
-        model = dataclasses.replace(model, placement_variance=variance)
+    for name, key, attribute, check in _CALIBRATIONS:
+        value = _read_calibration(document, name, key, functools.partial(check, model))
+        if value is not None:
+            model = dataclasses.replace(model, **{attribute: value})
     return model

@@ -503,12 +503,7 @@ class CollectionService:
             session.commit()
             job = self._jobs.handle(KIND, run_id)
             if job is not None:
-                if action == "pause":
-                    job.pause()
-                elif action == "resume":
-                    job.resume()
-                else:
-                    job.request_stop("stopped" if action == "stop" else "aborted")
+                job.control(action)
         if action == "abort":
             self._rig.halt()
         self._announce(run)

@@ -31,7 +31,7 @@ from typing import Literal
 from sqlalchemy.orm import Session
 
 from app.errors import AppError, ConflictError
-from app.states import INTERRUPTED
+from app.states import INTERRUPTED, Action
 from hardware.errors import HardwareError
 from hardware.rig import RigLease
 
@@ -105,6 +105,16 @@ class Job:
             if self._stop is None:
                 self._stop = kind
             self._condition.notify_all()
+
+    def control(self, action: Action) -> None:
+        """Carry out an operator's request: pause, resume, stop (``stopped``) or abort
+        (``aborted``)."""
+        if action == "pause":
+            self.pause()
+        elif action == "resume":
+            self.resume()
+        else:
+            self.request_stop("stopped" if action == "stop" else "aborted")
 
     def checkpoint(self) -> None:
         """Block while paused; raise :class:`JobCancelled` once a stop was requested."""

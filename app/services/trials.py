@@ -441,12 +441,7 @@ class TrialService:
             session.commit()
             handle = self._jobs.handle("trial", trial_id)
             if handle is not None:
-                if action == "pause":
-                    handle.pause()
-                elif action == "resume":
-                    handle.resume()
-                else:
-                    handle.request_stop("stopped" if action == "stop" else "aborted")
+                handle.control(action)
             if target in states.FINISHED:
                 self._scripted.pop(trial_id, None)
         if action == "abort" and trial.mode == "rig":
