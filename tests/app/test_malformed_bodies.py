@@ -15,12 +15,13 @@ from __future__ import annotations
 import json
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
 import pytest
 
 from app.main import create_app
 from app.schemas import EvaluationCreate, ModelCreate, TrialCreate
+from app.states import Action
 from tests.app.conftest import (
     TestClient,
     experiment1_csv,
@@ -246,13 +247,16 @@ def example_bodies(ids: dict[str, int]) -> dict[str, dict[str, Any]]:
 
 
 def operations(client: TestClient) -> list[tuple[str, str, bool]]:
-    """(method, path template after /api/v1, takes a body) of every POST/PUT/PATCH route."""
+    """(method, path template after /api/v1, takes a body) of every POST/PUT/PATCH route; a
+    control route (``{action}``) once with each action."""
     schema = client.get(f"{API}/openapi.json").json()
     found = []
     for path, items in schema["paths"].items():
         for method, operation in items.items():
             if method in ("post", "put", "patch"):
-                found.append((method, path.removeprefix(API), "requestBody" in operation))
+                for action in get_args(Action) if "{action}" in path else ("{action}",):
+                    concrete = path.removeprefix(API).replace("{action}", action)
+                    found.append((method, concrete, "requestBody" in operation))
     return found
 
 
