@@ -21,6 +21,21 @@ def squared_exponential(a: FloatArray, b: FloatArray, lengthscales: FloatArray) 
     Returns:
         Kernel matrix. Shape (Na, Nb).
     """
+    return np.asarray(np.exp(-0.5 * scaled_squared_distance(a, b, lengthscales)), dtype=np.float64)
+
+
+def scaled_squared_distance(a: FloatArray, b: FloatArray, lengthscales: FloatArray) -> FloatArray:
+    """Σ_d (a_d - b_d)² / ℓ_d² between every row of ``a`` and of ``b`` (−2 × the log of
+    :func:`squared_exponential`), expanded as |a/ℓ|² + |b/ℓ|² − 2 (a/ℓ)·(b/ℓ) and clamped at 0.
+
+    Args:
+        a: Points. Shape (Na, d).
+        b: Points. Shape (Nb, d).
+        lengthscales: ℓ (not squared). Shape (d,).
+
+    Returns:
+        Shape (Na, Nb).
+    """
     a_scaled = a / lengthscales
     b_scaled = b / lengthscales
     sq = (
@@ -28,7 +43,7 @@ def squared_exponential(a: FloatArray, b: FloatArray, lengthscales: FloatArray) 
         + np.sum(b_scaled**2, axis=1)[None, :]
         - 2.0 * a_scaled @ b_scaled.T
     )
-    return np.asarray(np.exp(-0.5 * np.maximum(sq, 0.0)), dtype=np.float64)
+    return np.asarray(np.maximum(sq, 0.0), dtype=np.float64)
 
 
 def squared_distances(a: FloatArray, b: FloatArray, lengthscales: FloatArray) -> FloatArray:
