@@ -28,7 +28,7 @@ from app.db.tables import Run
 from app.errors import AppError, BadInputError, ConflictError
 from app.rig.actions import TouchActions
 from app.rig.collection import CollectedTouch, iter_collect
-from app.schemas import CollectionCreate, Page, RunPublic
+from app.schemas import CollectionCreate, Page, RunPublic, from_row
 from app.services import objects
 from app.services.events import EventBus
 from app.services.jobs import INTERRUPTED, Job, JobCancelled, JobRunner
@@ -220,19 +220,7 @@ def iter_collection(
 
 def to_public(run: Run) -> RunPublic:
     """The API view of a run."""
-    return RunPublic(
-        id=run.id,
-        kind=run.kind,
-        status=run.status,
-        reason=run.reason,
-        done=run.done,
-        total=run.total,
-        dataset_id=run.dataset_id,
-        params=run.params,
-        created_at=run.created_at,
-        started_at=run.started_at,
-        finished_at=run.finished_at,
-    )
+    return from_row(RunPublic, run)
 
 
 require = partial(crud.require, Run, kind=KIND)
