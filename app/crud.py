@@ -10,7 +10,7 @@ from collections.abc import Iterable, Sequence
 from datetime import datetime
 from typing import Any, TypeVar
 
-from sqlalchemy import delete, func, select, update
+from sqlalchemy import Select, delete, func, select, update
 from sqlalchemy.orm import Session
 
 from app.db.tables import (
@@ -32,6 +32,7 @@ from app.errors import NotFoundError
 from app.states import ACTIVE, MODEL_ACTIVE
 
 RowT = TypeVar("RowT", Dataset, ModelRecord, Trial, Run, Evaluation)
+_RowT = TypeVar("_RowT")
 
 #: What a 404 calls a row of each table it answers for (a run is called by its kind).
 _NOUNS: dict[type[Any], str] = {
@@ -58,6 +59,44 @@ def require(table: type[RowT], session: Session, row_id: int, kind: str | None =
             f"{noun.capitalize()} {row_id} does not exist.", **{f"{noun}_id": row_id}
         )
     return row
+
+
+def _added(session: Session, row: _RowT) -> _RowT:
+    """Add ``row`` and flush it, so it has an id."""
+    session.add(row)
+    session.flush()
+    return row
+
+
+def _page(
+    session: Session, query: Select[_RowT], order: Any, limit: int, offset: int
+) -> tuple[list[_RowT], int]:
+    """Rows ``offset+1 .. offset+limit`` of ``query`` in ``order``, and how many it has in all."""
+    rows = session.scalars(query.order_by(order).limit(limit).offset(offset)).all()
+    count = session.scalar(select(func.count()).select_from(query.subquery())) or 0
+    return list(rows), count
+
+
+def _where_given(query: Select[_RowT], *filters: tuple[Any, object | None]) -> Select[_RowT]:
+    """``query`` keeping the rows whose ``column == value``, for every ``(column, value)`` whose
+    value is given (not ``None``)."""
+    for column, value in filters:
+        if value is not None:
+            query = query.where(column == value)
+    return query
+
+
+def _set_status(row: Trial | Run | Evaluation, status: str, reason: str | None) -> datetime:
+    """Change a trial's, run's or evaluation's status (timestamps follow); returns the time."""
+    row.status = status
+    if reason is not None:
+        row.reason = reason
+    now = utc_now()
+    if status == "running" and row.started_at is None:
+        row.started_at = now
+    if status not in ACTIVE:
+        row.finished_at = now
+    return now
 
 
 # --- objects ----------------------------------------------------------------------------------
@@ -105,18 +144,18 @@ def create_dataset(
     observation_dim: int,
 ) -> Dataset:
     """Add an empty dataset row (flushed, so it has an id)."""
-    dataset = Dataset(
-        name=name,
-        source=source,
-        status=status,
-        object_names=list(object_names),
-        action_dim=action_dim,
-        observation_dim=observation_dim,
-        n_samples=0,
+    return _added(
+        session,
+        Dataset(
+            name=name,
+            source=source,
+            status=status,
+            object_names=list(object_names),
+            action_dim=action_dim,
+            observation_dim=observation_dim,
+            n_samples=0,
+        ),
     )
-    session.add(dataset)
-    session.flush()
-    return dataset
 
 
 def add_samples(
@@ -154,11 +193,7 @@ def get_dataset(session: Session, dataset_id: int) -> Dataset | None:
 
 def list_datasets(session: Session, limit: int, offset: int) -> tuple[list[Dataset], int]:
     """Datasets, newest first, and the total count."""
-    rows = session.scalars(
-        select(Dataset).order_by(Dataset.id.desc()).limit(limit).offset(offset)
-    ).all()
-    count = session.scalar(select(func.count()).select_from(Dataset)) or 0
-    return list(rows), count
+    return _page(session, select(Dataset), Dataset.id.desc(), limit, offset)
 
 
 def dataset_samples(session: Session, dataset_id: int) -> list[tuple[str, FloatArray, FloatArray]]:
@@ -190,10 +225,7 @@ def dataset_raw_samples(
 
 def create_model(session: Session, **fields: Any) -> ModelRecord:
     """Add a model row (flushed, so it has an id)."""
-    model = ModelRecord(**fields)
-    session.add(model)
-    session.flush()
-    return model
+    return _added(session, ModelRecord(**fields))
 
 
 def get_model(session: Session, model_id: int) -> ModelRecord | None:
@@ -205,13 +237,8 @@ def list_models(
     session: Session, status: str | None, limit: int, offset: int
 ) -> tuple[list[ModelRecord], int]:
     """Models, newest first (optionally of one status), and the count."""
-    query = select(ModelRecord)
-    count_query = select(func.count()).select_from(ModelRecord)
-    if status is not None:
-        query = query.where(ModelRecord.status == status)
-        count_query = count_query.where(ModelRecord.status == status)
-    rows = session.scalars(query.order_by(ModelRecord.id.desc()).limit(limit).offset(offset))
-    return list(rows.all()), session.scalar(count_query) or 0
+    query = _where_given(select(ModelRecord), (ModelRecord.status, status))
+    return _page(session, query, ModelRecord.id.desc(), limit, offset)
 
 
 # --- trials -----------------------------------------------------------------------------------
@@ -219,10 +246,7 @@ def list_models(
 
 def create_trial(session: Session, **fields: Any) -> Trial:
     """Add a trial row (flushed, so it has an id)."""
-    trial = Trial(**fields)
-    session.add(trial)
-    session.flush()
-    return trial
+    return _added(session, Trial(**fields))
 
 
 def get_trial(session: Session, trial_id: int) -> Trial | None:
@@ -234,16 +258,8 @@ def list_trials(
     session: Session, model_id: int | None, status: str | None, limit: int, offset: int
 ) -> tuple[list[Trial], int]:
     """Trials, newest first, filtered by model and status, and the count."""
-    query = select(Trial)
-    count_query = select(func.count()).select_from(Trial)
-    if model_id is not None:
-        query = query.where(Trial.model_id == model_id)
-        count_query = count_query.where(Trial.model_id == model_id)
-    if status is not None:
-        query = query.where(Trial.status == status)
-        count_query = count_query.where(Trial.status == status)
-    rows = session.scalars(query.order_by(Trial.id.desc()).limit(limit).offset(offset)).all()
-    return list(rows), session.scalar(count_query) or 0
+    query = _where_given(select(Trial), (Trial.model_id, model_id), (Trial.status, status))
+    return _page(session, query, Trial.id.desc(), limit, offset)
 
 
 def trial_steps(session: Session, trial_id: int, after_step: int = 0) -> list[TrialStep]:
@@ -279,14 +295,7 @@ def set_trial_status(
     session: Session, trial: Trial, status: str, reason: str | None = None
 ) -> None:
     """Change a trial's status (timestamps follow); the caller checked the transition."""
-    trial.status = status
-    if reason is not None:
-        trial.reason = reason
-    now = utc_now()
-    if status == "running" and trial.started_at is None:
-        trial.started_at = now
-    if status not in ACTIVE:
-        trial.finished_at = now
+    _set_status(trial, status, reason)
 
 
 # --- runs -------------------------------------------------------------------------------------
@@ -294,35 +303,20 @@ def set_trial_status(
 
 def create_run(session: Session, **fields: Any) -> Run:
     """Add a run row (flushed, so it has an id)."""
-    run = Run(**fields)
-    session.add(run)
-    session.flush()
-    return run
+    return _added(session, Run(**fields))
 
 
 def list_runs(
     session: Session, kind: str, status: str | None, limit: int, offset: int
 ) -> tuple[list[Run], int]:
     """Runs of a kind, newest first, and the count."""
-    query = select(Run).where(Run.kind == kind)
-    count_query = select(func.count()).select_from(Run).where(Run.kind == kind)
-    if status is not None:
-        query = query.where(Run.status == status)
-        count_query = count_query.where(Run.status == status)
-    rows = session.scalars(query.order_by(Run.id.desc()).limit(limit).offset(offset)).all()
-    return list(rows), session.scalar(count_query) or 0
+    query = _where_given(select(Run), (Run.kind, kind), (Run.status, status))
+    return _page(session, query, Run.id.desc(), limit, offset)
 
 
 def set_run_status(session: Session, run: Run, status: str, reason: str | None = None) -> None:
     """Change a run's status (timestamps follow); the caller checked the transition."""
-    run.status = status
-    if reason is not None:
-        run.reason = reason
-    now = utc_now()
-    if status == "running" and run.started_at is None:
-        run.started_at = now
-    if status not in ACTIVE:
-        run.finished_at = now
+    _set_status(run, status, reason)
 
 
 # --- recovery after a restart -----------------------------------------------------------------
@@ -407,10 +401,7 @@ def ping(session: Session) -> None:
 
 def list_objects(session: Session, limit: int, offset: int) -> tuple[list[ObjectRecord], int]:
     """Registered objects by name, and the count."""
-    rows = session.scalars(
-        select(ObjectRecord).order_by(ObjectRecord.name).limit(limit).offset(offset)
-    ).all()
-    return list(rows), session.scalar(select(func.count()).select_from(ObjectRecord)) or 0
+    return _page(session, select(ObjectRecord), ObjectRecord.name, limit, offset)
 
 
 # --- evaluations ------------------------------------------------------------------------------
@@ -418,10 +409,7 @@ def list_objects(session: Session, limit: int, offset: int) -> tuple[list[Object
 
 def create_evaluation(session: Session, **fields: Any) -> Evaluation:
     """Add an evaluation row (flushed, so it has an id)."""
-    evaluation = Evaluation(**fields)
-    session.add(evaluation)
-    session.flush()
-    return evaluation
+    return _added(session, Evaluation(**fields))
 
 
 def get_evaluation(session: Session, evaluation_id: int) -> Evaluation | None:
@@ -433,31 +421,17 @@ def list_evaluations(
     session: Session, model_id: int | None, status: str | None, limit: int, offset: int
 ) -> tuple[list[Evaluation], int]:
     """Evaluations, newest first, filtered by model and status, and the count."""
-    query = select(Evaluation)
-    count_query = select(func.count()).select_from(Evaluation)
-    if model_id is not None:
-        query = query.where(Evaluation.model_id == model_id)
-        count_query = count_query.where(Evaluation.model_id == model_id)
-    if status is not None:
-        query = query.where(Evaluation.status == status)
-        count_query = count_query.where(Evaluation.status == status)
-    rows = session.scalars(query.order_by(Evaluation.id.desc()).limit(limit).offset(offset))
-    return list(rows.all()), session.scalar(count_query) or 0
+    query = _where_given(
+        select(Evaluation), (Evaluation.model_id, model_id), (Evaluation.status, status)
+    )
+    return _page(session, query, Evaluation.id.desc(), limit, offset)
 
 
 def set_evaluation_status(
     session: Session, evaluation: Evaluation, status: str, reason: str | None = None
 ) -> None:
     """Change an evaluation's status (timestamps follow); the caller checked the transition."""
-    evaluation.status = status
-    if reason is not None:
-        evaluation.reason = reason
-    now = utc_now()
-    evaluation.updated_at = now
-    if status == "running" and evaluation.started_at is None:
-        evaluation.started_at = now
-    if status not in ACTIVE:
-        evaluation.finished_at = now
+    evaluation.updated_at = _set_status(evaluation, status, reason)
 
 
 def add_evaluation_trial(
@@ -501,19 +475,8 @@ def evaluation_trial_page(
     session: Session, evaluation_id: int, limit: int, offset: int
 ) -> tuple[list[EvaluationTrial], int]:
     """Finished trials ``offset+1 .. offset+limit`` (in finishing order), and the count."""
-    rows = session.scalars(
-        select(EvaluationTrial)
-        .where(EvaluationTrial.evaluation_id == evaluation_id)
-        .order_by(EvaluationTrial.number)
-        .limit(limit)
-        .offset(offset)
-    ).all()
-    count = session.scalar(
-        select(func.count())
-        .select_from(EvaluationTrial)
-        .where(EvaluationTrial.evaluation_id == evaluation_id)
-    )
-    return list(rows), count or 0
+    query = select(EvaluationTrial).where(EvaluationTrial.evaluation_id == evaluation_id)
+    return _page(session, query, EvaluationTrial.number, limit, offset)
 
 
 def get_evaluation_trial(
@@ -551,11 +514,7 @@ def list_request_audits(
     path_prefix: str | None = None,
 ) -> tuple[list[RequestAudit], int]:
     """Recorded mutating requests, newest first, and the count (filtered by method and path)."""
-    query = select(RequestAudit)
-    if method is not None:
-        query = query.where(RequestAudit.method == method)
+    query = _where_given(select(RequestAudit), (RequestAudit.method, method))
     if path_prefix is not None:
         query = query.where(RequestAudit.path.startswith(path_prefix, autoescape=True))
-    rows = session.scalars(query.order_by(RequestAudit.id.desc()).limit(limit).offset(offset)).all()
-    count = session.scalar(select(func.count()).select_from(query.subquery())) or 0
-    return list(rows), count
+    return _page(session, query, RequestAudit.id.desc(), limit, offset)

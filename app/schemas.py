@@ -45,6 +45,17 @@ Seed = Annotated[int, Field(ge=0, le=2**32 - 1)]
 Id = Annotated[int, Field(ge=1, le=2**63 - 1)]
 
 
+_Schema = TypeVar("_Schema", bound=BaseModel)
+
+
+def from_row(schema: type[_Schema], row: object, **given: Any) -> _Schema:
+    """The API view ``schema`` of a database row: every field the row's attribute of the same
+    name, unless ``given``."""
+    return schema.model_validate(
+        {name: given[name] if name in given else getattr(row, name) for name in schema.model_fields}
+    )
+
+
 class Page(BaseModel, Generic[T]):
     """A list response: ``{"data": [...], "count": n}`` (``count``: rows matching the filter)."""
 

@@ -57,7 +57,14 @@ from app.evaluation.rig_trial import RigTrial
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec, Placement
 from core.errors import TouchRefused
-from core.evaluation import ModelTouches, RefusedTrial, Touch, TrialRecord, calibration
+from core.evaluation import (
+    ModelSamples,
+    RefusedTrial,
+    Touch,
+    TrialRecord,
+    WorldTouches,
+    calibration,
+)
 from core.gp import predict_model_space
 from core.gp.noise_model import loo_log_likelihoods
 from core.gp.noise_model import standardised_residuals as loo_residuals
@@ -289,7 +296,7 @@ def touch_sequences(
             seq.seed,
             placement=placement,
         )
-        draw = ModelTouches(model, seq.target)
+        draw = WorldTouches(ModelSamples(model), seq.target)
         rng = np.random.default_rng(seq.seed)
         try:
             for action in seq.actions:
@@ -384,7 +391,7 @@ def planner_touches(
     keys = [k for k in captured if k[0] == policy]
     for g, key in enumerate(keys):
         obj = model.object_names.index(key[1])
-        draw = ModelTouches(model, key[1])
+        draw = WorldTouches(ModelSamples(model), key[1])
         rng = np.random.default_rng([seed, g])
         for action, y in captured[key]:
             rig_t.add(obj, action, y, g)

@@ -155,14 +155,28 @@ def _problem(
     return world, data
 
 
+def _per_design(
+    designs: tuple[scenarios.DesignName, ...],
+    row: Callable[[scenarios.DesignName], dict[str, Any]],
+    label: str,
+    options: Options,
+) -> dict[str, Any]:
+    """A section's ``row(design)`` for each design in turn, each reported done under ``label``."""
+    out: dict[str, Any] = {}
+    for design in designs:
+        out[design] = row(design)
+        options.progress(f"{label}, {design} design done")
+    return out
+
+
 def section_likelihood(options: Options, gpy: Any) -> dict[str, Any]:
     """(a) one value + gradient at L = 4, N = 400."""
-    out: dict[str, Any] = {}
-    designs: tuple[scenarios.DesignName, ...] = ("random", "shared")
-    for design in designs:
-        out[design] = _likelihood_row(design, options, gpy)
-        options.progress(f"(a) likelihood, {design} design done")
-    return out
+    return _per_design(
+        ("random", "shared"),
+        lambda design: _likelihood_row(design, options, gpy),
+        "(a) likelihood",
+        options,
+    )
 
 
 def _likelihood_row(design: scenarios.DesignName, options: Options, gpy: Any) -> dict[str, Any]:
@@ -222,12 +236,9 @@ def section_fit(options: Options, gpy: Any) -> dict[str, Any]:
     * **full fit** — ours learns S too: one start of :func:`core.gp.manifold.fit_manifold`
       (``restarts=0``: PCA start, screening, hyperparameters, joint), against the same GPy time.
     """
-    out: dict[str, Any] = {}
-    designs: tuple[scenarios.DesignName, ...] = ("shared", "random")
-    for design in designs:
-        out[design] = _fit_row(design, options, gpy)
-        options.progress(f"(b) fit, {design} design done")
-    return out
+    return _per_design(
+        ("shared", "random"), lambda design: _fit_row(design, options, gpy), "(b) fit", options
+    )
 
 
 def _fit_row(design: scenarios.DesignName, options: Options, gpy: Any) -> dict[str, Any]:
@@ -316,12 +327,12 @@ def _fresh_mi(model: ManifoldModel, actions: np.ndarray, belief: Any) -> np.ndar
 
 def section_mutual_information(options: Options) -> dict[str, Any]:
     """(c) mutual information per candidate: ours vs the direct formula vs the FLOP floor."""
-    out: dict[str, Any] = {}
-    designs: tuple[scenarios.DesignName, ...] = ("random", "shared")
-    for design in designs:
-        out[design] = _mutual_information_row(design, options)
-        options.progress(f"(c) mutual information, {design} design done")
-    return out
+    return _per_design(
+        ("random", "shared"),
+        lambda design: _mutual_information_row(design, options),
+        "(c) mutual information",
+        options,
+    )
 
 
 def _mutual_information_row(design: scenarios.DesignName, options: Options) -> dict[str, Any]:
@@ -717,6 +728,29 @@ def fit_gap(point: dict[str, Any]) -> float | None:
     return float(truth) - float(fitted)
 
 
+def _thread_table(
+    add: Callable[[str], None],
+    title: list[str],
+    header: str,
+    section: dict[str, Any],
+    threads: list[int],
+    line: Callable[[str, dict[str, Any], int, dict[str, Any]], str],
+    after_row: Callable[[dict[str, Any]], str] | None = None,
+) -> None:
+    """A table of a section measured at every BLAS thread count: a blank line, the title and
+    the header, then ``line(name, row, threads, figures at that count)`` for each of the
+    section's rows and thread counts, and ``after_row(row)`` after each row's lines."""
+    add("")
+    for text in title:
+        add(text)
+    add(header)
+    for name, row in section.items():
+        for t in threads:
+            add(line(name, row, t, row[f"threads_{t}"]))
+        if after_row is not None:
+            add(after_row(row))
+
+
 def report(figures: dict[str, Any]) -> str:
     """The human-readable tables of a run."""
     lines: list[str] = []
@@ -729,30 +763,28 @@ def report(figures: dict[str, Any]) -> str:
         + (" (quick)" if figures["quick"] else "")
     )
     threads = figures["threads"]
-    add("")
-    add("(a) log-likelihood + gradient, L=4 N=400 dx=6 dy=5 ds=2 (median ms)")
-    add(
+    _thread_table(
+        add,
+        ["(a) log-likelihood + gradient, L=4 N=400 dx=6 dy=5 ds=2 (median ms)"],
         f"  {'design':8s} {'path':22s} {'thr':>3s} {'ours':>8s} {'GPy':>8s} {'direct':>8s} "
-        f"{'GPy/ours':>9s} {'direct/ours':>11s}"
-    )
-    for design, row in figures["likelihood"].items():
-        for t in threads:
-            r = row[f"threads_{t}"]
-            add(
-                f"  {design:8s} {row['structure']:22s} {t:3d} {_fmt(r['ours_ms'], '8.2f')} "
-                f"{_fmt(r['gpy_ms'], '8.2f'):>8s} {_fmt(r['direct_ms'], '8.1f')} "
-                f"{_fmt(r['speedup_vs_gpy'], '9.1f'):>9s} {_fmt(r['speedup_vs_direct'], '11.0f')}"
-            )
-        agreement = row["agreement_direct"]
-        add(
-            f"  {'':8s} agreement with direct: value {agreement['value_rel']:.1e}, gradient "
-            f"{agreement['gradient_rel']:.1e}"
+        f"{'GPy/ours':>9s} {'direct/ours':>11s}",
+        figures["likelihood"],
+        threads,
+        lambda design, row, t, r: (
+            f"  {design:8s} {row['structure']:22s} {t:3d} {_fmt(r['ours_ms'], '8.2f')} "
+            f"{_fmt(r['gpy_ms'], '8.2f'):>8s} {_fmt(r['direct_ms'], '8.1f')} "
+            f"{_fmt(r['speedup_vs_gpy'], '9.1f'):>9s} {_fmt(r['speedup_vs_direct'], '11.0f')}"
+        ),
+        lambda row: (
+            f"  {'':8s} agreement with direct: value {row['agreement_direct']['value_rel']:.1e}, "
+            f"gradient {row['agreement_direct']['gradient_rel']:.1e}"
             + (
                 f"; with GPy: value {row['agreement_gpy']['value_rel']:.1e}"
                 if "agreement_gpy" in row
                 else ""
             )
-        )
+        ),
+    )
     add("")
     add("(b) fits, L=4 N=400, 1 thread. Like for like: S = our fitted latents held fixed, the")
     add("    same initial hyperparameters, one L-BFGS-B start each (GPy: 5 GPRegression models),")
@@ -776,40 +808,41 @@ def report(figures: dict[str, Any]) -> str:
             f"{_fmt(row.get('full_speedup_vs_gpy'), '8.2f'):>8s} "
             f"{row['full_log_likelihood']:9.1f} {row['full_r2_truth']:8.3f}"
         )
-    add("")
-    add("(c) mutual information per candidate (256 candidates, fresh action statistics)")
-    add(
+    _thread_table(
+        add,
+        ["(c) mutual information per candidate (256 candidates, fresh action statistics)"],
         f"  {'design':8s} {'thr':>3s} {'ours us':>8s} {'reused us':>9s} {'floor us':>8s} "
-        f"{'ours/floor':>10s} {'direct ms':>9s} {'direct/ours':>11s} {'GEMM GF/s':>9s}"
-    )
-    for design, row in figures["mutual_information"].items():
-        for t in threads:
-            r = row[f"threads_{t}"]
-            add(
-                f"  {design:8s} {t:3d} {r['ours_us_per_candidate']:8.2f} "
-                f"{r['ours_reused_us_per_candidate']:9.3f} {r['floor_us_per_candidate']:8.2f} "
-                f"{r['ours_over_floor']:10.2f} {row['direct_ms_per_candidate']:9.2f} "
-                f"{r['speedup_vs_direct']:11.0f} {r['gemm_gflops']:9.1f}"
-            )
-        add(
+        f"{'ours/floor':>10s} {'direct ms':>9s} {'direct/ours':>11s} {'GEMM GF/s':>9s}",
+        figures["mutual_information"],
+        threads,
+        lambda design, row, t, r: (
+            f"  {design:8s} {t:3d} {r['ours_us_per_candidate']:8.2f} "
+            f"{r['ours_reused_us_per_candidate']:9.3f} {r['floor_us_per_candidate']:8.2f} "
+            f"{r['ours_over_floor']:10.2f} {row['direct_ms_per_candidate']:9.2f} "
+            f"{r['speedup_vs_direct']:11.0f} {r['gemm_gflops']:9.1f}"
+        ),
+        lambda row: (
             f"  {'':8s} max rel. error vs direct {row['max_rel_error_vs_direct']:.1e}; "
             f"{row['flops_per_candidate']:.3g} flop per candidate ({row['structure']})"
-        )
-    add("")
-    add("(d) planning step and belief update (median ms; default Planner: 256 Sobol candidates,")
-    add("    1 L-BFGS-B refinement)")
-    add(
-        f"  {'case':20s} {'path':10s} {'thr':>3s} {'plan ms':>8s} {'p90':>7s} {'update ms':>9s} "
-        f"{'cand. stats s':>13s}"
+        ),
     )
-    for name, row in figures["planning"].items():
-        for t in threads:
-            r = row[f"threads_{t}"]
-            add(
-                f"  {name:20s} {row['structure']:10s} {t:3d} {r['plan_ms']:8.2f} "
-                f"{r['plan_p90_ms']:7.2f} {r['update_ms']:9.2f} "
-                f"{row['candidate_statistics_s']:13.3f}"
-            )
+    _thread_table(
+        add,
+        [
+            "(d) planning step and belief update (median ms; default Planner: 256 Sobol "
+            "candidates,",
+            "    1 L-BFGS-B refinement)",
+        ],
+        f"  {'case':20s} {'path':10s} {'thr':>3s} {'plan ms':>8s} {'p90':>7s} {'update ms':>9s} "
+        f"{'cand. stats s':>13s}",
+        figures["planning"],
+        threads,
+        lambda name, row, t, r: (
+            f"  {name:20s} {row['structure']:10s} {t:3d} {r['plan_ms']:8.2f} "
+            f"{r['plan_p90_ms']:7.2f} {r['update_ms']:9.2f} "
+            f"{row['candidate_statistics_s']:13.3f}"
+        ),
+    )
     add("")
     add("(e) scaling (fresh process per point, 1 thread; fit = one L-BFGS start; kronecker and")
     add("    dense rows on shared designs, sparse rows on random designs)")

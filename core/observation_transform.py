@@ -20,7 +20,7 @@ from typing import Literal
 import numpy as np
 
 from core.errors import InvalidInputError
-from core.validation import FloatArray, as_float_array
+from core.validation import FloatArray, as_float_array, store_read_only
 
 #: What a transform did: nothing, standardise, or standardise and whiten the noise.
 TransformKind = Literal["identity", "independent", "correlated"]
@@ -73,16 +73,15 @@ class ObservationTransform:
         if sign == 0 or not np.isfinite(log_det):
             raise InvalidInputError("transform whitening: must be invertible.")
         inverse = np.linalg.inv(matrix)
-        for name, value in (
-            ("offset", offset),
-            ("scale", scale),
-            ("whitening", whitening),
-            ("correlation", correlation),
-            ("matrix", matrix),
-            ("inverse", inverse),
-        ):
-            value.flags.writeable = False
-            object.__setattr__(self, name, value)
+        store_read_only(
+            self,
+            offset=offset,
+            scale=scale,
+            whitening=whitening,
+            correlation=correlation,
+            matrix=matrix,
+            inverse=inverse,
+        )
         object.__setattr__(self, "log_jacobian", float(log_det))
 
     @classmethod

@@ -14,7 +14,7 @@ import numpy as np
 from core.errors import CoreError, InvalidInputError
 from core.features.pipeline import FeaturePipeline
 from core.observation_transform import ObservationTransform
-from core.validation import FloatArray, IntArray, as_float_array, require_positive
+from core.validation import FloatArray, IntArray, as_float_array, require_positive, store_read_only
 
 
 @dataclass(frozen=True)
@@ -74,11 +74,9 @@ class TrainingData:
                     f"object {name!r} has {count} touch(es); every object needs at least 2."
                 )
         object.__setattr__(self, "object_names", names)
-        object.__setattr__(self, "object_index", index.astype(np.int64))
-        object.__setattr__(self, "actions", actions)
-        object.__setattr__(self, "observations", observations)
-        for array in (self.object_index, self.actions, self.observations):
-            array.flags.writeable = False
+        store_read_only(
+            self, object_index=index.astype(np.int64), actions=actions, observations=observations
+        )
         if self.placement_index is not None:
             placement = np.asarray(self.placement_index)
             if placement.shape != (n,) or not np.issubdtype(placement.dtype, np.integer):
@@ -90,9 +88,7 @@ class TrainingData:
                 raise InvalidInputError(
                     f"placement_index: values must be ≥ 0, received {placement.min()}."
                 )
-            placement = placement.astype(np.int64)
-            placement.flags.writeable = False
-            object.__setattr__(self, "placement_index", placement)
+            store_read_only(self, placement_index=placement.astype(np.int64))
 
     @property
     def n_objects(self) -> int:
@@ -148,15 +144,15 @@ class Hyperparameters:
         noise = as_float_array(self.noise_variance, "noise_variance", (dy,))
         latent = as_float_array(self.latent_lengthscales, "latent_lengthscales", (dy, None))
         action = as_float_array(self.action_lengthscales, "action_lengthscales", (dy, None))
-        for value, name in (
-            (signal, "signal_variance"),
-            (noise, "noise_variance"),
-            (latent, "latent_lengthscales"),
-            (action, "action_lengthscales"),
-        ):
+        arrays = {
+            "signal_variance": signal,
+            "noise_variance": noise,
+            "latent_lengthscales": latent,
+            "action_lengthscales": action,
+        }
+        for name, value in arrays.items():
             require_positive(value, name)
-            value.flags.writeable = False
-            object.__setattr__(self, name, value)
+        store_read_only(self, **arrays)
 
     @property
     def observation_dim(self) -> int:
@@ -194,10 +190,7 @@ class GaussianBelief:
             raise InvalidInputError("belief cov: must be symmetric.")
         if np.linalg.eigvalsh(cov).min() <= 0:
             raise InvalidInputError("belief cov: must be positive definite.")
-        mean.flags.writeable = False
-        cov.flags.writeable = False
-        object.__setattr__(self, "mean", mean)
-        object.__setattr__(self, "cov", cov)
+        store_read_only(self, mean=mean, cov=cov)
 
     @property
     def dim(self) -> int:
@@ -362,8 +355,7 @@ class GPPosterior:
                 f"structured functions of core.gp.kronecker."
             )
         dense = factors.dense_inverse()
-        dense.flags.writeable = False
-        object.__setattr__(self, "_gram_inverse", dense)
+        store_read_only(self, _gram_inverse=dense)
         return dense
 
     @property

@@ -50,3 +50,19 @@ def require_positive(value: FloatArray, name: str) -> None:
     """Raise :class:`InvalidInputError` unless every entry of ``value`` is > 0."""
     if np.any(value <= 0):
         raise InvalidInputError(f"{name}: every entry must be positive, received {value}.")
+
+
+def store_read_only(instance: object, **arrays: npt.NDArray[Any]) -> None:
+    """Set fields of a frozen dataclass (from its ``__post_init__``) to read-only arrays.
+
+    The checked arrays replace what the caller passed and cannot be written through afterwards,
+    so a frozen record stays what it was checked to be (its caller's array is not locked when
+    the check copied it).
+
+    Args:
+        instance: The frozen dataclass being initialised.
+        **arrays: Field name → its checked array.
+    """
+    for name, array in arrays.items():
+        array.flags.writeable = False
+        object.__setattr__(instance, name, array)

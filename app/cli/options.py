@@ -163,17 +163,12 @@ class RigOptions:
             return
         if self.table is not None or self.table_file is not None:
             raise fail("--table and --table-file describe a simulated rig: add --sim.")
-        missing = [
-            name
-            for name, port in (
-                ("--turntable-port", self.turntable_port),
-                ("--finger-port", self.finger_port),
-                ("--tactile-port", self.tactile_port),
-            )
-            if not port
-        ]
+        from app.rig.build import missing_ports
+
+        missing = missing_ports(self.turntable_port, self.finger_port, self.tactile_port)
         if missing:
-            raise fail(f"missing {', '.join(missing)} (or use --sim).")
+            options = ", ".join(f"--{name}-port" for name in missing)
+            raise fail(f"missing {options} (or use --sim).")
 
     def open(self) -> RigHandle:
         """Build the rig (not connected yet)."""

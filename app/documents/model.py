@@ -19,9 +19,10 @@ pipeline that turns a raw touch into y; without it y is the channel means.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import reprlib
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -37,6 +38,8 @@ from core.gp import check_placement_variance
 from core.recognition import check_exponent, check_latent_covariance
 from core.selection import LatentSelection
 from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
+
+_T = TypeVar("_T")
 
 MODEL_FORMAT = "activetouch-model/1"
 
@@ -296,6 +299,50 @@ def _field(document: Mapping[str, Any], name: str, where: str = "model document"
     return document[name]
 
 
+#: The optional calibration fields of a model document: (field, its key, the
+#: :class:`ManifoldModel` attribute it sets, the check of its value against the model so far).
+_CALIBRATIONS: tuple[tuple[str, str, str, Callable[[ManifoldModel, Any], Any]], ...] = (
+    (
+        "latent_uncertainty",
+        "covariance",
+        "latent_covariance",
+        lambda model, value: check_latent_covariance(model, np.asarray(value, dtype=np.float64)),
+    ),
+    ("tempering", "exponent", "tempering", lambda _model, value: check_exponent(value)),
+    (
+        "placement_effect",
+        "variance",
+        "placement_variance",
+        lambda model, value: check_placement_variance(model, np.asarray(value, dtype=np.float64)),
+    ),
+)
+
+
+def _read_calibration(
+    document: Mapping[str, Any], name: str, key: str, check: Callable[[Any], _T]
+) -> _T | None:
+    """The optional field ``name`` (``{key: …}``) of a model document, through ``check``.
+
+    Returns:
+        What ``check`` makes of the value at ``key``; ``None`` when the field is absent.
+
+    Raises:
+        DocumentError: (column ``name``) ``key`` is missing, ``check`` refused the value
+            (its message), or the value is malformed.
+    """
+    field = document.get(name)
+    if field is None:
+        return None
+    try:
+        return check(_field(field, key, name))
+    except InvalidInputError as exc:
+        raise DocumentError(f"model document: {exc}", column=name) from exc
+    except (TypeError, ValueError) as exc:
+        raise DocumentError(
+            f"model document: malformed field {name!r} ({exc}).", column=name
+        ) from exc
+
+
 def model_from_document(document: Any) -> ManifoldModel:
     """Rebuild a :class:`ManifoldModel` from its document (re-conditioning the GP).
 
@@ -404,44 +451,8 @@ def model_from_document(document: Any) -> ManifoldModel:
     )
     if features is not None:
         model = dataclasses.replace(model, features=features)
-    uncertainty = document.get("latent_uncertainty")
-    if uncertainty is not None:
-        try:
-            covariance = check_latent_covariance(
-                model,
-                np.asarray(
-                    _field(uncertainty, "covariance", "latent_uncertainty"), dtype=np.float64
-                ),
-            )
-        except InvalidInputError as exc:
-            raise DocumentError(f"model document: {exc}", column="latent_uncertainty") from exc
-        except (TypeError, ValueError) as exc:
-            raise DocumentError(
-                f"model document: malformed field 'latent_uncertainty' ({exc}).",
-                column="latent_uncertainty",
-            ) from exc
-        model = dataclasses.replace(model, latent_covariance=covariance)
-    tempering = document.get("tempering")
-    if tempering is not None:
-        try:
-            exponent = check_exponent(_field(tempering, "exponent", "tempering"))
-        except (InvalidInputError, TypeError, ValueError) as exc:
-            raise DocumentError(
-                f"model document: malformed field 'tempering' ({exc}).", column="tempering"
-            ) from exc
-        model = dataclasses.replace(model, tempering=exponent)
-    effect = document.get("placement_effect")
-    if effect is None:
-        return model
-    try:
-        variance = check_placement_variance(
-            model, np.asarray(_field(effect, "variance", "placement_effect"), dtype=np.float64)
-        )
-    except InvalidInputError as exc:
-        raise DocumentError(f"model document: {exc}", column="placement_effect") from exc
-    except (TypeError, ValueError) as exc:
-        raise DocumentError(
-            f"model document: malformed field 'placement_effect' ({exc}).",
-            column="placement_effect",
-        ) from exc
-    return dataclasses.replace(model, placement_variance=variance)
+    for name, key, attribute, check in _CALIBRATIONS:
+        value = _read_calibration(document, name, key, functools.partial(check, model))
+        if value is not None:
+            model = dataclasses.replace(model, **{attribute: value})
+    return model

@@ -46,6 +46,15 @@ class RigPorts:
     tactile_baudrate: int = TACTILE_BAUDRATE
 
 
+def missing_ports(
+    turntable: str | None, finger: str | None, tactile: str | None
+) -> tuple[str, ...]:
+    """Which of a real rig's three serial ports (:class:`RigPorts`) are not given:
+    ``turntable``, ``finger``, ``tactile``."""
+    given = {"turntable": turntable, "finger": finger, "tactile": tactile}
+    return tuple(name for name, port in given.items() if not port)
+
+
 @dataclass
 class RigHandle:
     """A rig and what must be closed with it.

@@ -7,7 +7,7 @@ from fastapi import APIRouter
 from app.deps import ContextDep, IdPath, Limit, Offset, SessionDep
 from app.schemas import CollectionCreate, Page, RunPublic
 from app.services import collections
-from app.states import RunStatus
+from app.states import Action, RunStatus
 
 router = APIRouter(prefix="/collections", tags=["collections"])
 
@@ -37,25 +37,13 @@ def get_collection(collection_id: IdPath, session: SessionDep) -> RunPublic:
     return collections.get(session, collection_id)
 
 
-@router.post("/{collection_id}/pause")
-def pause_collection(collection_id: IdPath, session: SessionDep, context: ContextDep) -> RunPublic:
-    """Pause after the touch in progress."""
-    return context.collections.control(session, collection_id, "pause")
+@router.post("/{collection_id}/{action}")
+def control_collection(
+    collection_id: IdPath, action: Action, session: SessionDep, context: ContextDep
+) -> RunPublic:
+    """Pause, resume, stop or abort a collection (409 when its state does not allow it).
 
-
-@router.post("/{collection_id}/resume")
-def resume_collection(collection_id: IdPath, session: SessionDep, context: ContextDep) -> RunPublic:
-    """Resume a paused collection."""
-    return context.collections.control(session, collection_id, "resume")
-
-
-@router.post("/{collection_id}/stop")
-def stop_collection(collection_id: IdPath, session: SessionDep, context: ContextDep) -> RunPublic:
-    """Stop after the touch in progress; what was gathered stays."""
-    return context.collections.control(session, collection_id, "stop")
-
-
-@router.post("/{collection_id}/abort")
-def abort_collection(collection_id: IdPath, session: SessionDep, context: ContextDep) -> RunPublic:
-    """Abort at once (the rig is emergency-stopped); what was gathered stays."""
-    return context.collections.control(session, collection_id, "abort")
+    ``pause``, ``stop``: after the touch in progress; ``resume`` a paused collection;
+    ``abort``: at once (the rig is emergency-stopped). What was gathered stays.
+    """
+    return context.collections.control(session, collection_id, action)

@@ -1,4 +1,5 @@
-"""``/trials``: create, read, list; scripted next-action/observations; pause/resume/stop/abort."""
+"""``/trials``: create, read, list; scripted next-action/observations; pause/resume/stop/abort
+(one route, the action in the path)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from app.schemas import (
     TrialSummary,
 )
 from app.services import trial_views
-from app.states import RunStatus
+from app.states import Action, RunStatus
 
 router = APIRouter(prefix="/trials", tags=["trials"])
 
@@ -63,33 +64,18 @@ def post_observation(
     return context.trials.observe(session, trial_id, body)
 
 
-@router.post("/{trial_id}/pause")
-def pause_trial(trial_id: IdPath, session: SessionDep, context: ContextDep) -> TrialPublic:
-    """Pause a running trial (409 otherwise).
+@router.post("/{trial_id}/{action}")
+def control_trial(
+    trial_id: IdPath, action: Action, session: SessionDep, context: ContextDep
+) -> TrialPublic:
+    """Pause, resume, stop or abort a trial (409 when its state does not allow it).
 
-    A server-driven trial finishes the touch in flight, records it, and then waits: its step
-    count may still grow by one after this answers.
+    * ``pause`` (a running trial): a server-driven trial finishes the touch in flight, records
+      it, and then waits: its step count may still grow by one after this answers.
+    * ``resume`` (a paused trial).
+    * ``stop``: the answer of the last step recorded by then becomes the result. A
+      server-driven trial starts no further touch; a touch already in flight may still be
+      recorded as a step after this answers (the result stays as answered).
+    * ``abort``: at once (the rig is halted); no result.
     """
-    return context.trials.control(session, trial_id, "pause")
-
-
-@router.post("/{trial_id}/resume")
-def resume_trial(trial_id: IdPath, session: SessionDep, context: ContextDep) -> TrialPublic:
-    """Resume a paused trial (409 otherwise)."""
-    return context.trials.control(session, trial_id, "resume")
-
-
-@router.post("/{trial_id}/stop")
-def stop_trial(trial_id: IdPath, session: SessionDep, context: ContextDep) -> TrialPublic:
-    """Stop a trial; the answer of the last step recorded by then becomes its result.
-
-    A server-driven trial starts no further touch; a touch already in flight may still be
-    recorded as a step after this answers (the result stays as answered).
-    """
-    return context.trials.control(session, trial_id, "stop")
-
-
-@router.post("/{trial_id}/abort")
-def abort_trial(trial_id: IdPath, session: SessionDep, context: ContextDep) -> TrialPublic:
-    """Abort a trial at once (the rig is halted); no result."""
-    return context.trials.control(session, trial_id, "abort")
+    return context.trials.control(session, trial_id, action)

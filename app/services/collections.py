@@ -28,7 +28,7 @@ from app.db.tables import Run
 from app.errors import AppError, BadInputError, ConflictError
 from app.rig.actions import TouchActions
 from app.rig.collection import CollectedTouch, iter_collect
-from app.schemas import CollectionCreate, Page, RunPublic
+from app.schemas import CollectionCreate, Page, RunPublic, from_row
 from app.services import objects
 from app.services.events import EventBus
 from app.services.jobs import INTERRUPTED, Job, JobCancelled, JobRunner
@@ -223,19 +223,7 @@ def iter_collection(
 
 def to_public(run: Run) -> RunPublic:
     """The API view of a run."""
-    return RunPublic(
-        id=run.id,
-        kind=run.kind,
-        status=run.status,
-        reason=run.reason,
-        done=run.done,
-        total=run.total,
-        dataset_id=run.dataset_id,
-        params=run.params,
-        created_at=run.created_at,
-        started_at=run.started_at,
-        finished_at=run.finished_at,
-    )
+    return from_row(RunPublic, run)
 
 
 require = partial(crud.require, Run, kind=KIND)
@@ -351,19 +339,16 @@ class CollectionService:
             total=len(body.objects) * body.samples_per_object,
             dataset_id=dataset.id,
         )
-        try:
-            lease = self._rig.take(f"{KIND} {run.id}")
-        except AppError:
-            session.rollback()  # nothing of the refused collection is kept
-            raise
-        session.commit()
-        self._announce(run)
         run_id = run.id
-        try:
-            self._jobs.start(KIND, run_id, lambda job: self._collect(job, run_id), lease=lease)
-        except AppError as exc:
-            self._finish(run_id, "failed", f"could not start: {exc.message}")
-            raise
+        self._jobs.commit_and_start(
+            session,
+            KIND,
+            run_id,
+            lambda job: self._collect(job, run_id),
+            announce=lambda: self._announce(run),
+            fail=lambda reason: self._finish(run_id, "failed", reason),
+            take_rig=self._rig.take,
+        )
         session.refresh(run)
         return to_public(run)
 
@@ -514,12 +499,7 @@ class CollectionService:
             session.commit()
             job = self._jobs.handle(KIND, run_id)
             if job is not None:
-                if action == "pause":
-                    job.pause()
-                elif action == "resume":
-                    job.resume()
-                else:
-                    job.request_stop("stopped" if action == "stop" else "aborted")
+                job.control(action)
         if action == "abort":
             self._rig.halt()
         self._announce(run)

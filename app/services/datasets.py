@@ -25,7 +25,7 @@ from app.documents.raw_touches import (
 )
 from app.documents.training_csv import TrainingCsvWriter, read_training_csv
 from app.errors import BadInputError, ConflictError
-from app.schemas import DatasetCreate, DatasetPublic, Page, SampleIn
+from app.schemas import DatasetCreate, DatasetPublic, Page, SampleIn, from_row
 from app.services.events import EventBus
 from core.errors import InvalidInputError
 from core.features.pipeline import FeatureKind, FeaturePipeline, check_touches, means_pipeline
@@ -35,17 +35,7 @@ from core.types import TrainingData
 
 def to_public(dataset: Dataset) -> DatasetPublic:
     """The API view of a dataset row."""
-    return DatasetPublic(
-        id=dataset.id,
-        name=dataset.name,
-        source=dataset.source,
-        status=dataset.status,
-        objects=list(dataset.object_names),
-        n_samples=dataset.n_samples,
-        action_dim=dataset.action_dim,
-        observation_dim=dataset.observation_dim,
-        created_at=dataset.created_at,
-    )
+    return from_row(DatasetPublic, dataset, objects=list(dataset.object_names))
 
 
 def store_training_data(

@@ -30,6 +30,7 @@ from app.schemas import (
     EvaluationTrialSummary,
     Page,
     TrialRefusal,
+    from_row,
 )
 from core.errors import CoreError
 from core.evaluation import RefusedTrial, TrialRecord, outcome_from_dict
@@ -64,23 +65,7 @@ require = partial(crud.require, Evaluation)
 
 def to_public(row: Evaluation, summary: dict[str, Any] | None = None) -> EvaluationPublic:
     """The API view of an evaluation (``summary``: the stored one unless given)."""
-    return EvaluationPublic(
-        id=row.id,
-        model_id=row.model_id,
-        dataset_id=row.dataset_id,
-        spec=row.spec,
-        status=row.status,
-        reason=row.reason,
-        done=row.done,
-        total=row.total,
-        workers=row.workers,
-        seconds=row.seconds,
-        summary=summary if summary is not None else row.summary,
-        created_at=row.created_at,
-        updated_at=row.updated_at,
-        started_at=row.started_at,
-        finished_at=row.finished_at,
-    )
+    return from_row(EvaluationPublic, row, summary=summary if summary is not None else row.summary)
 
 
 def _records(

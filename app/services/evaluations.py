@@ -30,7 +30,7 @@ from app import crud, states
 from app.config import Settings
 from app.db import Database
 from app.db.tables import Evaluation
-from app.errors import AppError, BadInputError, ConflictError
+from app.errors import AppError, BadInputError
 from app.evaluation.report import EvaluationReport
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
@@ -141,18 +141,15 @@ class EvaluationService:
             steps=spec.steps_used(model, replay),
             workers=workers,
         )
-        session.commit()
-        self._announce(row)
         evaluation_id = row.id
-        try:
-            self._jobs.start(
-                "evaluation",
-                evaluation_id,
-                lambda job: self._run(job, evaluation_id, model, spec, replay, workers),
-            )
-        except ConflictError as exc:
-            self._finish(evaluation_id, "failed", f"could not start: {exc.message}", None)
-            raise
+        self._jobs.commit_and_start(
+            session,
+            "evaluation",
+            evaluation_id,
+            lambda job: self._run(job, evaluation_id, model, spec, replay, workers),
+            announce=lambda: self._announce(row),
+            fail=lambda reason: self._finish(evaluation_id, "failed", reason, None),
+        )
         return to_public(row)
 
     # --- the job ------------------------------------------------------------------------------

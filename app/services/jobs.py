@@ -28,8 +28,10 @@ from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager, suppress
 from typing import Literal
 
-from app.errors import ConflictError
-from app.states import INTERRUPTED
+from sqlalchemy.orm import Session
+
+from app.errors import AppError, ConflictError
+from app.states import INTERRUPTED, Action
 from hardware.errors import HardwareError
 from hardware.rig import RigLease
 
@@ -103,6 +105,16 @@ class Job:
             if self._stop is None:
                 self._stop = kind
             self._condition.notify_all()
+
+    def control(self, action: Action) -> None:
+        """Carry out an operator's request: pause, resume, stop (``stopped``) or abort
+        (``aborted``)."""
+        if action == "pause":
+            self.pause()
+        elif action == "resume":
+            self.resume()
+        else:
+            self.request_stop("stopped" if action == "stop" else "aborted")
 
     def checkpoint(self) -> None:
         """Block while paused; raise :class:`JobCancelled` once a stop was requested."""
@@ -211,6 +223,52 @@ class JobRunner:
                 return job
             self._launch(job, work)
         return job
+
+    def commit_and_start(
+        self,
+        session: Session,
+        kind: JobKind,
+        job_id: int,
+        work: Callable[[Job], None],
+        *,
+        announce: Callable[[], None],
+        fail: Callable[[str], None],
+        take_rig: Callable[[str], RigLease] | None = None,
+    ) -> Job:
+        """Keep a new job's row (added to ``session``, not yet committed) and start the job.
+
+        A job that drives the rig takes its lease first, as ``kind job_id``: if the rig is
+        refused, the row is rolled back (nothing of the refused job is kept). Then the row is
+        committed and announced, and the job started; if the start is refused (the server is
+        shutting down), the job's row is failed ("could not start: …") before the error goes on.
+
+        Args:
+            session: The request's session holding the job's new row.
+            kind: What the job does.
+            job_id: The id of its row.
+            work: The work function.
+            announce: Publishes the committed row.
+            fail: Ends the row as failed with the reason given.
+            take_rig: Takes the rig's lease for an owner (:meth:`app.services.rig.RigService.take`),
+                for a job that drives the rig.
+
+        Raises:
+            AppError: The rig's lease was refused (409, 503), or the server is shutting down.
+        """
+        lease = None
+        if take_rig is not None:
+            try:
+                lease = take_rig(f"{kind} {job_id}")
+            except AppError:
+                session.rollback()
+                raise
+        session.commit()
+        announce()
+        try:
+            return self.start(kind, job_id, work, lease=lease)
+        except AppError as exc:
+            fail(f"could not start: {exc.message}")
+            raise
 
     def _launch(self, job: Job, work: Callable[[Job], None]) -> None:
         """Start ``job``'s thread (the caller holds ``self._lock``)."""

@@ -24,7 +24,7 @@ from app.config import Settings
 from app.documents.raw_touches import record_observation
 from app.errors import ConflictError, DeviceUnavailableError
 from app.rig.actions import TouchActions
-from app.rig.build import RigHandle, RigPorts, SimulationMode, open_rig
+from app.rig.build import RigHandle, RigPorts, SimulationMode, missing_ports, open_rig
 from app.schemas import RigPublic
 from app.services.events import EventBus
 from app.services.jobs import JobRunner
@@ -141,15 +141,8 @@ class RigService:
         s = self._settings
         if s.hardware == "mock":
             return open_rig(simulate=SimulationMode.in_process, table=self.simulated_table, seed=0)
-        missing = [
-            name
-            for name, port in (
-                ("turntable_port", s.turntable_port),
-                ("finger_port", s.finger_port),
-                ("tactile_port", s.tactile_port),
-            )
-            if not port
-        ]
+        ports = missing_ports(s.turntable_port, s.finger_port, s.tactile_port)
+        missing = [f"{name}_port" for name in ports]
         if missing:
             raise DeviceUnavailableError(
                 f"Serial hardware needs ports: {', '.join(missing)} not set "

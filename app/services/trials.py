@@ -210,24 +210,19 @@ class TrialService:
             raise BadInputError(str(exc), field="action_bounds") from exc
         if body.mode == "scripted":
             crud.set_trial_status(session, trial, "running")
-        lease = None
-        if body.mode == "rig":
-            try:
-                lease = self._rig.take(f"trial {trial.id}")
-            except AppError:
-                session.rollback()  # nothing of the refused trial is kept
-                raise
-        session.commit()
-        self._announce_status(trial)
-        if body.mode != "scripted":
+            session.commit()
+            self._announce_status(trial)
+        else:
             trial_id = trial.id
-            try:
-                self._jobs.start(
-                    "trial", trial_id, lambda job: self._drive(job, trial_id), lease=lease
-                )
-            except AppError as exc:
-                self._fail(trial.id, f"could not start: {exc.message}")
-                raise
+            self._jobs.commit_and_start(
+                session,
+                "trial",
+                trial_id,
+                lambda job: self._drive(job, trial_id),
+                announce=lambda: self._announce_status(trial),
+                fail=lambda reason: self._fail(trial_id, reason),
+                take_rig=self._rig.take if body.mode == "rig" else None,
+            )
         session.refresh(trial)
         return to_public(session, trial)
 
@@ -446,12 +441,7 @@ class TrialService:
             session.commit()
             handle = self._jobs.handle("trial", trial_id)
             if handle is not None:
-                if action == "pause":
-                    handle.pause()
-                elif action == "resume":
-                    handle.resume()
-                else:
-                    handle.request_stop("stopped" if action == "stop" else "aborted")
+                handle.control(action)
             if target in states.FINISHED:
                 self._scripted.pop(trial_id, None)
         if action == "abort" and trial.mode == "rig":

@@ -22,7 +22,7 @@ from core.evaluation.records import (
 from core.evaluation.reference_model import experiment1_at_true_latents
 from core.evaluation.summary import comparison_sentence, summarise, wilson_interval
 from core.evaluation.trial_engine import (
-    ModelTouches,
+    ModelSamples,
     PlannedTouches,
     ReplayPool,
     Touch,
@@ -50,7 +50,7 @@ __all__ = [
     "WORLD_NAMES",
     "CollectionDesign",
     "Experiment1World",
-    "ModelTouches",
+    "ModelSamples",
     "PlannedTouches",
     "RefusedTrial",
     "ReplayPool",

@@ -10,8 +10,8 @@ caller records, streams, paces or stops the trial between touches.
 An observation source (:class:`ObservationSource`) gives the next touch of a session:
 
 * :class:`PlannedTouches` asks the session's planner for the action and performs it on a
-  :class:`TouchSource` — a synthetic world (:class:`WorldTouches`), draws from the learned GP
-  (:class:`ModelTouches`, the paper's Experiment 2 protocol), the simulated or the real rig
+  :class:`TouchSource` — a synthetic world or draws from the learned GP (:class:`WorldTouches`
+  of :class:`ModelSamples`, the paper's Experiment 2 protocol), the simulated or the real rig
   (composed in ``app``);
 * :class:`ReplayTouches` picks among the target's recorded held-out touches without replacement,
   by the policy's replay score (:data:`core.recognition.planning.POLICIES`; docs/method.md,
@@ -32,7 +32,6 @@ import numpy as np
 
 from core.errors import InvalidInputError, TouchRefused
 from core.evaluation.records import RefusedTrial, TrialOutcome, TrialRecord, trial_generators
-from core.evaluation.worlds import World
 from core.gp.posterior import predict_model_space
 from core.recognition.object_posterior import TrialLikelihood
 from core.recognition.planning import EVALUATION_POLICIES, Planner, ReplayScore, policy_entry
@@ -142,15 +141,32 @@ def iter_trial(
 # --- observation sources ----------------------------------------------------------------------
 
 
+class Observed(Protocol):
+    """What :class:`WorldTouches` touches: named objects, each answering an action with an
+    observation (a synthetic :class:`~core.evaluation.worlds.World`, or :class:`ModelSamples`)."""
+
+    @property
+    def object_names(self) -> tuple[str, ...]:
+        """The objects, by index."""
+        ...
+
+    def observe(
+        self, object_index: int, actions: FloatArray, rng: np.random.Generator
+    ) -> FloatArray:
+        """Observations (n, dy) of object ``object_index`` at ``actions`` (n, dx)."""
+        ...
+
+
 @dataclass(frozen=True)
 class WorldTouches:
-    """Touches of object ``target`` (by name) of a synthetic world: h(θ, x) + noise.
+    """Touches of object ``target`` (by name) of a world: h(θ, x) + noise of a synthetic world,
+    or draws from the learned GP (:class:`ModelSamples`).
 
     Raises:
         InvalidInputError: ``target`` is not an object of the world.
     """
 
-    world: World
+    world: Observed
     target: str
 
     def __post_init__(self) -> None:
@@ -170,35 +186,35 @@ class WorldTouches:
 
 
 @dataclass(frozen=True)
-class ModelTouches:
-    """Draws from the learned GP's predictive distribution at the target's latent.
+class ModelSamples:
+    """The learned GP as the world touched: draws from its predictive distribution at each
+    object's latent — the paper's Experiment 2 protocol.
 
-    y' ~ N(m(s_k, x), diag v(s_k, x)), the predictive mean and variance (noise included) of
+    y' ~ N(m(s_l, x), diag v(s_l, x)), the predictive mean and variance (noise included) of
     :func:`core.gp.posterior.predict_model_space`, mapped to raw units by the model's observation
-    transform (if any) — the paper's Experiment 2 protocol.
-
-    Raises:
-        InvalidInputError: ``target`` is not an object of the model.
+    transform (if any).
     """
 
     model: ManifoldModel
-    target: str
 
-    def __post_init__(self) -> None:
-        _check_target(self.model.object_names, self.target, "model")
+    @property
+    def object_names(self) -> tuple[str, ...]:
+        """The model's objects."""
+        return self.model.object_names
 
-    def touch(self, action: FloatArray, rng: np.random.Generator) -> Touch:
-        """One draw at ``action`` (dx,)."""
+    def observe(
+        self, object_index: int, actions: FloatArray, rng: np.random.Generator
+    ) -> FloatArray:
+        """One draw at each of ``actions`` (n, dx) for object ``object_index``. Shape (n, dy)."""
         model = self.model
-        latent = model.latents[model.object_names.index(self.target)][None, :]
+        latents = np.repeat(model.latents[object_index][None, :], actions.shape[0], axis=0)
         # Drawn where the GPs' features are independent (the model space y' of a noise model)
         # and mapped to raw units: with correlated noise the raw predictive is not diagonal.
-        mean, variance = predict_model_space(model, latent, action[None, :])
-        noise = rng.standard_normal(mean.shape[1])
-        draw = mean + np.sqrt(variance) * noise
+        mean, variance = predict_model_space(model, latents, actions)
+        draw = mean + np.sqrt(variance) * rng.standard_normal(mean.shape)
         if model.transform is not None:
             draw = model.transform.restore_mean(draw)
-        return Touch(action=action, observation=np.asarray(draw[0], dtype=np.float64))
+        return np.asarray(draw, dtype=np.float64)
 
 
 @dataclass(frozen=True)

@@ -31,6 +31,7 @@ import scipy.sparse.csgraph
 import scipy.spatial.distance
 
 from core.errors import InvalidInputError
+from core.gp.kernels import scaled_squared_distance
 from core.types import TrainingData
 from core.validation import FloatArray
 
@@ -116,14 +117,7 @@ def smoothed_responses(data: TrainingData, references: FloatArray) -> FloatArray
     std = np.where(std > 0, std, 1.0)
     mean_touches = data.n_touches / data.n_objects
     bandwidth = std * mean_touches ** (-1.0 / (dx + 4))
-    scaled_refs = references / bandwidth
-    scaled_actions = actions / bandwidth
-    sq = (
-        np.sum(scaled_refs**2, axis=1)[:, None]
-        + np.sum(scaled_actions**2, axis=1)[None, :]
-        - 2.0 * scaled_refs @ scaled_actions.T
-    )
-    log_w = -0.5 * np.maximum(sq, 0.0)  # (R, N)
+    log_w = -0.5 * scaled_squared_distance(references, actions, bandwidth)  # (R, N)
     out = np.empty((data.n_objects, references.shape[0], data.observation_dim))
     for obj in range(data.n_objects):
         mask = data.object_index == obj

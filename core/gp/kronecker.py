@@ -58,9 +58,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.errors import InvalidInputError, NotPositiveDefiniteError
+from core.gp.kernels import feature_action_kernels
 from core.gp.kronecker_blocks import BlockSums, block_sums, block_value, use_blocks
 from core.gp.linalg import JITTER_LADDER, weighted_gram_difference
-from core.gp.parameters import ParameterLayout
+from core.gp.parameters import ParameterLayout, check_conditioning
 from core.types import (
     FitDiagnostics,
     GPPosterior,
@@ -412,12 +413,7 @@ def condition_kronecker(
         NotPositiveDefiniteError: A Gram matrix is singular even with jitter.
     """
     h = hyperparameters
-    latents = as_float_array(latents, "latents", (data.n_objects, h.latent_dim))
-    if h.action_dim != data.action_dim or h.observation_dim != data.observation_dim:
-        raise InvalidInputError(
-            f"hyperparameters are for dx={h.action_dim}, dy={h.observation_dim} but the data "
-            f"has dx={data.action_dim}, dy={data.observation_dim}."
-        )
+    latents = check_conditioning(data, latents, h)
     likelihood = KroneckerLikelihood(data, h.latent_dim, design)
     sp, beta_grid = likelihood.spectral(likelihood.layout.pack(latents, h))
     log_likelihood = -likelihood._value(sp)
@@ -476,19 +472,9 @@ def design_kernels(model: ManifoldModel, actions: FloatArray) -> FloatArray:
     Returns:
         Shape (dy, C, M).
     """
-    design = _factors(model).design
-    inverse = 1.0 / model.hyperparameters.action_lengthscales  # (dy, dx)
-    centre = design.mean(axis=0)
-    # |x/ℓ|² + |x_m/ℓ|² - 2 (x/ℓ)·(x_m/ℓ), around the design mean: one GEMM per feature.
-    scaled_x = (actions - centre)[None, :, :] * inverse[:, None, :]  # (dy, C, dx)
-    scaled_d = (design - centre)[None, :, :] * inverse[:, None, :]  # (dy, M, dx)
-    exponent = scaled_x @ np.swapaxes(scaled_d, 1, 2)  # (dy, C, M)
-    exponent *= 2.0
-    exponent -= np.sum(scaled_x**2, axis=2)[:, :, None]
-    exponent -= np.sum(scaled_d**2, axis=2)[:, None, :]
-    np.minimum(exponent, 0.0, out=exponent)
-    exponent *= 0.5
-    return np.asarray(np.exp(exponent, out=exponent), dtype=np.float64)
+    return feature_action_kernels(
+        actions, _factors(model).design, model.hyperparameters.action_lengthscales
+    )
 
 
 def predict_kronecker(

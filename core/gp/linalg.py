@@ -16,14 +16,27 @@ JITTER_LADDER: tuple[float, ...] = (0.0, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4)
 
 
 def cholesky_with_jitter(
-    matrix: FloatArray, ladder: tuple[float, ...] = JITTER_LADDER, what: str = "Gram matrix"
+    matrix: FloatArray,
+    ladder: tuple[float, ...] = JITTER_LADDER,
+    what: str = "Gram matrix",
+    *,
+    scale: float | None = None,
+    scale_name: str = "its mean diagonal",
+    advice: str = (
+        "Duplicate touches with very different observations, a noise variance near zero or "
+        "extreme length-scales cause this: raise the lower bound on the noise variance or "
+        "remove duplicate rows."
+    ),
 ) -> tuple[FloatArray, float]:
     """Lower Cholesky factor of a symmetric matrix, adding jitter only when needed.
 
     Args:
         matrix: Symmetric matrix. Shape (N, N).
-        ladder: Relative jitters (multiples of the mean diagonal) tried in order.
+        ladder: Relative jitters (multiples of ``scale``) tried in order.
         what: Name of the matrix for the error message.
+        scale: What the relative jitters multiply (default: the mean diagonal).
+        scale_name: How the error message names ``scale``.
+        advice: What the error message suggests.
 
     Returns:
         The lower factor (N, N) and the absolute jitter that was added (0.0 if none).
@@ -31,7 +44,8 @@ def cholesky_with_jitter(
     Raises:
         NotPositiveDefiniteError: No jitter of the ladder made the matrix positive definite.
     """
-    scale = float(np.mean(np.diag(matrix)))
+    if scale is None:
+        scale = float(np.mean(np.diag(matrix)))
     for relative in ladder:
         jitter = relative * scale
         try:
@@ -45,10 +59,8 @@ def cholesky_with_jitter(
         if np.all(np.isfinite(factor)):
             return np.asarray(factor, dtype=np.float64), jitter
     raise NotPositiveDefiniteError(
-        f"The {what} stayed singular after adding jitter up to {ladder[-1]:g} x its mean "
-        f"diagonal. Duplicate touches with very different observations, a noise variance "
-        f"near zero or extreme length-scales cause this: raise the lower bound on the noise "
-        f"variance or remove duplicate rows."
+        f"The {what} stayed singular after adding jitter up to {ladder[-1]:g} x {scale_name}. "
+        f"{advice}"
     )
 
 

@@ -191,6 +191,34 @@ class ParameterLayout:
         return tuple(names)
 
 
+def check_conditioning(
+    data: TrainingData, latents: FloatArray, hyperparameters: Hyperparameters
+) -> FloatArray:
+    """The latents a posterior is conditioned on, checked against its data and hyperparameters.
+
+    Every conditioning path (dense, Kronecker, sparse) starts here.
+
+    Args:
+        data: Training touches.
+        latents: Object latents. Shape (L, ds), ds that of ``hyperparameters``.
+        hyperparameters: Per-feature hyperparameters, for the data's dx and dy.
+
+    Returns:
+        The latents as a float array. Shape (L, ds).
+
+    Raises:
+        InvalidInputError: The latents' shape, or the hyperparameters' dx or dy, disagree.
+    """
+    h = hyperparameters
+    latents = as_float_array(latents, "latents", (data.n_objects, h.latent_dim))
+    if h.action_dim != data.action_dim or h.observation_dim != data.observation_dim:
+        raise InvalidInputError(
+            f"hyperparameters are for dx={h.action_dim}, dy={h.observation_dim} but the data "
+            f"has dx={data.action_dim}, dy={data.observation_dim}."
+        )
+    return latents
+
+
 def data_scales(data: TrainingData) -> tuple[FloatArray, FloatArray]:
     """var(y_a) per feature (dy,) and var(x_d) per action dimension (dx,), floored at 1e-12."""
     y_var = np.maximum(np.var(data.observations, axis=0), _TINY_VARIANCE)

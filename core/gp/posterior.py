@@ -26,7 +26,7 @@ from core.gp.kronecker import (
 from core.gp.kronecker import require_shared_design as _require_shared_design
 from core.gp.likelihood import ManifoldLikelihood
 from core.gp.linalg import cholesky_with_jitter, log_det_from_cholesky
-from core.gp.parameters import ParameterLayout
+from core.gp.parameters import ParameterLayout, check_conditioning
 from core.gp.sparse import DEFAULT_INDUCING_POINTS, SparseLikelihood, condition_sparse
 from core.types import (
     FitDiagnostics,
@@ -191,12 +191,7 @@ def condition(
     if chosen == "sparse":
         return condition_sparse(data, latents, hyperparameters, diagnostics, n_inducing=n_inducing)
     h = hyperparameters
-    latents = as_float_array(latents, "latents", (data.n_objects, h.latent_dim))
-    if h.action_dim != data.action_dim or h.observation_dim != data.observation_dim:
-        raise InvalidInputError(
-            f"hyperparameters are for dx={h.action_dim}, dy={h.observation_dim} but the data "
-            f"has dx={data.action_dim}, dy={data.observation_dim}."
-        )
+    latents = check_conditioning(data, latents, h)
     n = data.n_touches
     centred = data.observations - data.observation_mean
     beta = np.empty((h.observation_dim, n))

@@ -42,8 +42,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from core.errors import InvalidInputError, NotPositiveDefiniteError
-from core.gp.parameters import ParameterLayout
+from core.errors import InvalidInputError
+from core.gp.linalg import cholesky_with_jitter
+from core.gp.parameters import ParameterLayout, check_conditioning
 from core.types import (
     FitDiagnostics,
     GPPosterior,
@@ -52,7 +53,7 @@ from core.types import (
     ManifoldModel,
     TrainingData,
 )
-from core.validation import FloatArray, IntArray, as_float_array
+from core.validation import FloatArray, IntArray
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -217,21 +218,13 @@ class SparseLikelihood:
     def _chol_uu(
         self, gram_uu: FloatArray, signal: float, feature: int
     ) -> tuple[FloatArray, float]:
-        m = gram_uu.shape[0]
-        for step in _JITTER_STEPS:
-            jitter = self.relative_jitter * step * signal
-            try:
-                factor = scipy.linalg.cholesky(
-                    signal * gram_uu + jitter * np.eye(m), lower=True, check_finite=False
-                )
-            except np.linalg.LinAlgError:
-                continue
-            if np.all(np.isfinite(factor)):
-                return np.asarray(factor, dtype=np.float64), jitter
-        raise NotPositiveDefiniteError(
-            f"K_uu of feature {feature} stayed singular with jitter up to "
-            f"{self.relative_jitter * _JITTER_STEPS[-1]:g} σ_f²: use fewer inducing points or "
-            f"check for duplicate actions."
+        return cholesky_with_jitter(
+            signal * gram_uu,
+            tuple(self.relative_jitter * step for step in _JITTER_STEPS),
+            f"K_uu of feature {feature}",
+            scale=signal,
+            scale_name="σ_f²",
+            advice="Use fewer inducing points or check for duplicate actions.",
         )
 
     # -- the bound ---------------------------------------------------------------------------
@@ -410,12 +403,7 @@ def condition_sparse(
         jitter: Relative jitter on K_uu.
     """
     h = hyperparameters
-    latents = as_float_array(latents, "latents", (data.n_objects, h.latent_dim))
-    if h.action_dim != data.action_dim or h.observation_dim != data.observation_dim:
-        raise InvalidInputError(
-            f"hyperparameters are for dx={h.action_dim}, dy={h.observation_dim} but the data "
-            f"has dx={data.action_dim}, dy={data.observation_dim}."
-        )
+    latents = check_conditioning(data, latents, h)
     likelihood = SparseLikelihood(data, h.latent_dim, inducing, n_inducing, jitter)
     states = likelihood.states(likelihood.layout.pack(latents, h))
     m = likelihood.inducing.size

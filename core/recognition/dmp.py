@@ -31,7 +31,7 @@ import numpy.typing as npt
 import scipy.linalg
 
 from core.errors import InvalidInputError
-from core.validation import FloatArray, IntArray, as_float_array
+from core.validation import FloatArray, IntArray, as_float_array, store_read_only
 
 _CANONICAL_END_PHASE = 0.01
 """Phase value s reaches at the end of the movement (u = 1): α_s = -ln(0.01)."""
@@ -105,15 +105,9 @@ class DMP:
             )
         _require_positive_number(self.duration_s, "duration_s")
         _require_positive_number(self.dt_s, "dt_s")
-        for name, value in (
-            ("start", start),
-            ("goal", goal),
-            ("weights", weights),
-            ("centres", centres),
-            ("widths", widths),
-        ):
-            value.flags.writeable = False
-            object.__setattr__(self, name, value)
+        store_read_only(
+            self, start=start, goal=goal, weights=weights, centres=centres, widths=widths
+        )
         object.__setattr__(self, "duration_s", float(self.duration_s))
         object.__setattr__(self, "dt_s", float(self.dt_s))
 

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.errors import InvalidInputError
+from core.gp.kernels import feature_action_kernels
 from core.gp.kronecker import action_statistics_spectral
 from core.gp.posterior import support_points
 from core.types import GaussianBelief, ManifoldModel
@@ -148,8 +149,7 @@ def action_kernels(model: ManifoldModel, actions: FloatArray) -> FloatArray:
     """e_ai(x) = exp(-½ (x - x_i)ᵀ (Λ^x_a)⁻¹ (x - x_i)) for every feature, action and support
     point (training touch, or inducing point of a sparse posterior).
 
-    The squared distances are expanded, |x/ℓ|² + |x_i/ℓ|² - 2 (x/ℓ)·(x_i/ℓ), around the mean
-    support action (one GEMM per feature instead of a (C, N, dx) difference array).
+    (:func:`core.gp.kernels.feature_action_kernels`).
 
     Args:
         model: A conditioned model.
@@ -159,17 +159,7 @@ def action_kernels(model: ManifoldModel, actions: FloatArray) -> FloatArray:
         Shape (dy, C, N).
     """
     _, support = support_points(model)
-    inverse = 1.0 / model.hyperparameters.action_lengthscales  # (dy, dx)
-    centre = support.mean(axis=0)
-    scaled_x = (actions - centre)[None, :, :] * inverse[:, None, :]  # (dy, C, dx)
-    scaled_s = (support - centre)[None, :, :] * inverse[:, None, :]  # (dy, N, dx)
-    exponent = scaled_x @ np.swapaxes(scaled_s, 1, 2)  # (dy, C, N)
-    exponent *= 2.0
-    exponent -= np.sum(scaled_x**2, axis=2)[:, :, None]
-    exponent -= np.sum(scaled_s**2, axis=2)[:, None, :]
-    np.minimum(exponent, 0.0, out=exponent)
-    exponent *= 0.5
-    return np.asarray(np.exp(exponent, out=exponent), dtype=np.float64)
+    return feature_action_kernels(actions, support, model.hyperparameters.action_lengthscales)
 
 
 def _check_actions(model: ManifoldModel, actions: FloatArray, name: str) -> FloatArray:

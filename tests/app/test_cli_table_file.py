@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 from typing import Any
 
@@ -16,35 +15,28 @@ from app.config import ConfigurationError
 from app.main import create_app
 from tests.app.conftest import TestClient, make_settings
 from tests.app.test_evaluations_api import wait_ended
+from tests.app.waits import finished, wait_until
+from tests.hardware.test_table_file import CERAMIC
 
 runner = CliRunner()
 
-KITCHEN = """
-name = "kitchen"
-action_std = 0.8
-
-[[objects]]
-name = "mug"
-[objects.material]
-name = "glazed ceramic"
-stiffness_n_per_mm = 70.0
-friction = 0.5
-stick_slip = 0.1
-roughness_um = 1.5
-texture_period_mm = 0.7
-effusivity = 1600.0
-
-[[objects]]
-name = "cork"
-slot = 0
-[objects.material]
-stiffness_n_per_mm = 2.0
-friction = 0.6
-stick_slip = 0.15
-roughness_um = 30.0
-texture_period_mm = 0.6
-effusivity = 140.0
-"""
+#: Two objects, the mug of the hardware tests' ceramic; the cork asks for slot 0.
+CORK = {
+    "stiffness_n_per_mm": 2.0,
+    "friction": 0.6,
+    "stick_slip": 0.15,
+    "roughness_um": 30.0,
+    "texture_period_mm": 0.6,
+    "effusivity": 140.0,
+}
+KITCHEN = {
+    "name": "kitchen",
+    "action_std": 0.8,
+    "objects": [
+        {"name": "mug", "material": CERAMIC},
+        {"name": "cork", "slot": 0, "material": CORK},
+    ],
+}
 
 
 def said(result: Any) -> str:
@@ -54,8 +46,8 @@ def said(result: Any) -> str:
 
 @pytest.fixture
 def kitchen(tmp_path: Path) -> Path:
-    path = tmp_path / "kitchen.toml"
-    path.write_text(KITCHEN)
+    path = tmp_path / "table.json"  # named by its "name"
+    path.write_text(json.dumps(KITCHEN))
     return path
 
 
@@ -118,12 +110,7 @@ def test_rig_status_collect_fit_and_evaluate_on_a_table_file(kitchen: Path, tmp_
                   "max_steps": 1, "seed": 2, "simulation": {"world": "rig"}},
         )  # fmt: skip
         assert trial.status_code == 201, trial.text
-        path = f"/api/v1/trials/{trial.json()['id']}"
-        for _ in range(600):
-            touched = client.get(path).json()
-            if touched["status"] not in ("queued", "running"):
-                break
-            time.sleep(0.1)
+        touched = wait_until(client, f"/api/v1/trials/{trial.json()['id']}", finished)
         assert touched["status"] == "completed", touched
         unknown = client.post("/api/v1/evaluations", json={**body, "steps": 1, "table": "cushions"})
         assert unknown.status_code == 422  # a built-in table does not hold cork and mug
@@ -189,7 +176,8 @@ def test_the_server_simulates_its_table_file_and_refuses_a_bad_one(
         detail = client.get("/api/v1/rig").json()["detail"]
     assert detail["objects_by_slot"] == ["cork", "mug"]
     assert detail["object_properties"]["mug"]["material"] == "glazed ceramic"
-    bad = tmp_path / "bad.toml"
-    bad.write_text(KITCHEN.replace("friction = 0.6", "friction = 0.6\nhardness = 2"))
+    bad = tmp_path / "bad.json"
+    cork = {"name": "cork", "slot": 0, "material": {**CORK, "hardness": 2}}
+    bad.write_text(json.dumps({**KITCHEN, "objects": [KITCHEN["objects"][0], cork]}))
     with pytest.raises(ConfigurationError, match=r"object 'cork', material\.hardness: unknown"):
         make_settings(tmp_path, sim_table_file=bad).check_safe_to_serve()

@@ -15,12 +15,13 @@ from __future__ import annotations
 import json
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
 import pytest
 
 from app.main import create_app
 from app.schemas import EvaluationCreate, ModelCreate, TrialCreate
+from app.states import Action
 from tests.app.conftest import (
     TestClient,
     experiment1_csv,
@@ -54,39 +55,35 @@ BAD_VALUES: dict[str, bytes] = {
 #: Bad values that are still plain JSON a free-form record (a touch's ``trajectory``) may hold.
 WELL_FORMED_IN_A_RECORD = {"list of 5000 numbers"}
 
+#: Bodies sent as ``application/json`` that are not the JSON object any route wants.
+BAD_JSON: dict[str, bytes] = {
+    "empty": b"",
+    "not JSON": b"this is not JSON",
+    "truncated JSON": b'{"name": [1, 2',
+    "JSON array": b"[1, 2, 3]",
+    "JSON string": b'"text"',
+    "JSON null": b"null",
+    "JSON number": b"42",
+    "bare NaN": b"NaN",
+    "object of non-finite numbers": b'{"a": NaN, "b": Infinity, "c": -Infinity, "d": 1e400}',
+    "5000-digit integer": b'{"a": ' + b"9" * 5000 + b"}",
+    "array nested 100000 deep": b"[" * 100_000 + b"]" * 100_000,
+    "object nested 100000 deep": b'{"a": ' * 100_000 + b"1" + b"}" * 100_000,
+    "invalid UTF-8": b'{"name": "\xff\xfe\xc3("}',
+    "UTF-16": '{"name": "x"}'.encode("utf-16"),
+    "lone surrogate escape": b'{"name": "\\ud800"}',
+    "over the upload limit": b'{"name": "' + b"n" * UPLOAD_LIMIT_BYTES + b'"}',
+}
+
 #: Whole bodies that are not the JSON object any route wants: (content type, bytes).
 BAD_BODIES: dict[str, tuple[str | None, bytes]] = {
-    "empty": ("application/json", b""),
-    "not JSON": ("application/json", b"this is not JSON"),
-    "truncated JSON": ("application/json", b'{"name": [1, 2'),
-    "JSON array": ("application/json", b"[1, 2, 3]"),
-    "JSON string": ("application/json", b'"text"'),
-    "JSON null": ("application/json", b"null"),
-    "JSON number": ("application/json", b"42"),
-    "bare NaN": ("application/json", b"NaN"),
-    "object of non-finite numbers": (
-        "application/json",
-        b'{"a": NaN, "b": Infinity, "c": -Infinity, "d": 1e400}',
-    ),
-    "5000-digit integer": ("application/json", b'{"a": ' + b"9" * 5000 + b"}"),
-    "array nested 100000 deep": ("application/json", b"[" * 100_000 + b"]" * 100_000),
-    "object nested 100000 deep": (
-        "application/json",
-        b'{"a": ' * 100_000 + b"1" + b"}" * 100_000,
-    ),
-    "invalid UTF-8": ("application/json", b'{"name": "\xff\xfe\xc3("}'),
-    "UTF-16": ("application/json", '{"name": "x"}'.encode("utf-16")),
-    "lone surrogate escape": ("application/json", b'{"name": "\\ud800"}'),
+    **{case: ("application/json", body) for case, body in BAD_JSON.items()},
     "no content type": (None, b"\xff\x00 not JSON"),
     "text/plain": ("text/plain", b"\xff\xfe not UTF-8"),
     "XML": ("application/xml", b"<name>x</name>"),
     "form": ("application/x-www-form-urlencoded", b"name=x&name=%FF"),
     "multipart without parts": ("multipart/form-data; boundary=xyz", b"--xyz\r\nnonsense"),
     "multipart without boundary": ("multipart/form-data", b"--xyz\r\n\r\n--xyz--"),
-    "over the upload limit": (
-        "application/json",
-        b'{"name": "' + b"n" * UPLOAD_LIMIT_BYTES + b'"}',
-    ),
 }
 
 
@@ -250,13 +247,16 @@ def example_bodies(ids: dict[str, int]) -> dict[str, dict[str, Any]]:
 
 
 def operations(client: TestClient) -> list[tuple[str, str, bool]]:
-    """(method, path template after /api/v1, takes a body) of every POST/PUT/PATCH route."""
+    """(method, path template after /api/v1, takes a body) of every POST/PUT/PATCH route; a
+    control route (``{action}``) once with each action."""
     schema = client.get(f"{API}/openapi.json").json()
     found = []
     for path, items in schema["paths"].items():
         for method, operation in items.items():
             if method in ("post", "put", "patch"):
-                found.append((method, path.removeprefix(API), "requestBody" in operation))
+                for action in get_args(Action) if "{action}" in path else ("{action}",):
+                    concrete = path.removeprefix(API).replace("{action}", action)
+                    found.append((method, concrete, "requestBody" in operation))
     return found
 
 

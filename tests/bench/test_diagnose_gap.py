@@ -13,7 +13,7 @@ from bench.diagnose_gap import (
     summarise,
 )
 from core.evaluation.reference_model import experiment1_at_true_latents
-from core.evaluation.trial_engine import ModelTouches
+from core.evaluation.trial_engine import ModelSamples, WorldTouches
 from core.recognition.object_posterior import touch_log_likelihoods
 
 
@@ -71,7 +71,7 @@ def test_residuals_of_the_models_own_draws_are_standard_normal() -> None:
     actions = rng.normal(0, 1, (n, model.hyperparameters.action_dim))
     raw = np.array(
         [
-            ModelTouches(model, model.object_names[o]).touch(a, rng).observation
+            WorldTouches(ModelSamples(model), model.object_names[o]).touch(a, rng).observation
             for o, a in zip(objects, actions, strict=True)
         ]
     )
@@ -92,9 +92,8 @@ def test_a_shifted_observation_shows_as_a_biased_residual() -> None:
     objects = np.zeros(50, dtype=np.int64)
     actions = np.zeros((50, model.hyperparameters.action_dim))
     rng = np.random.default_rng(2)
-    raw = np.array(
-        [ModelTouches(model, model.object_names[0]).touch(a, rng).observation for a in actions]
-    )
+    touches = WorldTouches(ModelSamples(model), model.object_names[0])
+    raw = np.array([touches.touch(a, rng).observation for a in actions])
     z0, _, _ = standardised_residuals(model, objects, actions, raw)
     z1, _, _ = standardised_residuals(model, objects, actions, raw + 1.0)
     assert np.all(z1.mean(axis=0) > z0.mean(axis=0) + 1.0)

@@ -9,7 +9,7 @@ from core.errors import InvalidInputError
 from core.evaluation.records import TrialRecord, outcome_from_dict, trial_seed
 from core.evaluation.reference_model import experiment1_at_true_latents
 from core.evaluation.trial_engine import (
-    ModelTouches,
+    ModelSamples,
     PlannedTouches,
     ReplayPool,
     TrialSettings,
@@ -94,7 +94,7 @@ def test_record_holds_every_touch(model):
 
 
 def test_model_world_samples_the_predictive_distribution(model):
-    touches = ModelTouches(model, "O3")
+    touches = WorldTouches(ModelSamples(model), "O3")
     action = np.array([0.4])
     rng = np.random.default_rng(3)
     draws = np.array([touches.touch(action, rng).observation for _ in range(4000)])
@@ -111,7 +111,7 @@ def test_unknown_policy_and_target_are_named(model):
     with pytest.raises(InvalidInputError, match="'O9'"):
         WorldTouches(Experiment1World(), "O9")
     with pytest.raises(InvalidInputError, match="'O9'"):
-        ModelTouches(model, "O9")
+        WorldTouches(ModelSamples(model), "O9")
     assert set(POLICIES) >= {"active", "passive"}
 
 

@@ -142,24 +142,16 @@ export function trialRow(trial) {
  */
 export function normalizeTrajectory(trajectory) {
   if (!trajectory || typeof trajectory !== "object") return null;
-  let joints = [];
-  if (trajectory.joints && typeof trajectory.joints === "object" && !Array.isArray(trajectory.joints)) {
-    joints = Object.entries(trajectory.joints).map(([name, angles]) => ({ name, angles }));
-  } else {
-    const rows =
-      trajectory.commanded_deg || trajectory.angles_deg || trajectory.positions_deg || trajectory.joint_angles_deg;
-    if (!Array.isArray(rows) || !rows.length || !Array.isArray(rows[0])) return null;
-    const names = trajectory.joint_names || rows[0].map((_, j) => ["FFJ3", "FFJ4"][j] || `J${j + 1}`);
-    joints = rows[0].map((_, j) => ({ name: names[j], angles: rows.map((r) => r[j]) }));
-  }
-  if (!joints.length) return null;
-  const length = joints[0].angles.length;
-  let times = trajectory.times_s;
-  if (!Array.isArray(times) || times.length !== length) {
-    const dt = Number(trajectory.timestep_s ?? trajectory.dt_s ?? 1);
-    times = Array.from({ length }, (_, i) => i * dt);
-  }
-  return { times, joints };
+  const series = namedSeries(
+    trajectory.joints,
+    trajectory.commanded_deg || trajectory.angles_deg || trajectory.positions_deg || trajectory.joint_angles_deg,
+    trajectory.joint_names,
+    (j) => ["FFJ3", "FFJ4"][j] || `J${j + 1}`,
+  );
+  if (!series || !series.length) return null;
+  const joints = series.map(({ name, values }) => ({ name, angles: values }));
+  const dt = Number(trajectory.timestep_s ?? trajectory.dt_s ?? 1);
+  return { times: sampleTimes(trajectory.times_s, joints[0].angles.length, dt), joints };
 }
 
 /** Prior covariance v·I of dimension ds, as nested lists. */
@@ -182,22 +174,34 @@ export function rankedProbabilities(probabilities) {
  */
 export function normalizeTrace(raw) {
   if (!raw || typeof raw !== "object") return null;
-  let channels = [];
-  if (raw.channels && typeof raw.channels === "object" && !Array.isArray(raw.channels)) {
-    channels = Object.entries(raw.channels).map(([name, values]) => ({ name, values }));
-  } else {
-    const rows = raw.tactile || raw.samples || raw.frames || raw.values;
-    if (!Array.isArray(rows) || !rows.length || !Array.isArray(rows[0])) return null;
-    const names = raw.channel_names || raw.names || rows[0].map((_, c) => `ch${c + 1}`);
-    channels = rows[0].map((_, c) => ({ name: names[c], values: rows.map((r) => r[c]) }));
-  }
-  channels = channels.filter((c) => Array.isArray(c.values) && c.values.length);
+  const series = namedSeries(
+    raw.channels,
+    raw.tactile || raw.samples || raw.frames || raw.values,
+    raw.channel_names || raw.names,
+    (c) => `ch${c + 1}`,
+  );
+  const channels = (series || []).filter((c) => Array.isArray(c.values) && c.values.length);
   if (!channels.length) return null;
-  const length = channels[0].values.length;
-  let times = raw.tactile_times_s || raw.times_s;
-  if (!Array.isArray(times) || times.length !== length) {
-    const dt = raw.timestep_s ?? (raw.sample_rate_hz ? 1 / raw.sample_rate_hz : 1);
-    times = Array.from({ length }, (_, i) => i * dt);
+  const dt = raw.timestep_s ?? (raw.sample_rate_hz ? 1 / raw.sample_rate_hz : 1);
+  return { times: sampleTimes(raw.tactile_times_s || raw.times_s, channels[0].values.length, dt), channels };
+}
+
+/**
+ * Series by name, from `{name: [..]}` (`byName`) or from the columns of rows (T, C) (`rows`), column c
+ * named `names[c]` or `fallbackName(c)`: what a trajectory's joints and a trace's channels share.
+ * @returns {{name: string, values: number[]}[] | null} null when neither layout is there.
+ */
+function namedSeries(byName, rows, names, fallbackName) {
+  if (byName && typeof byName === "object" && !Array.isArray(byName)) {
+    return Object.entries(byName).map(([name, values]) => ({ name, values }));
   }
-  return { times, channels };
+  if (!Array.isArray(rows) || !rows.length || !Array.isArray(rows[0])) return null;
+  const labels = names || rows[0].map((_, c) => fallbackName(c));
+  return rows[0].map((_, c) => ({ name: labels[c], values: rows.map((r) => r[c]) }));
+}
+
+/** `times` when it has one entry per sample, else 0, dt, 2·dt, … for `length` samples. */
+function sampleTimes(times, length, dt) {
+  if (Array.isArray(times) && times.length === length) return times;
+  return Array.from({ length }, (_, i) => i * dt);
 }

@@ -7,6 +7,7 @@ import { etaSeconds, formatDuration, normalizeTrace } from "../lib/analysis.js";
 import * as store from "../store.js";
 import { $, badge, el, fill, guarded, throttle, toast, vec } from "../ui.js";
 import { ACTIVE } from "../states.js";
+import { bindRunControls, enableRunControls, runControls } from "../run_controls.js";
 
 let run = null; // the collection on show
 
@@ -92,13 +93,7 @@ function renderRun() {
       el("dd", {}, run.dataset_id ? `#${run.dataset_id}` : "—"),
     ),
   );
-  for (const button of document.querySelectorAll("[data-run-action]")) {
-    const action = button.dataset.runAction;
-    button.disabled =
-      !ACTIVE.includes(run.status) ||
-      (action === "pause" && run.status !== "running") ||
-      (action === "resume" && run.status !== "paused");
-  }
+  enableRunControls(runControls("collection-controls"), run.status);
 }
 
 // The channels differ by orders of magnitude (vibration vs heat flux vs temperature): each is
@@ -198,15 +193,7 @@ export function init() {
     e.preventDefault();
     guarded(() => upload(e.currentTarget), e.submitter);
   });
-  for (const button of document.querySelectorAll("[data-run-action]")) {
-    button.addEventListener("click", () =>
-      guarded(async () => {
-        if (!run) return;
-        await api(`/collections/${run.id}/${button.dataset.runAction}`, { method: "POST" });
-        await loadRun(run.id);
-      }, button),
-    );
-  }
+  bindRunControls(runControls("collection-controls"), "/collections", () => run, loadRun);
   renderRun();
 }
 

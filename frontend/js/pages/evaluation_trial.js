@@ -6,6 +6,7 @@
 
 import { lineChart, manifoldChart, posteriorChart } from "../charts.js";
 import { $, el, fill, num, vec } from "../ui.js";
+import { enableRunControls, runControls } from "../run_controls.js";
 
 /** One labelled figure of the facts row. */
 export function fact(label, value, testid) {
@@ -69,7 +70,7 @@ export function renderEvaluationTrial(record, model, evaluationId, number) {
       : fact("p(answer)", num(latest[answer], 3)),
     fact("last MI (nats)", last >= 0 ? num(r.mutual_information[last], 3) : "—"),
   );
-  for (const button of document.querySelectorAll("[data-trial-action]")) button.disabled = true;
+  enableRunControls(runControls("trial-controls"), null);
   manifoldChart("chart-belief", model.objects, { nearest: answer });
   posteriorChart("chart-posterior", record.objects, latest, answer);
   lineChart(

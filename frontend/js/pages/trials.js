@@ -13,6 +13,7 @@ import * as store from "../store.js";
 import { fact, renderEvaluationTrial } from "./evaluation_trial.js";
 import { $, badge, el, fill, guarded, num, setOptions, throttle, toast, vec } from "../ui.js";
 import { ACTIVE } from "../states.js";
+import { bindRunControls, enableRunControls, runControls } from "../run_controls.js";
 
 let trial = null; // GET /trials/{id}
 let trialModel = null; // GET /models/{id} of that trial
@@ -231,13 +232,7 @@ function render() {
     result.hidden = true;
   }
 
-  for (const button of document.querySelectorAll("[data-trial-action]")) {
-    const action = button.dataset.trialAction;
-    button.disabled =
-      !ACTIVE.includes(trial.status) ||
-      (action === "pause" && trial.status !== "running") ||
-      (action === "resume" && trial.status !== "paused");
-  }
+  enableRunControls(runControls("trial-controls"), trial.status);
 
   drawManifold(trialModel, trial);
   posteriorChart("chart-posterior", names, last ? last.probabilities : {}, last ? last.nearest_object : null);
@@ -340,16 +335,9 @@ export function init() {
   });
   $("trial-model").addEventListener("change", () => guarded(modelChosen));
   $("trial-mode").addEventListener("change", modeChanged);
-  for (const button of document.querySelectorAll("[data-trial-action]")) {
-    button.addEventListener("click", () =>
-      guarded(async () => {
-        if (!trial) return;
-        await api(`/trials/${trial.id}/${button.dataset.trialAction}`, { method: "POST" });
-        await load(trial.id);
-      }, button),
-    );
-  }
-  for (const button of document.querySelectorAll("[data-trial-action]")) button.disabled = true;
+  const controls = runControls("trial-controls");
+  bindRunControls(controls, "/trials", () => trial, load);
+  enableRunControls(controls, null);
   fill($("trial-facts"), el("p", { class: "muted" }, "Choose a model and a target, then start a trial: its touches, belief and answer appear here live."));
   modeChanged();
 }
