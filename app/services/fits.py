@@ -326,7 +326,7 @@ def run_fit(
     options_kwargs: dict[str, Any] = {
         "optimizer": body.optimizer,
         "restarts": body.restarts,
-        "threads": available_cores(),  # one per feature thread; 1 in a Dask worker
+        "threads": available_cores(),  # feature threads here; 1 in a Dask worker (fit_tasks)
     }
     if body.max_iterations is not None:
         options_kwargs["max_iterations"] = body.max_iterations
