@@ -13,7 +13,11 @@ BLAS threads are limited to one. The machine is shared: run under ``nice -n 5`` 
 ratios of figures taken by the same script in the same session.
 
 Run: ``.venv/bin/python -m bench.fit_n800 [--ds 2 5] [--repeats 1] [--seed 0] [--profile]
-[--options '{"restarts": 0}']``
+[--options '{"restarts": 0, "threads": 2}'] [--noise-model auto]``
+
+With ``"threads": 2`` in ``--options`` one evaluation is also timed on two feature threads
+(:mod:`core.gp.likelihood`), the fit runs on them, and the BLAS thread count seen from a
+feature thread is printed (it must be 1).
 
 Where the time goes (fit seed 100, data seeds 0 and 1; "before" = main at d7bf187, run as
 ``--options '{"joint_stall_nats": 0.01, "joint_stall_iterations": 20, "joint_lbfgs_memory":
@@ -86,12 +90,13 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+from threadpoolctl import threadpool_info, threadpool_limits
 
 from core.evaluation.worlds import random_experiment2_world, sample_dataset
-from core.gp import FitOptions
+from core.gp import FitOptions, NoiseModelChoice, iter_fit
 from core.gp.fit_run import FitRun
-from core.gp.likelihood import ManifoldLikelihood
+from core.gp.likelihood import ManifoldLikelihood, feature_pool
+from core.gp.noise_model import NOISE_MODEL_CHOICES
 from core.gp.parameters import initial_hyperparameters
 from core.types import TrainingData
 
@@ -136,10 +141,12 @@ def flops_per_evaluation(n: int, dy: int, dx: int) -> float:
     return float(dy * per_feature)
 
 
-def time_evaluation(data: TrainingData, ds: int, repeats: int = 5) -> tuple[float, float]:
+def time_evaluation(
+    data: TrainingData, ds: int, repeats: int = 5, threads: int = 1
+) -> tuple[float, float]:
     """Median seconds of one value_and_gradient and one value on all the data, at the
-    initial hyperparameters and random latents."""
-    likelihood = ManifoldLikelihood(data, ds)
+    initial hyperparameters and random latents, the features on ``threads`` threads."""
+    likelihood = ManifoldLikelihood(data, ds, threads)
     rng = np.random.default_rng(1)
     vector = likelihood.layout.pack(
         rng.standard_normal((data.n_objects, ds)), initial_hyperparameters(data, ds, 10.0)
@@ -170,31 +177,67 @@ def full_equivalents(
     return dict(out)
 
 
-def run_fit(data: TrainingData, ds: int, seed: int, options: FitOptions) -> dict[str, Any]:
+def _difference(
+    after: dict[tuple[int, int, str], list[float]], before: dict[tuple[int, int, str], list[float]]
+) -> dict[tuple[int, int, str], list[float]]:
+    """The evaluations and seconds counted since ``before``."""
+    return {
+        key: [count - before.get(key, [0, 0.0])[0], seconds - before.get(key, [0, 0.0])[1]]
+        for key, (count, seconds) in after.items()
+    }
+
+
+def run_fit(
+    data: TrainingData,
+    ds: int,
+    seed: int,
+    options: FitOptions,
+    noise_model: NoiseModelChoice | None = None,
+) -> dict[str, Any]:
+    """One fit (a :class:`FitRun`, or :func:`iter_fit` with ``noise_model``), instrumented.
+
+    With a noise model, ``stages`` holds the evaluation counts and seconds of each noise-model
+    stage (``independent``, ``correlated``) and the model-space log-likelihood each ended at.
+    """
     _COUNTS.clear()
     phase_seconds: dict[str, float] = defaultdict(float)
-    run = FitRun(data, ds, np.random.default_rng(seed), options)
+    rng = np.random.default_rng(seed)
+    run = FitRun(data, ds, rng, options) if noise_model is None else None
+    events = run.events() if run is not None else iter_fit(data, ds, rng, options, noise_model)
     model = None
     wall = time.perf_counter()
     cpu = time.process_time()
     last = wall
-    for event in run.events():
+    stages: dict[str, dict[str, Any]] = {}
+    stage_start: tuple[float, dict[tuple[int, int, str], list[float]]] = (wall, {})
+    for event in events:
         now = time.perf_counter()
         phase = event.phase.removesuffix(" done")
         phase_seconds[phase] += now - last
         last = now
         model = event.model if event.model is not None else model
+        stage, _, rest = event.phase.partition(": ")
+        if rest == "done":  # the end of one noise-model stage
+            stages[stage] = {
+                "seconds": now - stage_start[0],
+                "counts": _difference(_COUNTS, stage_start[1]),
+                "log_likelihood": event.log_likelihood,
+            }
+            stage_start = (now, {k: list(v) for k, v in _COUNTS.items()})
     assert model is not None
-    assert model.diagnostics is not None
+    diagnostics = model.diagnostics
+    assert diagnostics is not None
     return {
         "seconds": time.perf_counter() - wall,
         "cpu": time.process_time() - cpu,
         "log_likelihood": model.log_likelihood,
-        "iterations": model.diagnostics.iterations,
-        "best_start": model.diagnostics.best_start,
-        "starts": model.diagnostics.starts_log_likelihood,
+        "iterations": diagnostics.iterations,
+        "best_start": diagnostics.best_start,
+        "starts": diagnostics.starts_log_likelihood,
         "counts": dict(_COUNTS),
         "phases": dict(phase_seconds),
+        "stages": stages,
+        "noise_note": None if model.transform is None else model.transform.note,
     }
 
 
@@ -208,6 +251,12 @@ def main() -> None:
     parser.add_argument(
         "--options", default="{}", help='FitOptions overrides as JSON, e.g. {"restarts": 2}'
     )
+    parser.add_argument(
+        "--noise-model",
+        choices=NOISE_MODEL_CHOICES,
+        default=None,
+        help="fit with this noise model (the CLI's default is auto); default: none",
+    )
     args = parser.parse_args()
     options = FitOptions(**json.loads(args.options))
     instrument()
@@ -215,29 +264,38 @@ def main() -> None:
     n, dx, dy = data.n_touches, data.action_dim, data.observation_dim
     print(
         f"N={n} L={data.n_objects} dx={dx} dy={dy}, data seed {args.seed}, fit seed "
-        f"{args.fit_seed}, default FitOptions, 1 BLAS thread"
+        f"{args.fit_seed}, default FitOptions, noise model {args.noise_model}, 1 BLAS thread"
     )
     with threadpool_limits(limits=1):
         for ds in args.ds:
-            grad_s, value_s = time_evaluation(data, ds)
             flops = flops_per_evaluation(n, dy, dx)
-            print(
-                f"\nds={ds}: one evaluation on all the data: value+gradient {grad_s * 1e3:.1f} ms, "
-                f"value {value_s * 1e3:.1f} ms; leading FLOPs {flops / 1e9:.2f} G "
-                f"({flops / grad_s / 1e9:.1f} GFLOP/s)"
-            )
+            for threads in sorted({1, options.threads}):
+                grad_s, value_s = time_evaluation(data, ds, threads=threads)
+                print(
+                    f"\nds={ds}: one evaluation on all the data, {threads} feature thread(s): "
+                    f"value+gradient {grad_s * 1e3:.1f} ms, value {value_s * 1e3:.1f} ms; "
+                    f"leading FLOPs {flops / 1e9:.2f} G ({flops / grad_s / 1e9:.1f} GFLOP/s)"
+                )
+            if options.threads > 1:
+                # BLAS must stay on one thread in every feature thread (threadpoolctl's limit).
+                pool = feature_pool(options.threads)
+                blas = pool.submit(threadpool_info).result()
+                print(
+                    "  BLAS threads seen from a feature thread: "
+                    + ", ".join(f"{lib['internal_api']} {lib['num_threads']}" for lib in blas)
+                )
             results = []
             for repeat in range(args.repeats):
                 if args.profile and repeat == 0:
                     profiler = cProfile.Profile()
                     profiler.enable()
-                    result = run_fit(data, ds, args.fit_seed, options)
+                    result = run_fit(data, ds, args.fit_seed, options, args.noise_model)
                     profiler.disable()
                     stream = io.StringIO()
                     pstats.Stats(profiler, stream=stream).sort_stats("tottime").print_stats(18)
                     print(stream.getvalue())
                 else:
-                    result = run_fit(data, ds, args.fit_seed, options)
+                    result = run_fit(data, ds, args.fit_seed, options, args.noise_model)
                 results.append(result)
                 counts = ", ".join(
                     f"N={k[0]} dy={k[1]} {k[2]}: {int(v[0])} evals {v[1]:.1f} s"
@@ -259,6 +317,18 @@ def main() -> None:
                     f"    stages: {phases}\n"
                     f"    starts' log-lik: {starts}"
                 )
+                for stage, figures in result["stages"].items():
+                    stage_equivalents = full_equivalents(figures["counts"], n, dy)
+                    stage_shares = ", ".join(
+                        f"{k} {v:.0f}" for k, v in sorted(stage_equivalents.items())
+                    )
+                    print(
+                        f"    {stage} fit: {figures['seconds']:.1f} s, model-space log-lik "
+                        f"{figures['log_likelihood']:.3f}, {sum(stage_equivalents.values()):.0f} "
+                        f"full evaluations ({stage_shares})"
+                    )
+                if result["noise_note"] is not None:
+                    print(f"    noise model: {result['noise_note']}")
             seconds = statistics.median(r["seconds"] for r in results)
             cpu = statistics.median(r["cpu"] for r in results)
             equivalent = statistics.median(r["equivalents"] for r in results)

@@ -16,7 +16,8 @@ chose the same ds with the same fold scores as the serial run. ``--fixed-ds K`` 
 The machine is shared: the load average before and after each run is printed; quote it.
 
 Run: ``.venv/bin/python -m bench.time_to_model [--dy 5 20] [--workers 0 2] [--objects 20]
-[--touches 40] [--max-dim 5] [--folds 5] [--restarts 4] [--seed 0] [--fixed-ds K]``
+[--touches 40] [--max-dim 5] [--folds 5] [--restarts 4] [--seed 0] [--fixed-ds K]
+[--threads T]``
 (``--workers 0``: serial).
 """
 
@@ -29,6 +30,7 @@ import time
 
 import numpy as np
 
+from app.config import available_cores
 from app.services.fit_tasks import FitEngine, FoldFit
 from core.evaluation.worlds import random_experiment2_world, sample_dataset
 from core.gp import FitOptions, fit_manifold
@@ -102,12 +104,19 @@ def main() -> None:
     parser.add_argument("--restarts", type=int, default=FitOptions().restarts)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--fixed-ds", type=int, default=None, help="one fit at this ds")
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=available_cores(),
+        help="feature threads of this process's evaluations (default, as the CLI: the cores "
+        "it may use; 1 in the workers)",
+    )
     args = parser.parse_args()
-    options = FitOptions(restarts=args.restarts)
+    options = FitOptions(restarts=args.restarts, threads=args.threads)
     print(
         f"{args.objects} objects x {args.touches} touches, dx = 1, true ds = {TRUE_DIM}, "
         f"candidates 1..{args.max_dim}, {args.folds} folds, restarts {args.restarts}, "
-        f"{os.cpu_count()} cores"
+        f"{os.cpu_count()} cores, {args.threads} feature thread(s)"
     )
     print(" dy workers  select_s  final_s  total_s  chosen  log-lik    same  load before/after")
     for dy in args.dy:

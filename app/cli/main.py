@@ -93,19 +93,24 @@ def fit_with_progress(
     first stage runs there, with the same model."""
     import numpy as np
 
+    from app.services.remaining import RemainingTime
     from core.gp import iter_fit
 
     rng = np.random.default_rng(seed)
     started = time.perf_counter()
     model: ManifoldModel | None = None
+    remaining = RemainingTime()
     with progress_bar(disable=quiet) as bar:
-        task = bar.add_task("fit", total=None, status="")
+        task = bar.add_task("fit", total=1.0, status="")
         for event in iter_fit(data, latent_dim, rng, options, noise_model, start_map):
-            # Starts are screened, then the best is polished: the start index is not monotone,
-            # so the bar pulses and the status says which stage runs.
+            # The bar fills with the share of the fit's stages done (event.fraction) and the
+            # time left is estimated from it; the status says which stage runs.
             best = event.best_log_likelihood
+            left = remaining.update("fit", event.fraction, time.perf_counter() - started)
             bar.update(
                 task,
+                completed=event.fraction,
+                ends_at=None if left is None else time.monotonic() + left,
                 status=f"{escape(event.phase)}: start {event.start + 1:d}/{event.n_starts:d}, "
                 f"iteration {event.iteration:d}"
                 + (f", best log-lik {best:.2f}" if np.isfinite(best) else ""),
@@ -142,6 +147,7 @@ def select_latent_dim_with_progress(
     import numpy as np
 
     from app.services.fit_tasks import FoldFit, dask_fold_map
+    from app.services.remaining import RemainingTime
     from core.selection import DEFAULT_FOLDS, candidate_dims, select_latent_dim, serial_map
 
     fewest = int(data.touches_per_object().min())
@@ -154,13 +160,20 @@ def select_latent_dim_with_progress(
     n_fits = n_folds * len(candidate_dims(data.n_objects))
     rng = np.random.default_rng(seed)
     fold_noise: NoiseModelChoice = "independent" if noise_model == "auto" else noise_model
+    started = time.perf_counter()
+    remaining = RemainingTime()
+    done = [0]
     with progress_bar() as bar:
         task = bar.add_task("latent dim", total=n_fits, status="")
 
         def report(ds: int, fold: int, score: float) -> None:
+            done[0] += 1
+            elapsed_s = time.perf_counter() - started
+            left = remaining.update("latent selection", done[0] / n_fits, elapsed_s)
             bar.update(
                 task,
                 advance=1,
+                ends_at=None if left is None else time.monotonic() + left,
                 status=f"ds={ds:d}, fold {fold + 1:d}/{n_folds:d}: {score:.3f} nats/touch",
             )
 
@@ -255,6 +268,14 @@ def fit(
             "LocalCluster of K processes.",
         ),
     ] = None,
+    threads: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            help="Threads one likelihood evaluation of this process runs its features on "
+            "(the same model on any number). Default: the cores this process may use.",
+        ),
+    ] = None,
     scheduler: Annotated[
         str | None,
         typer.Option(
@@ -286,6 +307,7 @@ def fit(
     import numpy as np
 
     from app.cli.raw_data import training_touches
+    from app.config import available_cores
     from app.documents.model import latent_selection_dict, model_to_document
     from core.errors import CoreError
     from core.gp import FitOptions, with_placement_effect
@@ -307,7 +329,11 @@ def fit(
     selection = None
     try:
         options = FitOptions(
-            optimizer=optimizer.value, restarts=restarts, structure=structure, n_inducing=inducing
+            optimizer=optimizer.value,
+            restarts=restarts,
+            structure=structure,
+            n_inducing=inducing,
+            threads=available_cores() if threads is None else threads,
         )
         with contextlib.ExitStack() as stack:
             engine = None

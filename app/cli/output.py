@@ -16,15 +16,39 @@ checks every f-string handed to Rich in ``app/``.
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
 
 import typer
 from rich.console import Console
 from rich.markup import escape
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.progress import (
+    BarColumn,
+    Progress,
+    Task,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+from rich.text import Text
 
 results = Console(soft_wrap=True, width=None if sys.stdout.isatty() else 120)
 messages = Console(stderr=True, soft_wrap=True)
+
+
+class RemainingColumn(TimeRemainingColumn):
+    """Time remaining: the task's own estimate when it gives one (field ``ends_at``, a
+    ``time.monotonic()`` instant, e.g. from :class:`app.services.remaining.RemainingTime`),
+    counting down between updates; otherwise Rich's, from the task's speed."""
+
+    def render(self, task: Task) -> Text:
+        ends_at = task.fields.get("ends_at")
+        if ends_at is None:
+            return super().render(task)
+        seconds = max(0, round(ends_at - time.monotonic()))
+        minutes, seconds = divmod(seconds, 60)
+        hours, minutes = divmod(minutes, 60)
+        return Text(f"{hours:d}:{minutes:02d}:{seconds:02d}", style="progress.remaining")
 
 
 def progress_bar(disable: bool = False) -> Progress:
@@ -34,7 +58,7 @@ def progress_bar(disable: bool = False) -> Progress:
         BarColumn(),
         TextColumn("{task.fields[status]}"),
         TimeElapsedColumn(),
-        TimeRemainingColumn(),
+        RemainingColumn(),
         console=messages,
         disable=disable,
         transient=False,

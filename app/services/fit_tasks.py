@@ -183,13 +183,19 @@ class FitEngine:
         stop_event = None
         if isinstance(plan.fit, FoldFit):
             stop_event = f"stop-{uuid.uuid4().hex[:8]}"
-            fit = dataclasses.replace(plan.fit, starts_as_tasks=True, stop_event=stop_event)
+            # A worker is one thread of the cluster: its fits evaluate on one thread.
+            options = dataclasses.replace(plan.fit.options, threads=1)
+            fit = dataclasses.replace(
+                plan.fit, options=options, starts_as_tasks=True, stop_event=stop_event
+            )
             plan = dataclasses.replace(plan, fit=fit)
         return self._run(score_fold, plan, [(f"fold-{t.fold}", t) for t in tasks], stop_event)
 
     def start_map(self, plan: StartPlan, tasks: Sequence[StartTask]) -> Iterator[StartResult]:
-        """A :data:`core.gp.fit_run.StartMap`: every start's first stage as one task."""
-        return self._run(run_first_stage, plan, [(f"start-{t.index}", t) for t in tasks])
+        """A :data:`core.gp.fit_run.StartMap`: every start's first stage as one task, on one
+        thread (a worker is one thread of the cluster)."""
+        tasks_ = [(f"start-{t.index}", t) for t in tasks]
+        return self._run(run_first_stage, plan.on_one_thread(), tasks_)
 
     def _run(
         self,

@@ -6,7 +6,9 @@ place in the queue (``queue_position``). A fit is ``fitting`` while it runs, the
 fitted model stored, :func:`app.services.models.store_fitted`), ``failed`` (with the reason) or
 ``stopped`` (``POST /models/{id}/stop``: a queued fit never starts, a running one ends at its
 next progress checkpoint). Progress is written to the row and announced as ``model.progress``
-(at most every :data:`PROGRESS_INTERVAL_S`); state changes as ``model.status``.
+(at most every :data:`PROGRESS_INTERVAL_S`), with the stage running (``latent selection`` or
+``fit``), its fraction done and its estimated seconds left (``remaining_s``,
+:mod:`app.services.remaining`); state changes as ``model.status``.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import numpy as np
 from sqlalchemy.orm import Session
 
 from app import crud, states
+from app.config import available_cores
 from app.db import Database
 from app.db.tables import utc_now
 from app.documents.model import latent_selection_dict
@@ -32,6 +35,7 @@ from app.services.events import EventBus
 from app.services.fit_tasks import FoldFit, dask_fold_map
 from app.services.jobs import INTERRUPTED, Job, JobCancelled, JobRunner
 from app.services.models import ReadyModels, require, store_fitted, to_public
+from app.services.remaining import RemainingTime, stage_of
 from core.errors import CoreError, InvalidInputError
 from core.features.pipeline import check_touches, fit_features
 from core.features.raw import RawTouch
@@ -206,7 +210,7 @@ class FitService:
             job.checkpoint()
             if not self._set_fitting(model_id):
                 return
-            report = functools.partial(self._report, model_id)
+            report = functools.partial(self._report, model_id, RemainingTime())
             fitted, selection, fit_seconds = run_fit(request, job, report)
         except JobCancelled as cancelled:
             if cancelled.kind == "shutdown":
@@ -254,7 +258,13 @@ class FitService:
         self._announce(model_id, "fitting")
         return True
 
-    def _report(self, model_id: int, progress: FitProgress, elapsed_s: float) -> None:
+    def _report(
+        self, model_id: int, remaining: RemainingTime, progress: FitProgress, elapsed_s: float
+    ) -> None:
+        """Write and announce one progress event, with the time the running stage has left
+        (:mod:`app.services.remaining`)."""
+        stage = stage_of(progress.phase)
+        remaining_s = remaining.update(stage, progress.fraction, elapsed_s)
         values = {
             "start": int(progress.start),
             "n_starts": int(progress.n_starts),
@@ -263,6 +273,9 @@ class FitService:
             "log_likelihood": _finite_or_none(progress.log_likelihood),
             "best_log_likelihood": _finite_or_none(progress.best_log_likelihood),
             "elapsed_s": elapsed_s,
+            "stage": stage,
+            "fraction": _finite_or_none(progress.fraction),
+            "remaining_s": remaining_s,
         }
         with self._database.session() as session:
             row = require(session, model_id)
@@ -310,7 +323,11 @@ def run_fit(
         CoreError, ValueError, ArithmeticError: The fit failed.
     """
     body, data = request.body, request.data
-    options_kwargs: dict[str, Any] = {"optimizer": body.optimizer, "restarts": body.restarts}
+    options_kwargs: dict[str, Any] = {
+        "optimizer": body.optimizer,
+        "restarts": body.restarts,
+        "threads": available_cores(),  # feature threads here; 1 in a Dask worker (fit_tasks)
+    }
     if body.max_iterations is not None:
         options_kwargs["max_iterations"] = body.max_iterations
     options = FitOptions(**options_kwargs)
@@ -394,6 +411,7 @@ def _select_latent_dim(
             log_likelihood=score,
             best_log_likelihood=float("-inf"),
             phase=f"latent selection: ds={ds}, fold {fold + 1}/{n_folds}",
+            fraction=done[0] / (n_folds * n_candidates),
         )
         report(progress, time.perf_counter() - started)
 

@@ -112,6 +112,12 @@ class FitOptions:
             that gave up still competes with its full-data value. Only while screening, and
             only against a data-driven start that is not degenerate (see
             :mod:`core.gp.fit_run`).
+        threads: Python threads one likelihood evaluation on all the data (or the screening
+            subsample) runs its features on (≥ 1; dense structure only): each feature's
+            factorisation and inverse are independent LAPACK calls that release the GIL
+            (:mod:`core.gp.likelihood`). The fit's result does not depend on it. Set it to
+            the cores the process may use when it has them to itself, 1 in a Dask worker
+            (the ``activetouch`` commands and the server do).
         initial_latents: Extra starting latents, each of shape (L, ds) for the data and ds of
             the fit (checked when the fit starts; here: 2-D and finite). Each is normalised
             (centred, unit RMS spread) and treated like the data-driven starts: the
@@ -147,6 +153,7 @@ class FitOptions:
     joint_stall_iterations: int = 30
     polish_lbfgs_memory: int = 100
     restart_reach_iterations: int = 10
+    threads: int = 1
     initial_latents: tuple[FloatArray, ...] = field(default=(), compare=False)
 
     def __post_init__(self) -> None:
@@ -172,6 +179,7 @@ class FitOptions:
             "joint_stall_iterations": 1,
             "polish_lbfgs_memory": 1,
             "restart_reach_iterations": 0,
+            "threads": 1,
         }
         for name, minimum in minimums.items():
             value = getattr(self, name)
@@ -261,6 +269,9 @@ class FitProgress:
             ``" done"`` appended for the event that ends a stage; ``"done"`` for the final
             event.
         model: The fitted model, on the final event only.
+        fraction: The share of the fit done, in [0, 1], from the stages that have ended
+            (each weighted by its usual share of the evaluations; 1 on the final event). An
+            estimate to show the time remaining from, not a measurement.
     """
 
     start: int
@@ -270,3 +281,4 @@ class FitProgress:
     best_log_likelihood: float
     phase: str = "joint"
     model: ManifoldModel | None = None
+    fraction: float = 0.0

@@ -68,6 +68,7 @@ Bounds (log space, relative to the data): see :func:`core.gp.parameters.paramete
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
 from dataclasses import dataclass
@@ -89,6 +90,7 @@ from core.gp.hyperparameter_fit import (
 )
 from core.gp.initialisation import data_driven_starts, normalise_spread, random_latents
 from core.gp.kronecker import find_shared_design
+from core.gp.likelihood import ManifoldLikelihood, check_threads
 from core.gp.optimiser_stream import run_to_end, stream_optimiser
 from core.gp.parameters import ParameterLayout, initial_hyperparameters, parameter_bounds
 from core.gp.posterior import Likelihood, Structure, condition, make_likelihood, resolve_structure
@@ -104,6 +106,15 @@ AT_BOUND = 1e-4
 #: uneven (``FitOptions.restart_reach_iterations``; the measurement is in docs/fitting.md).
 REACH_MARGIN_NATS = 1.0
 REACH_MARGIN_RELATIVE = 1e-3
+
+#: Shares of a fit's work in ``FitProgress.fraction`` (an estimate for a time-remaining
+#: display, from the evaluation counts in docs/fitting.md): the starts' first stages on a
+#: screening subsample (the rest is the polish of the best), or on all the data; the
+#: hyperparameter stage of a polish (the rest is the joint run).
+FIRST_STAGES_SHARE = 0.25
+FIRST_STAGES_SHARE_ALL_DATA = 0.6
+POLISH_HYPERPARAMETER_SHARE = 0.2
+MAX_FRACTION_BEFORE_DONE = 0.99
 
 #: Screening runs on a subsample only when that makes an evaluation at least this many times
 #: cheaper (:func:`evaluation_cost`); otherwise it runs on all the data.
@@ -172,6 +183,15 @@ class FitProblem:
                 for a in range(data.observation_dim)
             ]
         return self._features
+
+    def with_threads(self, threads: int) -> FitProblem:
+        """This problem with its evaluations on ``threads`` threads (a dense likelihood's
+        features, :mod:`core.gp.likelihood`): a shallow copy sharing the data."""
+        likelihood = self.likelihood
+        if isinstance(likelihood, ManifoldLikelihood) and likelihood.threads != threads:
+            likelihood = copy.copy(likelihood)
+            likelihood.threads = check_threads(threads)
+        return dataclasses.replace(self, likelihood=likelihood, _features=None)
 
     @property
     def max_jitter(self) -> float:
@@ -313,6 +333,15 @@ class StartPlan:
     phase: str
     settings: RunSettings
 
+    def on_one_thread(self) -> StartPlan:
+        """The plan with its evaluations on one thread (``FitOptions.threads`` = 1), for a
+        process that shares its cores with others, e.g. a Dask worker."""
+        return dataclasses.replace(
+            self,
+            problem=self.problem.with_threads(1),
+            options=dataclasses.replace(self.options, threads=1),
+        )
+
 
 @dataclass(frozen=True)
 class StartTask:
@@ -344,6 +373,21 @@ class StartResult:
 #: (:func:`serial_start_map` one after another; the app supplies one running them as Dask
 #: tasks). The fit's result does not depend on the map.
 StartMap = Callable[[StartPlan, Sequence[StartTask]], Iterable[StartResult]]
+
+
+@dataclass(frozen=True)
+class WarmStart:
+    """One start near an optimum already found (e.g. a refit of the same objects after an
+    observation transform): the fit then has this start only, no screening and no random
+    restarts (see :class:`FitRun`).
+
+    Attributes:
+        latents: Shape (L, ds); normalised when the fit starts.
+        hyperparameters: Hyperparameters of the fit's data, with ds latent dimensions.
+    """
+
+    latents: FloatArray
+    hyperparameters: Hyperparameters
 
 
 def first_stage(
@@ -398,6 +442,9 @@ class FitRun:
         options: Fit settings.
         start_map: Runs the starts' first stage (:data:`StartMap`); ``None``: one after
             another in this process, with streamed progress.
+        warm_start: Fit from this one start only (:meth:`_warm_events`): the joint run on
+            all the data; ``options``' starts, screening and differential evolution are not
+            used.
     """
 
     def __init__(
@@ -407,6 +454,7 @@ class FitRun:
         rng: np.random.Generator,
         options: FitOptions,
         start_map: StartMap | None = None,
+        warm_start: WarmStart | None = None,
     ) -> None:
         if not isinstance(data, TrainingData):
             raise InvalidInputError(f"data: expected TrainingData, received {type(data).__name__}.")
@@ -428,12 +476,17 @@ class FitRun:
                     f"options.initial_latents[{i}]: expected shape (L, ds) = "
                     f"({data.n_objects}, {int(latent_dim)}), received {given.shape}."
                 )
+        if warm_start is not None:
+            _check_warm_start(warm_start, data, int(latent_dim))
         self.data = data
         self.latent_dim = int(latent_dim)
         self.rng = rng
+        self.warm_start = warm_start
         self.options = options
         self.structure, _ = resolve_structure(data, options.structure)
-        full = make_likelihood(data, self.latent_dim, self.structure, options.n_inducing)
+        full = make_likelihood(
+            data, self.latent_dim, self.structure, options.n_inducing, options.threads
+        )
         self.layout: ParameterLayout = full.layout
         lower, upper = parameter_bounds(data, self.layout, options.latent_bound)
         self.full = FitProblem(full, lower, upper, self.structure, options.n_inducing)
@@ -442,7 +495,7 @@ class FitRun:
         k = options.screen_touches_per_object
         if k and options.screen_max_touches:
             k = min(k, max(2, options.screen_max_touches // data.n_objects))
-        if k and np.any(counts > k):
+        if k and np.any(counts > k) and warm_start is None:
             subset = self._subsample(k)
             # The screening subsample of a shared design is a shared design (see _subsample).
             screen_structure = "kronecker" if self.structure == "kronecker" else options.structure
@@ -456,7 +509,7 @@ class FitRun:
                 self.screen = self.full
             else:
                 screen_likelihood = make_likelihood(
-                    subset, self.latent_dim, screen_structure, options.n_inducing
+                    subset, self.latent_dim, screen_structure, options.n_inducing, options.threads
                 )
                 # Bounds stay those of all the data, so screened vectors are valid full vectors.
                 self.screen = FitProblem(
@@ -467,6 +520,10 @@ class FitRun:
         self.start_map = start_map
         #: The largest jitter the starts run by ``start_map`` needed (elsewhere).
         self.remote_jitter = 0.0
+        #: The share of the fit done (``FitProgress.fraction``), and what the stage running
+        #: now adds to it when it ends.
+        self.fraction = 0.0
+        self._share = 0.0
 
     # -- set-up ------------------------------------------------------------------------------
 
@@ -507,6 +564,9 @@ class FitRun:
 
     def events(self) -> Generator[FitProgress, None, None]:
         """Run the fit, yielding progress; the last event carries the model."""
+        if self.warm_start is not None:
+            yield from self._warm_events(self.warm_start)
+            return
         options = self.options
         layout = self.layout
         n_objects = self.data.n_objects
@@ -522,6 +582,16 @@ class FitRun:
         working = self.screen if self.screen is not None else self.full
         everything = np.ones(layout.size, dtype=bool)
         phase = "screen" if self.screen is not None else "joint"
+        # Shares of the fit in FitProgress.fraction (module docstring, "Progress").
+        first_share = (
+            1.0
+            if self.screen is None
+            else FIRST_STAGES_SHARE_ALL_DATA
+            if self.screen is self.full
+            else FIRST_STAGES_SHARE
+        )
+        n_polish = options.polish_starts + (1 if options.optimizer == "de" else 0)
+        self._share = first_share / n_starts
 
         # 1. Every L-BFGS start on the working data (screening subsample or all the data).
         limit = options.screen_iterations if self.screen is not None else options.max_iterations
@@ -551,12 +621,14 @@ class FitRun:
             de_start = Start(len(self.starts), "de", seed_vector)
             self.starts.append(de_start)
             yield from self._differential_evolution(de_start, working, n_starts)
+            self._share = 0.0
             yield from self._optimise(de_start, working, everything, limit, phase, n_starts)
 
         # 3. Polish the best screened starts on all the data (and the DE start), from their
         #    screened latents with fresh hyperparameters; if the best polished start is
         #    degenerate, polish the next ones until one is not (or none is left).
         if self.screen is not None:
+            polish_share = (1.0 - first_share) / n_polish
             for start in self.starts:
                 start.full_value = self._full_value(start.vector)
             ranked = sorted(self.starts, key=lambda s: (s.full_value, s.screen_value))
@@ -565,10 +637,13 @@ class FitRun:
             rest = [s for s in ranked if s not in queue_]
             while queue_:
                 start = queue_.pop(0)
+                self._share = polish_share
                 if self.screen is not self.full:
                     start.vector = self._transfer(start.vector)
                     if options.hyperparameter_iterations > 0:
+                        self._share = polish_share * POLISH_HYPERPARAMETER_SHARE
                         yield from self._optimise_separately(start, self.full, n_starts)
+                        self._share = polish_share * (1.0 - POLISH_HYPERPARAMETER_SHARE)
                 yield from self._optimise(
                     start, self.full, everything, options.max_iterations, "joint", n_starts
                 )
@@ -578,9 +653,29 @@ class FitRun:
         else:
             for start in self.starts:
                 start.polished = True
+        yield self._done(n_starts)
 
+    def _warm_events(self, warm: WarmStart) -> Generator[FitProgress, None, None]:
+        """The fit from one warm start: everything jointly on all the data, stopping as the
+        runs that end a fit do (``joint_stall_nats``). The hyperparameters are not fitted
+        with S frozen first, unlike a fresh start's: they start near where they end (on
+        ``bench/fit_n800.py``'s data that stage doubled the refit's cost for 0.04 nats;
+        docs/fitting.md)."""
+        normalised, hyper = normalise_latents(np.asarray(warm.latents), warm.hyperparameters)
+        vector = self.layout.pack(normalised, hyper)
+        start = Start(0, "warm", np.clip(vector, self.full.lower, self.full.upper))
+        self.starts.append(start)
+        self._share = 1.0
+        everything = np.ones(self.layout.size, dtype=bool)
+        limit = self.options.max_iterations
+        yield from self._optimise(start, self.full, everything, limit, "joint", 1)
+        start.polished = True
+        yield self._done(1)
+
+    def _done(self, n_starts: int) -> FitProgress:
+        """The final event, with the winner's model."""
         model = self._final_model()
-        yield FitProgress(
+        return FitProgress(
             start=model.diagnostics.best_start if model.diagnostics else 0,
             n_starts=n_starts,
             iteration=model.diagnostics.iterations if model.diagnostics else 0,
@@ -588,6 +683,7 @@ class FitRun:
             best_log_likelihood=model.log_likelihood,
             phase="done",
             model=model,
+            fraction=1.0,
         )
 
     # -- pieces ------------------------------------------------------------------------------
@@ -638,13 +734,17 @@ class FitRun:
             log_likelihood=-value,
             best_log_likelihood=-self.best_full,
             phase=phase,
+            fraction=self.fraction,
         )
 
     def _finished(
         self, start: Start, problem: FitProblem, value: float, phase: str, n_starts: int
     ) -> FitProgress:
-        """Record the value ``start`` ended a stage with; the event that ends the stage."""
+        """Record the value ``start`` ended a stage with, count the stage's share of the fit
+        done; the event that ends the stage."""
         self._record(start, problem, value)
+        # More polishes than planned add nothing: the fraction stays below 1 until the end.
+        self.fraction = min(self.fraction + self._share, MAX_FRACTION_BEFORE_DONE)
         return self._progress(start, n_starts, start.iterations, value, f"{phase} done")
 
     def _settings(self, problem: FitProblem, phase: str) -> RunSettings:
@@ -856,6 +956,22 @@ class FitRun:
         latents, hyper = normalise_latents(*self.layout.unpack(best.vector))
         return condition(
             self.data, latents, hyper, structure=self.structure, n_inducing=self.options.n_inducing
+        )
+
+
+def _check_warm_start(warm: WarmStart, data: TrainingData, latent_dim: int) -> None:
+    """Reject a warm start whose shapes do not fit the data and ds."""
+    if not isinstance(warm, WarmStart):
+        raise InvalidInputError(f"warm_start: expected WarmStart, received {type(warm).__name__}.")
+    latents = as_float_array(warm.latents, "warm_start.latents", (data.n_objects, latent_dim))
+    if not np.all(np.isfinite(latents)):
+        raise InvalidInputError("warm_start.latents: expected finite values.")
+    h = warm.hyperparameters
+    expected = (data.observation_dim, latent_dim, data.action_dim)
+    received = (h.observation_dim, h.latent_dim, h.action_lengthscales.shape[1])
+    if received != expected:
+        raise InvalidInputError(
+            f"warm_start.hyperparameters: expected (dy, ds, dx) = {expected}, received {received}."
         )
 
 

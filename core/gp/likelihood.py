@@ -23,11 +23,22 @@ Cost. M is symmetric, so only one triangle of W is formed (K⁻¹ by
 into K_f in place; with X that triangle, M = X + Xᵀ - diag(X) and every sum above is a sum over
 X. At N = 400 an evaluation costs about the factor and the inverse of each K_a (``dpotrf`` +
 ``dpotri`` timed alone: ``python -m bench.eval_speed``).
+
+Threads. Each feature's factor, solve, inverse and product are independent LAPACK/BLAS calls
+that release the GIL, so with ``threads`` > 1 the features run on a pool of Python threads
+(BLAS itself stays on one thread per Python thread: run under ``threadpoolctl``'s limit of one,
+as the ``activetouch`` commands do). Each feature's numbers are computed by the same calls on
+whichever thread, and the terms are summed in feature order afterwards, so the value and the
+gradient are bit-identical to one thread's.
 """
 
 from __future__ import annotations
 
+import threading
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 import scipy.linalg.blas
@@ -40,6 +51,33 @@ from core.types import Hyperparameters, TrainingData
 from core.validation import FloatArray, as_float_array
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
+
+_T = TypeVar("_T")
+
+#: One pool of feature threads per thread count, shared by every likelihood of the process.
+_POOLS: dict[int, ThreadPoolExecutor] = {}
+_POOLS_LOCK = threading.Lock()
+
+
+def feature_pool(threads: int) -> ThreadPoolExecutor:
+    """The process's pool of ``threads`` feature threads (created on first use)."""
+    with _POOLS_LOCK:
+        pool = _POOLS.get(threads)
+        if pool is None:
+            pool = ThreadPoolExecutor(threads, thread_name_prefix="likelihood-feature")
+            _POOLS[threads] = pool
+        return pool
+
+
+def check_threads(threads: object) -> int:
+    """``threads`` as an int ≥ 1.
+
+    Raises:
+        InvalidInputError: Not an integer ≥ 1.
+    """
+    if isinstance(threads, bool) or not isinstance(threads, int | np.integer) or threads < 1:
+        raise InvalidInputError(f"threads: expected an integer ≥ 1, received {threads!r}.")
+    return int(threads)
 
 
 @dataclass(frozen=True)
@@ -75,15 +113,18 @@ class ManifoldLikelihood:
     Args:
         data: Training touches.
         latent_dim: ds ≥ 1.
+        threads: Python threads the features of one evaluation run on (module docstring);
+            the results do not depend on it.
     """
 
     #: Above this many entries (dx · N²) the per-dimension squared action differences are not
     #: cached and are recomputed at every evaluation.
     CACHE_LIMIT = 16_000_000
 
-    def __init__(self, data: TrainingData, latent_dim: int) -> None:
+    def __init__(self, data: TrainingData, latent_dim: int, threads: int = 1) -> None:
         if isinstance(latent_dim, bool) or int(latent_dim) != latent_dim or latent_dim < 1:
             raise InvalidInputError(f"latent_dim: must be an integer ≥ 1, received {latent_dim}.")
+        self.threads = check_threads(threads)
         self.data = data
         self.layout = ParameterLayout.for_data(data, int(latent_dim))
         order = np.argsort(data.object_index, kind="stable")
@@ -135,21 +176,32 @@ class ManifoldLikelihood:
                 exponent[:, first : first + count, :] += rows[:, obj, None, :]
         return np.asarray(np.exp(exponent, out=exponent), dtype=np.float64)
 
-    def _factor(self, gram_free: FloatArray, noise: float, feature: int) -> FloatArray:
+    def _factor(
+        self, gram_free: FloatArray, noise: float, feature: int
+    ) -> tuple[FloatArray, float]:
         """Upper Cholesky factor U of K_a = K_f,a + σ_n² I = UᵀU, Fortran-ordered with a zero
-        strictly lower triangle (what LAPACK reads without copying); jitter only if needed."""
+        strictly lower triangle (what LAPACK reads without copying), and the jitter added
+        (0 unless the plain factorisation failed)."""
         gram = gram_free.copy()
         gram.ravel()[self._diag] += noise
         # Fast path: plain LAPACK in place on the symmetric matrix (its transpose is itself, so
         # the C-ordered copy is read as Fortran). Jitter ladder only on failure.
         upper, info = scipy.linalg.lapack.dpotrf(gram.T, lower=0, clean=1, overwrite_a=1)
         if info == 0:
-            return np.asarray(upper, dtype=np.float64)
+            return np.asarray(upper, dtype=np.float64), 0.0
         gram = gram_free.copy()
         gram.ravel()[self._diag] += noise
         factor, jitter = cholesky_with_jitter(gram, what=f"Gram matrix of feature {feature}")
-        self.max_jitter = max(self.max_jitter, jitter)
-        return np.asarray(factor.T, dtype=np.float64)
+        return np.asarray(factor.T, dtype=np.float64), float(jitter)
+
+    def _per_feature(self, work: Callable[[int], _T]) -> list[_T]:
+        """``work(a)`` for every feature a, in feature order; on the pool when ``threads`` > 1.
+        The first error of any feature is raised (after every feature has ended)."""
+        dy = self.layout.observation_dim
+        if self.threads == 1 or dy == 1:
+            return [work(a) for a in range(dy)]
+        futures = [feature_pool(self.threads).submit(work, a) for a in range(dy)]
+        return [future.result() for future in futures]
 
     def value(self, vector: FloatArray) -> float:
         """-log p at a packed vector (no gradient: one Cholesky factor per feature)."""
@@ -157,16 +209,21 @@ class ManifoldLikelihood:
         _, _, log_sn, _, _ = self.layout.split(vector)
         gram_free = self.noise_free_gram(vector)
         n = self.data.n_touches
-        total = 0.0
-        for a in range(self.layout.observation_dim):
-            upper = self._factor(gram_free[a], float(np.exp(log_sn[a])), a)
+
+        def feature(a: int) -> tuple[float, float]:
+            upper, jitter = self._factor(gram_free[a], float(np.exp(log_sn[a])), a)
             # α = U⁻ᵀ y, so yᵀ K⁻¹ y = |α|²
             alpha, info = scipy.linalg.lapack.dtrtrs(upper, self._centred[a], lower=0, trans=1)
             if info:  # pragma: no cover - the factor came from a successful Cholesky
                 raise InvalidInputError(f"dtrtrs failed on feature {a}.")
             log_det = 2.0 * float(np.sum(np.log(upper.ravel(order="F")[self._diag])))
             # docs/method.md eq. (M2)
-            total += 0.5 * float(alpha @ alpha) + 0.5 * log_det + 0.5 * n * _LOG_2PI
+            return 0.5 * float(alpha @ alpha) + 0.5 * log_det + 0.5 * n * _LOG_2PI, jitter
+
+        total = 0.0
+        for term, jitter in self._per_feature(feature):  # summed in feature order
+            total += term
+            self.max_jitter = max(self.max_jitter, jitter)
         return total
 
     def value_and_gradient(self, vector: FloatArray) -> tuple[float, FloatArray]:
@@ -187,24 +244,33 @@ class ManifoldLikelihood:
         gram_free = self.noise_free_gram(vector)
         n = self.data.n_touches
         dy = layout.observation_dim
-        g_sn = np.empty(dy)
-        total = 0.0
-        for a in range(dy):
-            upper = self._factor(gram_free[a], float(noise[a]), a)
+
+        def feature(a: int) -> tuple[float, float, float]:
+            """Feature a's term of -log p, its ∂/∂log σ_n² and the jitter; gram_free[a]
+            becomes X_a."""
+            upper, jitter = self._factor(gram_free[a], float(noise[a]), a)
             y = self._centred[a]
             beta, info = scipy.linalg.lapack.dpotrs(upper, y, lower=0)
             if info:  # pragma: no cover - the factor came from a successful Cholesky
                 raise InvalidInputError(f"dpotrs failed on feature {a}.")
             # docs/method.md eq. (M2)
             log_det = 2.0 * float(np.sum(np.log(upper.ravel(order="F")[self._diag])))
-            total += 0.5 * float(y @ beta) + 0.5 * log_det + 0.5 * n * _LOG_2PI
+            term = 0.5 * float(y @ beta) + 0.5 * log_det + 0.5 * n * _LOG_2PI
             # Upper triangle (Fortran) of W = K⁻¹ - ββᵀ: ∂(-log p)/∂K = ½ W. Its C-ordered
             # transpose holds W in the lower triangle and zeros above.
             inverse = inverse_from_cholesky(upper, overwrite=True)  # the factor is done
             inverse = scipy.linalg.blas.dsyr(-1.0, beta, lower=0, a=inverse, overwrite_a=1)
             half = inverse.T
-            g_sn[a] = 0.5 * noise[a] * float(half.ravel()[self._diag].sum())
+            g_sn_a = 0.5 * noise[a] * float(half.ravel()[self._diag].sum())
             gram_free[a] *= half  # X_a = tril(W_a) ∘ K_f,a, in place of K_f,a
+            return term, g_sn_a, jitter
+
+        g_sn = np.empty(dy)
+        total = 0.0
+        for a, (term, g_sn_a, jitter) in enumerate(self._per_feature(feature)):
+            total += term  # summed in feature order, whichever thread computed it
+            g_sn[a] = g_sn_a
+            self.max_jitter = max(self.max_jitter, jitter)
         halves = gram_free.reshape(dy, n * n)
         diagonals = halves[:, self._diag]  # (dy, N)
         lower_blocks = np.add.reduceat(

@@ -96,7 +96,9 @@ def iter_fit(
         )
     return iter_fit_noise_model(
         data,
-        lambda model_data: FitRun(model_data, latent_dim, rng, options, start_map).events(),
+        lambda model_data, warm: FitRun(
+            model_data, latent_dim, rng, options, start_map, warm
+        ).events(),
         noise_model,
     )
 

@@ -12,7 +12,10 @@ temperature see one heat exchange), so this module fits the GPs to y' = M (y - c
    (standardised by their leave-one-out standard deviations; the posterior residuals of a
    sparse model, which has no exact leave-one-out);
 3. whiten: W = Σ_z^{-1/2} (the symmetric root, so y'_a stays closest to feature a), refit the
-   independent per-feature GPs to y' = W z.
+   independent per-feature GPs to y' = W z. The refit starts from the first fit
+   (:func:`warm_start`): whitening is a linear map of the observations, so the arrangement of
+   the objects carries over; it is one start polished on all the data, not a second
+   multi-start fit (the measurements are in docs/fitting.md).
 
 ``noise_model="auto"`` keeps the correlated model when its leave-one-out predictive
 log-likelihood of the raw observations beats the independent one's by more than the number of
@@ -31,9 +34,10 @@ import numpy as np
 
 from core.errors import InvalidInputError
 from core.gp.fit_options import FitProgress
+from core.gp.fit_run import WarmStart
 from core.gp.posterior import predict_model_space
 from core.observation_transform import ObservationTransform
-from core.types import ManifoldModel, TrainingData
+from core.types import Hyperparameters, ManifoldModel, TrainingData
 from core.validation import FloatArray
 
 #: What a fit may be asked for.
@@ -212,6 +216,32 @@ def correlated_transform(
     )
 
 
+def warm_start(independent: ManifoldModel, transform: ObservationTransform) -> WarmStart:
+    """Where the refit on the whitened observations y' = W z starts: the first fit's latents
+    and length-scales, and its signal and noise variances carried through W.
+
+    With the noise covariance Σ_z that W whitens, y' has unit noise variance in every feature
+    (W Σ_z W = I), and feature a's signal, a mix Σ_b W_ab f_b of the first fit's independent
+    signals, has variance Σ_b W_ab² σ_f,b². The length-scales of feature a are kept: the
+    symmetric root keeps y'_a closest to z_a.
+
+    Args:
+        independent: The model fitted to the standardised observations z.
+        transform: The ``"correlated"`` transform (its ``whitening`` is W).
+    """
+    h = independent.hyperparameters
+    whitening = np.asarray(transform.whitening)
+    return WarmStart(
+        latents=independent.latents,
+        hyperparameters=Hyperparameters(
+            signal_variance=(whitening**2) @ h.signal_variance,
+            noise_variance=np.ones_like(h.noise_variance),
+            latent_lengthscales=h.latent_lengthscales,
+            action_lengthscales=h.action_lengthscales,
+        ),
+    )
+
+
 def within_object_transform(data: TrainingData) -> ObservationTransform:
     """Whitening by the pooled within-object covariance of the standardised features.
 
@@ -253,27 +283,43 @@ def loo_log_likelihood(model: ManifoldModel) -> float | None:
     return None if values is None else float(values.sum())
 
 
+#: The first (independent) fit's share of the evaluations of a fit with a correlated refit,
+#: for ``FitProgress.fraction`` (the refit starts warm: docs/fitting.md).
+FIRST_FIT_SHARE = 0.8
+
+
 def _stage(
-    events: Iterator[FitProgress], name: str, sink: list[ManifoldModel]
+    events: Iterator[FitProgress],
+    name: str,
+    sink: list[ManifoldModel],
+    done: float = 0.0,
+    share: float = 1.0,
 ) -> Generator[FitProgress, None, None]:
-    """Re-yield a fit's events with the stage named; its model goes to ``sink``."""
+    """Re-yield a fit's events with the stage named and their fraction mapped onto
+    [done, done + share] of the whole; its model goes to ``sink``."""
     for event in events:
         if event.model is not None:
             sink.append(event.model)
-        yield dataclasses.replace(event, phase=f"{name}: {event.phase}", model=None)
+        yield dataclasses.replace(
+            event,
+            phase=f"{name}: {event.phase}",
+            model=None,
+            fraction=done + share * event.fraction,
+        )
 
 
 def iter_fit_noise_model(
     data: TrainingData,
-    fit: Callable[[TrainingData], Iterator[FitProgress]],
+    fit: Callable[[TrainingData, WarmStart | None], Iterator[FitProgress]],
     noise_model: NoiseModelChoice,
 ) -> Generator[FitProgress, None, None]:
     """Fit with a noise model (module docstring), yielding the fits' progress.
 
     Args:
         data: Raw training touches.
-        fit: Runs one manifold fit on model-space data (e.g. :func:`core.gp.manifold.iter_fit`
-            with the latent dimension, rng and options bound).
+        fit: Runs one manifold fit on model-space data, from a warm start when one is given
+            (e.g. a :class:`core.gp.fit_run.FitRun` with the latent dimension, rng and options
+            bound).
         noise_model: ``"independent"`` (standardise only), ``"correlated"`` (standardise and
             whiten the residual noise covariance of a first fit) or ``"auto"`` (both; keep the
             correlated one when it wins on leave-one-out predictive likelihood).
@@ -292,12 +338,15 @@ def iter_fit_noise_model(
         )
     base = standardising_transform(data)
     models: list[ManifoldModel] = []
-    yield from _stage(fit(transform_data(data, base)), "independent", models)
+    first_share = 1.0 if noise_model == "independent" else FIRST_FIT_SHARE
+    first_fit = fit(transform_data(data, base), None)
+    yield from _stage(first_fit, "independent", models, 0.0, first_share)
     first = attach_transform(models[-1], base, data)
     final = first
     if noise_model != "independent":
         transform = correlated_transform(models[-1], base)
-        yield from _stage(fit(transform_data(data, transform)), "correlated", models)
+        refit = fit(transform_data(data, transform), warm_start(models[0], transform))
+        yield from _stage(refit, "correlated", models, first_share, 1.0 - first_share)
         second = attach_transform(models[-1], transform, data)
         final = second if noise_model == "correlated" else choose_noise_model(first, second)
     if final.transform is not None and noise_model != "auto":
@@ -310,6 +359,7 @@ def iter_fit_noise_model(
         best_log_likelihood=final.log_likelihood,
         phase="done",
         model=final,
+        fraction=1.0,
     )
     yield last
 

@@ -106,6 +106,7 @@ def make_likelihood(
     latent_dim: int,
     structure: Structure = "auto",
     n_inducing: int = DEFAULT_INDUCING_POINTS,
+    threads: int = 1,
 ) -> Likelihood:
     """The likelihood for ``data`` under a structure (see :func:`resolve_structure`).
 
@@ -114,13 +115,14 @@ def make_likelihood(
         latent_dim: ds ≥ 1.
         structure: ``"auto"``, ``"dense"``, ``"kronecker"`` or ``"sparse"``.
         n_inducing: Inducing points of the sparse path.
+        threads: Threads of a dense evaluation's features (:mod:`core.gp.likelihood`).
     """
     chosen, design = resolve_structure(data, structure)
     if chosen == "kronecker":
         return KroneckerLikelihood(data, latent_dim, design)
     if chosen == "sparse":
         return SparseLikelihood(data, latent_dim, n_inducing=n_inducing)
-    return ManifoldLikelihood(data, latent_dim)
+    return ManifoldLikelihood(data, latent_dim, threads)
 
 
 def support_points(model: ManifoldModel) -> tuple[IntArray, FloatArray]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
 from app.db.tables import ModelRecord
@@ -44,8 +45,18 @@ def test_fit_in_background_with_progress(client: TestClient) -> None:
     assert len(model["hyperparameters"]) == 3
     assert model["fit_seconds"] > 0
     assert model["log_likelihood"] == model["progress"]["best_log_likelihood"]
+    # The last progress: the fit (no selection) done, nothing left.
+    assert model["progress"]["stage"] == "fit"
+    assert model["progress"]["fraction"] == 1.0
+    assert model["progress"]["remaining_s"] == 0.0
     events = client.get(f"{API}/events?after=0&follow=false").text
     assert '"type": "model.progress"' in events
+    progress = [json.loads(line.removeprefix("data: ")) for line in events.splitlines()
+                if line.startswith("data: ") and '"model.progress"' in line]  # fmt: skip
+    fractions = [p["data"]["fraction"] if "data" in p else p["fraction"] for p in progress]
+    assert fractions
+    assert fractions == sorted(fractions)
+    assert all(0.0 <= f <= 1.0 for f in fractions)
     assert '"status": "ready"' in events
     listing = client.get(f"{API}/models", params={"status": "ready"}).json()
     assert listing["count"] == 1

@@ -3,6 +3,7 @@ test of the final joint runs and the random restarts that give up."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -14,6 +15,8 @@ from core.gp import fit_run
 from core.gp.fit_options import FitOptions
 from core.gp.fit_run import FitRun
 from core.gp.hyperparameter_fit import minimize_free
+from core.gp.likelihood import ManifoldLikelihood
+from core.gp.manifold import fit_manifold
 from core.types import TrainingData
 from tests.core.badly_scaled import minimize_quadratic
 
@@ -122,6 +125,8 @@ def test_a_cap_above_the_data_leaves_screening_off() -> None:
         ("joint_stall_iterations", 0, "joint_stall_iterations: must be ≥ 1"),
         ("joint_stall_iterations", 2.5, "joint_stall_iterations: expected an integer"),
         ("polish_lbfgs_memory", 0, "polish_lbfgs_memory: must be ≥ 1"),
+        ("threads", 0, "threads: must be ≥ 1"),
+        ("threads", 1.5, "threads: expected an integer"),
     ],
 )
 def test_bad_cost_options_are_named(field: str, value: object, message: str) -> None:
@@ -166,3 +171,39 @@ def test_the_joint_stall_test_and_polish_memory_apply_to_the_final_runs_only(
     assert len(seen) == len(joint) + (2 if screened else 0)  # PCA (no Isomap below 8) + 1
     assert screening == ({(0.01, 7, 10)} if screened else set())
     assert set(joint) == {(0.3, 11, 17 if screened else 23)}
+
+
+def test_a_fit_on_feature_threads_is_the_one_thread_fit() -> None:
+    rng = np.random.default_rng(4)
+    world = random_experiment2_world(
+        rng, n_objects=5, latent_dim=2, action_dim=1, observation_dim=3
+    )
+    data = sample_dataset(world, rng, touches_per_object=12)
+    options = FitOptions(restarts=1, screen_touches_per_object=6)
+    models = [
+        fit_manifold(data, 2, np.random.default_rng(0), replace(options, threads=threads))
+        for threads in (1, 2)
+    ]
+    np.testing.assert_array_equal(models[1].latents, models[0].latents)
+    assert models[1].log_likelihood == models[0].log_likelihood
+    assert models[1].diagnostics == models[0].diagnostics
+
+
+def test_a_start_plan_for_a_worker_runs_on_one_thread() -> None:
+    rng = np.random.default_rng(4)
+    world = random_experiment2_world(
+        rng, n_objects=4, latent_dim=2, action_dim=1, observation_dim=2
+    )
+    data = sample_dataset(world, rng, touches_per_object=6)
+    run = FitRun(data, 2, np.random.default_rng(0), FitOptions(threads=2))
+    assert isinstance(run.full.likelihood, ManifoldLikelihood)
+    assert run.full.likelihood.threads == 2
+    plan = fit_run.StartPlan(
+        run.full, run.layout, run.options, 10, "joint", run._settings(run.full, "joint")
+    )
+    single = plan.on_one_thread()
+    assert isinstance(single.problem.likelihood, ManifoldLikelihood)
+    assert single.problem.likelihood.threads == 1
+    assert single.options.threads == 1
+    assert run.full.likelihood.threads == 2  # the fit's own problem is left as it was
+    assert single.problem.likelihood.data is run.full.likelihood.data

@@ -14,7 +14,7 @@ import scipy.linalg
 
 import core.gp.linalg
 from bench.direct_likelihood import direct_value_and_gradient
-from core.errors import NotPositiveDefiniteError
+from core.errors import InvalidInputError, NotPositiveDefiniteError
 from core.gp.likelihood import ManifoldLikelihood
 from core.gp.linalg import inverse_from_cholesky, upper_triangular_inverse, weighted_gram_difference
 from core.gp.parameters import ParameterLayout, initial_hyperparameters
@@ -170,3 +170,40 @@ def test_weighted_gram_difference_handles_signs_and_zeros(n: int) -> None:
     zeros = weighted_gram_difference(left, np.zeros(n), right, np.zeros(7))
     assert zeros.shape == (n, n)
     assert not np.any(zeros)
+
+
+@pytest.mark.parametrize("threads", [2, 3])
+def test_features_on_threads_give_the_one_thread_numbers_bit_for_bit(threads: int) -> None:
+    # N = 600 > 512: the inverse is LAPACK's dpotri, the path of the real-sized fits.
+    data, vector = _problem(6, [120, 80, 100, 110, 90, 100], 2, 5, 3, seed=3)
+    serial = ManifoldLikelihood(data, 3)
+    threaded = ManifoldLikelihood(data, 3, threads=threads)
+    value, grad = serial.value_and_gradient(vector)
+    value_t, grad_t = threaded.value_and_gradient(vector)
+    assert value_t == value
+    assert np.array_equal(grad_t, grad)
+    assert threaded.value(vector) == serial.value(vector)
+
+
+def test_a_feature_that_fails_on_a_thread_raises_its_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    data, vector = _problem(3, [4, 7, 5], 2, 3, 2, seed=4)
+    likelihood = ManifoldLikelihood(data, 2, threads=2)
+    factor = ManifoldLikelihood._factor
+
+    def failing(self: ManifoldLikelihood, gram: np.ndarray, noise: float, feature: int) -> object:
+        if feature == 1:
+            raise NotPositiveDefiniteError(f"Gram matrix of feature {feature}")
+        return factor(self, gram, noise, feature)
+
+    monkeypatch.setattr(ManifoldLikelihood, "_factor", failing)
+    with pytest.raises(NotPositiveDefiniteError, match="feature 1"):
+        likelihood.value_and_gradient(vector)
+    with pytest.raises(NotPositiveDefiniteError, match="feature 1"):
+        likelihood.value(vector)
+
+
+@pytest.mark.parametrize("threads", [0, -1, 1.5, True, "2"])
+def test_a_bad_thread_count_is_refused(threads: object) -> None:
+    data, _ = _problem(3, [4, 7, 5], 2, 2, 2, seed=5)
+    with pytest.raises(InvalidInputError, match="threads"):
+        ManifoldLikelihood(data, 2, threads=threads)  # type: ignore[arg-type]

@@ -8,13 +8,14 @@ import scipy.stats
 
 from core.errors import InvalidInputError
 from core.evaluation.worlds import correlated_noise_world, sample_dataset
-from core.gp.manifold import FitOptions, fit_manifold
+from core.gp.manifold import FitOptions, NoiseModelChoice, fit_manifold, iter_fit
 from core.gp.noise_model import (
     attach_transform,
     correlated_transform,
     loo_log_likelihoods,
     standardising_transform,
     transform_data,
+    warm_start,
     whitening_transform,
 )
 from core.gp.posterior import condition, gram_matrix, predict, predict_model_space
@@ -285,3 +286,65 @@ def test_kronecker_inverse_diagonal_matches_the_dense_one() -> None:
     assert loo_k is not None
     assert loo_d is not None
     np.testing.assert_allclose(loo_k, loo_d, rtol=1e-9)
+
+
+def test_the_correlated_refit_is_one_warm_start_from_the_first_fit() -> None:
+    world = correlated_noise_world(np.random.default_rng(6), n_objects=4, action_dim=1)
+    data = sample_dataset(world, np.random.default_rng(9), 20)
+    options = FitOptions(restarts=1)
+    events = list(iter_fit(data, 2, np.random.default_rng(0), options, "correlated"))
+    refit = [e for e in events if e.phase.startswith("correlated: ")]
+    # One start, polished on all the data: no screening, no restarts.
+    assert {e.n_starts for e in refit} == {1}
+    assert {e.phase.partition(": ")[2].removesuffix(" done") for e in refit} == {"joint", "done"}
+    model = events[-1].model
+    assert model is not None
+    assert model.transform is not None
+    independent = fit_manifold(
+        data, 2, np.random.default_rng(0), options, noise_model="independent"
+    )
+    first = condition(transform_data(data, independent.observation_transform),
+                      independent.latents, independent.hyperparameters)  # fmt: skip
+    start = warm_start(first, model.transform)
+    whitened = transform_data(data, model.transform)
+    at_start = condition(whitened, start.latents, start.hyperparameters).log_likelihood
+    assert refit[-1].log_likelihood > at_start
+
+
+def test_the_warm_start_carries_the_first_fit_through_the_whitening() -> None:
+    data = raw_data()
+    base = standardising_transform(data)
+    first = condition(transform_data(data, base), LATENTS, HYPER)
+    transform = correlated_transform(first, base)
+    start = warm_start(first, transform)
+    np.testing.assert_array_equal(start.latents, first.latents)
+    np.testing.assert_array_equal(
+        start.hyperparameters.latent_lengthscales, HYPER.latent_lengthscales
+    )
+    # Whitened noise has unit variance; each feature's signal is the mix W z of the first's.
+    np.testing.assert_array_equal(start.hyperparameters.noise_variance, np.ones(3))
+    w = transform.whitening
+    np.testing.assert_allclose(
+        start.hyperparameters.signal_variance, (w**2) @ HYPER.signal_variance, rtol=1e-12
+    )
+    residual_noise = (
+        w
+        @ (np.sqrt(np.outer(HYPER.noise_variance, HYPER.noise_variance)) * transform.correlation)
+        @ w.T
+    )
+    np.testing.assert_allclose(np.diag(residual_noise), np.ones(3), rtol=1e-9)
+
+
+@pytest.mark.parametrize("noise_model", ["independent", "auto"])
+def test_the_fraction_done_grows_to_one(noise_model: NoiseModelChoice) -> None:
+    world = correlated_noise_world(np.random.default_rng(6), n_objects=4, action_dim=1)
+    data = sample_dataset(world, np.random.default_rng(7), 24)
+    options = FitOptions(restarts=1, screen_touches_per_object=8)
+    events = list(iter_fit(data, 2, np.random.default_rng(0), options, noise_model))
+    fractions = [e.fraction for e in events]
+    assert fractions[-1] == 1.0
+    assert all(0.0 <= f <= 1.0 for f in fractions)
+    assert fractions == sorted(fractions)
+    assert len(set(fractions)) > 4  # it advances stage by stage, not only at the end
+    # 1 only once the fit (a noise model's last stage) has ended.
+    assert all(e.fraction < 1.0 for e in events if e.phase.split(": ")[-1] != "done")

@@ -1,5 +1,5 @@
-"""The Models page shows a fit waiting for its turn (queued, with its place in the queue) and
-stops it with a click.
+"""The Models page shows a running fit's time left, a fit waiting for its turn (queued, with its
+place in the queue) and stops it with a click.
 
 The server fits one model at a time here (``max_concurrent_fits=1``) and the first fit waits at
 a gate the test holds shut (a wrapper around :func:`app.services.fits.run_fit`), so the second
@@ -22,6 +22,7 @@ from app.config import PROJECT_ROOT
 from app.main import create_app
 from app.services import fits
 from app.services.jobs import Job
+from core.gp import FitProgress
 from tests.app.conftest import experiment1_csv, make_settings
 from tests.app.served import start_in_thread
 
@@ -40,6 +41,8 @@ def gate(monkeypatch: pytest.MonkeyPatch) -> Iterator[threading.Event]:
     real = fits.run_fit
 
     def gated(request: fits.FitRequest, job: Job, report: Any) -> Any:
+        # A quarter of the fit done after 20 s: a minute left.
+        report(FitProgress(0, 3, 10, -5.0, -5.0, phase="independent: screen", fraction=0.25), 20.0)
         while not opened.wait(0.01):
             job.checkpoint()
         return real(request, job, report)
@@ -74,7 +77,9 @@ def test_a_queued_fit_shows_its_place_and_stops_from_the_page(page: Any, base_ur
         first, second = api.post("/models", json=body).json(), api.post("/models", json=body).json()
         assert (first["status"], second["status"]) == ("fitting", "queued")
         page.goto(f"{base_url}/?viz=off#models")
-        expect(page.get_by_test_id("fit-running")).to_contain_text(f"Model #{first['id']} fitting")
+        running = page.get_by_test_id("fit-running")
+        expect(running).to_contain_text(f"Model #{first['id']} fitting")
+        expect(running).to_contain_text("about 1 min 00 s left of the fit")
         queued = page.get_by_test_id("fit-queued")
         expect(queued).to_contain_text(f"Model #{second['id']} queued: number 1 in the queue")
         expect(page.get_by_test_id("queue-position")).to_have_text(" #1")

@@ -11,12 +11,25 @@ import { $, badge, el, fill, guarded, num, setOptions, throttle, timeOf, toast }
 
 let selected = null;
 
+// The time the running stage (the choice of ds, then the fit) has left at its last progress
+// event, estimated by the server from its pace (app/services/remaining.py).
+function remainingText(model) {
+  const p = model.progress || {};
+  if (p.remaining_s === null || p.remaining_s === undefined) return "";
+  const left = p.remaining_s;
+  const what = p.stage === "latent selection" ? "choice of ds" : "fit";
+  return left > 0 ? `about ${formatDuration(left)} left of the ${what}` : `${what} finishing`;
+}
+
 function progressText(model) {
   const p = model.progress || {};
   const parts = [];
-  if (p.start !== undefined && p.n_starts) parts.push(`start ${Math.min(p.start + 1, p.n_starts)} of ${p.n_starts}`);
+  if (p.stage === "latent selection" && p.phase) parts.push(p.phase);
+  else if (p.start !== undefined && p.n_starts) parts.push(`start ${Math.min(p.start + 1, p.n_starts)} of ${p.n_starts}`);
   if (p.iteration !== undefined) parts.push(`iteration ${p.iteration}`);
   if (p.best_log_likelihood !== undefined && p.best_log_likelihood !== null) parts.push(`best log-lik ${num(p.best_log_likelihood, 6)}`);
+  const left = remainingText(model);
+  if (left) parts.push(left);
   return parts.join(" · ") || "starting…";
 }
 
@@ -34,6 +47,7 @@ async function stopFit(id) {
 
 function progressFraction(model) {
   const p = model.progress || {};
+  if (p.fraction !== undefined && p.fraction !== null) return Math.min(1, Math.max(0, p.fraction));
   if (!p.n_starts) return 0;
   return Math.min(1, (p.start ?? 0) / p.n_starts);
 }
