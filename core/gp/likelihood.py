@@ -34,6 +34,7 @@ gradient are bit-identical to one thread's.
 
 from __future__ import annotations
 
+import concurrent.futures
 import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -201,6 +202,7 @@ class ManifoldLikelihood:
         if self.threads == 1 or dy == 1:
             return [work(a) for a in range(dy)]
         futures = [feature_pool(self.threads).submit(work, a) for a in range(dy)]
+        concurrent.futures.wait(futures)  # no feature still running when an error is raised
         return [future.result() for future in futures]
 
     def value(self, vector: FloatArray) -> float:
