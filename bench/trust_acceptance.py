@@ -5,7 +5,8 @@ Runs the commands a new user would (each printed; an output already in ``--workd
 so an interrupted run resumes and anyone can rerun it):
 
     activetouch collect --sim --table T --touches 100 --seed S --out train.csv
-    activetouch collect --sim --table T --touches 30 --design random --seed S+1 --out heldout.csv
+    activetouch collect --sim --table T --touches 30 --design random --placements 30 --seed S+1 \\
+        --out heldout.csv
     activetouch fit train.csv --out model.json
     activetouch evaluate --model model.json --world rig --table T \\
         --policies active,discriminative,passive --trials n --steps 6 --workers W --seed S \\
@@ -15,8 +16,8 @@ so an interrupted run resumes and anyone can rerun it):
         --out eval-replay-n<n>-T6-s<S>.json
 
 (``--table-file F`` in place of ``--table T``; the first collection takes ``collect``'s default
-design, the adaptive one; the held-out collection is a random design, as recorded data are, and
-never seen by the fit; n = ⌈trials / objects⌉ trials per target.) The trials run in the
+design, the adaptive one, with its default placements; the held-out collection is a random
+design with a fresh placement for every touch, as recorded data are, and never seen by the fit; n = ⌈trials / objects⌉ trials per target.) The trials run in the
 evaluation engine behind ``activetouch evaluate`` (Dask ``LocalCluster`` of ``--workers``); this
 module only reads the reports.
 
@@ -291,7 +292,8 @@ def run(args: argparse.Namespace, workdir: Path) -> dict[str, dict[str, Any]]:
     )  # fmt: skip
     _run(
         [exe, "collect", "--sim", *table, "--touches", str(args.heldout_touches), "--design",
-         "random", "--seed", str(args.seed + 1), "--out", str(heldout)],
+         "random", "--placements", str(args.heldout_touches), "--seed", str(args.seed + 1),
+         "--out", str(heldout)],
         heldout,
     )  # fmt: skip
     _run([exe, "fit", str(train), "--out", str(model)], model)

@@ -19,8 +19,16 @@ defaults), then in rounds (:data:`app.services.collections.ADAPTIVE_ROUNDS`) tou
 object at the actions the planners would choose from the current model
 (:func:`core.evaluation.adaptive_design.planner_round`), refitting between rounds; the same budget.
 Without ``--design`` the design is ``adaptive``, or ``random`` where adaptive cannot run (fewer
-than 3 touches, or ``--placements``), said in a note and in the summary's ``design_note``
+than 3 touches), said in a note and in the summary's ``design_note``
 (:func:`app.services.collections.default_design`).
+
+Each object is placed anew (the table turns it away and back) once every 5 touches
+(``--placements P`` to choose P, the placements per object) and touched that many times in a
+row, and every touch records its placement in the CSV's ``placement`` column: a recognition
+trial places its object once and touches it several times, and the fit estimates from these
+runs how much one placement (and the drift of its minutes) shifts a trial's touches alike
+(docs/calibration.md, "Fix 1"). The adaptive design's stages each get placements of their own
+(:func:`app.services.collections.stage_placements`).
 
 Each touch is appended to the CSV (and, with ``--raw``, its raw tactile series to a raw-touch
 file, JSON lines as ``docs/raw-touches.md`` describes, with the frame times and joint series
@@ -158,8 +166,32 @@ def default_action_scale(options: RigOptions, given: float | None) -> float:
     return 1.0
 
 
+def _stages(design: str, touches: int, placements: int | None) -> tuple[list[int], list[int]]:
+    """Touches and placements per object of each stage of the collection.
+
+    Raises:
+        typer.Exit: (code 2) too few touches for the adaptive design, or ``placements`` outside
+            what the stages allow.
+    """
+    from app.errors import BadInputError
+    from app.services.collections import default_placements, stage_placements, stage_sizes
+    from core.errors import InvalidInputError
+
+    try:
+        sizes = stage_sizes(design, touches)
+    except InvalidInputError as exc:
+        raise fail(f"--touches: too few for --design adaptive ({exc})", 2) from None
+    try:
+        stages = stage_placements(
+            default_placements(sizes) if placements is None else placements, sizes
+        )
+    except BadInputError as exc:
+        raise fail(f"--{exc.message}", 2) from None
+    return sizes, stages
+
+
 def adaptive_plan(
-    touches: int,
+    sizes: list[int],
     actions: TouchActions,
     handle: RigHandle,
     names: list[str],
@@ -168,25 +200,18 @@ def adaptive_plan(
 ) -> tuple[CollectionDesign, NextRound]:
     """The adaptive design's initial random half and the planner of its later rounds.
 
-    Raises:
-        typer.Exit: (code 2) too few touches for an initial design and a round.
+    Args:
+        sizes: Touches per object of the initial design and of each round
+            (:func:`app.services.collections.stage_sizes`).
     """
-    from app.services.collections import ADAPTIVE_ROUNDS
     from app.services.collections import AdaptiveRounds as NextRound
-    from core.errors import InvalidInputError
-    from core.evaluation import round_sizes
 
-    initial = max(2, touches // 2)
-    try:
-        sizes = round_sizes(touches, initial, min(ADAPTIVE_ROUNDS, touches - initial))
-    except InvalidInputError as exc:
-        raise fail(f"--touches: too few for --design adaptive ({exc})", 2) from None
-    plan = make_design("random", len(names), initial, actions.action_dim, action_scale, seed)
+    plan = make_design("random", len(names), sizes[0], actions.action_dim, action_scale, seed)
 
     def check(design: CollectionDesign) -> None:
         check_plan(design, actions, handle, names)
 
-    return plan, NextRound(names, touches, sizes, seed, check)
+    return plan, NextRound(names, sum(sizes), sizes[1:], seed, check)
 
 
 def make_design(
@@ -272,7 +297,7 @@ def collect_command(
             help="adaptive (default): half the touches random, then rounds at the actions the "
             "planners would choose from a model fitted to the touches so far; random: a fresh "
             "action x ~ N(0, scale² I) per touch (the paper's; the default's fallback with "
-            "fewer than 3 touches or with --placements); shared: the same M actions "
+            "fewer than 3 touches); shared: the same M actions "
             "(scrambled Sobol) on every object (Kronecker fit)."
         ),
     ] = None,
@@ -302,9 +327,10 @@ def collect_command(
         int | None,
         typer.Option(
             "--placements",
-            help="Place each object P times and touch it touches/P times per placement "
-            "(recorded in a 'placement' column; fit then estimates the placement effect). "
-            "Default: a fresh placement for every touch.",
+            help="Place each object P times and touch it touches/P times in a row per "
+            "placement (recorded in a 'placement' column; fit estimates from it how much one "
+            "placement shifts a trial's touches alike). Default: one placement every 5 "
+            "touches; P = --touches places the object anew before every touch.",
         ),
     ] = None,
     as_json: AsJson = False,
@@ -314,23 +340,13 @@ def collect_command(
     sim, sim_transport = options.sim, options.sim_transport
     if action_scale is not None and not action_scale > 0:
         raise fail(f"--action-scale: must be > 0, received {action_scale}.", 2)
-    if placements is not None and not 1 <= placements <= touches:
-        raise fail(
-            f"--placements: must lie in 1..{touches} (--touches, the touches per object), "
-            f"received {placements}.",
-            2,
-        )
     design_note = None
     if design is None:
         from app.services.collections import default_design
 
-        design, design_note = default_design(touches, placements)
-    if placements is not None and design == "adaptive":
-        raise fail(
-            "--placements: not with --design adaptive (its rounds touch each object once per "
-            "action, each touch at a fresh placement).",
-            2,
-        )
+        design, design_note = default_design(touches)
+    sizes, stages = _stages(design, touches, placements)
+    placements = sum(stages)
     action_scale = default_action_scale(options, action_scale)
     parsed = parse_objects(objects or [], simulated=sim)
     if not sim and len(parsed) < 2:
@@ -344,7 +360,7 @@ def collect_command(
         next_round = None
         if design == "adaptive":
             plan, next_round = adaptive_plan(
-                touches, actions, handle, list(slots), action_scale, seed
+                sizes, actions, handle, list(slots), action_scale, seed
             )
         else:
             plan = make_design(design, len(slots), touches, actions.action_dim, action_scale, seed)
@@ -368,7 +384,7 @@ def collect_command(
             "placements": placements,
         }
         recorded, error, code, seconds = _collect(
-            handle, lease, actions, slots, plan, out, raw, force, placements, next_round, seed
+            handle, lease, actions, slots, plan, out, raw, force, stages, next_round, seed
         )
         summary["rig_state"] = str(handle.rig.state)
     counts = Counter(touch.object_name for touch in recorded)
@@ -395,11 +411,14 @@ def _collect(
     out: Path,
     raw: Path | None,
     force: bool,
-    placements: int | None = None,
+    placements: list[int],
     next_round: NextRound | None = None,
     seed: int = 0,
 ) -> tuple[list[CollectedTouch], str | None, int, float]:
-    """Run the collection into the files; return the touches, the error, exit code, seconds."""
+    """Run the collection into the files; return the touches, the error, exit code, seconds.
+
+    ``placements``: placements per object of each stage (the plan, then each round).
+    """
     from app.cli.output import progress_bar
     from app.documents.raw_touches import raw_touch_from_record, raw_touch_line
     from app.documents.training_csv import TrainingCsvWriter
@@ -418,7 +437,7 @@ def _collect(
             csv_file,
             actions.action_dim,
             len(handle.rig.tactile.config.channel_names),
-            placements=placements is not None,
+            placements=True,
         )
         _sync(csv_file)
         with progress_bar() as bar:
@@ -479,23 +498,24 @@ def _rounds(
     next_round: NextRound | None,
     bar: Any,
     task: Any,
-    placements: int | None = None,
+    placements: list[int],
     seed: int = 0,
 ) -> Iterator[CollectedTouch]:
-    """The touches of ``plan`` (at ``placements`` per object, if given), then of each round
-    ``next_round`` plans from ``recorded`` (a shared design's order seeded by ``seed`` plus the
-    round's number)."""
+    """The touches of ``plan``, then of each round ``next_round`` plans from ``recorded``;
+    stage k at ``placements[k]`` placements per object, numbered on from the stage before (a
+    shared design's order seeded by ``seed`` plus the stage's number)."""
     from app.services.collections import iter_collection
 
     current: CollectionDesign | None = plan
-    order_seed = seed
-    while current is not None:
-        yield from iter_collection(lease, actions, slots, current, placements, order_seed)
-        order_seed += 1
-        if next_round is None:
+    for stage, count in enumerate(placements):
+        if current is None:
             return
-        bar.update(task, status="fitting the model to plan the next round")
-        current = next_round(recorded)
+        first = sum(placements[:stage])
+        yield from iter_collection(lease, actions, slots, current, count, seed + stage, first)
+        current = None
+        if next_round is not None and stage + 1 < len(placements):
+            bar.update(task, status="fitting the model to plan the next round")
+            current = next_round(recorded)
 
 
 def _report(summary: dict[str, Any], as_json: bool) -> None:

@@ -57,36 +57,99 @@ ADAPTIVE_ROUNDS = 2
 #: Fewest touches per object the adaptive design can spend: 2 random ones, then a round of 1.
 ADAPTIVE_MIN_TOUCHES = 3
 
+#: Touches in a row at one placement of an object when a collection names no placements:
+#: about a recognition trial's length. A trial places its object once and touches it several
+#: times, so its touches share that placement's offset and the drift of its minutes; touching
+#: the training objects the same way is what lets the fit estimate how large that shared part
+#: is (docs/calibration.md, "Fix 1").
+TOUCHES_PER_PLACEMENT = 5
 
-def default_design(
-    touches: int, placements: int | None = None
-) -> tuple[Literal["adaptive", "random"], str | None]:
+
+def default_design(touches: int) -> tuple[Literal["adaptive", "random"], str | None]:
     """The design of a collection that names none: ``adaptive`` wherever it can run.
 
     Why adaptive: with the random design the planners' touches land where the GP extrapolates
     and the model is confidently wrong on the rig; the adaptive design spends half the same
     budget where the planners go (docs/calibration.md, "Adaptive training design"). It cannot
-    run with fewer than :data:`ADAPTIVE_MIN_TOUCHES` touches per object, nor with placements
-    (its rounds touch every object once per action); there the default is ``random``.
+    run with fewer than :data:`ADAPTIVE_MIN_TOUCHES` touches per object; there the default is
+    ``random``.
 
     Args:
         touches: Touches per object.
-        placements: Placements per object asked for (``None``: a fresh one per touch).
 
     Returns:
         The design, and ``None`` or the sentence saying why ``random`` replaced ``adaptive``.
     """
-    if placements is not None:
-        return "random", (
-            "the default design is adaptive, but its rounds touch every object once per action "
-            "at a fresh placement, so with placements the random design is used"
-        )
     if touches < ADAPTIVE_MIN_TOUCHES:
         return "random", (
             f"the default design is adaptive, but it needs {ADAPTIVE_MIN_TOUCHES} touches per "
             f"object or more (received {touches}), so the random design is used"
         )
     return "adaptive", None
+
+
+def stage_sizes(design: str, touches: int) -> list[int]:
+    """Touches per object of each stage of a collection: the adaptive design's initial random
+    half and its rounds (:data:`ADAPTIVE_ROUNDS`), or the one stage of any other design.
+
+    Raises:
+        InvalidInputError: Too few touches for the adaptive design's initial half and a round.
+    """
+    if design != "adaptive":
+        return [touches]
+    initial = max(2, touches // 2)
+    return [initial, *round_sizes(touches, initial, min(ADAPTIVE_ROUNDS, touches - initial))]
+
+
+def default_placements(sizes: list[int]) -> int:
+    """Placements per object of a collection that names none: one every
+    :data:`TOUCHES_PER_PLACEMENT` touches, at least one per stage, at most one per touch.
+
+    Args:
+        sizes: Touches per object of each stage (:func:`stage_sizes`).
+    """
+    touches = sum(sizes)
+    return min(touches, max(len(sizes), round(touches / TOUCHES_PER_PLACEMENT)))
+
+
+def stage_placements(placements: int, sizes: list[int]) -> list[int]:
+    """Split an object's ``placements`` over the stages of its collection.
+
+    Every stage gets one placement (a stage's touches are planned after the previous stage, so
+    no placement spans two), the rest in proportion to the stages' remaining touches by largest
+    remainder, never more placements than touches.
+
+    Args:
+        placements: P, placements per object in all.
+        sizes: Touches per object of each stage (:func:`stage_sizes`).
+
+    Returns:
+        Placements per object of each stage; they sum to P.
+
+    Raises:
+        BadInputError: P is smaller than the number of stages or larger than the touches.
+    """
+    touches = sum(sizes)
+    if not len(sizes) <= placements <= touches:
+        stages = (
+            f" (the design touches in {len(sizes)} stages, each with placements of its own)"
+            if len(sizes) > 1
+            else ""
+        )
+        raise BadInputError(
+            f"placements: must lie in {len(sizes)}..{touches}, the touches per object"
+            f"{stages}, received {placements}.",
+            field="placements",
+        )
+    capacity = np.asarray(sizes, dtype=np.float64) - 1.0
+    extra = placements - len(sizes)
+    if extra == 0 or capacity.sum() == 0:
+        return [1] * len(sizes)
+    quota = extra * capacity / capacity.sum()
+    share = np.floor(quota).astype(np.int64)
+    for stage in np.argsort(-(quota - share), kind="stable")[: extra - int(share.sum())]:
+        share[stage] += 1
+    return [1 + int(k) for k in share]
 
 
 def check_objects(objects: Mapping[str, int] | list[tuple[str, int]]) -> None:
@@ -139,6 +202,7 @@ def iter_collection(
     design: CollectionDesign,
     placements: int | None = None,
     order_seed: int = 0,
+    first_placement: int = 0,
 ) -> Iterator[CollectedTouch]:
     """Touch the objects on the rig as ``design`` says, one event per touch as it is recorded.
 
@@ -154,10 +218,12 @@ def iter_collection(
 
     With ``placements`` = P, each object is instead placed P times and touched N_l / P times in
     a row at each placement (the table stays put), placement by placement in rounds over the
-    objects; every touch records its placement (0..P-1). A recognition trial touches one
-    placement several times, so such a collection shows how much a placement (and the drift
-    over its touches) shifts them alike: the fit estimates that variance from it
-    (docs/calibration.md). With a shared design every object still gets the same actions.
+    objects; every touch records its placement (``first_placement`` + 0..P-1: a later stage of
+    the same collection numbers on). A recognition trial touches one placement several times,
+    so such a collection shows how much a placement (and the drift over its touches) shifts
+    them alike: the fit estimates that variance from it (docs/calibration.md). With a shared
+    design every object still gets the same actions, each object in its own random order
+    (seeded by ``order_seed``) before the actions are dealt to its placements.
 
     Args:
         lease: A lease on a connected rig.
@@ -166,6 +232,7 @@ def iter_collection(
         design: Which action touches which object (``object_index`` indexes ``slots``).
         placements: P, placements per object (1..N_l); ``None``: a fresh placement per touch.
         order_seed: Seed of a shared design's order (vary it between rounds of one collection).
+        first_placement: Number of the first placement of each object (with ``placements``).
 
     Yields:
         One :class:`~app.rig.collection.CollectedTouch` per touch (``index``/``total`` count the
@@ -195,6 +262,9 @@ def iter_collection(
             )
     total, done = design.n_touches, 0
     if placements is not None:
+        if design.shared:
+            rng = np.random.default_rng(order_seed)
+            rows = [r[rng.permutation(r.size)] for r in rows]
         groups = [placement_runs(len(r), placements) for r in rows]
         for p in range(placements):
             for name, object_rows, object_groups in zip(names, rows, groups, strict=True):
@@ -204,7 +274,13 @@ def iter_collection(
                         lease, design.actions[row], slot=slots[name] if k == 0 else None
                     )
                     yield CollectedTouch(
-                        done, total, name, slots[name], design.actions[row].copy(), record, p
+                        done,
+                        total,
+                        name,
+                        slots[name],
+                        design.actions[row].copy(),
+                        record,
+                        first_placement + p,
                     )
                     done += 1
         return
@@ -446,8 +522,7 @@ class CollectionService:
         if body.action_design != "adaptive":
             return None
         touches = body.samples_per_object
-        initial = max(2, touches // 2)
-        sizes = round_sizes(touches, initial, min(ADAPTIVE_ROUNDS, touches - initial))
+        sizes = stage_sizes("adaptive", touches)[1:]
         names = [o.name for o in body.objects]
         return AdaptiveRounds(names, touches, sizes, 0 if body.seed is None else body.seed)
 

@@ -47,8 +47,8 @@ def collect(*args: str) -> Any:
 def test_random_design_writes_the_csv_the_raw_series_and_a_summary(tmp_path: Path) -> None:
     out, raw = tmp_path / "data.csv", tmp_path / "raw.jsonl"
     result = collect(
-        *OBJECTS, "--design", "random", "--touches", "3", "--seed", "1", "--out", str(out),
-        "--raw", str(raw), "--json",
+        *OBJECTS, "--design", "random", "--touches", "3", "--placements", "3", "--seed", "1",
+        "--out", str(out), "--raw", str(raw), "--json",
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     summary = json.loads(result.stdout)
@@ -64,8 +64,8 @@ def test_random_design_writes_the_csv_the_raw_series_and_a_summary(tmp_path: Pat
     assert summary["channels"][3] == "heat_flux_mw"
     data = read_training_csv(out.read_text())
     assert data.object_names == NAMES
-    # The paper's design from core.evaluation.designs, written exactly, touched in rounds (each
-    # object's next action in turn, so every touch meets a fresh placement).
+    # The paper's design from core.evaluation.designs, written exactly; with a placement per touch
+    # it is touched in rounds (each object's next action in turn).
     expected = random_design(3, 3, np.zeros(DX), np.eye(DX), np.random.default_rng(1))
     np.testing.assert_array_equal(data.object_index, [0, 1, 2] * 3)
     for obj in range(3):
@@ -99,13 +99,13 @@ def test_random_design_writes_the_csv_the_raw_series_and_a_summary(tmp_path: Pat
 def test_shared_design_touches_every_object_with_the_same_actions(tmp_path: Path) -> None:
     out = tmp_path / "shared.csv"
     result = collect(
-        *OBJECTS[:4], "--design", "shared", "--touches", "4", "--seed", "2", "--action-scale",
-        "0.5", "--out", str(out), "--json",
+        *OBJECTS[:4], "--design", "shared", "--touches", "4", "--placements", "4", "--seed", "2",
+        "--action-scale", "0.5", "--out", str(out), "--json",
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     data = read_training_csv(out.read_text())
-    # Round by round, every object in turn; each object gets every action once, in its own
-    # random order (seeded), so one action's touches do not follow each other.
+    # A placement per touch: round by round, every object in turn; each object gets every action
+    # once, in its own random order (seeded), so one action's touches do not follow each other.
     assert [data.object_names[i] for i in data.object_index] == ["paper_cup", "stainless_cup"] * 4
     expected = shared_design(
         2, 4, np.zeros(DX), 0.25 * np.eye(DX), np.random.default_rng(2)
@@ -190,15 +190,15 @@ def test_without_design_adaptive_is_the_default_and_random_its_said_fallback(
     assert summary["design"] == "random"
     assert "needs 3 touches per object or more (received 2)" in summary["design_note"]
     assert "the random design is used" in said(few)
-    # Placements: random likewise (adaptive rounds touch each object once per action).
+    # Placements: each adaptive stage needs its own, so fewer than its 3 stages is bad usage.
     placed = collect(
         *OBJECTS[:4], "--touches", "4", "--placements", "2", "--out", str(tmp_path / "p.csv"),
         "--json",
     )  # fmt: skip
-    assert placed.exit_code == 0, placed.output
-    summary = json.loads(placed.stdout)
-    assert summary["design"] == "random"
-    assert "with placements" in summary["design_note"]
+    assert placed.exit_code == 2
+    assert "--placements: must lie in 3..4" in said(placed)
+    assert "3 stages" in said(placed)
+    assert not (tmp_path / "p.csv").exists()
 
 
 def test_same_seed_same_file_and_no_silent_overwrite(tmp_path: Path) -> None:
@@ -318,7 +318,7 @@ def test_a_fault_mid_collection_keeps_what_was_recorded(
     assert 1 <= summary["recorded"] < summary["planned"] == 12
     assert "collection stopped" in said(result)
     rows = out.read_text().splitlines()
-    assert rows[0] == "object,x_1,x_2,x_3,x_4,x_5,x_6,y_1,y_2,y_3,y_4,y_5"
+    assert rows[0] == "object,placement,x_1,x_2,x_3,x_4,x_5,x_6,y_1,y_2,y_3,y_4,y_5"
     assert len(rows) == 1 + summary["recorded"]
     assert len(raw.read_text().splitlines()) == summary["recorded"]
     # The rig stopped safely: the faulty servo and the other one are switched off.

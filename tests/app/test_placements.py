@@ -15,7 +15,12 @@ from app.documents.errors import DocumentError
 from app.documents.model import model_from_document, model_to_document
 from app.documents.training_csv import read_training_csv, write_training_csv
 from app.errors import BadInputError
-from app.services.collections import placement_runs
+from app.services.collections import (
+    default_placements,
+    placement_runs,
+    stage_placements,
+    stage_sizes,
+)
 from core.evaluation.reference_model import experiment1_at_true_latents
 from core.types import TrainingData
 
@@ -35,6 +40,8 @@ def test_collect_with_placements_touches_each_placement_in_a_row(tmp_path: Path)
             *OBJECTS,
             "--touches",
             "4",
+            "--design",
+            "random",
             "--placements",
             "2",
             "--seed",
@@ -52,6 +59,60 @@ def test_collect_with_placements_touches_each_placement_in_a_row(tmp_path: Path)
     # Placement by placement in rounds over the objects, two touches in a row at each.
     np.testing.assert_array_equal(data.object_index, [0, 0, 1, 1, 0, 0, 1, 1])
     np.testing.assert_array_equal(data.placement_index, [0, 0, 0, 0, 1, 1, 1, 1])
+
+
+def test_the_default_collection_records_placements_in_every_stage(tmp_path: Path) -> None:
+    out = tmp_path / "adaptive.csv"
+    result = runner.invoke(
+        app,
+        [
+            "collect",
+            "--sim",
+            "--duration",
+            "5",
+            *OBJECTS,
+            "--touches",
+            "6",
+            "--seed",
+            "1",
+            "--out",
+            str(out),
+            "--json",
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.stdout)
+    # Adaptive: 3 random touches, then two rounds of 2 and 1 (sizes 3, 2, 1); one placement each.
+    assert summary["design"] == "adaptive"
+    assert summary["placements"] == 3
+    data = read_training_csv(out.read_text())
+    assert data.placement_index is not None
+    for obj in range(2):
+        placement = data.placement_index[data.object_index == obj]
+        np.testing.assert_array_equal(placement, [0, 0, 0, 1, 1, 2])
+    # A placement's touches follow each other: the table turns only between placements.
+    runs = [(o, p) for o, p in zip(data.object_index, data.placement_index, strict=True)]
+    changes = [k for k in range(1, len(runs)) if runs[k] != runs[k - 1]]
+    assert len(changes) == 2 * 3 - 1
+
+
+def test_placements_are_split_over_the_stages() -> None:
+    assert stage_sizes("adaptive", 100) == [50, 25, 25]
+    assert stage_sizes("random", 100) == [100]
+    assert default_placements([50, 25, 25]) == 20
+    assert default_placements([2, 1]) == 2
+    assert default_placements([3]) == 1
+    assert stage_placements(20, [50, 25, 25]) == [10, 5, 5]
+    assert stage_placements(3, [50, 25, 25]) == [1, 1, 1]
+    assert stage_placements(100, [50, 25, 25]) == [50, 25, 25]
+    for placements in range(3, 101):
+        split = stage_placements(placements, [50, 30, 20])
+        assert sum(split) == placements
+        assert all(1 <= k <= n for k, n in zip(split, [50, 30, 20], strict=True))
+    with pytest.raises(BadInputError, match=r"3\.\.100.*3 stages"):
+        stage_placements(2, [50, 25, 25])
+    with pytest.raises(BadInputError, match=r"1\.\.4"):
+        stage_placements(5, [4])
 
 
 def test_more_placements_than_touches_is_bad_usage(tmp_path: Path) -> None:
