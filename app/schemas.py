@@ -623,8 +623,9 @@ class EvaluationCreate(BaseModel):
     )
     placement: Literal["trial", "touch"] = Field(
         default="trial",
-        description="rig only: place the object once per trial, or anew before every touch "
-        "(the table turns away and back, as in a collection).",
+        description="rig and model: place the object once per trial, or anew before every "
+        "touch (the table turns away and back, as in a collection; the model world draws its "
+        "placement effect likewise).",
     )
     trial_likelihood: Literal["joint", "independent"] = Field(
         default="joint",

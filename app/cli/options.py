@@ -28,8 +28,8 @@ if TYPE_CHECKING:  # the drivers are imported when a command runs, not when the 
 PlacementOption = Annotated[
     str,
     typer.Option(
-        help="Rig trials: place the object once per trial (trial) or anew before every touch "
-        "(touch), as a collection does.",
+        help="Rig and model-world trials: place the object once per trial (trial) or anew "
+        "before every touch (touch), as a collection does.",
     ),
 ]
 """``--placement``: see :class:`app.evaluation.spec.EvaluationSpec` (``trial`` by default)."""

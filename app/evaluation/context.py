@@ -22,7 +22,7 @@ from threadpoolctl import threadpool_limits
 
 from app.evaluation.rig_trial import RigTrial, rig_seed
 from core.evaluation import (
-    ModelSamples,
+    ModelTrial,
     ReplayPool,
     TouchSource,
     TrialOutcome,
@@ -202,7 +202,7 @@ class TrialContext:
             return run(replay=self.pools[target], steps=self.steps)
         touches: TouchSource
         if self.spec.world == "model":
-            touches = WorldTouches(ModelSamples(self.model), target)
+            touches = ModelTrial(self.model, target, self.spec.placement == "trial")
         elif self.spec.world == "rig":
             rig = self.open_rig_trial(key, rig_seed(seed))
             try:

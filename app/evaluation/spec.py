@@ -51,14 +51,16 @@ class EvaluationSpec:
             ``confidence`` (answers are carried forward to T).
         prior_variance: Σ0 = prior_variance · I (the paper's); ``None``: the objects' prior
             (:func:`core.recognition.session.default_prior`).
-        placement: ``rig`` only: ``"trial"`` places the object once per trial (the table stays
-            at it between touches); ``"touch"`` turns the table away and back before every
-            touch, as a collection does, so every touch meets a fresh placement.
+        placement: ``rig`` and ``model``: ``"trial"`` places the object once per trial (the
+            table stays at it between touches; the model world draws one placement offset per
+            trial); ``"touch"`` turns the table away and back before every touch, as a
+            collection does, so every touch meets a fresh placement.
         trial_likelihood: How the object posterior scores a trial's touches: ``"joint"``
             (default; one Gaussian with the GP's full covariance, docs/calibration.md (C3)) or
             ``"independent"`` (the product of per-touch densities). A model's placement
-            variance σ_b² enters only on the rig with ``placement="trial"``, the one world whose
-            trial touches share a placement (a replay's touches each met their own).
+            variance σ_b² enters only on the rig and the model world with
+            ``placement="trial"``, the worlds whose trial touches share a placement (a
+            replay's touches each met their own).
     """
 
     world: WorldName
@@ -91,7 +93,7 @@ class EvaluationSpec:
             stop_confidence=self.confidence if self.stop_at_confidence else None,
             prior_variance=self.prior_variance,
             trial_likelihood=self.trial_likelihood,
-            shared_placement=self.world == "rig" and self.placement == "trial",
+            shared_placement=self.world in ("rig", "model") and self.placement == "trial",
         )
 
     def steps_used(self, model: ManifoldModel, replay: TrainingData | None) -> int:

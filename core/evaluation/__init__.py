@@ -23,6 +23,7 @@ from core.evaluation.reference_model import experiment1_at_true_latents
 from core.evaluation.summary import comparison_sentence, summarise, wilson_interval
 from core.evaluation.trial_engine import (
     ModelSamples,
+    ModelTrial,
     PlannedTouches,
     ReplayPool,
     Touch,
@@ -51,6 +52,7 @@ __all__ = [
     "CollectionDesign",
     "Experiment1World",
     "ModelSamples",
+    "ModelTrial",
     "PlannedTouches",
     "RefusedTrial",
     "ReplayPool",

@@ -10,9 +10,9 @@ caller records, streams, paces or stops the trial between touches.
 An observation source (:class:`ObservationSource`) gives the next touch of a session:
 
 * :class:`PlannedTouches` asks the session's planner for the action and performs it on a
-  :class:`TouchSource` — a synthetic world or draws from the learned GP (:class:`WorldTouches`
-  of :class:`ModelSamples`, the paper's Experiment 2 protocol), the simulated or the real rig
-  (composed in ``app``);
+  :class:`TouchSource` — a synthetic world (:class:`WorldTouches`), draws from the learned GP
+  (:class:`ModelTrial`, the paper's Experiment 2 protocol with the model's placement effect),
+  the simulated or the real rig (composed in ``app``);
 * :class:`ReplayTouches` picks among the target's recorded held-out touches without replacement,
   by the policy's replay score (:data:`core.recognition.planning.POLICIES`; docs/method.md,
   "Evaluation protocols").
@@ -192,7 +192,8 @@ class ModelSamples:
 
     y' ~ N(m(s_l, x), diag v(s_l, x)), the predictive mean and variance (noise included) of
     :func:`core.gp.posterior.predict_model_space`, mapped to raw units by the model's observation
-    transform (if any).
+    transform (if any). Each draw is independent; :class:`ModelTrial` draws a trial's touches
+    with the model's placement effect.
     """
 
     model: ManifoldModel
@@ -203,18 +204,67 @@ class ModelSamples:
         return self.model.object_names
 
     def observe(
-        self, object_index: int, actions: FloatArray, rng: np.random.Generator
+        self,
+        object_index: int,
+        actions: FloatArray,
+        rng: np.random.Generator,
+        offset: FloatArray | None = None,
     ) -> FloatArray:
-        """One draw at each of ``actions`` (n, dx) for object ``object_index``. Shape (n, dy)."""
+        """One draw at each of ``actions`` (n, dx) for object ``object_index``. Shape (n, dy).
+
+        ``offset``: a placement's offset b (dy,) in model space, shared by these draws; its
+        variance σ_b² (the model's ``placement_variance``) is then taken out of each draw's
+        noise, so every single draw keeps the predictive variance v (docs/calibration.md (C1)).
+        """
         model = self.model
         latents = np.repeat(model.latents[object_index][None, :], actions.shape[0], axis=0)
         # Drawn where the GPs' features are independent (the model space y' of a noise model)
         # and mapped to raw units: with correlated noise the raw predictive is not diagonal.
         mean, variance = predict_model_space(model, latents, actions)
+        if offset is not None:
+            assert model.placement_variance is not None
+            mean, variance = mean + offset, variance - model.placement_variance
         draw = mean + np.sqrt(variance) * rng.standard_normal(mean.shape)
         if model.transform is not None:
             draw = model.transform.restore_mean(draw)
         return np.asarray(draw, dtype=np.float64)
+
+
+class ModelTrial:
+    """One trial's touches of the learned GP (the evaluation world ``model``), drawn as the
+    recogniser models a rig trial.
+
+    Per model-space feature a, y'_ta = f_a(s_l, x_t) + b_a + ε_ta with one offset
+    b_a ~ N(0, σ_b,a²) per placement and ε_ta of variance v_a − σ_b,a² (docs/calibration.md
+    (C1); σ_b² the model's ``placement_variance``). With ``shared_placement`` the trial places its
+    object once (the offset is drawn at the first touch and kept), otherwise anew before every
+    touch. A model without a placement variance draws exactly as
+    ``WorldTouches(ModelSamples(model), target)``.
+
+    Raises:
+        InvalidInputError: ``target`` is not an object of the model.
+    """
+
+    def __init__(self, model: ManifoldModel, target: str, shared_placement: bool = True) -> None:
+        _check_target(model.object_names, target, "model")
+        self.samples = ModelSamples(model)
+        self.index = model.object_names.index(target)
+        self.shared_placement = shared_placement
+        self.offset: FloatArray | None = None
+
+    def touch(self, action: FloatArray, rng: np.random.Generator) -> Touch:
+        """A draw at ``action`` (dx,) for the target."""
+        variance = self.samples.model.placement_variance
+        if variance is not None and (self.offset is None or not self.shared_placement):
+            self.offset = np.sqrt(variance) * rng.standard_normal(variance.shape)
+        observation = self.samples.observe(self.index, action[None, :], rng, self.offset)[0]
+        return Touch(
+            action=np.asarray(action, dtype=np.float64),
+            observation=np.asarray(observation, dtype=np.float64),
+        )
+
+    def close(self) -> None:
+        """Nothing to release."""
 
 
 @dataclass(frozen=True)

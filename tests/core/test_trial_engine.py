@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -10,6 +12,7 @@ from core.evaluation.records import TrialRecord, outcome_from_dict, trial_seed
 from core.evaluation.reference_model import experiment1_at_true_latents
 from core.evaluation.trial_engine import (
     ModelSamples,
+    ModelTrial,
     PlannedTouches,
     ReplayPool,
     TrialSettings,
@@ -25,7 +28,7 @@ from core.evaluation.worlds import (
     make_world,
     sample_experiment1,
 )
-from core.gp.posterior import predict
+from core.gp.posterior import predict, predict_model_space
 from core.recognition.planning import (
     EVALUATION_POLICIES,
     POLICIES,
@@ -104,6 +107,45 @@ def test_model_world_samples_the_predictive_distribution(model):
     assert np.allclose(draws.var(axis=0), variance[0], rtol=0.1)
 
 
+def test_model_trial_without_a_placement_effect_draws_as_the_model_world(model):
+    trial_touches = ModelTrial(model, "O2")
+    world = WorldTouches(ModelSamples(model), "O2")
+    first, second = np.random.default_rng(5), np.random.default_rng(5)
+    for x in (0.1, -0.7, 1.2):
+        action = np.array([x])
+        np.testing.assert_array_equal(
+            trial_touches.touch(action, first).observation, world.touch(action, second).observation
+        )
+
+
+@pytest.mark.parametrize("shared", [True, False])
+def test_model_trial_shares_one_placement_offset_between_its_touches(model, shared):
+    # Moments vs Monte Carlo: two touches of a trial at different actions. Every draw keeps the
+    # predictive variance v; the two share the offset b, so their covariance is σ_b² (0 when
+    # the object is placed anew before each touch).
+    sigma_b = 0.6 * model.hyperparameters.noise_variance
+    placed = dataclasses.replace(model, placement_variance=sigma_b)
+    actions = [np.array([0.2]), np.array([-0.9])]
+    rng = np.random.default_rng(8)
+    pairs = []
+    for _ in range(6000):
+        source = ModelTrial(placed, "O3", shared_placement=shared)
+        pairs.append(placed.to_model_space(np.array([source.touch(x, rng).observation
+                                                     for x in actions])))  # fmt: skip
+    draws = np.array(pairs)  # (trials, 2, dy)
+    _, variance = predict_model_space(
+        placed, np.repeat(placed.latents[2][None, :], 2, axis=0), np.array(actions)
+    )
+    for t in range(2):
+        assert np.allclose(draws[:, t].var(axis=0), variance[t], rtol=0.1)
+    centred = draws - draws.mean(axis=0)
+    covariance = (centred[:, 0] * centred[:, 1]).mean(axis=0)
+    expected = sigma_b if shared else np.zeros_like(sigma_b)
+    # Standard error of the sample covariance ≈ sqrt(v_1 v_2 / n); 5 of them.
+    tolerance = 5 * np.sqrt(variance[0] * variance[1] / len(pairs))
+    assert np.all(np.abs(covariance - expected) < tolerance)
+
+
 def test_unknown_policy_and_target_are_named(model):
     allowed = r"\['active', 'discriminative', 'passive'\]"
     with pytest.raises(InvalidInputError, match=rf"'greedy'.*{allowed}"):
@@ -112,6 +154,8 @@ def test_unknown_policy_and_target_are_named(model):
         WorldTouches(Experiment1World(), "O9")
     with pytest.raises(InvalidInputError, match="'O9'"):
         WorldTouches(ModelSamples(model), "O9")
+    with pytest.raises(InvalidInputError, match="'O9'"):
+        ModelTrial(model, "O9")
     assert set(POLICIES) >= {"active", "passive"}
 
 
