@@ -13,8 +13,9 @@ An observation source (:class:`ObservationSource`) gives the next touch of a ses
   :class:`TouchSource` — a synthetic world (:class:`WorldTouches`), draws from the learned GP
   (:class:`ModelTrial`, the paper's Experiment 2 protocol with the model's placement effect),
   the simulated or the real rig (composed in ``app``);
-* :class:`ReplayTouches` picks among the target's recorded held-out touches without replacement,
-  by the policy's replay score (:data:`core.recognition.planning.POLICIES`; docs/method.md,
+* :class:`ReplayTouches` picks among the target's recorded held-out touches without replacement
+  (each trial offered its own random half of them, :func:`replay_offer`), by the policy's replay
+  score (:data:`core.recognition.planning.POLICIES`; docs/method.md,
   "Evaluation protocols").
 
 :func:`run_trial` runs a trial of an evaluation to its end and returns its outcome, a
@@ -300,8 +301,34 @@ def replay_pools(data: TrainingData) -> dict[str, ReplayPool]:
     }
 
 
+def replay_offer(pool_size: int, steps: int, rng: np.random.Generator) -> list[int]:
+    """The recorded touches a replay trial may choose from: a random subset of the pool.
+
+    Without it a planner, which scores the pool deterministically, would take the same touches
+    in every trial of an object, and an evaluation's "trials" would be copies of one sequence
+    (their accuracy moves in steps of one object, their intervals count copies as independent
+    draws). Offering each trial its own random half of the pool (at least ``steps`` touches)
+    makes trials differ as rig trials do; every policy of a trial gets the same offer (it is
+    drawn from the trial's world generator), so their comparison is paired. A trial that may use
+    the whole pool is offered it whole.
+
+    Args:
+        pool_size: n, the recorded touches of the target.
+        steps: T, the touches the trial may take (≤ n).
+        rng: The trial's world generator.
+
+    Returns:
+        Indices into the pool, ascending.
+    """
+    size = max(steps, -(-pool_size // 2))
+    if size >= pool_size:
+        return list(range(pool_size))
+    return sorted(int(i) for i in rng.choice(pool_size, size=size, replace=False))
+
+
 class ReplayTouches:
-    """Each touch is an unused recorded touch of the target (without replacement).
+    """Each touch is an unused recorded touch of the target (without replacement), among the
+    touches the trial is offered (:func:`replay_offer`).
 
     ``score`` (a policy's :attr:`core.recognition.planning.PolicyEntry.replay_score`) picks the
     unused touch with the largest score under the session's planning belief (active: the largest
@@ -311,12 +338,14 @@ class ReplayTouches:
     Args:
         pool: The target's recorded touches.
         score: How the policy scores them; ``None``: at random.
+        steps: T, the touches the trial may take (sizes the offer).
     """
 
-    def __init__(self, pool: ReplayPool, score: ReplayScore | None) -> None:
+    def __init__(self, pool: ReplayPool, score: ReplayScore | None, steps: int) -> None:
         self.pool = pool
         self.score = score
-        self.unused = list(range(pool.size))
+        self.steps = steps
+        self.unused: list[int] | None = None
 
     def next_touch(
         self,
@@ -324,11 +353,14 @@ class ReplayTouches:
         policy_rng: np.random.Generator,
         world_rng: np.random.Generator,
     ) -> Touch:
-        """The chosen recorded touch (``world_rng`` is unused: the noise is recorded).
+        """The chosen recorded touch (``world_rng`` draws the trial's offer at its first touch;
+        the noise is recorded).
 
         Raises:
-            InvalidInputError: Every recorded touch has been used.
+            InvalidInputError: Every offered touch has been used.
         """
+        if self.unused is None:
+            self.unused = replay_offer(self.pool.size, self.steps, world_rng)
         if not self.unused:
             raise InvalidInputError(
                 f"replay: all {self.pool.size} recorded touches are used; ask fewer steps."
@@ -465,7 +497,7 @@ def run_trial(
                 f"steps: {limit} touches asked but {target!r} has only {replay.size} recorded "
                 "touches."
             )
-        source = ReplayTouches(replay, entry.replay_score)
+        source = ReplayTouches(replay, entry.replay_score, limit)
     else:
         assert touches is not None
         source = planned = PlannedTouches(touches)

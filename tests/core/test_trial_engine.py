@@ -8,7 +8,12 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
-from core.evaluation.records import TrialRecord, outcome_from_dict, trial_seed
+from core.evaluation.records import (
+    TrialRecord,
+    outcome_from_dict,
+    trial_generators,
+    trial_seed,
+)
 from core.evaluation.reference_model import experiment1_at_true_latents
 from core.evaluation.trial_engine import (
     ModelSamples,
@@ -18,6 +23,7 @@ from core.evaluation.trial_engine import (
     TrialSettings,
     WorldTouches,
     iter_trial,
+    replay_offer,
     replay_pools,
     run_trial,
 )
@@ -199,6 +205,30 @@ def test_active_replay_picks_the_largest_information_first(model, held_out):
     scores = planner.mutual_information(default_prior(model), pool.actions)
     assert record.actions[0] == tuple(pool.actions[int(np.argmax(scores))])
     assert record.mutual_information[0] == pytest.approx(float(scores.max()), rel=1e-9)
+
+
+def test_each_replay_trial_is_offered_its_own_half_of_the_pool(model, held_out):
+    # 8 recorded touches, 3 steps: each trial may choose among 4, drawn from its world generator.
+    pool = replay_pools(held_out)["O2"]
+    planner = Planner(model, policy_entry("active").make())
+    firsts, offers = set(), set()
+    for index in range(6):
+        _, record = replay(model, held_out, "active", index=index, steps=3)
+        _, passive = replay(model, held_out, "passive", index=index, steps=3)
+        _, world_rng = trial_generators(trial_seed(0, "O2", index))
+        offer = replay_offer(pool.size, 3, world_rng)
+        assert len(offer) == 4
+        offered = {tuple(pool.actions[i]) for i in offer}
+        assert set(record.actions) <= offered
+        assert set(passive.actions) <= offered  # the same offer for every policy of a trial
+        scores = planner.mutual_information(default_prior(model), pool.actions[offer])
+        assert record.actions[0] == tuple(pool.actions[offer[int(np.argmax(scores))]])
+        firsts.add(record.actions[0])
+        offers.add(tuple(offer))
+    assert len(offers) > 1  # trials differ
+    assert len(firsts) > 1
+    assert len(replay_offer(8, 5, np.random.default_rng(0))) == 5  # at least T
+    assert replay_offer(8, 8, np.random.default_rng(0)) == list(range(8))  # T = n: whole
 
 
 def test_passive_replay_order_depends_on_the_trial_seed(model, held_out):
