@@ -7,10 +7,10 @@ placements (:func:`collection_stages`); the server's runs here and ``activetouch
 drive the rig through them, and check their object lists with :func:`check_objects`.
 
 Each touch is stored as a sample (with its raw tactile series and its placement) the moment it
-is recorded; the
-dataset is ``collecting`` during the run, then ``ready`` (or ``failed`` if too little was
-gathered to learn from). Each ``collection.progress`` event carries the touch's features and a
-thinned copy of its raw tactile series (``trace``: at most 200 frames) for the live plot.
+is recorded; the dataset is ``collecting`` during the run, then ``ready`` (or ``failed`` if too
+little was gathered to learn from). Each ``collection.progress`` event carries the touch's
+features, its placement and a thinned copy of its raw tactile series (``trace``: at most 200
+frames) for the live plot.
 """
 
 from __future__ import annotations
