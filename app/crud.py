@@ -161,13 +161,14 @@ def create_dataset(
 def add_samples(
     session: Session,
     dataset: Dataset,
-    samples: Iterable[tuple[str, FloatArray, FloatArray, dict[str, Any] | None]],
+    samples: Iterable[tuple[str, FloatArray, FloatArray, dict[str, Any] | None, int | None]],
 ) -> int:
-    """Append ``(object name, action, observation, raw)`` samples; return how many were added."""
+    """Append ``(object name, action, observation, raw, placement)`` samples; return how many
+    were added."""
     rows = list(samples)
     objects = get_or_create_objects(session, (name for name, *_ in rows))
     start = dataset.n_samples
-    for offset, (name, action, observation, raw) in enumerate(rows):
+    for offset, (name, action, observation, raw, placement) in enumerate(rows):
         session.add(
             Sample(
                 dataset_id=dataset.id,
@@ -176,6 +177,7 @@ def add_samples(
                 action=action,
                 observation=observation,
                 raw=raw,
+                placement=placement,
             )
         )
     dataset.n_samples = start + len(rows)
@@ -196,28 +198,30 @@ def list_datasets(session: Session, limit: int, offset: int) -> tuple[list[Datas
     return _page(session, select(Dataset), Dataset.id.desc(), limit, offset)
 
 
-def dataset_samples(session: Session, dataset_id: int) -> list[tuple[str, FloatArray, FloatArray]]:
-    """``(object name, action, observation)`` of every sample, in upload order."""
+def dataset_samples(
+    session: Session, dataset_id: int
+) -> list[tuple[str, FloatArray, FloatArray, int | None]]:
+    """``(object name, action, observation, placement)`` of every sample, in upload order."""
     rows = session.execute(
-        select(ObjectRecord.name, Sample.action, Sample.observation)
+        select(ObjectRecord.name, Sample.action, Sample.observation, Sample.placement)
         .join(ObjectRecord, Sample.object_id == ObjectRecord.id)
         .where(Sample.dataset_id == dataset_id)
         .order_by(Sample.position)
     ).all()
-    return [(str(name), action, observation) for name, action, observation in rows]
+    return [(str(name), action, y, placement) for name, action, y, placement in rows]
 
 
 def dataset_raw_samples(
     session: Session, dataset_id: int
-) -> list[tuple[str, FloatArray, dict[str, Any] | None]]:
-    """``(object name, action, raw)`` of every sample, in upload order."""
+) -> list[tuple[str, FloatArray, dict[str, Any] | None, int | None]]:
+    """``(object name, action, raw, placement)`` of every sample, in upload order."""
     rows = session.execute(
-        select(ObjectRecord.name, Sample.action, Sample.raw)
+        select(ObjectRecord.name, Sample.action, Sample.raw, Sample.placement)
         .join(ObjectRecord, Sample.object_id == ObjectRecord.id)
         .where(Sample.dataset_id == dataset_id)
         .order_by(Sample.position)
     ).all()
-    return [(str(name), action, raw) for name, action, raw in rows]
+    return [(str(name), action, raw, placement) for name, action, raw, placement in rows]
 
 
 # --- models -----------------------------------------------------------------------------------

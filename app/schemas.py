@@ -77,13 +77,22 @@ class Health(BaseModel):
 
 
 class SampleIn(BaseModel):
-    """One touch: object name, action x (dx,), observation y (dy,)."""
+    """One touch: object name, action x (dx,), observation y (dy,), and optionally which
+    placement of its object it met (every sample of an upload gives one, or none does)."""
 
     model_config = ConfigDict(extra="forbid")
 
     object: Name
     action: Vector
     observation: Vector
+    placement: Annotated[int, Field(ge=0, le=2**31 - 1)] | None = Field(
+        default=None,
+        description=(
+            "Which placement of its object the touch met (0, 1, …): touches of one object with "
+            "one number shared a placement, and the fit estimates how much a placement shifts "
+            "its touches alike (the model's placement_effect). Null: not recorded."
+        ),
+    )
 
 
 class DatasetCreate(BaseModel):
@@ -270,6 +279,21 @@ class FeaturesPublic(BaseModel):
     explanation: str | None = Field(description="How dy was chosen, when it was.")
 
 
+class PlacementEffectPublic(BaseModel):
+    """σ_b², the variance of the offset the touches of one placement share (the model document's
+    ``placement_effect``), estimated at fit time from a dataset that records placements."""
+
+    variance: list[float] = Field(
+        description="σ_b² per feature, in the model's space (after its noise model)."
+    )
+    noise_ratio: list[float] = Field(
+        description=(
+            "σ_b² / σ_n² per feature: the share of the per-touch noise variance that a trial's "
+            "touches of one placement share (0: none, the touches count as independent)."
+        )
+    )
+
+
 class ModelPublic(BaseModel):
     """``GET /models/{id}``."""
 
@@ -319,6 +343,14 @@ class ModelPublic(BaseModel):
         default=None,
         description="The feature pipeline that makes y of a raw touch; null: y is given as "
         "recorded (a training CSV, or a rig touch's channel means).",
+    )
+    placement_effect: PlacementEffectPublic | None = Field(
+        default=None,
+        description=(
+            "The placement effect estimated at fit time from the dataset's placements (a "
+            "collection records them; docs/calibration.md). Null when the training touches "
+            "recorded no placements: a trial's touches are then scored as independent."
+        ),
     )
     created_at: datetime
     finished_at: datetime | None
@@ -545,7 +577,11 @@ class CollectionCreate(BaseModel):
     with fewer than 3 samples per object (:func:`app.services.collections.default_design`); the
     run's ``params`` record the design used. ``action_scale`` left out: the simulated
     table's own spread on the mock rig (its ``action_std``), 1.0 on a real rig; the run's
-    ``params`` record the spread used.
+    ``params`` record the spread used. ``placements`` (P per object, each touched about
+    ``samples_per_object`` / P times in a row; every stored sample records its placement, and a
+    fit estimates the placement effect from them): left out, one every 5 touches, at least one
+    per stage of the design (:func:`app.services.collections.default_placements`); the run's
+    ``params`` record the placements used.
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -556,6 +592,18 @@ class CollectionCreate(BaseModel):
     action_design: Literal["random", "shared", "teaching", "adaptive"] | None = None
     action_scale: Annotated[float | None, Field(gt=0.0, le=100.0)] = None
     seed: Seed | None = None
+    placements: Annotated[int, Field(ge=1, le=1000)] | None = Field(
+        default=None,
+        description=(
+            "Placements per object P: each object is placed P times and touched about "
+            "samples_per_object / P times in a row at each placement, and every sample records "
+            "its placement, so that a fit estimates how much one placement shifts a trial's "
+            "touches alike (the model's placement_effect). Null: one placement every 5 touches, "
+            "at least one per stage of the design (the adaptive design touches in up to 3 "
+            "stages, each with placements of its own); at most samples_per_object (a "
+            "placement per touch)."
+        ),
+    )
 
 
 class RunPublic(BaseModel):

@@ -47,7 +47,6 @@ import os
 import sys
 import time
 from collections import Counter
-from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal, TextIO
 
@@ -174,20 +173,15 @@ def _stages(design: str, touches: int, placements: int | None) -> tuple[list[int
             what the stages allow.
     """
     from app.errors import BadInputError
-    from app.services.collections import default_placements, stage_placements, stage_sizes
+    from app.services.collections import collection_stages
     from core.errors import InvalidInputError
 
     try:
-        sizes = stage_sizes(design, touches)
+        return collection_stages(design, touches, placements)
     except InvalidInputError as exc:
         raise fail(f"--touches: too few for --design adaptive ({exc})", 2) from None
-    try:
-        stages = stage_placements(
-            default_placements(sizes) if placements is None else placements, sizes
-        )
     except BadInputError as exc:
         raise fail(f"--{exc.message}", 2) from None
-    return sizes, stages
 
 
 def adaptive_plan(
@@ -422,6 +416,7 @@ def _collect(
     from app.cli.output import progress_bar
     from app.documents.raw_touches import raw_touch_from_record, raw_touch_line
     from app.documents.training_csv import TrainingCsvWriter
+    from app.services.collections import iter_stages
     from app.services.rig import motion_series
     from core.errors import InvalidInputError
     from hardware.errors import HardwareError
@@ -444,9 +439,17 @@ def _collect(
             total = plan.n_touches if next_round is None else len(slots) * next_round.touches
             task = bar.add_task("collect", total=total, status="connected")
             try:
-                for touch in _rounds(
-                    lease, actions, slots, plan, recorded, next_round, bar, task, placements, seed
-                ):
+                touches = iter_stages(
+                    lease,
+                    actions,
+                    slots,
+                    plan,
+                    placements,
+                    next_round,
+                    seed,
+                    lambda: bar.update(task, status="fitting the model to plan the next round"),
+                )
+                for touch in touches:
                     writer.write(
                         touch.object_name,
                         touch.action,
@@ -487,35 +490,6 @@ def _collect(
         if raw_file is not None:
             raw_file.close()
     return recorded, error, code, time.perf_counter() - started
-
-
-def _rounds(
-    lease: RigLease,
-    actions: TouchActions,
-    slots: dict[str, int],
-    plan: CollectionDesign,
-    recorded: list[CollectedTouch],
-    next_round: NextRound | None,
-    bar: Any,
-    task: Any,
-    placements: list[int],
-    seed: int = 0,
-) -> Iterator[CollectedTouch]:
-    """The touches of ``plan``, then of each round ``next_round`` plans from ``recorded``;
-    stage k at ``placements[k]`` placements per object, numbered on from the stage before (a
-    shared design's order seeded by ``seed`` plus the stage's number)."""
-    from app.services.collections import iter_collection
-
-    current: CollectionDesign | None = plan
-    for stage, count in enumerate(placements):
-        if current is None:
-            return
-        first = sum(placements[:stage])
-        yield from iter_collection(lease, actions, slots, current, count, seed + stage, first)
-        current = None
-        if next_round is not None and stage + 1 < len(placements):
-            bar.update(task, status="fitting the model to plan the next round")
-            current = next_round(recorded)
 
 
 def _report(summary: dict[str, Any], as_json: bool) -> None:

@@ -114,7 +114,12 @@ class Dataset(Base):
 
 
 class Sample(Base):
-    """One touch: object, action x (dx,), features y (dy,), optional raw time series."""
+    """One touch: object, action x (dx,), features y (dy,), optional raw time series.
+
+    ``placement``: which placement of its object the touch met (0, 1, …; touches of one object
+    with one number shared it), ``None`` when it was not recorded (an upload without placements,
+    a row from before revision 0006).
+    """
 
     __tablename__ = "samples"
     __table_args__ = (UniqueConstraint("dataset_id", "position"),)
@@ -126,6 +131,7 @@ class Sample(Base):
     action: Mapped[FloatArray] = mapped_column(FloatArrayType)
     observation: Mapped[FloatArray] = mapped_column(FloatArrayType)
     raw: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)
+    placement: Mapped[int | None] = mapped_column(Integer, default=None)
 
     dataset: Mapped[Dataset] = relationship(back_populates="samples")
     object: Mapped[ObjectRecord] = relationship()

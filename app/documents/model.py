@@ -118,11 +118,7 @@ def model_to_document(
     if data.placement_index is not None:
         document["training_data"]["placements"] = data.placement_index.tolist()
     if model.placement_variance is not None:
-        document["placement_effect"] = {
-            "variance": [float(v) for v in model.placement_variance],
-            "space": "model",
-            "estimator": "leave-one-placement-out method of moments (docs/calibration.md)",
-        }
+        document["placement_effect"] = placement_effect_field(model.placement_variance)
     if model.latent_covariance is not None:
         document["latent_uncertainty"] = {
             "covariance": model.latent_covariance.tolist(),
@@ -155,6 +151,34 @@ def model_to_document(
             "hyperparameters_at_bounds": list(d.hyperparameters_at_bounds),
         }
     return document
+
+
+def placement_effect_field(variance: npt.NDArray[np.float64]) -> dict[str, Any]:
+    """The ``placement_effect`` field of σ_b² (model space, shape (dy,)): a model document's,
+    and a server's model row keeps the same in its posterior record."""
+    return {
+        "variance": [float(v) for v in variance],
+        "space": "model",
+        "estimator": "leave-one-placement-out method of moments (docs/calibration.md)",
+    }
+
+
+def read_placement_effect(
+    record: Mapping[str, Any], model: ManifoldModel
+) -> npt.NDArray[np.float64] | None:
+    """σ_b² of the ``placement_effect`` field of ``record`` (a model document or a model row's
+    posterior record), checked against ``model``; ``None`` without the field.
+
+    Raises:
+        DocumentError: (column ``placement_effect``) a malformed field, or σ_b² of another
+            length than dy or outside [0, σ_n²).
+    """
+    return _read_calibration(
+        record,
+        "placement_effect",
+        "variance",
+        lambda value: check_placement_variance(model, np.asarray(value, dtype=np.float64)),
+    )
 
 
 def _check_number(document: Mapping[str, Any], name: str, minimum: float | None = None) -> None:

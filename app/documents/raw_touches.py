@@ -8,8 +8,11 @@ Each line is a JSON object::
                   "vibration":    {"rate_hz": 1600, "samples": [0.01, -0.02, ...]}}}
 
 A channel is a series of n samples, each a number or a vector of one common width (an
-electrode array), with its sample rate in Hz. Other keys (``collect --raw`` adds the frame
-times, joint series and the channel means) are kept by nobody and ignored here.
+electrode array), with its sample rate in Hz. An optional ``placement`` (an integer ≥ 0, on
+every line or on none) says which placement of its object the touch met, as the training CSV's
+``placement`` column does; the fit estimates the placement effect from it. Other keys
+(``collect --raw`` adds the frame times, joint series and the channel means) are kept by nobody
+and ignored here.
 
 :func:`read_raw_touches` parses a whole file and refuses it, naming the line and the channel,
 when touches have different channel sets, a sample rate is missing, a series holds NaN/inf or
@@ -21,6 +24,7 @@ from __future__ import annotations
 
 import json
 import re
+import reprlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -51,6 +55,8 @@ class RawTouchSet:
         actions: Action x of each touch. Shape (N, dx).
         touches: The touches, one channel layout. Length N.
         lines: Line of the file each touch came from. Length N.
+        placement_index: Placement of its object each touch met, when every line gave one.
+            Shape (N,).
     """
 
     object_names: tuple[str, ...]
@@ -58,6 +64,7 @@ class RawTouchSet:
     actions: FloatArray
     touches: tuple[RawTouch, ...]
     lines: tuple[int, ...]
+    placement_index: IntArray | None = None
 
     @property
     def channel_names(self) -> tuple[str, ...]:
@@ -154,13 +161,15 @@ def read_raw_touches(text: str) -> RawTouchSet:
         DocumentError: A line that is not a JSON object, a missing or empty object name, an
             action of another length than the first line's or not finite, a channel set or
             width different from the first touch's, a missing sample rate, NaN/inf or ragged
-            series. The message names the line and the channel.
+            series, a ``placement`` that is not an integer ≥ 0 or is given on some lines but
+            not on others. The message names the line and the channel (or key).
     """
     names: list[str] = []
     index: list[int] = []
     actions: list[list[float]] = []
     touches: list[RawTouch] = []
     lines: list[int] = []
+    placements: list[int | None] = []
     for line, content in enumerate(text.splitlines(), start=1):
         if not content.strip():
             continue
@@ -202,6 +211,15 @@ def read_raw_touches(text: str) -> RawTouchSet:
                 check_same_layout(touches[0], touch)
             except InvalidInputError as exc:
                 raise _line_error(line, str(exc), "channels") from None
+        placement = _placement(item.get("placement"), line)
+        if placements and (placement is None) != (placements[0] is None):
+            raise _line_error(
+                line,
+                f"'placement' is {'missing' if placement is None else 'given'} here but "
+                f"{'not ' if placements[0] is None else ''}on line {lines[0]}; give every "
+                "touch a placement or none.",
+                "placement",
+            )
         name = name.strip()
         if name not in names:
             names.append(name)
@@ -209,6 +227,7 @@ def read_raw_touches(text: str) -> RawTouchSet:
         actions.append(x.tolist())
         touches.append(touch)
         lines.append(line)
+        placements.append(placement)
     if not touches:
         raise DocumentError("raw touches: the file holds no touch.", row=1)
     return RawTouchSet(
@@ -217,7 +236,21 @@ def read_raw_touches(text: str) -> RawTouchSet:
         np.asarray(actions, dtype=np.float64),
         tuple(touches),
         tuple(lines),
+        None if placements[0] is None else np.asarray(placements, dtype=np.int64),
     )
+
+
+def _placement(value: Any, line: int) -> int | None:
+    """A line's ``placement``: ``None`` (absent or null) or an integer ≥ 0."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise _line_error(
+            line,
+            f"'placement' must be an integer ≥ 0 (or left out), received {reprlib.repr(value)}.",
+            "placement",
+        )
+    return value
 
 
 def featurise(touches: RawTouchSet, pipeline: FeaturePipeline) -> TrainingData:
@@ -239,6 +272,7 @@ def featurise(touches: RawTouchSet, pipeline: FeaturePipeline) -> TrainingData:
             object_index=touches.object_index,
             actions=touches.actions,
             observations=np.asarray(rows, dtype=np.float64),
+            placement_index=touches.placement_index,
         )
     except InvalidInputError as exc:
         raise DocumentError(f"raw touches: {exc}") from exc

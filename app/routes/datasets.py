@@ -164,7 +164,8 @@ def export_dataset(
     """The dataset as CSV or JSON (floats written exactly)."""
     if format == "json":
         body = datasets.export_json(session, dataset_id)
-        return Response(body.model_dump_json(), media_type="application/json")
+        # A sample without a placement leaves the key out, as an upload without them does.
+        return Response(body.model_dump_json(exclude_none=True), media_type="application/json")
     return Response(
         datasets.export_csv(session, dataset_id),
         media_type="text/csv",

@@ -1,13 +1,16 @@
 """Collections: a dataset gathered on the rig as a run with progress.
 
 :func:`iter_collection` is the collection loop (a generator over the touches of a
-:class:`core.evaluation.designs.CollectionDesign`); the server's runs here and ``activetouch
-collect`` both drive the rig through it, and check their object lists with :func:`check_objects`.
+:class:`core.evaluation.designs.CollectionDesign`) and :func:`iter_stages` runs it over a
+collection's stages (the adaptive design's initial half and rounds), each with its own
+placements (:func:`collection_stages`); the server's runs here and ``activetouch collect`` both
+drive the rig through them, and check their object lists with :func:`check_objects`.
 
-Each touch is stored as a sample (with its raw tactile series) the moment it is recorded; the
-dataset is ``collecting`` during the run, then ``ready`` (or ``failed`` if too little was
-gathered to learn from). Each ``collection.progress`` event carries the touch's features and a
-thinned copy of its raw tactile series (``trace``: at most 200 frames) for the live plot.
+Each touch is stored as a sample (with its raw tactile series and its placement) the moment it
+is recorded; the dataset is ``collecting`` during the run, then ``ready`` (or ``failed`` if too
+little was gathered to learn from). Each ``collection.progress`` event carries the touch's
+features, its placement and a thinned copy of its raw tactile series (``trace``: at most 200
+frames) for the live plot.
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 from collections import Counter
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from functools import partial
 from typing import Literal
 
@@ -43,9 +46,7 @@ from core.evaluation import (
 )
 from core.gp import fit_manifold
 from core.types import TrainingData
-from core.validation import FloatArray
 from hardware.errors import HardwareError
-from hardware.records import TouchRecord
 from hardware.rig import RigLease
 
 logger = logging.getLogger(__name__)
@@ -150,6 +151,29 @@ def stage_placements(placements: int, sizes: list[int]) -> list[int]:
     for stage in np.argsort(-(quota - share), kind="stable")[: extra - int(share.sum())]:
         share[stage] += 1
     return [1 + int(k) for k in share]
+
+
+def collection_stages(
+    design: str, touches: int, placements: int | None
+) -> tuple[list[int], list[int]]:
+    """Touches and placements per object of each stage of a collection.
+
+    Args:
+        design: The action design (``adaptive`` touches in stages, any other in one).
+        touches: Touches per object in all.
+        placements: P, placements per object in all; ``None``: :func:`default_placements`.
+
+    Returns:
+        :func:`stage_sizes` and :func:`stage_placements` of the collection.
+
+    Raises:
+        InvalidInputError: Too few touches for the adaptive design.
+        BadInputError: (field ``placements``) P outside what the stages allow.
+    """
+    sizes = stage_sizes(design, touches)
+    return sizes, stage_placements(
+        default_placements(sizes) if placements is None else placements, sizes
+    )
 
 
 def check_objects(objects: Mapping[str, int] | list[tuple[str, int]]) -> None:
@@ -297,6 +321,54 @@ def iter_collection(
                 done += 1
 
 
+def iter_stages(
+    lease: RigLease,
+    actions: TouchActions,
+    slots: Mapping[str, int],
+    plan: CollectionDesign,
+    placements: Sequence[int],
+    next_round: Callable[[list[CollectedTouch]], CollectionDesign | None] | None = None,
+    seed: int = 0,
+    planning: Callable[[], None] | None = None,
+) -> Iterator[CollectedTouch]:
+    """The touches of ``plan``, then of each round ``next_round`` plans from the touches so far.
+
+    Stage k is touched at ``placements[k]`` placements per object (:func:`iter_collection`),
+    numbered on from the stage before, so that no placement spans two stages and every
+    placement number of an object is its own; a shared design's order is seeded by ``seed``
+    plus the stage's number.
+
+    Args:
+        lease: A lease on a connected rig.
+        actions: Action → trajectory map.
+        slots: Object name → slot; object l of a design is the l-th entry.
+        plan: The first stage's design.
+        placements: Placements per object of each stage (:func:`collection_stages`); their
+            number is the number of stages.
+        next_round: Plans the next stage from every touch recorded so far (e.g.
+            :class:`AdaptiveRounds`); ``None``: ``plan`` is the only stage.
+        seed: Seed of a shared design's order.
+        planning: Called before each next round is planned (e.g. to say so on a progress bar).
+
+    Yields:
+        One :class:`~app.rig.collection.CollectedTouch` per touch, as it is recorded.
+    """
+    recorded: list[CollectedTouch] = []
+    current: CollectionDesign | None = plan
+    for stage, count in enumerate(placements):
+        if current is None:
+            return
+        first = sum(placements[:stage])
+        for touch in iter_collection(lease, actions, slots, current, count, seed + stage, first):
+            yield touch
+            recorded.append(touch)
+        current = None
+        if next_round is not None and stage + 1 < len(placements):
+            if planning is not None:
+                planning()
+            current = next_round(recorded)
+
+
 def to_public(run: Run) -> RunPublic:
     """The API view of a run."""
     return from_row(RunPublic, run)
@@ -376,16 +448,19 @@ class CollectionService:
     def create(self, session: Session, body: CollectionCreate) -> RunPublic:
         """Check a collection request, store the run and its (empty) dataset, start it."""
         check_objects([(o.name, o.slot) for o in body.objects])
-        if body.action_design is None:
+        design = body.action_design
+        if design is None:
             design, _ = default_design(body.samples_per_object)
-            body = body.model_copy(update={"action_design": design})
-        if body.action_design == "adaptive" and body.samples_per_object < ADAPTIVE_MIN_TOUCHES:
+        if design == "adaptive" and body.samples_per_object < ADAPTIVE_MIN_TOUCHES:
             raise BadInputError(
                 f"samples_per_object: the adaptive design needs {ADAPTIVE_MIN_TOUCHES} or more "
                 "(2 random touches per object, then at least one round), received "
                 f"{body.samples_per_object}.",
                 field="samples_per_object",
             )
+        _, stages = collection_stages(design, body.samples_per_object, body.placements)
+        # The run's params record the design and the placements used.
+        body = body.model_copy(update={"action_design": design, "placements": sum(stages)})
         if body.action_scale is None:
             body = body.model_copy(update={"action_scale": self._rig.design_std})
         holder = self._rig.holder
@@ -449,6 +524,10 @@ class CollectionService:
                 body = CollectionCreate.model_validate(run.params)
             design = self._design(body)
             rounds = self._rounds(body)
+            assert body.action_design is not None  # create() recorded the design used
+            _, stages = collection_stages(
+                body.action_design, body.samples_per_object, body.placements
+            )
             slots = {o.name: o.slot for o in body.objects}
             assert job.lease is not None
             with job.lease as lease:
@@ -461,20 +540,13 @@ class CollectionService:
                     crud.set_run_status(session, run, "running")
                     session.commit()
                 self._announce(run)
-                recorded: list[CollectedTouch] = []
-                current: CollectionDesign | None = design
-                order_seed = body.seed or 0
-                while current is not None:
-                    touches = iter_collection(
-                        lease, self._rig.actions(), slots, current, order_seed=order_seed
-                    )
-                    order_seed += 1
-                    for touch in touches:
-                        self._store(run_id, touch.object_name, touch.action, touch.record)
-                        recorded.append(touch)
-                        if touch.index + 1 < touch.total or rounds is not None:
-                            job.checkpoint()
-                    current = None if rounds is None else rounds(recorded)
+                touches = iter_stages(
+                    lease, self._rig.actions(), slots, design, stages, rounds, body.seed or 0
+                )
+                for touch in touches:
+                    self._store(run_id, touch)
+                    if touch.index + 1 < touch.total or rounds is not None:
+                        job.checkpoint()
             self._finish(run_id, "completed", None)
         except JobCancelled as cancelled:
             if cancelled.kind == "shutdown":
@@ -504,7 +576,7 @@ class CollectionService:
         rng = np.random.default_rng(body.seed)
         dx, n_objects, per_object = self._rig.action_dim, len(body.objects), body.samples_per_object
         if body.action_design == "adaptive":  # its first, random half; then self._rounds
-            per_object = max(2, per_object // 2)
+            per_object = stage_sizes("adaptive", per_object)[0]
         scale = self._rig.design_std if body.action_scale is None else body.action_scale
         mean, cov = np.zeros(dx), scale**2 * np.eye(dx)
         if body.action_design in ("random", "adaptive"):
@@ -526,13 +598,18 @@ class CollectionService:
         names = [o.name for o in body.objects]
         return AdaptiveRounds(names, touches, sizes, 0 if body.seed is None else body.seed)
 
-    def _store(self, run_id: int, name: str, action: FloatArray, record: TouchRecord) -> None:
+    def _store(self, run_id: int, touch: CollectedTouch) -> None:
+        """Store a touch as a sample of the run's dataset (with its raw series and placement)
+        and announce it."""
+        name, record = touch.object_name, touch.record
         with self._jobs.run_lock(KIND, run_id), self._database.session() as session:
             run = require(session, run_id)
             dataset = crud.get_dataset(session, run.dataset_id or 0)
             assert dataset is not None
             crud.add_samples(
-                session, dataset, [(name, action, record.observation, raw_series(record))]
+                session,
+                dataset,
+                [(name, touch.action, record.observation, raw_series(record), touch.placement)],
             )
             run.done += 1
             session.commit()
@@ -545,6 +622,7 @@ class CollectionService:
                 "total": total,
                 "status": status,
                 "object": name,
+                "placement": touch.placement,
                 "observation": record.observation.tolist(),
                 "trace": trace_preview(record),
             },
@@ -558,7 +636,7 @@ class CollectionService:
                 crud.set_run_status(session, run, status, reason)
             dataset = crud.get_dataset(session, run.dataset_id or 0)
             if dataset is not None and dataset.status == "collecting":
-                counts = Counter(name for name, _, _ in crud.dataset_samples(session, dataset.id))
+                counts = Counter(row[0] for row in crud.dataset_samples(session, dataset.id))
                 usable = len(counts) >= 2 and min(counts.values()) >= 2
                 complete = usable and all(counts[n] >= 2 for n in dataset.object_names)
                 dataset.status = "ready" if complete else "failed"

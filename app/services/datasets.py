@@ -31,11 +31,20 @@ from core.errors import InvalidInputError
 from core.features.pipeline import FeatureKind, FeaturePipeline, check_touches, means_pipeline
 from core.features.raw import RawTouch
 from core.types import TrainingData
+from core.validation import IntArray
 
 
 def to_public(dataset: Dataset) -> DatasetPublic:
     """The API view of a dataset row."""
     return from_row(DatasetPublic, dataset, objects=list(dataset.object_names))
+
+
+def placement_index(placements: Sequence[int | None]) -> IntArray | None:
+    """The samples' placement numbers as ``TrainingData.placement_index``: ``None`` unless
+    every sample recorded one (a dataset either records placements or does not)."""
+    if not placements or any(p is None for p in placements):
+        return None
+    return np.asarray(placements, dtype=np.int64)
 
 
 def store_training_data(
@@ -45,7 +54,8 @@ def store_training_data(
     source: str,
     raw: Sequence[dict[str, Any]] | None = None,
 ) -> Dataset:
-    """Add a complete dataset holding ``data`` (not committed).
+    """Add a complete dataset holding ``data`` (not committed), with each touch's placement
+    when ``data`` records them.
 
     ``raw``: each sample's raw record (its channels), kept so it can be featurised again.
     """
@@ -61,13 +71,23 @@ def store_training_data(
     records: Sequence[dict[str, Any] | None] = (
         [None] * len(data.object_index) if raw is None else raw
     )
+    placements: list[int | None] = (
+        [None] * len(data.object_index)
+        if data.placement_index is None
+        else [int(p) for p in data.placement_index]
+    )
     crud.add_samples(
         session,
         dataset,
         (
-            (data.object_names[obj], action, observation, record)
-            for obj, action, observation, record in zip(
-                data.object_index, data.actions, data.observations, records, strict=True
+            (data.object_names[obj], action, observation, record, placement)
+            for obj, action, observation, record, placement in zip(
+                data.object_index,
+                data.actions,
+                data.observations,
+                records,
+                placements,
+                strict=True,
             )
         ),
     )
@@ -106,7 +126,8 @@ def training_data_from_samples(samples: list[SampleIn]) -> TrainingData:
     """Check a JSON upload's samples and build training data.
 
     Raises:
-        BadInputError: Ragged action/observation lengths (naming ``samples[i].field``), fewer
+        BadInputError: Ragged action/observation lengths (naming ``samples[i].field``), a
+            placement given for some samples but not for all (``samples[i].placement``), fewer
             than 2 objects or an object with fewer than 2 samples.
     """
     first = samples[0]
@@ -114,6 +135,15 @@ def training_data_from_samples(samples: list[SampleIn]) -> TrainingData:
     names: list[str] = []
     index: list[int] = []
     for i, sample in enumerate(samples):
+        if (sample.placement is None) != (first.placement is None):
+            raise BadInputError(
+                f"samples[{i}].placement: "
+                + ("missing" if sample.placement is None else "given")
+                + ", but samples[0].placement is "
+                + ("not" if first.placement is None else "given")
+                + "; give every sample a placement or none.",
+                field=f"samples[{i}].placement",
+            )
         for field, values, expected in (
             ("action", sample.action, dx),
             ("observation", sample.observation, dy),
@@ -133,6 +163,7 @@ def training_data_from_samples(samples: list[SampleIn]) -> TrainingData:
             object_index=np.asarray(index, dtype=np.int64),
             actions=np.asarray([s.action for s in samples], dtype=np.float64),
             observations=np.asarray([s.observation for s in samples], dtype=np.float64),
+            placement_index=placement_index([s.placement for s in samples]),
         )
     except InvalidInputError as exc:
         raise BadInputError(f"samples: {exc}", field="samples") from exc
@@ -197,14 +228,17 @@ def export_raw(session: Session, dataset_id: int) -> str:
     """The dataset's raw touches as a raw-touch file (JSON lines).
 
     Samples uploaded as raw touches keep their channels; samples a rig collection recorded
-    keep their frames, regrouped into channels by name (``docs/raw-touches.md``).
+    keep their frames, regrouped into channels by name (``docs/raw-touches.md``). A sample
+    that recorded its placement writes it as the line's ``placement``.
 
     Raises:
         BadInputError: (→ 422) a sample without its raw series (uploaded as y only).
     """
     dataset = require(session, dataset_id)
     lines = []
-    for k, (name, action, raw) in enumerate(crud.dataset_raw_samples(session, dataset.id)):
+    for k, (name, action, raw, placement) in enumerate(
+        crud.dataset_raw_samples(session, dataset.id)
+    ):
         if raw is not None and "channels" in raw:
             channels = raw["channels"]
         elif raw is not None and "tactile" in raw:
@@ -215,7 +249,10 @@ def export_raw(session: Session, dataset_id: int) -> str:
                 "y only); only raw touches or rig collections can be exported raw.",
                 field="dataset_id",
             )
-        lines.append(json.dumps({"object": name, "action": action.tolist(), "channels": channels}))
+        line: dict[str, Any] = {"object": name, "action": action.tolist(), "channels": channels}
+        if placement is not None:
+            line["placement"] = placement
+        lines.append(json.dumps(line))
     return "".join(line + "\n" for line in lines)
 
 
@@ -262,19 +299,22 @@ def training_data(session: Session, dataset_id: int) -> TrainingData:
 
 
 def _training_data(session: Session, dataset: Dataset) -> TrainingData:
+    """The samples as training data, with ``placement_index`` when every sample recorded its
+    placement (the fit then estimates the placement effect)."""
     rows = crud.dataset_samples(session, dataset.id)
     names = list(dataset.object_names)
     position = {name: i for i, name in enumerate(names)}
     try:
         return TrainingData(
             object_names=tuple(names),
-            object_index=np.asarray([position[name] for name, _, _ in rows], dtype=np.int64),
-            actions=np.asarray([a for _, a, _ in rows], dtype=np.float64).reshape(
+            object_index=np.asarray([position[row[0]] for row in rows], dtype=np.int64),
+            actions=np.asarray([row[1] for row in rows], dtype=np.float64).reshape(
                 len(rows), dataset.action_dim
             ),
-            observations=np.asarray([o for _, _, o in rows], dtype=np.float64).reshape(
+            observations=np.asarray([row[2] for row in rows], dtype=np.float64).reshape(
                 len(rows), dataset.observation_dim
             ),
+            placement_index=placement_index([row[3] for row in rows]),
         )
     except InvalidInputError as exc:
         raise BadInputError(
@@ -297,7 +337,7 @@ def raw_touches(session: Session, dataset_id: int) -> tuple[TrainingData, list[R
     dataset = require(session, dataset_id)
     data = _training_data(session, dataset)
     touches: list[RawTouch] = []
-    for k, (_, _, raw) in enumerate(crud.dataset_raw_samples(session, dataset.id), start=1):
+    for k, (_, _, raw, _) in enumerate(crud.dataset_raw_samples(session, dataset.id), start=1):
         if raw is None:
             raise BadInputError(
                 f"features: dataset {dataset_id}, sample {k} has no raw series (it was uploaded "
@@ -317,7 +357,7 @@ def raw_touches(session: Session, dataset_id: int) -> tuple[TrainingData, list[R
 def has_raw_touches(session: Session, dataset_id: int) -> bool:
     """Whether every sample of the dataset keeps its raw series."""
     rows = crud.dataset_raw_samples(session, dataset_id)
-    return bool(rows) and all(raw is not None for _, _, raw in rows)
+    return bool(rows) and all(raw is not None for _, _, raw, _ in rows)
 
 
 def featurised_data(session: Session, dataset_id: int, pipeline: FeaturePipeline) -> TrainingData:
@@ -339,28 +379,38 @@ def featurised_data(session: Session, dataset_id: int, pipeline: FeaturePipeline
 
 
 def export_csv(session: Session, dataset_id: int) -> str:
-    """The dataset as training CSV (floats written with ``repr``: exact round trip).
+    """The dataset as training CSV (floats written with ``repr``: exact round trip), with the
+    ``placement`` column when every sample recorded its placement.
 
     Written touch by touch by :class:`app.documents.training_csv.TrainingCsvWriter`, so a
     partial dataset (a collection in progress or interrupted, which is not yet training data)
     exports in the same format as a ready one.
     """
     dataset = require(session, dataset_id)
+    rows = crud.dataset_samples(session, dataset.id)
+    placed = placement_index([row[3] for row in rows]) is not None
     out = io.StringIO()
-    writer = TrainingCsvWriter(out, dataset.action_dim, dataset.observation_dim)
-    for name, action, observation in crud.dataset_samples(session, dataset.id):
-        writer.write(name, action, observation)
+    writer = TrainingCsvWriter(out, dataset.action_dim, dataset.observation_dim, placements=placed)
+    for name, action, observation, placement in rows:
+        writer.write(name, action, observation, placement if placed else None)
     return out.getvalue()
 
 
 def export_json(session: Session, dataset_id: int) -> DatasetCreate:
-    """The dataset in the JSON upload format."""
+    """The dataset in the JSON upload format (each sample's ``placement`` when every sample
+    recorded one)."""
     dataset = require(session, dataset_id)
     rows = crud.dataset_samples(session, dataset.id)
+    placed = placement_index([row[3] for row in rows]) is not None
     return DatasetCreate(
         name=dataset.name,
         samples=[
-            SampleIn(object=name, action=action.tolist(), observation=observation.tolist())
-            for name, action, observation in rows
+            SampleIn(
+                object=name,
+                action=action.tolist(),
+                observation=observation.tolist(),
+                placement=placement if placed else None,
+            )
+            for name, action, observation, placement in rows
         ],
     )

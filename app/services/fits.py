@@ -46,6 +46,7 @@ from core.gp import (
     NoiseModelChoice,
     fit_manifold,
     iter_fit,
+    with_placement_effect,
 )
 from core.selection import DEFAULT_FOLDS, DEFAULT_MAX_LATENT_DIM, LatentSelection, select_latent_dim
 from core.types import ManifoldModel, TrainingData
@@ -305,7 +306,9 @@ def run_fit(
     report: Callable[[FitProgress, float], None],
 ) -> tuple[ManifoldModel, dict[str, Any] | None, float]:
     """The body of a fit job: fit the feature pipeline if asked (y from the raw touches), choose
-    ds if asked (cross-validation), then fit the model.
+    ds if asked (cross-validation), fit the model, then estimate σ_b² from the training
+    touches' placements when the dataset records them (:func:`core.gp.with_placement_effect`,
+    as ``activetouch fit`` does).
 
     Args:
         request: The model's id, its training data and the request.
@@ -363,6 +366,8 @@ def run_fit(
             report(progress, now - started)
     if fitted is None:
         raise ValueError("the fit ended without a model")
+    job.checkpoint()
+    fitted, _ = with_placement_effect(fitted)
     if pipeline is not None:
         fitted = dataclasses.replace(fitted, features=pipeline)
     return fitted, selection, time.perf_counter() - started

@@ -28,7 +28,12 @@ from app.db import Database
 from app.db.tables import ModelRecord, utc_now
 from app.documents.errors import DocumentError
 from app.documents.features import features_field, read_features_field
-from app.documents.model import model_from_document, model_to_document
+from app.documents.model import (
+    model_from_document,
+    model_to_document,
+    placement_effect_field,
+    read_placement_effect,
+)
 from app.documents.noise_model import noise_model_field, read_noise_model_field
 from app.documents.posterior import condition_as_recorded, posterior_field
 from app.errors import AppError, BadInputError, ConflictError
@@ -41,6 +46,7 @@ from app.schemas import (
     NoiseModelPublic,
     ObjectLatent,
     Page,
+    PlacementEffectPublic,
 )
 from app.services import datasets
 from app.services.events import EventBus
@@ -108,7 +114,8 @@ def store_fitted(
 ) -> None:
     """Copy a fitted model's latents, hyperparameters, posterior record
     (:func:`app.documents.posterior.posterior_field`, with the observation transform under
-    ``noise_model`` and the feature pipeline under ``features``), diagnostics (with
+    ``noise_model``, the feature pipeline under ``features`` and σ_b² under
+    ``placement_effect``, as the model document has them), diagnostics (with
     ``latent_selection`` when ds was chosen) into its row; mark ready.
 
     ``featurised``: the model's y were made by its pipeline from the dataset's raw touches (not
@@ -125,6 +132,8 @@ def store_fitted(
         record["features"] = features_field(model.features)
         if featurised:
             record[FEATURISED] = True
+    if model.placement_variance is not None:
+        record["placement_effect"] = placement_effect_field(model.placement_variance)
     row.posterior = record
     row.signal_variance = h.signal_variance
     row.noise_variance = h.noise_variance
@@ -184,6 +193,19 @@ def _features_public(row: ModelRecord) -> FeaturesPublic | None:
         output_names=list(pipeline.output_names),
         explanation=None if pipeline.selection is None else pipeline.selection.explanation,
     )
+
+
+def _placement_effect_public(row: ModelRecord) -> PlacementEffectPublic | None:
+    field = row.posterior.get("placement_effect") if isinstance(row.posterior, dict) else None
+    if field is None or row.status != "ready" or row.noise_variance is None:
+        return None
+    try:
+        variance = np.asarray(field["variance"], dtype=np.float64)
+        ratio = variance / row.noise_variance
+    except (KeyError, TypeError, ValueError):  # changed behind the server's back; load() says so
+        logger.warning("model %d: malformed placement_effect record %r", row.id, field)
+        return None
+    return PlacementEffectPublic(variance=variance.tolist(), noise_ratio=ratio.tolist())
 
 
 def _latent_selection_public(row: ModelRecord) -> LatentSelectionPublic | None:
@@ -251,6 +273,7 @@ def to_public(row: ModelRecord, queue_position: int | None = None) -> ModelPubli
         noise_model=_noise_model_public(row),
         latent_selection=_latent_selection_public(row),
         features=_features_public(row),
+        placement_effect=_placement_effect_public(row),
         created_at=row.created_at,
         finished_at=row.finished_at,
     )
@@ -382,6 +405,9 @@ class ReadyModels:
             )
             if pipeline is not None:
                 model = dataclasses.replace(model, features=pipeline)
+            placement = read_placement_effect(record, model)
+            if placement is not None:
+                model = dataclasses.replace(model, placement_variance=placement)
         except (CoreError, ValueError, KeyError, TypeError) as exc:
             raise StoredModelError(
                 f"Model {model_id} cannot be rebuilt from what is stored: "

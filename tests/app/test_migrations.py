@@ -1,9 +1,11 @@
 """Alembic migrations: head matches the tables of :mod:`app.db.tables`; 0002 (``models.posterior``)
-upgrades a database with models of revision 0001, which keep loading as before, and downgrades.
+upgrades a database with models of revision 0001, which keep loading as before, and downgrades;
+0006 (``samples.placement``) likewise.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -18,6 +20,7 @@ from sqlalchemy import inspect, text
 from app.db import Database, upgrade_to_head
 from app.db.tables import Base, ModelRecord
 from app.documents.model import model_to_document
+from app.services.datasets import store_training_data, training_data
 from app.services.events import EventBus
 from app.services.models import ReadyModels
 from core.evaluation.worlds import sample_experiment1
@@ -96,3 +99,34 @@ def test_models_of_revision_0001_upgrade_and_load_as_before(tmp_path: Path) -> N
     s, x = np.linspace(-1.5, 1.5, 5)[:, None], np.linspace(-2.0, 2.0, 5)[:, None]
     for left, right in zip(predict(old, s, x), predict(auto, s, x), strict=True):
         np.testing.assert_allclose(left, right, rtol=0.0, atol=1e-12)
+
+
+def test_samples_placement_of_revision_0006_downgrades_and_upgrades(tmp_path: Path) -> None:
+    settings = make_settings(tmp_path)
+    database = Database(settings.database_url)
+    data = sample_experiment1(np.random.default_rng(4), touches_per_object=3)
+    placed = dataclasses.replace(data, placement_index=np.arange(data.n_touches) % 2)
+    try:
+        upgrade_to_head(database.engine, settings.migrations_dir)
+        with database.session() as session:
+            dataset_id = store_training_data(session, placed, "placed", "upload").id
+            session.commit()
+        with database.session() as session:
+            stored = training_data(session, dataset_id).placement_index
+        np.testing.assert_array_equal(stored, placed.placement_index)
+        # Back to 0005: the column goes, the samples stay; up again: their placements are NULL.
+        migrate(database, settings.migrations_dir, "0005_evaluation_trial_refused", down=True)
+        assert "placement" not in sample_columns(database)
+        with database.engine.connect() as connection:
+            count = connection.execute(text("SELECT count(*) FROM samples")).scalar()
+        assert count == data.n_touches
+        migrate(database, settings.migrations_dir, "head")
+        assert "placement" in sample_columns(database)
+        with database.session() as session:
+            assert training_data(session, dataset_id).placement_index is None
+    finally:
+        database.dispose()
+
+
+def sample_columns(database: Database) -> set[str]:
+    return {c["name"] for c in inspect(database.engine).get_columns("samples")}

@@ -22,7 +22,7 @@ from app.errors import BadInputError
 from app.evaluation.spec import EvaluationSpec
 from app.evaluation.worlds import table_objects
 from core.errors import InvalidInputError
-from core.features.pipeline import fit_features
+from core.features.pipeline import fit_features, means_pipeline
 from core.features.raw import RawTouch, raw_touch
 from core.gp.manifold import FitOptions, fit_manifold
 from core.types import ManifoldModel, TrainingData
@@ -220,3 +220,23 @@ def test_rig_trials_accept_a_model_whose_pipeline_reads_the_tables_channels() ->
     fitted = fit_features(other.touches, other.object_index, "means")
     with pytest.raises(BadInputError, match=r"the model's features read \['pressure_kpa'"):
         spec.check(dataclasses.replace(model, features=fitted))
+
+
+def test_a_raw_files_placements_reach_the_training_data() -> None:
+    lines = raw_file(4).splitlines()
+    placed = [json.dumps({**json.loads(line), "placement": k % 2}) for k, line in enumerate(lines)]
+    touches = read_raw_touches("\n".join(placed))
+    assert touches.placement_index is not None
+    assert touches.placement_index.tolist() == [k % 2 for k in range(12)]
+    data = featurise(touches, means_pipeline(touches.touches[0]))
+    np.testing.assert_array_equal(data.placement_index, touches.placement_index)
+    # Without the key (or null on every line) there are none.
+    assert read_raw_touches("\n".join(lines)).placement_index is None
+    nulls = [json.dumps({**json.loads(line), "placement": None}) for line in lines]
+    assert read_raw_touches("\n".join(nulls)).placement_index is None
+    for bad in (True, 1.5, -1):
+        edited = [*placed[:3], json.dumps({**json.loads(lines[3]), "placement": bad})]
+        with pytest.raises(DocumentError, match="line 4: 'placement' must be an integer"):
+            read_raw_touches("\n".join(edited))
+    with pytest.raises(DocumentError, match="line 2: 'placement' is given here but not on line 1"):
+        read_raw_touches("\n".join([lines[0], placed[1]]))

@@ -67,6 +67,9 @@ def test_every_page_renders_with_the_estop(page: Any, demo: Demo) -> None:
     expect(page.get_by_test_id("hyper-table").locator("tbody tr")).to_have_count(
         len(model["hyperparameters"])
     )
+    # The demo's collection recorded placements, so its fit estimated the placement effect.
+    assert model["placement_effect"] is not None
+    expect(page.get_by_test_id("model-detail")).to_contain_text("σ_b²/σ_n² =")
     expect(page.get_by_test_id("model-export")).to_have_attribute(
         "href", f"api/v1/models/{demo.state.model_id}/export"
     )
@@ -198,7 +201,7 @@ def test_history_compares_policies_and_exports(page: Any, demo: Demo, tmp_path: 
 
 def test_collection_through_the_ui(page: Any, demo: Demo) -> None:
     """Collect a small dataset on the simulated rig from the Collection page, with the shared
-    design: every object is touched with the same actions."""
+    design (every object is touched with the same actions) and a placement per touch."""
     open_dashboard(page, demo, "#collection")
     rows = page.locator("#col-objects .object-row")
     objects = demo.get("/objects")["data"]
@@ -221,6 +224,13 @@ def test_collection_through_the_ui(page: Any, demo: Demo) -> None:
     expect(help_text).to_contain_text("a fresh action")
     design.select_option("shared")
     expect(help_text).to_contain_text("applied to every object")
+    # Placements: empty is the default, which the form states.
+    placements = page.get_by_test_id("collection-placements")
+    expect(placements).to_have_value("")
+    expect(page.get_by_test_id("collection-placements-help")).to_contain_text(
+        "Empty: the default, one placement every 5 touches"
+    )
+    placements.fill("2")
     before = len(demo.get("/datasets")["data"])
     page.get_by_test_id("collection-start").click()
     # The progress identifies the new run (the demo's own collection, shown before the click,
@@ -247,14 +257,19 @@ def test_collection_through_the_ui(page: Any, demo: Demo) -> None:
     assert newest["name"] == "browser test"
     assert newest["n_samples"] == 2 * n_objects
     runs = demo.get("/collections?limit=100")["data"]
-    assert [r["params"]["action_design"] for r in runs if r["dataset_id"] == newest["id"]] == [
-        "shared"
-    ]
+    assert [
+        (r["params"]["action_design"], r["params"]["placements"])
+        for r in runs
+        if r["dataset_id"] == newest["id"]
+    ] == [("shared", 2)]
     # The stored dataset: the same two actions on every object (each in its own order).
     samples = demo.get(f"/datasets/{newest['id']}/export?format=json")["samples"]
     actions: dict[str, list[list[float]]] = {}
+    placed: dict[str, list[int]] = {}
     for sample in samples:
         actions.setdefault(sample["object"], []).append(sample["action"])
+        placed.setdefault(sample["object"], []).append(sample["placement"])
+    assert all(p == [0, 1] for p in placed.values()), placed
     assert len(actions) == n_objects
     first = next(iter(actions.values()))
     assert len(first) == 2, first

@@ -162,6 +162,7 @@ async function startCollection(form) {
   };
   if ($("col-scale").value !== "") body.action_scale = Number($("col-scale").value);
   if ($("col-seed").value !== "") body.seed = Number($("col-seed").value);
+  if ($("col-placements").value !== "") body.placements = Number($("col-placements").value);
   const created = await api("/collections", { method: "POST", body });
   toast(`Collection #${created.id} started.`, "ok");
   await loadRun(created.id);

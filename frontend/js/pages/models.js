@@ -152,6 +152,7 @@ export async function select(id) {
       ["log-likelihood", num(model.log_likelihood, 8)],
       ["features", featuresText(model.features)],
       ["noise model", noiseText(model.noise_model)],
+      ["placement effect", placementText(model)],
       ["latent dim", latentText(model)],
       ["fit time", formatDuration(model.fit_seconds)],
       ["converged", diag.converged === undefined ? "—" : String(diag.converged)],
@@ -184,6 +185,13 @@ function noiseText(noise) {
     }
   }
   return `correlated (largest ${pair}: ${num(largest, 2)}) — ${noise.note}`;
+}
+
+// σ_b² / σ_n² per feature: how much of a touch's noise the touches of one placement share.
+function placementText(model) {
+  const effect = model.placement_effect;
+  if (!effect) return model.status === "ready" ? "none (no placements recorded: touches scored as independent)" : "—";
+  return `σ_b²/σ_n² = ${effect.noise_ratio.map((v) => num(v, 2)).join(", ")}`;
 }
 
 function latentText(model) {
