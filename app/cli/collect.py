@@ -22,12 +22,13 @@ Without ``--design`` the design is ``adaptive``, or ``random`` where adaptive ca
 than 3 touches), said in a note and in the summary's ``design_note``
 (:func:`app.services.collections.default_design`).
 
-Each object is placed anew (the table turns it away and back) once every 5 touches
-(``--placements P`` to choose P, the placements per object) and touched that many times in a
-row, and every touch records its placement in the CSV's ``placement`` column: a recognition
-trial places its object once and touches it several times, and the fit estimates from these
-runs how much one placement (and the drift of its minutes) shifts a trial's touches alike
-(docs/calibration.md, "Fix 1"). The adaptive design's stages each get placements of their own
+Every touch records its placement in the CSV's ``placement`` column; by default each touch
+meets a fresh placement (the table turns between touches). ``--placements P`` places each object
+P times and touches it N/P times in a row at each: a recognition trial places its object once and
+touches it several times, and the fit estimates from such runs how much one placement (and the
+drift of its minutes) shifts a trial's touches alike (docs/calibration.md, "Fix 1"; why runs are
+not the default: "Placements in the default collection, measured" there). The adaptive design's
+stages each get placements of their own
 (:func:`app.services.collections.stage_placements`).
 
 Each touch is appended to the CSV (and, with ``--raw``, its raw tactile series to a raw-touch
@@ -322,9 +323,9 @@ def collect_command(
         typer.Option(
             "--placements",
             help="Place each object P times and touch it touches/P times in a row per "
-            "placement (recorded in a 'placement' column; fit estimates from it how much one "
-            "placement shifts a trial's touches alike). Default: one placement every 5 "
-            "touches; P = --touches places the object anew before every touch.",
+            "placement (recorded in a 'placement' column; fit estimates from such runs how much "
+            "one placement shifts a trial's touches alike). Default: P = --touches, a fresh "
+            "placement for every touch.",
         ),
     ] = None,
     as_json: AsJson = False,

@@ -153,12 +153,16 @@ def with_placement_effect(
 
     Returns:
         The model with ``placement_variance`` set, and the estimate; the model unchanged and
-        ``None`` when the training touches have no placements.
+        ``None`` when the training touches have no placements, or none touched twice (every
+        touch met its own placement: nothing to estimate from, and the model stays as without
+        placements).
     """
     placement = model.raw_data.placement_index
     if placement is None:
         return model, None
     estimate = estimate_placement_variance(model, placement)
+    if estimate.groups == 0:
+        return model, None
     return dataclasses.replace(model, placement_variance=estimate.variance), estimate
 
 

@@ -61,30 +61,33 @@ def test_collect_with_placements_touches_each_placement_in_a_row(tmp_path: Path)
     np.testing.assert_array_equal(data.placement_index, [0, 0, 0, 0, 1, 1, 1, 1])
 
 
-def test_the_default_collection_records_placements_in_every_stage(tmp_path: Path) -> None:
+def test_the_default_collection_places_every_touch_anew_and_records_it(tmp_path: Path) -> None:
     out = tmp_path / "adaptive.csv"
     result = runner.invoke(
         app,
-        [
-            "collect",
-            "--sim",
-            "--duration",
-            "5",
-            *OBJECTS,
-            "--touches",
-            "6",
-            "--seed",
-            "1",
-            "--out",
-            str(out),
-            "--json",
-        ],
-    )
+        ["collect", "--sim", "--duration", "5", *OBJECTS, "--touches", "6", "--seed", "1",
+         "--out", str(out), "--json"],
+    )  # fmt: skip
     assert result.exit_code == 0, result.output
     summary = json.loads(result.stdout)
-    # Adaptive: 3 random touches, then two rounds of 2 and 1 (sizes 3, 2, 1); one placement each.
+    # Adaptive: 3 random touches, then rounds of 2 and 1; a placement per touch, numbered on.
     assert summary["design"] == "adaptive"
-    assert summary["placements"] == 3
+    assert summary["placements"] == 6
+    data = read_training_csv(out.read_text())
+    assert data.placement_index is not None
+    for obj in range(2):
+        np.testing.assert_array_equal(data.placement_index[data.object_index == obj], range(6))
+    np.testing.assert_array_equal(data.object_index, [0, 1] * 6)  # the table turns every touch
+
+
+def test_runs_of_placements_in_every_stage_of_the_adaptive_design(tmp_path: Path) -> None:
+    out = tmp_path / "runs.csv"
+    result = runner.invoke(
+        app,
+        ["collect", "--sim", "--duration", "5", *OBJECTS, "--touches", "6", "--placements",
+         "3", "--seed", "1", "--out", str(out), "--json"],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
     data = read_training_csv(out.read_text())
     assert data.placement_index is not None
     for obj in range(2):
@@ -99,9 +102,8 @@ def test_the_default_collection_records_placements_in_every_stage(tmp_path: Path
 def test_placements_are_split_over_the_stages() -> None:
     assert stage_sizes("adaptive", 100) == [50, 25, 25]
     assert stage_sizes("random", 100) == [100]
-    assert default_placements([50, 25, 25]) == 20
-    assert default_placements([2, 1]) == 2
-    assert default_placements([3]) == 1
+    assert default_placements([50, 25, 25]) == 100  # a fresh placement per touch
+    assert default_placements([3]) == 3
     assert stage_placements(20, [50, 25, 25]) == [10, 5, 5]
     assert stage_placements(3, [50, 25, 25]) == [1, 1, 1]
     assert stage_placements(100, [50, 25, 25]) == [50, 25, 25]

@@ -224,6 +224,13 @@ def test_with_placement_effect_uses_the_recorded_placements(model: ManifoldModel
     assert estimate is not None
     np.testing.assert_array_equal(fitted.placement_variance, estimate.variance)
     assert len(placement_groups(placed.data.object_index, placement)) == 80
+    # Every touch its own placement (the default collection): nothing to estimate, no effect.
+    data = placed.raw_data
+    singles = dataclasses.replace(placed, data=dataclasses.replace(
+        data, placement_index=np.arange(data.n_touches)))  # fmt: skip
+    alone, nothing = with_placement_effect(singles)
+    assert alone is singles
+    assert nothing is None
 
 
 @pytest.mark.parametrize(

@@ -67,9 +67,8 @@ def test_every_page_renders_with_the_estop(page: Any, demo: Demo) -> None:
     expect(page.get_by_test_id("hyper-table").locator("tbody tr")).to_have_count(
         len(model["hyperparameters"])
     )
-    # The demo's collection recorded placements, so its fit estimated the placement effect.
-    assert model["placement_effect"] is not None
-    expect(page.get_by_test_id("model-detail")).to_contain_text("σ_b²/σ_n² =")
+    # The demo's collection placed every touch anew: no run to estimate a placement effect from.
+    assert model["placement_effect"] is None
     expect(page.get_by_test_id("model-export")).to_have_attribute(
         "href", f"api/v1/models/{demo.state.model_id}/export"
     )
@@ -228,7 +227,7 @@ def test_collection_through_the_ui(page: Any, demo: Demo) -> None:
     placements = page.get_by_test_id("collection-placements")
     expect(placements).to_have_value("")
     expect(page.get_by_test_id("collection-placements-help")).to_contain_text(
-        "Empty: the default, one placement every 5 touches"
+        "Empty: the default, a fresh placement for every touch"
     )
     placements.fill("2")
     before = len(demo.get("/datasets")["data"])
