@@ -295,6 +295,7 @@ def touch_sequences(
             seq.target,
             seq.seed,
             placement=placement,
+            features=model.features,
         )
         draw = WorldTouches(ModelSamples(model), seq.target)
         rng = np.random.default_rng(seq.seed)

@@ -24,7 +24,8 @@ Two parts:
    manifold at ``--fit-dims`` features (ds = 3, noise model independent, 2 restarts).
 
 Run: ``.venv/bin/python -m bench.whole_touch [--part twins|fit|both] [--data FILE.jsonl]
-[--touches 100] [--fit 80] [--trials 50] [--rig-trials 10] [--workers 2] [--json]``.
+[--features means whole] [--touches 100] [--fit 80] [--trials 50] [--rig-trials 10]
+[--workers 2] [--json]``.
 The figures measured are in docs/results.md ("Whole touch against channel means").
 """
 
@@ -150,7 +151,7 @@ def run_twins(args: argparse.Namespace) -> dict[str, Any]:
         "data": args.data,
         "collect_s": None if args.data else collect_s,
     }
-    kinds: tuple[FeatureKind, ...] = ("means", "whole")
+    kinds: tuple[FeatureKind, ...] = tuple(args.features)
     policies = ("active", "passive")
     for kind in kinds:
         started = time.perf_counter()
@@ -285,6 +286,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         help="Touch duration (s) of the collection (rig trials touch for the default).",
     )
     parser.add_argument("--data", help="A twins raw-touch file instead of collecting.")
+    parser.add_argument(
+        "--features",
+        nargs="+",
+        choices=("means", "whole"),
+        default=["means", "whole"],
+        help="Feature pipelines of the twins part.",
+    )
     parser.add_argument("--latent-dim", type=int, default=2, help="ds of the twins models.")
     parser.add_argument("--trials", type=int, default=50, help="Replay trials per object.")
     parser.add_argument("--rig-trials", type=int, default=10, help="Rig trials per object.")

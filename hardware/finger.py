@@ -85,6 +85,10 @@ PACKET_ERRORS: dict[int, str] = {
 ALERT_BIT = 0x80
 
 
+#: Reply-timer resolution: time left below this counts as run out (a nanosecond, in ms).
+TIMER_RESOLUTION_MS = 1e-6
+
+
 # ---------------------------------------------------------------------------------------------
 # The SDK's port, over a Transport
 # ---------------------------------------------------------------------------------------------
@@ -160,10 +164,13 @@ class SdkPort:
     def _now_ms(self) -> float:
         return self.transport.now() * 1000.0
 
+    def _remaining_ms(self) -> float:
+        """Time left on the reply timer."""
+        return self.packet_timeout - (self._now_ms() - self.packet_start_time)
+
     def readPort(self, length: int) -> bytes:  # noqa: N802
         """Up to ``length`` bytes; blocks (without spinning) while the reply is still due."""
-        remaining_ms = self.packet_timeout - (self._now_ms() - self.packet_start_time)
-        wait_ms = min(max(remaining_ms, 0.0), self.wait_slice_ms)
+        wait_ms = min(max(self._remaining_ms(), 0.0), self.wait_slice_ms)
         return self.transport.read(max(1, int(length)), wait_ms / 1000.0)
 
     def writePort(self, packet: Sequence[int]) -> int:  # noqa: N802
@@ -184,8 +191,10 @@ class SdkPort:
         self.packet_timeout = max(float(msec), self.min_packet_timeout_ms)
 
     def isPacketTimeout(self) -> bool:  # noqa: N802
-        """Whether the reply timer has run out."""
-        if self._now_ms() - self.packet_start_time > self.packet_timeout:
+        """Whether the reply timer has run out (to within :data:`TIMER_RESOLUTION_MS`: a wait
+        shorter than that cannot advance a simulation clock that has run for seconds, so the
+        timer would never run out)."""
+        if self._remaining_ms() < TIMER_RESOLUTION_MS:
             self.packet_timeout = 0.0
             return True
         return False

@@ -8,7 +8,9 @@
   finger held (or its torque switched off), every operation in progress stopped with
   :class:`~hardware.errors.EmergencyStopped`; :meth:`RigLease.recover` brings the rig back.
 - A touch (:meth:`RigLease.touch`) checks the trajectory against the joint limits before anything
-  moves, approaches its first pose, streams the setpoints at the control rate while it records the
+  moves, rests until :attr:`RigConfig.settle_s` has passed since the last touch (the sensor's
+  skin recovers its temperature, so every touch starts from the same state), approaches its
+  first pose, streams the setpoints at the control rate while it records the
   tactile stream and the joint states, then returns the finger to its safe pose. On any fault the
   rig is left safe (finger retracted or held, table stopped) and the error carries what was
   recorded (``partial_record``).
@@ -80,6 +82,14 @@ class RigConfig:
         max_lost_fraction: Largest fraction of tactile frames that may be lost (by sequence
             number, corrupt ones included) before a touch is refused as corrupt.
         estop_torque_off: On emergency stop, switch the finger's torque off instead of holding.
+        settle_s: Rest before each touch, the finger clear of every object, counted from the end
+            of the previous touch (or from connecting, for the first). A heated fingertip's
+            skin cools at every contact and recovers its temperature only over seconds; without
+            the rest a touch's thermal channels depend on how long ago the last one ended, so
+            the first touch of a session (rested) would differ from a collection's touches (each
+            a table turn after the last) and a recognition trial's later touches (none). The
+            default is five recovery times of the simulated sensor (docs/simulation.md); set
+            it to your sensor's (0: no rest).
     """
 
     safe_pose_deg: tuple[float, ...] = (0.0, 0.0)
@@ -89,8 +99,11 @@ class RigConfig:
     safe_pose_tolerance_deg: float = 1.0
     max_lost_fraction: float = 0.05
     estop_torque_off: bool = False
+    settle_s: float = 20.0
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.settle_s) and self.settle_s >= 0):
+            raise ConfigurationError(f"settle_s: must be >= 0, received {self.settle_s}.")
         if not self.control_period_s > 0:
             raise ConfigurationError(
                 f"control_period_s: must be positive, received {self.control_period_s}."
@@ -189,6 +202,7 @@ class Rig:
         self._operation = threading.RLock()
         self._last_finger: FloatArray | None = None
         self._touches = 0
+        self._rest_from_s = -math.inf  # when the finger last left an object (or connected)
 
     # -- status, lease, e-stop: from any thread ------------------------------------------------
 
@@ -336,6 +350,7 @@ class Rig:
             except HardwareError as exc:
                 self._fail(exc)
                 raise self._estop_error(exc) from exc
+            self._rest_from_s = self.clock.now()  # what the sensor touched before is unknown
             self._set_state(RigState.IDLE)
             return self.status()
 
@@ -522,6 +537,7 @@ class Rig:
             session = _TouchSession(self, points, dt)
             try:
                 self._set_state(RigState.MOVING)
+                self._settle()
                 start_state = self.finger.read_state()
                 approach = ramp(start_state.positions_deg, points[0], self._ramp_velocity(), dt)
                 self._stream(check_trajectory(approach, dt, self.finger.joints), dt)
@@ -538,9 +554,20 @@ class Rig:
                     )
                 self._fail(exc)
                 raise self._estop_error(exc) from exc
+            finally:
+                self._rest_from_s = self.clock.now()
             self._touches += 1
             self._set_state(RigState.IDLE)
             return record
+
+    def _settle(self) -> None:
+        """Rest until ``settle_s`` has passed since the last touch (or connecting), in steps of
+        at most 0.1 s so that an emergency stop ends the rest."""
+        clock = self.clock
+        until = self._rest_from_s + self.config.settle_s
+        while (remaining := until - clock.now()) > 0:
+            self._check_estop()
+            clock.sleep(min(remaining, 0.1))
 
 
 class _TouchSession:

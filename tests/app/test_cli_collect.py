@@ -23,6 +23,7 @@ from core.features.pipeline import means_pipeline
 from core.gp.kronecker import find_shared_design
 from hardware.clock import VirtualClock
 from hardware.errors import ServoHardwareErrorFlags
+from hardware.rig import RigConfig
 from hardware.sim.rig import SimulatedRig, in_process_rig
 
 runner = CliRunner()
@@ -282,8 +283,9 @@ class TriggerClock(VirtualClock):
 
 @pytest.fixture
 def rig_with_trigger(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
-    """``collect --sim`` opens a simulated rig whose clock fires an action at 13 s."""
-    made: dict[str, Any] = {"clock": TriggerClock(at_s=13.0)}
+    """``collect --sim`` opens a simulated rig whose clock fires an action 13 s after the rest
+    before the first touch (after the first touch, before the last)."""
+    made: dict[str, Any] = {"clock": TriggerClock(at_s=RigConfig().settle_s + 13.0)}
 
     def open_rig(**kwargs: Any) -> RigHandle:
         simulation: SimulatedRig = in_process_rig(

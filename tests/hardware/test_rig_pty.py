@@ -25,7 +25,10 @@ from tests.hardware.conftest import SHORT_TOUCH_S, at_step, servo_error_mid_touc
 
 @pytest.fixture
 def rig() -> Iterator[SimulatedRig]:
-    sim = pty_rig(seed=11, speed=10.0, rig_config=RigConfig(control_period_s=0.04))
+    # No rest before touches: these tests time faults into touches in real time (the rest has
+    # its own tests, test_settle.py).
+    config = RigConfig(control_period_s=0.04, settle_s=0.0)
+    sim = pty_rig(seed=11, speed=10.0, rig_config=config)
     with sim.rig.acquire("setup") as lease:
         lease.connect()
     yield sim
