@@ -41,6 +41,8 @@ class Settings(BaseSettings):
         turntable_port: Serial port of the GRBL turntable controller (serial hardware).
         finger_port: Serial port of the Dynamixel bus (serial hardware).
         tactile_port: Serial port of the tactile sensor stream (serial hardware).
+        settle_s: Rest before each touch, so that a heated sensor's skin recovers its
+            temperature (:attr:`hardware.rig.RigConfig.settle_s`; 0: no rest).
         max_upload_bytes: Largest request body accepted (uploads included).
         event_log_size: How many events are kept for ``Last-Event-ID`` resume.
         max_training_touches: Largest number of touches a fit or imported model may have (the
@@ -82,6 +84,7 @@ class Settings(BaseSettings):
     turntable_port: str | None = None
     finger_port: str | None = None
     tactile_port: str | None = None
+    settle_s: float = Field(default=20.0, ge=0.0)
     max_upload_bytes: int = Field(default=10 * 1024 * 1024, ge=1024)
     event_log_size: int = Field(default=10_000, ge=100)
     max_training_touches: int = Field(default=5000, ge=4)

@@ -99,6 +99,7 @@ class RigOptions:
         table: Named table of the simulated rig (the default table when neither it nor
             ``table_file`` is given).
         table_file: A table file of the simulated rig.
+        settle_s: Rest before each touch (:attr:`hardware.rig.RigConfig.settle_s`).
     """
 
     turntable_port: Annotated[
@@ -143,6 +144,17 @@ class RigOptions:
     seed: Annotated[int, typer.Option("--seed", help="Seed of the simulated world.")] = 0
     table: TableName = None
     table_file: TableFile = None
+    settle_s: Annotated[
+        float,
+        typer.Option(
+            "--settle",
+            min=0.0,
+            envvar="ACTIVETOUCH_SETTLE_S",
+            help="Seconds the finger rests before each touch, counted from the end of the last "
+            "(or from connecting), so that a heated sensor's skin recovers its temperature and "
+            "every touch starts alike; set it to your sensor's recovery (0: no rest).",
+        ),
+    ] = 20.0
 
     @cached_property
     def sim_table(self) -> Table:
@@ -181,12 +193,15 @@ class RigOptions:
                 simulate=SimulationMode(self.sim_transport),
                 table=self.sim_table,
                 seed=self.seed,
-                rig_config=RigConfig(),
+                rig_config=RigConfig(settle_s=self.settle_s),
             )
         assert self.turntable_port is not None
         assert self.finger_port is not None
         assert self.tactile_port is not None
-        return open_rig(ports=RigPorts(self.turntable_port, self.finger_port, self.tactile_port))
+        return open_rig(
+            ports=RigPorts(self.turntable_port, self.finger_port, self.tactile_port),
+            rig_config=RigConfig(settle_s=self.settle_s),
+        )
 
 
 Command = TypeVar("Command", bound=Callable[..., Any])

@@ -58,6 +58,7 @@ ADAPTIVE_ROUNDS = 2
 #: Fewest touches per object the adaptive design can spend: 2 random ones, then a round of 1.
 ADAPTIVE_MIN_TOUCHES = 3
 
+
 def default_design(touches: int) -> tuple[Literal["adaptive", "random"], str | None]:
     """The design of a collection that names none: ``adaptive`` wherever it can run.
 

@@ -33,7 +33,7 @@ from core.features.pipeline import FeaturePipeline
 from core.validation import FloatArray
 from hardware.errors import HardwareError, RigBusy
 from hardware.records import TouchRecord
-from hardware.rig import RigLease, RigState
+from hardware.rig import RigConfig, RigLease, RigState
 from hardware.sim.materials import Table
 
 OPERATOR = "operator"
@@ -139,8 +139,14 @@ class RigService:
 
     def _open(self) -> RigHandle:
         s = self._settings
+        config = RigConfig(settle_s=s.settle_s)
         if s.hardware == "mock":
-            return open_rig(simulate=SimulationMode.in_process, table=self.simulated_table, seed=0)
+            return open_rig(
+                simulate=SimulationMode.in_process,
+                table=self.simulated_table,
+                seed=0,
+                rig_config=config,
+            )
         ports = missing_ports(s.turntable_port, s.finger_port, s.tactile_port)
         missing = [f"{name}_port" for name in ports]
         if missing:
@@ -152,7 +158,9 @@ class RigService:
         assert s.turntable_port
         assert s.finger_port
         assert s.tactile_port
-        return open_rig(ports=RigPorts(s.turntable_port, s.finger_port, s.tactile_port))
+        return open_rig(
+            ports=RigPorts(s.turntable_port, s.finger_port, s.tactile_port), rig_config=config
+        )
 
     def actions(self) -> TouchActions:
         """Action → trajectory map of the rig (DMPs of the teaching trajectory)."""

@@ -37,7 +37,7 @@ def test_every_rig_command_takes_the_same_rig_options() -> None:
     from typer.main import get_command
 
     options = {"--turntable-port", "--finger-port", "--tactile-port", "--sim", "--sim-transport"}
-    options |= {"--seed", "--table", "--table-file"}
+    options |= {"--seed", "--table", "--table-file", "--settle"}
     group = get_command(app)
     rig = group.commands["rig"]  # type: ignore[attr-defined]
     commands = [rig.commands[name] for name in ("status", "home", "slot", "touch", "estop")]
@@ -45,3 +45,23 @@ def test_every_rig_command_takes_the_same_rig_options() -> None:
     for command in commands:
         names = {opt for param in command.params for opt in param.opts}
         assert options <= names, (command.name, options - names)
+
+
+def test_the_rest_before_a_touch_reaches_the_rig_from_the_options_and_the_server() -> None:
+    from app.config import Settings
+    from app.services.rig import RigService
+
+    handle = RigOptions(sim=True, settle_s=3.5).open()
+    try:
+        assert handle.rig.config.settle_s == 3.5
+    finally:
+        handle.close()
+    refused = runner.invoke(app, ["rig", "status", "--sim", "--settle", "-1"])
+    assert refused.exit_code == 2
+    assert "--settle" in " ".join(refused.output.split())
+    service = RigService(Settings(hardware="mock", settle_s=0.0), None, None)  # type: ignore[arg-type]
+    handle = service.handle()  # builds the rig from the settings alone
+    try:
+        assert handle.rig.config.settle_s == 0.0
+    finally:
+        handle.close()
