@@ -12,14 +12,16 @@ on all the touches as one task (:func:`core.selection.nested_fits.fit_rung`, the
 as tasks of their own), :meth:`FitEngine.fold_map` each fold — its warm refits or all its nested
 candidate fits, :func:`core.selection.latent_selection.score_fold` — as one task,
 :meth:`FitEngine.start_map` each start (:func:`core.gp.fit_run.run_first_stage`). What every task
-shares (the :class:`~core.selection.latent_selection.FoldPlan`: data, folds, the fit; the
-:class:`~core.gp.fit_run.StartPlan`: the screening problem and the options) is scattered to every
-worker once (``broadcast=True``); a task carries only its fold's index and generator, or its
-start's vector. Folds have their own generators and starts none, so the result is the serial
-run's whatever worker ran which task. A fold's candidates depend on each other (ds = k starts
-from ds = k - 1), so the fold is the unit of work there, but the starts of each of its fits run
-as tasks of their own (:func:`worker_start_map`), so the last folds of a run spread over every
-worker; the polish of a fit's best starts runs after its starts, where the fit runs.
+shares (the :class:`~core.selection.nested_fits.RungPlan`: data and the fit; the
+:class:`~core.selection.latent_selection.FoldPlan`: data, folds, the fit and the models on all the
+touches; the :class:`~core.gp.fit_run.StartPlan`: the screening problem and the options) is
+scattered to every worker once (``broadcast=True``); a task carries only its ds or fold's index
+and generator, or its start's vector. Fits and folds have their own generators and starts none,
+so the result is the serial run's whatever worker ran which task. Without warm folds a fold's
+candidates depend on each other (ds = k starts from ds = k - 1), so the fold is the unit of work
+there. The starts of every fit in a task run as tasks of their own (:func:`worker_start_map`),
+so the last fits of a run spread over every worker; the polish of a fit's best starts runs
+after its starts, where the fit runs.
 
 Stopping: the ``stop`` callable is polled every :data:`POLL_S` while tasks run; when it raises
 (or the caller is interrupted), the pending tasks are cancelled and a local cluster is closed,
@@ -79,7 +81,8 @@ class FoldFit:
         options: Fit options; the nested starts are added as ``initial_latents``.
         noise_model: Noise model of the fold fits.
         starts_as_tasks: Run each fit's starts as tasks of their own on the cluster of the
-            fold's task (:func:`worker_start_map`); set by :meth:`FitEngine.fold_map`.
+            fold's task (:func:`worker_start_map`); set by :meth:`FitEngine.fold_map` and
+            :meth:`FitEngine.rung_map`.
         stop_event: Name of the Dask ``Event`` set when the run stops: a fold already running
             then submits no more starts and ends (with ``starts_as_tasks``).
     """

@@ -92,7 +92,7 @@ CRITERIA: tuple[Criterion, ...] = ("touches", "objects")
 
 #: About how many warm fold refits one fit on all the touches costs (their evaluations on
 #: ``bench/time_to_model.py``'s data, docs/fitting.md): the weight of a fit in progress fractions.
-RUNG_COST_IN_REFITS = 15
+RUNG_COST_IN_REFITS = 12
 
 #: Refits a model to training touches of its own objects, starting from it (the warm folds,
 #: module docstring), e.g. :func:`core.gp.manifold.refit_warm` with the fit's options.
