@@ -10,6 +10,9 @@ and prints the maximised log-likelihoods and the choice of a BIC-like penalty (�
 latent dimension: L latent coordinates and dy length-scales).
 Fits are nested by default (:mod:`core.selection.nested_fits`: ds = k from the ds = k - 1 optimum,
 in every fold and in the full-data fits); ``--independent-fits`` fits every candidate on its own.
+``--warm`` cross-validates with warm folds, as the app and CLI do
+(:mod:`core.selection.latent_selection`: every candidate fitted once on all the touches, each fold
+refitted from it by :func:`core.gp.refit_warm`).
 
 The defaults are worlds where the question has an answer: the fit can learn the response
 (length-scale 3 along x for actions drawn from N(0, I) in dx = 6, 2 along s for latents drawn
@@ -23,7 +26,7 @@ choice (the smallest ds within one standard error of the best), ``best`` the bes
 Run: ``.venv/bin/python -m bench.latent_dim [--seeds 2] [--first-seed 0] [--objects 12]
 [--touches 30] [--action-dim 6] [--folds 5] [--restarts 1] [--noise 0.05] [--action-scale 3]
 [--latent-scale 2] [--true-dims 1 2 3] [--criterion touches|objects]
-[--likelihoods | --likelihoods-only] [--independent-fits]``
+[--likelihoods | --likelihoods-only] [--independent-fits] [--warm]``
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from core.evaluation.worlds import random_experiment2_world, sample_dataset
-from core.gp import FitOptions, fit_manifold
+from core.gp import FitOptions, fit_manifold, refit_warm
 from core.selection import CRITERIA, select_latent_dim
 from core.selection.nested_fits import StartedFit, nested_fits
 from core.types import ManifoldModel, TrainingData
@@ -69,6 +72,9 @@ def main() -> None:
     parser.add_argument(
         "--independent-fits", action="store_true", help="no nested warm starts (the old way)"
     )
+    parser.add_argument(
+        "--warm", action="store_true", help="warm folds (the app's and the CLI's way)"
+    )
     args = parser.parse_args()
     nested = not args.independent_fits
     options = FitOptions(restarts=args.restarts)
@@ -88,7 +94,7 @@ def main() -> None:
         f"noise {args.noise}, action scale {args.action_scale}, latent scale {args.latent_scale}, "
         f"{args.folds} folds, candidates {list(candidates)}, "
         f"{args.restarts} restarts, criterion {args.criterion}, "
-        f"{'nested' if nested else 'independent'} fits"
+        f"{'nested' if nested else 'independent'} fits" + (", warm folds" if args.warm else "")
     )
     print(
         f"{'true':>4s} {'seed':>4s} {'best':>4s} {'chosen':>6s}  scores (mean ± s.e.; paired diff)"
@@ -124,6 +130,9 @@ def main() -> None:
                     n_folds=args.folds,
                     criterion=args.criterion,
                     nested=nested,
+                    refit=(lambda train, model: refit_warm(train, model, options))
+                    if args.warm
+                    else None,
                 )
                 scores = "  ".join(
                     f"{c.latent_dim:d}: {c.mean:.3f}±{c.standard_error:.3f} "

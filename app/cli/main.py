@@ -86,11 +86,14 @@ def fit_with_progress(
     quiet: bool = False,
     noise_model: NoiseModelChoice | None = None,
     start_map: StartMap | None = None,
+    fitted: ManifoldModel | None = None,
 ) -> tuple[ManifoldModel, float]:
     """Run :func:`core.gp.manifold.iter_fit` with a progress bar; return the model and seconds.
 
     With ``start_map`` (e.g. :meth:`app.services.fit_tasks.FitEngine.start_map`) the starts'
-    first stage runs there, with the same model."""
+    first stage runs there, with the same model. ``fitted``: the fit at this ds already done
+    by the selection of ds (:attr:`core.selection.LatentSelection.chosen_model`); only the
+    noise model's refit then runs."""
     import numpy as np
 
     from app.services.remaining import RemainingTime
@@ -102,7 +105,7 @@ def fit_with_progress(
     remaining = RemainingTime()
     with progress_bar(disable=quiet) as bar:
         task = bar.add_task("fit", total=1.0, status="")
-        for event in iter_fit(data, latent_dim, rng, options, noise_model, start_map):
+        for event in iter_fit(data, latent_dim, rng, options, noise_model, start_map, fitted):
             # The bar fills with the share of the fit's stages done (event.fraction) and the
             # time left is estimated from it; the status says which stage runs.
             best = event.best_log_likelihood
@@ -132,13 +135,13 @@ def select_latent_dim_with_progress(
     scheduler: str | None = None,
     engine: FitEngine | None = None,
 ) -> LatentSelection:
-    """Cross-validate ds (:func:`core.selection.latent_selection.select_latent_dim`) with a progress
-    bar.
+    """Cross-validate ds (:func:`core.selection.latent_selection.select_latent_dim`, warm folds:
+    every candidate fitted on all the touches, each fold refitted from it) with a progress bar.
 
-    The folds use the requested noise model ("independent" for "auto", which the final fit
-    decides). With ``workers`` or ``scheduler`` they run as Dask tasks
-    (:mod:`app.services.fit_tasks`; on ``engine`` when given), with the same result; the bar
-    then advances as each fold finishes.
+    The fits use the requested noise model ("independent" for "auto", which the final fit
+    decides from the chosen candidate's fit). With ``workers`` or ``scheduler`` they run as
+    Dask tasks (:mod:`app.services.fit_tasks`; on ``engine`` when given), with the same
+    result; the bar then advances as each fit and fold finishes.
 
     Raises:
         BadInputError: The scheduler cannot be reached or has no worker.
@@ -146,9 +149,16 @@ def select_latent_dim_with_progress(
 
     import numpy as np
 
-    from app.services.fit_tasks import FoldFit, dask_fold_map
+    from app.services.fit_tasks import FitEngine, FoldFit
     from app.services.remaining import RemainingTime
-    from core.selection import DEFAULT_FOLDS, candidate_dims, select_latent_dim, serial_map
+    from core.selection import (
+        DEFAULT_FOLDS,
+        RUNG_COST_IN_REFITS,
+        candidate_dims,
+        select_latent_dim,
+        serial_map,
+        serial_rung_map,
+    )
 
     fewest = int(data.touches_per_object().min())
     if fewest < 4:
@@ -157,38 +167,48 @@ def select_latent_dim_with_progress(
             f"4 touches of every object; an object here has {fewest:d}."
         )
     n_folds = min(DEFAULT_FOLDS, fewest - 2)
-    n_fits = n_folds * len(candidate_dims(data.n_objects))
+    n_candidates = len(candidate_dims(data.n_objects))
+    # Progress in units of one fold's refit; a fit on all the touches counts as many.
+    total = n_candidates * (RUNG_COST_IN_REFITS + n_folds)
     rng = np.random.default_rng(seed)
     fold_noise: NoiseModelChoice = "independent" if noise_model == "auto" else noise_model
+    fold_fit = FoldFit(options, fold_noise)
     started = time.perf_counter()
     remaining = RemainingTime()
     done = [0]
-    with progress_bar() as bar:
-        task = bar.add_task("latent dim", total=n_fits, status="")
+    with progress_bar() as bar, contextlib.ExitStack() as stack:
+        task = bar.add_task("latent dim", total=total, status="")
 
-        def report(ds: int, fold: int, score: float) -> None:
-            done[0] += 1
+        def advance(units: int, status: str) -> None:
+            done[0] += units
             elapsed_s = time.perf_counter() - started
-            left = remaining.update("latent selection", done[0] / n_fits, elapsed_s)
+            left = remaining.update("latent selection", done[0] / total, elapsed_s)
             bar.update(
                 task,
-                advance=1,
+                advance=units,
                 ends_at=None if left is None else time.monotonic() + left,
-                status=f"ds={ds:d}, fold {fold + 1:d}/{n_folds:d}: {score:.3f} nats/touch",
+                status=status,
             )
 
-        on_cluster = workers is not None or scheduler is not None
+        def on_rung(ds: int, log_likelihood: float) -> None:
+            status = f"ds={ds:d} on all the touches: log-lik {log_likelihood:.2f}"
+            advance(RUNG_COST_IN_REFITS, status)
+
+        def on_fold(ds: int, fold: int, score: float) -> None:
+            advance(1, f"ds={ds:d}, fold {fold + 1:d}/{n_folds:d}: {score:.3f} nats/touch")
+
+        if engine is None and (workers is not None or scheduler is not None):
+            engine = stack.enter_context(FitEngine(workers, scheduler))
         return select_latent_dim(
             data,
-            FoldFit(options, fold_noise),
+            fold_fit,
             rng,
             n_folds=n_folds,
-            callback=report,
-            map=engine.fold_map
-            if engine is not None
-            else dask_fold_map(workers, scheduler)
-            if on_cluster
-            else serial_map,
+            callback=on_fold,
+            map=serial_map if engine is None else engine.fold_map,
+            refit=fold_fit.refit,
+            rung_map=serial_rung_map if engine is None else engine.rung_map,
+            rung_callback=on_rung,
         )
 
 
@@ -354,6 +374,7 @@ def fit(
                 quiet=False,
                 noise_model=noise_model,
                 start_map=None if engine is None else engine.start_map,
+                fitted=None if selection is None else selection.chosen_model,
             )
         model, placement = with_placement_effect(model)
         laplace = None

@@ -1,22 +1,27 @@
-"""The folds of ``--latent-dim auto`` and the starts of a fit as tasks on Dask distributed, the
-engine evaluations run on.
+"""The fits and folds of ``--latent-dim auto`` and the starts of a fit as tasks on Dask
+distributed, the engine evaluations run on.
 
-:func:`core.selection.latent_selection.select_latent_dim` hands its independent folds to a ``map``
-(:data:`core.selection.latent_selection.FoldMap`), and a fit the first stage of its independent
-starts (:data:`core.gp.fit_run.StartMap`: hyperparameters with the latents frozen, then the
-screening run). :class:`FitEngine` supplies both on one client — a ``LocalCluster`` of
-single-threaded processes started for it, or an existing scheduler
-(:func:`app.evaluation.cluster.open_client`): :meth:`FitEngine.fold_map` runs each fold — all its
-nested candidate fits, :func:`core.selection.latent_selection.score_fold` — as one task,
+:func:`core.selection.latent_selection.select_latent_dim` hands its independent fits on all the
+touches (one per candidate ds, :data:`core.selection.nested_fits.RungMap`) and its independent
+folds to maps (:data:`core.selection.latent_selection.FoldMap`), and a fit the first stage of its
+independent starts (:data:`core.gp.fit_run.StartMap`: hyperparameters with the latents frozen,
+then the screening run). :class:`FitEngine` supplies all three on one client — a ``LocalCluster``
+of single-threaded processes started for it, or an existing scheduler
+(:func:`app.evaluation.cluster.open_client`): :meth:`FitEngine.rung_map` runs each candidate's fit
+on all the touches as one task (:func:`core.selection.nested_fits.fit_rung`, the starts of the fit
+as tasks of their own), :meth:`FitEngine.fold_map` each fold — its warm refits or all its nested
+candidate fits, :func:`core.selection.latent_selection.score_fold` — as one task,
 :meth:`FitEngine.start_map` each start (:func:`core.gp.fit_run.run_first_stage`). What every task
-shares (the :class:`~core.selection.latent_selection.FoldPlan`: data, folds, the fit; the
-:class:`~core.gp.fit_run.StartPlan`: the screening problem and the options) is scattered to every
-worker once (``broadcast=True``); a task carries only its fold's index and generator, or its
-start's vector. Folds have their own generators and starts none, so the result is the serial
-run's whatever worker ran which task. A fold's candidates depend on each other (ds = k starts
-from ds = k - 1), so the fold is the unit of work there, but the starts of each of its fits run
-as tasks of their own (:func:`worker_start_map`), so the last folds of a run spread over every
-worker; the polish of a fit's best starts runs after its starts, where the fit runs.
+shares (the :class:`~core.selection.nested_fits.RungPlan`: data and the fit; the
+:class:`~core.selection.latent_selection.FoldPlan`: data, folds, the fit and the models on all the
+touches; the :class:`~core.gp.fit_run.StartPlan`: the screening problem and the options) is
+scattered to every worker once (``broadcast=True``); a task carries only its ds or fold's index
+and generator, or its start's vector. Fits and folds have their own generators and starts none,
+so the result is the serial run's whatever worker ran which task. Without warm folds a fold's
+candidates depend on each other (ds = k starts from ds = k - 1), so the fold is the unit of work
+there. The starts of every fit in a task run as tasks of their own (:func:`worker_start_map`),
+so the last fits of a run spread over every worker; the polish of a fit's best starts runs
+after its starts, where the fit runs.
 
 Stopping: the ``stop`` callable is polled every :data:`POLL_S` while tasks run; when it raises
 (or the caller is interrupted), the pending tasks are cancelled and a local cluster is closed,
@@ -44,9 +49,19 @@ from core.gp import (
     StartResult,
     StartTask,
     fit_manifold,
+    refit_warm,
     run_first_stage,
 )
-from core.selection import FoldMap, FoldPlan, FoldResult, FoldTask, score_fold
+from core.selection import (
+    FoldPlan,
+    FoldResult,
+    FoldTask,
+    RungPlan,
+    RungResult,
+    RungTask,
+    fit_rung,
+    score_fold,
+)
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray
 
@@ -66,7 +81,8 @@ class FoldFit:
         options: Fit options; the nested starts are added as ``initial_latents``.
         noise_model: Noise model of the fold fits.
         starts_as_tasks: Run each fit's starts as tasks of their own on the cluster of the
-            fold's task (:func:`worker_start_map`); set by :meth:`FitEngine.fold_map`.
+            fold's task (:func:`worker_start_map`); set by :meth:`FitEngine.fold_map` and
+            :meth:`FitEngine.rung_map`.
         stop_event: Name of the Dask ``Event`` set when the run stops: a fold already running
             then submits no more starts and ends (with ``starts_as_tasks``).
     """
@@ -94,6 +110,12 @@ class FoldFit:
             if self.starts_as_tasks
             else None,
         )
+
+    def refit(self, train: TrainingData, model: ManifoldModel) -> ManifoldModel:
+        """A warm fold's model: ``model`` refitted to ``train`` from where it stands
+        (:data:`core.selection.latent_selection.WarmRefit`, :func:`core.gp.refit_warm` with
+        these options)."""
+        return refit_warm(train, model, self.options)
 
 
 class RunStoppedError(Exception):
@@ -183,13 +205,21 @@ class FitEngine:
         stop_event = None
         if isinstance(plan.fit, FoldFit):
             stop_event = f"stop-{uuid.uuid4().hex[:8]}"
-            # A worker is one thread of the cluster: its fits evaluate on one thread.
-            options = dataclasses.replace(plan.fit.options, threads=1)
-            fit = dataclasses.replace(
-                plan.fit, options=options, starts_as_tasks=True, stop_event=stop_event
-            )
-            plan = dataclasses.replace(plan, fit=fit)
+            fit = _on_workers(plan.fit, stop_event)
+            refit = None if plan.refit is None else fit.refit
+            plan = dataclasses.replace(plan, fit=fit, refit=refit)
         return self._run(score_fold, plan, [(f"fold-{t.fold}", t) for t in tasks], stop_event)
+
+    def rung_map(self, plan: RungPlan, tasks: Sequence[RungTask]) -> Iterator[RungResult]:
+        """A :data:`core.selection.nested_fits.RungMap`: every candidate's fit on all the
+        touches as one task (and its starts as tasks of their own when the fit is a
+        :class:`FoldFit`)."""
+        stop_event = None
+        if isinstance(plan.fit, FoldFit):
+            stop_event = f"stop-{uuid.uuid4().hex[:8]}"
+            plan = dataclasses.replace(plan, fit=_on_workers(plan.fit, stop_event))
+        tasks_ = [(f"rung-{t.latent_dim}", t) for t in tasks]
+        return self._run(fit_rung, plan, tasks_, stop_event)
 
     def start_map(self, plan: StartPlan, tasks: Sequence[StartTask]) -> Iterator[StartResult]:
         """A :data:`core.gp.fit_run.StartMap`: every start's first stage as one task, on one
@@ -236,29 +266,8 @@ class FitEngine:
                 client.cancel(list(pending))
 
 
-def dask_fold_map(
-    workers: int | None,
-    scheduler: str | None,
-    stop: Callable[[], None] | None = None,
-) -> FoldMap:
-    """A fold map that runs every fold as a Dask task on a :class:`FitEngine` of its own.
-
-    Args:
-        workers: Size of a ``LocalCluster`` started for the run (when ``scheduler`` is None).
-        scheduler: Address of an existing Dask scheduler, ``tcp://host:8786``.
-        stop: Called between polls; it raises to stop the run (e.g. ``Job.checkpoint``).
-
-    Returns:
-        The map; it yields the folds' results as they finish.
-
-    Raises:
-        ValueError: Neither a scheduler nor at least one worker.
-        BadInputError: (when the map runs) the scheduler cannot be reached or has no worker.
-    """
-    engine = FitEngine(workers, scheduler, stop)
-
-    def run(plan: FoldPlan, tasks: Sequence[FoldTask]) -> Iterator[FoldResult]:
-        with engine:
-            yield from engine.fold_map(plan, tasks)
-
-    return run
+def _on_workers(fit: FoldFit, stop_event: str) -> FoldFit:
+    """The fit as a worker runs it: on one thread (a worker is one thread of the cluster), its
+    starts as tasks of their own, ending when ``stop_event`` is set."""
+    options = dataclasses.replace(fit.options, threads=1)
+    return dataclasses.replace(fit, options=options, starts_as_tasks=True, stop_event=stop_event)

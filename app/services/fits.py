@@ -32,7 +32,7 @@ from app.errors import BadInputError, ConflictError
 from app.schemas import ModelAccepted, ModelCreate, ModelPublic
 from app.services import datasets
 from app.services.events import EventBus
-from app.services.fit_tasks import FoldFit, dask_fold_map
+from app.services.fit_tasks import FitEngine, FoldFit
 from app.services.jobs import INTERRUPTED, Job, JobCancelled, JobRunner
 from app.services.models import ReadyModels, require, store_fitted, to_public
 from app.services.remaining import RemainingTime, stage_of
@@ -46,9 +46,16 @@ from core.gp import (
     NoiseModelChoice,
     fit_manifold,
     iter_fit,
+    refit_warm,
     with_placement_effect,
 )
-from core.selection import DEFAULT_FOLDS, DEFAULT_MAX_LATENT_DIM, LatentSelection, select_latent_dim
+from core.selection import (
+    DEFAULT_FOLDS,
+    DEFAULT_MAX_LATENT_DIM,
+    RUNG_COST_IN_REFITS,
+    LatentSelection,
+    select_latent_dim,
+)
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray
 
@@ -350,13 +357,16 @@ def run_fit(
         request = dataclasses.replace(request, data=data)
     selection: dict[str, Any] | None = None
     latent_dim = body.latent_dim
+    done_before: ManifoldModel | None = None
     if latent_dim == "auto":
         chosen = _select_latent_dim(data, request, options, rng, job, report, started)
         selection = latent_selection_dict(chosen)
         latent_dim = chosen.chosen
+        done_before = chosen.chosen_model  # the fit on all the data at that ds
     fitted: ManifoldModel | None = None
     last_report = 0.0
-    for progress in iter_fit(data, latent_dim, rng, options, body.noise_model):
+    events = iter_fit(data, latent_dim, rng, options, body.noise_model, fitted=done_before)
+    for progress in events:
         job.checkpoint()
         if progress.model is not None:
             fitted = progress.model
@@ -382,14 +392,18 @@ def _select_latent_dim(
     report: Callable[[FitProgress, float], None],
     started: float,
 ) -> LatentSelection:
-    """Cross-validate ds. The folds use the requested noise model, "independent" for "auto"
-    (it is decided by the final fit). On the server's Dask scheduler or the request's
-    ``workers`` the folds run as tasks (:mod:`app.services.fit_tasks`) and a stop cancels them;
-    in process a stop ends the fold in progress at its next event."""
+    """Cross-validate ds with warm folds (:mod:`core.selection.latent_selection`: every
+    candidate fitted on all the touches, each fold refitted from it). The fits use the requested
+    noise model, "independent" for "auto" (it is decided by the final fit, from the chosen
+    candidate's fit). On the server's Dask scheduler or the request's ``workers`` the fits and
+    folds run as tasks (:mod:`app.services.fit_tasks`) and a stop cancels them; in process a
+    stop ends the fit in progress at its next event."""
     body = request.body
     fold_noise: NoiseModelChoice = "independent" if body.noise_model == "auto" else body.noise_model
     n_folds = min(DEFAULT_FOLDS, int(data.touches_per_object().min()) - 2)
     n_candidates = min(DEFAULT_MAX_LATENT_DIM, data.n_objects - 1)
+    # Progress in units of one fold's refit; a fit on all the touches counts as many.
+    total = n_candidates * (RUNG_COST_IN_REFITS + n_folds)
     done = [0]
     on_cluster = request.scheduler is not None or body.workers is not None
 
@@ -407,30 +421,53 @@ def _select_latent_dim(
             job.checkpoint()  # raises JobCancelled: the stop is why the fold ended
             raise
 
-    def on_fold(ds: int, fold: int, score: float) -> None:
-        done[0] += 1
+    def refit_fold(train: TrainingData, model: ManifoldModel) -> ManifoldModel:
+        job.checkpoint()
+        return refit_warm(train, model, options)
+
+    def announce(units: int, phase: str, log_likelihood: float) -> None:
+        done[0] += units
         progress = FitProgress(
             start=done[0],
-            n_starts=n_folds * n_candidates,
+            n_starts=total,
             iteration=0,
-            log_likelihood=score,
+            log_likelihood=log_likelihood,
             best_log_likelihood=float("-inf"),
-            phase=f"latent selection: ds={ds}, fold {fold + 1}/{n_folds}",
-            fraction=done[0] / (n_folds * n_candidates),
+            phase=phase,
+            fraction=done[0] / total,
         )
         report(progress, time.perf_counter() - started)
 
+    def on_rung(ds: int, log_likelihood: float) -> None:
+        phase = f"latent selection: ds={ds} on all the touches"
+        announce(RUNG_COST_IN_REFITS, phase, log_likelihood)
+
+    def on_fold(ds: int, fold: int, score: float) -> None:
+        announce(1, f"latent selection: ds={ds}, fold {fold + 1}/{n_folds}", score)
+
     if not on_cluster:
-        return select_latent_dim(data, fit_fold, rng, n_folds=n_folds, callback=on_fold)
-    fold_map = dask_fold_map(body.workers, request.scheduler, job.checkpoint)
-    return select_latent_dim(
-        data,
-        FoldFit(options, fold_noise),
-        rng,
-        n_folds=n_folds,
-        callback=on_fold,
-        map=fold_map,
-    )
+        return select_latent_dim(
+            data,
+            fit_fold,
+            rng,
+            n_folds=n_folds,
+            callback=on_fold,
+            refit=refit_fold,
+            rung_callback=on_rung,
+        )
+    fold_fit = FoldFit(options, fold_noise)
+    with FitEngine(body.workers, request.scheduler, job.checkpoint) as engine:
+        return select_latent_dim(
+            data,
+            fold_fit,
+            rng,
+            n_folds=n_folds,
+            callback=on_fold,
+            map=engine.fold_map,
+            refit=fold_fit.refit,
+            rung_map=engine.rung_map,
+            rung_callback=on_rung,
+        )
 
 
 def _finite_or_none(value: Any) -> float | None:

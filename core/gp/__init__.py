@@ -12,7 +12,13 @@ Callers outside ``core`` use the names below; tests and benchmarks may reach the
 
 from core.gp.fit_options import FitOptions, FitProgress
 from core.gp.fit_run import StartMap, StartPlan, StartResult, StartTask, run_first_stage
-from core.gp.manifold import FitCancelledError, fit_hyperparameters, fit_manifold, iter_fit
+from core.gp.manifold import (
+    FitCancelledError,
+    fit_hyperparameters,
+    fit_manifold,
+    iter_fit,
+    refit_warm,
+)
 from core.gp.noise_model import (
     NoiseModelChoice,
     attach_transform,
@@ -57,6 +63,7 @@ __all__ = [
     "make_likelihood",
     "predict",
     "predict_model_space",
+    "refit_warm",
     "run_first_stage",
     "transform_data",
     "with_placement_effect",

@@ -15,9 +15,15 @@ import numpy as np
 
 from core.errors import ConvergenceError, CoreError, InvalidInputError
 from core.gp.fit_options import OPTIMIZERS, FitOptions, FitProgress, Optimizer
-from core.gp.fit_run import FitProblem, FitRun, StartMap, at_bounds, normalise_latents
+from core.gp.fit_run import FitProblem, FitRun, StartMap, WarmStart, at_bounds, normalise_latents
 from core.gp.initialisation import normalise_spread
-from core.gp.noise_model import NOISE_MODEL_CHOICES, NoiseModelChoice, iter_fit_noise_model
+from core.gp.noise_model import (
+    NOISE_MODEL_CHOICES,
+    NoiseModelChoice,
+    attach_transform,
+    iter_fit_noise_model,
+    transform_data,
+)
 from core.gp.optimiser_stream import run_to_end
 from core.gp.parameters import initial_hyperparameters, parameter_bounds
 from core.gp.posterior import condition, make_likelihood, resolve_structure
@@ -36,6 +42,7 @@ __all__ = [
     "fit_manifold",
     "iter_fit",
     "normalise_latents",
+    "refit_warm",
 ]
 
 
@@ -59,6 +66,7 @@ def iter_fit(
     options: FitOptions = FitOptions(),
     noise_model: NoiseModelChoice | None = None,
     start_map: StartMap | None = None,
+    fitted: ManifoldModel | None = None,
 ) -> Generator[FitProgress, None, None]:
     """Fit the object manifold, yielding progress (a generator; see the module docstring).
 
@@ -78,6 +86,9 @@ def iter_fit(
             residual noise covariance, then a refit), with the stage named in ``phase``.
         start_map: Runs the first stage of the starts (:data:`core.gp.fit_run.StartMap`, e.g. as
             Dask tasks); ``None``: one after another here. The model does not depend on it.
+        fitted: With a noise model: a fit of these data at this ds already done (e.g. by
+            the selection of ds) with the noise model ``"independent"`` or the one asked
+            for; only what follows it runs (:func:`core.gp.noise_model.iter_fit_noise_model`).
 
     Yields:
         :class:`FitProgress` events.
@@ -87,6 +98,11 @@ def iter_fit(
             constant feature (with a noise model).
         ConvergenceError: Every start failed.
     """
+    if fitted is not None and (noise_model is None or fitted.latent_dim != latent_dim):
+        raise InvalidInputError(
+            f"fitted: needs a noise model and ds = {latent_dim}, received noise model "
+            f"{noise_model!r} and a model of ds = {fitted.latent_dim}."
+        )
     if noise_model is None:
         return FitRun(data, latent_dim, rng, options, start_map).events()
     if noise_model not in NOISE_MODEL_CHOICES:
@@ -100,7 +116,63 @@ def iter_fit(
             model_data, latent_dim, rng, options, start_map, warm
         ).events(),
         noise_model,
+        fitted,
     )
+
+
+def refit_warm(
+    data: TrainingData, model: ManifoldModel, options: FitOptions = FitOptions()
+) -> ManifoldModel:
+    """The model refitted to ``data`` from where it stands: one joint L-BFGS-B run on all of
+    ``data`` from its latents and hyperparameters (:class:`core.gp.fit_run.WarmStart`: no
+    starts, screening or restarts, nothing random).
+
+    For touches of the objects the model was fitted to, e.g. a cross-validation fold's
+    training part (its other touches left out): the objects' arrangement carries over, so
+    the refit only moves to the nearest optimum of ``data``. The model's observation
+    transform (standardisation, whitening) is kept as it is, not estimated again from
+    ``data``, and the refitted model keeps it.
+
+    Args:
+        data: Raw training touches of the model's objects (the same names, in order).
+        model: A fitted model (``model.latent_dim`` is the refit's ds).
+        options: Fit settings (``max_iterations``, the stall rule of the joint run,
+            ``structure``, ``threads``).
+
+    Returns:
+        The refitted model, conditioned on ``data`` (with the model's transform, if any).
+
+    Raises:
+        InvalidInputError: ``data`` are not touches of the model's objects, or dy or dx
+            differ from the model's.
+    """
+    if not isinstance(data, TrainingData):
+        raise InvalidInputError(f"data: expected TrainingData, received {type(data).__name__}.")
+    if tuple(data.object_names) != tuple(model.data.object_names):
+        raise InvalidInputError(
+            f"data: expected touches of the model's {model.data.n_objects} objects, in its "
+            f"order, received {data.n_objects} objects (first: {data.object_names[0]!r})."
+        )
+    if (data.action_dim, data.observation_dim) != (
+        model.data.action_dim,
+        model.data.observation_dim,
+    ):
+        raise InvalidInputError(
+            f"data: expected dx = {model.data.action_dim}, dy = {model.data.observation_dim} "
+            f"as the model's, received dx = {data.action_dim}, dy = {data.observation_dim}."
+        )
+    transform = model.transform
+    model_data = data if transform is None else transform_data(data, transform)
+    warm = WarmStart(model.latents, model.hyperparameters)
+    # A warm run draws nothing at random; the generator is only FitRun's argument.
+    run = FitRun(model_data, model.latent_dim, np.random.default_rng(0), options, warm_start=warm)
+    fitted: ManifoldModel | None = None
+    for event in run.events():
+        if event.model is not None:
+            fitted = event.model
+    if fitted is None:  # pragma: no cover - a fit's last event carries its model
+        raise ConvergenceError("the manifold fit ended without a model.")
+    return fitted if transform is None else attach_transform(fitted, transform, data)
 
 
 def fit_manifold(

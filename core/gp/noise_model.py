@@ -312,6 +312,7 @@ def iter_fit_noise_model(
     data: TrainingData,
     fit: Callable[[TrainingData, WarmStart | None], Iterator[FitProgress]],
     noise_model: NoiseModelChoice,
+    fitted: ManifoldModel | None = None,
 ) -> Generator[FitProgress, None, None]:
     """Fit with a noise model (module docstring), yielding the fits' progress.
 
@@ -323,13 +324,18 @@ def iter_fit_noise_model(
         noise_model: ``"independent"`` (standardise only), ``"correlated"`` (standardise and
             whiten the residual noise covariance of a first fit) or ``"auto"`` (both; keep the
             correlated one when it wins on leave-one-out predictive likelihood).
+        fitted: A fit of ``data`` already done (e.g. by the selection of ds): with
+            ``noise_model="independent"`` (a model with their standardising transform), it is
+            the first fit and ``fit`` runs only the refit; with the ``noise_model`` asked for,
+            ``"correlated"``, it is the model.
 
     Yields:
         The fits' events with the stage in ``phase`` (``"independent: joint"``…); the last
         event (``phase="done"``) carries the model with its transform.
 
     Raises:
-        InvalidInputError: Unknown ``noise_model`` or a constant feature.
+        InvalidInputError: Unknown ``noise_model``, a constant feature, or ``fitted`` not
+            a fit of ``data`` with one of those noise models.
     """
     if noise_model not in NOISE_MODEL_CHOICES:
         raise InvalidInputError(
@@ -337,11 +343,21 @@ def iter_fit_noise_model(
             f"{noise_model!r}."
         )
     base = standardising_transform(data)
+    given = None if fitted is None else fitted.transform
+    if fitted is not None and given is not None and given.kind == noise_model == "correlated":
+        attach_transform(fitted, given, data)  # raises unless fitted to these data
+        yield _last(fitted)  # the refit is done too
+        return
     models: list[ManifoldModel] = []
     first_share = 1.0 if noise_model == "independent" else FIRST_FIT_SHARE
-    first_fit = fit(transform_data(data, base), None)
-    yield from _stage(first_fit, "independent", models, 0.0, first_share)
-    first = attach_transform(models[-1], base, data)
+    if fitted is None:
+        first_fit = fit(transform_data(data, base), None)
+        yield from _stage(first_fit, "independent", models, 0.0, first_share)
+        first = attach_transform(models[-1], base, data)
+    else:
+        _check_fitted(fitted, data, base)
+        models.append(fitted)  # its latents and hyperparameters are model-space
+        first = dataclasses.replace(fitted, transform=base)  # base's own note
     final = first
     if noise_model != "independent":
         transform = correlated_transform(models[-1], base)
@@ -351,17 +367,37 @@ def iter_fit_noise_model(
         final = second if noise_model == "correlated" else choose_noise_model(first, second)
     if final.transform is not None and noise_model != "auto":
         final = _with_note(final, f"{noise_model} (as asked); {final.transform.note}")
-    last = FitProgress(
+    yield _last(final)
+
+
+def _last(model: ManifoldModel) -> FitProgress:
+    """The event that ends a fit with a noise model: it carries the model."""
+    return FitProgress(
         start=0,
         n_starts=1,
         iteration=0,
-        log_likelihood=final.log_likelihood,
-        best_log_likelihood=final.log_likelihood,
+        log_likelihood=model.log_likelihood,
+        best_log_likelihood=model.log_likelihood,
         phase="done",
-        model=final,
+        model=model,
         fraction=1.0,
     )
-    yield last
+
+
+def _check_fitted(model: ManifoldModel, data: TrainingData, base: ObservationTransform) -> None:
+    """Reject a first fit that is not the standardised fit of ``data``."""
+    transform = model.transform
+    if (
+        transform is None
+        or transform.kind != "independent"
+        or not np.array_equal(transform.offset, base.offset)
+        or not np.array_equal(transform.scale, base.scale)
+    ):
+        raise InvalidInputError(
+            "fitted: expected a model fitted with noise_model='independent' to these "
+            "data (their standardising transform)."
+        )
+    attach_transform(model, base, data)  # raises unless conditioned on these touches
 
 
 def _with_note(model: ManifoldModel, note: str) -> ManifoldModel:

@@ -34,6 +34,20 @@ criterion tried; leave-objects-out leaned large there.
 Every fold's candidates are fitted nested by default (:mod:`core.selection.nested_fits`): ds = k
 starts from the ds = k - 1 optimum too, so the training log-likelihood is non-decreasing in ds.
 
+**Warm folds** (``refit``, ``"touches"`` only; what ``activetouch fit --latent-dim auto`` and the
+server use): every candidate is fitted once on *all* the touches
+(:func:`core.selection.nested_fits.ladder_fits`: one multi-start fit per ds, independent of
+each other, then carried over upward so the log-likelihood is non-decreasing in ds), and each
+fold's model at that ds is that fit refitted to the fold's training touches from where it
+stands (one joint run, e.g. :func:`core.gp.manifold.refit_warm`). Touch folds keep every
+object, so the latents carry over; the refit costs a few dozen evaluations instead of a
+multi-start fit per fold and candidate, and the full-data fit at the chosen ds is the final
+model (:attr:`LatentSelection.models`). What it gives up: the folds are no longer independent
+fits. Their optimisation starts where the held-out touches helped to put it (the basin of the
+full-data optimum and the observation transform of all the touches); the refit then moves to
+the training touches' own optimum nearby, so the held-out touches do not enter the fold's
+likelihood, only its starting point. The measurements are in docs/fitting.md.
+
 The folds are independent (each gets its own generator, spawned from the one passed in):
 :func:`score_fold` is one fold's work, a pure function, and ``map`` runs them — one after
 another by default, or elsewhere (the app runs them as Dask tasks) with the same result.
@@ -45,7 +59,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -58,7 +72,14 @@ from core.selection.held_out_objects import (
     objects_subset,
     split_halves,
 )
-from core.selection.nested_fits import StartedFit, nested_fits
+from core.selection.nested_fits import (
+    NestedFit,
+    RungMap,
+    StartedFit,
+    ladder_fits,
+    nested_fits,
+    serial_rung_map,
+)
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray, IntArray
 
@@ -68,6 +89,14 @@ DEFAULT_FOLDS = 5
 
 Criterion = Literal["touches", "objects"]
 CRITERIA: tuple[Criterion, ...] = ("touches", "objects")
+
+#: About how many warm fold refits one fit on all the touches costs (their evaluations on
+#: ``bench/time_to_model.py``'s data, docs/fitting.md): the weight of a fit in progress fractions.
+RUNG_COST_IN_REFITS = 12
+
+#: Refits a model to training touches of its own objects, starting from it (the warm folds,
+#: module docstring), e.g. :func:`core.gp.manifold.refit_warm` with the fit's options.
+WarmRefit = Callable[[TrainingData, ManifoldModel], ManifoldModel]
 
 
 @dataclass(frozen=True)
@@ -107,6 +136,8 @@ class LatentSelection:
         n_folds: K.
         candidates: Every candidate's scores, in increasing ds.
         explanation: One sentence saying why ``chosen`` was chosen.
+        models: With warm folds, every candidate's model fitted on all the touches, in
+            increasing ds (excluded from ``==``); empty otherwise.
     """
 
     chosen: int
@@ -114,6 +145,15 @@ class LatentSelection:
     n_folds: int
     candidates: tuple[CandidateScore, ...]
     explanation: str
+    models: tuple[ManifoldModel, ...] = field(default=(), compare=False)
+
+    @property
+    def chosen_model(self) -> ManifoldModel | None:
+        """The model at ``chosen`` fitted on all the touches (warm folds), else ``None``."""
+        for c, candidate in enumerate(self.candidates):
+            if candidate.latent_dim == self.chosen and c < len(self.models):
+                return self.models[c]
+        return None
 
 
 def candidate_dims(n_objects: int, max_latent_dim: int = DEFAULT_MAX_LATENT_DIM) -> tuple[int, ...]:
@@ -180,8 +220,11 @@ class FoldPlan:
         dims: The candidate ds, increasing.
         criterion: ``"touches"`` or ``"objects"``.
         nested: Whether each fold's candidates are fitted nested
-        (:mod:`core.selection.nested_fits`). fit: The fit
-        (:data:`core.selection.nested_fits.StartedFit`).
+            (:mod:`core.selection.nested_fits`).
+        fit: The fit (:data:`core.selection.nested_fits.StartedFit`).
+        ladder: Warm folds: every candidate's fit on all the touches, in the order of
+            ``dims`` (:func:`core.selection.nested_fits.ladder_fits`); empty otherwise.
+        refit: Warm folds: refits a ladder model to a fold's training touches.
     """
 
     data: TrainingData
@@ -191,6 +234,8 @@ class FoldPlan:
     criterion: Criterion
     nested: bool
     fit: StartedFit
+    ladder: tuple[NestedFit, ...] = ()
+    refit: WarmRefit | None = None
 
 
 @dataclass(frozen=True)
@@ -235,7 +280,15 @@ def score_fold(plan: FoldPlan, task: FoldTask) -> FoldResult:
     else:
         train = _subset(data, np.flatnonzero(plan.folds != k))
     scores, fitted, carried = [], [], []
-    for _, _, model, was_carried in _fold_models(train, plan.dims, plan.fit, task.rng, plan.nested):
+    if plan.ladder:
+        assert plan.refit is not None
+        models: Iterable[tuple[int, int, ManifoldModel, bool]] = (
+            (c, ds, plan.refit(train, rung.model), rung.carried_over)
+            for c, (ds, rung) in enumerate(zip(plan.dims, plan.ladder, strict=True))
+        )
+    else:
+        models = _fold_models(train, plan.dims, plan.fit, task.rng, plan.nested)
+    for _, _, model, was_carried in models:
         if plan.criterion == "objects":
             assert plan.halves is not None
             values = held_out_scores(model, data, held, plan.halves)
@@ -265,6 +318,9 @@ def select_latent_dim(
     criterion: Criterion = "touches",
     nested: bool = True,
     map: FoldMap = serial_map,
+    refit: WarmRefit | None = None,
+    rung_map: RungMap = serial_rung_map,
+    rung_callback: Callable[[int, float], None] | None = None,
 ) -> LatentSelection:
     """Choose ds by cross-validation (module docstring).
 
@@ -288,18 +344,33 @@ def select_latent_dim(
             in ds); ``False``: every candidate on its own, with no extra starts.
         map: Runs the folds (:data:`FoldMap`); the folds are independent, so the result does
             not depend on how or where they run.
+        refit: Warm folds (module docstring; ``"touches"`` only): every candidate is fitted
+            once on all the touches with ``fit`` and each fold's model is that one refitted by
+            ``refit`` to the fold's training touches; ``nested`` is then not used.
+        rung_map: Runs the warm folds' fits on all the touches
+            (:data:`core.selection.nested_fits.RungMap`; independent, so where they run does
+            not change the result).
+        rung_callback: Called with (ds, log-likelihood) as each fit on all the touches ends
+            (warm folds).
 
     Returns:
         The scores and the choice. Cost: K · len(candidates) fits (K · (2 max(candidates) - 1)
         when nested; plus, for ``"objects"``, two latent placements per held-out object and
-        candidate).
+        candidate); with warm folds len(candidates) fits on all the touches and K ·
+        len(candidates) refits.
 
     Raises:
-        InvalidInputError: Bad criterion, candidates or folds (too few touches or objects).
+        InvalidInputError: Bad criterion, candidates or folds (too few touches or objects),
+            or ``refit`` with ``"objects"``.
     """
     if criterion not in CRITERIA:
         raise InvalidInputError(
             f"criterion: expected one of {', '.join(CRITERIA)}, received {criterion!r}."
+        )
+    if refit is not None and criterion != "touches":
+        raise InvalidInputError(
+            "refit: warm folds need every object in every fold's training touches "
+            f"(criterion 'touches'), received criterion {criterion!r}."
         )
     halves: IntArray | None = None
     if criterion == "objects":
@@ -316,8 +387,11 @@ def select_latent_dim(
             f"candidates: expected distinct integers ≥ 1, received {list(dims)}."
         )
     dims = tuple(sorted(int(d) for d in dims))
-    plan = FoldPlan(data, folds, halves, dims, criterion, nested, fit)
     tasks = [FoldTask(k, fold_rng) for k, fold_rng in enumerate(rng.spawn(n_folds))]
+    ladder: tuple[NestedFit, ...] = ()
+    if refit is not None:
+        ladder = ladder_fits(data, dims, fit, rng, rung_map, rung_callback)
+    plan = FoldPlan(data, folds, halves, dims, criterion, nested, fit, ladder, refit)
     scores = np.full((len(dims), n_folds), np.nan)
     fitted = np.full((len(dims), n_folds), np.nan)
     carried = np.zeros(len(dims), dtype=np.int64)
@@ -337,6 +411,7 @@ def select_latent_dim(
     selection = _summarise(dims, scores, criterion)
     return dataclasses.replace(
         selection,
+        models=tuple(rung.model for rung in ladder),
         candidates=tuple(
             dataclasses.replace(
                 r,

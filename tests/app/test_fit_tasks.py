@@ -1,4 +1,4 @@
-"""The folds of ``--latent-dim auto`` and the starts of a fit as Dask tasks
+"""The fits and folds of ``--latent-dim auto`` and the starts of a fit as Dask tasks
 (app/services/fit_tasks.py) equal the serial run, and a stop cancels them."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from app.services.fit_tasks import FitEngine, FoldFit, dask_fold_map
+from app.services.fit_tasks import FitEngine, FoldFit
 from core.evaluation.worlds import random_experiment2_world, sample_dataset
 from core.gp.manifold import FitOptions, fit_manifold
 from core.selection.latent_selection import select_latent_dim
@@ -42,10 +42,41 @@ def test_the_folds_on_a_cluster_give_the_serial_choice_and_scores(dask_cluster: 
         return choice, seen
 
     serial, serial_seen = choose()
-    distributed, seen = choose(map=dask_fold_map(None, dask_cluster.scheduler_address))
+    with FitEngine(None, dask_cluster.scheduler_address) as engine:
+        distributed, seen = choose(map=engine.fold_map)
     assert distributed == serial  # the same choice, scores and training log-likelihoods
     assert sorted(seen) == sorted(serial_seen)  # every (ds, fold, score), in finishing order
     assert len(seen) == 3 * 3
+
+
+def test_warm_folds_on_a_cluster_give_the_serial_choice_scores_and_models(
+    dask_cluster: Any,
+) -> None:
+    data = small_world()
+
+    def choose(engine: FitEngine | None) -> tuple[Any, list[tuple[int, float]]]:
+        rungs: list[tuple[int, float]] = []
+        choice = select_latent_dim(
+            data,
+            FIT,
+            np.random.default_rng(1),
+            (1, 2, 3),
+            n_folds=3,
+            refit=FIT.refit,
+            rung_callback=lambda *a: rungs.append(a),
+            **({} if engine is None else {"map": engine.fold_map, "rung_map": engine.rung_map}),
+        )
+        return choice, rungs
+
+    serial, serial_rungs = choose(None)
+    with FitEngine(None, dask_cluster.scheduler_address) as engine:
+        distributed, rungs = choose(engine)
+    assert distributed == serial  # the same choice, scores and training log-likelihoods
+    assert sorted(rungs) == sorted(serial_rungs)  # every fit on all the touches
+    assert [m.latent_dim for m in distributed.models] == [1, 2, 3]
+    for ours, theirs in zip(distributed.models, serial.models, strict=True):
+        assert ours.log_likelihood == theirs.log_likelihood
+        np.testing.assert_array_equal(ours.latents, theirs.latents)
 
 
 def test_a_stop_cancels_the_pending_folds(dask_cluster: Any) -> None:
@@ -57,14 +88,17 @@ def test_a_stop_cancels_the_pending_folds(dask_cluster: Any) -> None:
     def stop() -> None:
         raise StoppedError
 
-    with pytest.raises(StoppedError):
+    with (
+        pytest.raises(StoppedError),
+        FitEngine(None, dask_cluster.scheduler_address, stop) as engine,
+    ):
         select_latent_dim(
             small_world(),
             FIT,
             np.random.default_rng(1),
             (1, 2, 3),
             n_folds=3,
-            map=dask_fold_map(None, dask_cluster.scheduler_address, stop),
+            map=engine.fold_map,
         )
     with Client(dask_cluster.scheduler_address, set_as_default=False) as client:
         left = client.run_on_scheduler(
@@ -75,7 +109,7 @@ def test_a_stop_cancels_the_pending_folds(dask_cluster: Any) -> None:
 
 def test_workers_or_a_scheduler_is_needed() -> None:
     with pytest.raises(ValueError, match="workers"):
-        dask_fold_map(None, None)
+        FitEngine(None, None)
     with pytest.raises(ValueError, match="workers"):
         FitEngine(0, None)
 

@@ -1,5 +1,6 @@
-"""Nested warm starts over the latent dimension (core/selection/nested_fits.py) and their use in
-cross-validation (core/selection/latent_selection.py)."""
+"""Nested warm starts over the latent dimension and the ladder of fits on all the touches
+(core/selection/nested_fits.py), and their use in cross-validation, warm folds included
+(core/selection/latent_selection.py)."""
 
 from __future__ import annotations
 
@@ -11,11 +12,17 @@ import pytest
 
 from core.errors import InvalidInputError
 from core.evaluation.worlds import random_experiment2_world, sample_dataset
-from core.gp.manifold import FitOptions, fit_manifold
+from core.gp.manifold import FitOptions, fit_manifold, refit_warm
 from core.gp.posterior import condition
 from core.recognition.object_posterior import touch_log_likelihoods
-from core.selection.latent_selection import select_latent_dim
-from core.selection.nested_fits import appended_starts, embed_model, nested_fits, projected_start
+from core.selection.latent_selection import fold_assignment, select_latent_dim
+from core.selection.nested_fits import (
+    appended_starts,
+    embed_model,
+    ladder_fits,
+    nested_fits,
+    projected_start,
+)
 from core.types import Hyperparameters, ManifoldModel, TrainingData
 
 Starts = tuple[np.ndarray, ...]
@@ -142,3 +149,135 @@ def test_projected_start_keeps_the_leading_directions() -> None:
         for a in np.linspace(0, np.pi, 721)
     )
     assert float(np.sum(start**2)) == pytest.approx(best, rel=1e-4)
+
+
+def test_ladder_fits_every_ds_on_its_own_and_carries_lower_optima_over() -> None:
+    data = small_world()
+    calls: list[tuple[int, Starts, int]] = []
+
+    def fit(
+        train: TrainingData, ds: int, starts: Starts, rng: np.random.Generator
+    ) -> ManifoldModel:
+        calls.append((ds, starts, int(rng.integers(2**31))))
+        if ds == 2:  # stopped after one iteration: ends below the ds = 1 optimum
+            return fit_manifold(train, ds, rng, dataclasses.replace(OPTIONS, max_iterations=1))
+        return fit_manifold(train, ds, rng, OPTIONS)
+
+    seen: list[tuple[int, float]] = []
+    rungs = ladder_fits(
+        data, (3, 1, 2), fit, np.random.default_rng(0), callback=lambda *a: seen.append(a)
+    )
+    assert [ds for ds, _, _ in calls] == [1, 2, 3]  # in increasing ds
+    assert all(starts == () for _, starts, _ in calls)  # no fit starts from another
+    assert len({draw for _, _, draw in calls}) == 3  # each its own generator
+    assert [ds for ds, _ in seen] == [1, 2, 3]
+    assert [r.model.latent_dim for r in rungs] == [1, 2, 3]
+    assert rungs[1].carried_over
+    assert rungs[1].fitted_log_likelihood == seen[1][1] < rungs[0].model.log_likelihood
+    assert rungs[1].model.log_likelihood == pytest.approx(rungs[0].model.log_likelihood, rel=1e-10)
+    values = [r.model.log_likelihood for r in rungs]
+    assert all(b >= a - 1e-8 * abs(a) for a, b in itertools.pairwise(values))
+    # The same generator gives the same fits, whatever runs them.
+    again = ladder_fits(data, (1, 2, 3), fit, np.random.default_rng(0))
+    assert [r.model.log_likelihood for r in again] == values
+    with pytest.raises(InvalidInputError, match="dims"):
+        ladder_fits(data, (0, 1), fit, np.random.default_rng(0))
+
+
+def test_a_gap_in_the_candidates_is_embedded_once_per_missing_dimension() -> None:
+    data = small_world()
+    one = fit_manifold(data, 1, np.random.default_rng(0), OPTIONS)
+    bad = Hyperparameters(
+        signal_variance=np.full(2, 1.0),
+        noise_variance=np.full(2, 1.0),  # everything explained as noise: far lower likelihood
+        latent_lengthscales=np.full((2, 3), 1.0),
+        action_lengthscales=np.full((2, 1), 1.0),
+    )
+
+    def fit(train: TrainingData, ds: int, starts: Starts, rng: object) -> ManifoldModel:
+        if ds == 1:
+            return one
+        return condition(train, np.random.default_rng(1).standard_normal((6, 3)), bad)
+
+    rungs = ladder_fits(data, (1, 3), fit, np.random.default_rng(0))
+    assert rungs[1].carried_over
+    assert rungs[1].model.latent_dim == 3
+    np.testing.assert_array_equal(rungs[1].model.latents[:, 1:], 0.0)
+    assert rungs[1].model.log_likelihood == pytest.approx(one.log_likelihood, rel=1e-10)
+
+
+def test_warm_folds_refit_the_fit_on_all_the_touches_to_each_fold() -> None:
+    data = small_world()
+    fits: list[ManifoldModel] = []
+
+    def fit(
+        train: TrainingData, ds: int, starts: Starts, rng: np.random.Generator
+    ) -> ManifoldModel:
+        model = fit_manifold(train, ds, rng, OPTIONS, noise_model="independent")
+        fits.append(model)
+        return model
+
+    refits: list[tuple[TrainingData, ManifoldModel, ManifoldModel]] = []
+
+    def refit(train: TrainingData, model: ManifoldModel) -> ManifoldModel:
+        refitted = refit_warm(train, model, OPTIONS)
+        refits.append((train, model, refitted))
+        return refitted
+
+    selection = select_latent_dim(
+        data, fit, np.random.default_rng(1), (1, 2), n_folds=3, refit=refit
+    )
+    assert [f.data.n_touches for f in fits] == [data.n_touches] * 2  # one fit per ds, all touches
+    assert [m.latent_dim for m in selection.models] == [1, 2]
+    assert selection.chosen_model is selection.models[selection.chosen - 1]
+    assert len(refits) == 3 * 2
+    folds = fold_assignment(data.object_index, 3, np.random.default_rng(1))
+    by_fold = {}
+    for train, start, refitted in refits:
+        # Every fold's model starts from the fit on all the touches at its ds ...
+        assert any(start is m for m in selection.models)
+        assert train.n_objects == data.n_objects
+        # ... and is fitted to the fold's training touches only.
+        k = next(
+            k
+            for k in range(3)
+            if train.n_touches == int(np.sum(folds != k))
+            and np.array_equal(train.actions, data.actions[folds != k])
+        )
+        by_fold.setdefault(k, []).append(refitted)
+    for c, candidate in enumerate(selection.candidates):
+        for k in range(3):
+            held = folds == k
+            model = by_fold[k][c]
+            expected = touch_log_likelihoods(
+                model, data.object_index[held], data.actions[held], data.observations[held]
+            ).mean()
+            assert candidate.fold_scores[k] == pytest.approx(expected, rel=1e-12)
+            assert candidate.fit_log_likelihoods[k] == model.log_likelihood
+    with pytest.raises(InvalidInputError, match="touches"):
+        select_latent_dim(
+            data, fit, np.random.default_rng(1), (1, 2), n_folds=3, refit=refit, criterion="objects"
+        )
+
+
+def test_a_warm_refit_starts_where_the_model_stands_and_keeps_its_transform() -> None:
+    data = small_world(seed=4)
+    model = fit_manifold(data, 2, np.random.default_rng(0), OPTIONS, noise_model="correlated")
+    assert model.transform is not None
+    # On the model's own touches the refit starts at its optimum: nothing to gain, nothing lost.
+    same = refit_warm(data, model, OPTIONS)
+    assert same.transform is model.transform
+    assert same.log_likelihood >= model.log_likelihood - 1e-6 * abs(model.log_likelihood)
+    assert same.log_likelihood <= model.log_likelihood + 1.0
+    # One iteration from it on part of the touches stays next to its latents.
+    keep = np.flatnonzero(np.arange(data.n_touches) % 4 != 0)
+    part = TrainingData(
+        data.object_names, data.object_index[keep], data.actions[keep], data.observations[keep]
+    )
+    step = refit_warm(part, model, dataclasses.replace(OPTIONS, max_iterations=1))
+    assert step.data.n_touches == keep.size
+    assert step.transform is model.transform
+    assert np.max(np.abs(step.latents - model.latents)) < 0.2
+    other = dataclasses.replace(part, object_names=tuple(f"x{i}" for i in range(6)))
+    with pytest.raises(InvalidInputError, match="objects"):
+        refit_warm(other, model, OPTIONS)

@@ -348,3 +348,41 @@ def test_the_fraction_done_grows_to_one(noise_model: NoiseModelChoice) -> None:
     assert len(set(fractions)) > 4  # it advances stage by stage, not only at the end
     # 1 only once the fit (a noise model's last stage) has ended.
     assert all(e.fraction < 1.0 for e in events if e.phase.split(": ")[-1] != "done")
+
+
+def test_a_fit_already_done_is_continued_not_repeated() -> None:
+    world = correlated_noise_world(np.random.default_rng(6), n_objects=4, action_dim=1)
+    data = sample_dataset(world, np.random.default_rng(9), 20)
+    options = FitOptions(restarts=1)
+    whole = fit_manifold(data, 2, np.random.default_rng(0), options, noise_model="auto")
+    first = fit_manifold(data, 2, np.random.default_rng(0), options, noise_model="independent")
+    # "auto" from the independent fit: only the correlated refit runs, to the same model.
+    events = list(iter_fit(data, 2, np.random.default_rng(5), options, "auto", fitted=first))
+    assert not [e for e in events if e.phase.startswith("independent")]
+    assert [e for e in events if e.phase.startswith("correlated: ")]
+    model = events[-1].model
+    assert model is not None
+    assert model.log_likelihood == whole.log_likelihood
+    np.testing.assert_array_equal(model.latents, whole.latents)
+    assert model.transform is not None
+    assert whole.transform is not None
+    assert model.transform.note == whole.transform.note
+    # "independent": the fit is the model; "correlated" from a correlated fit: likewise.
+    [done] = list(iter_fit(data, 2, np.random.default_rng(5), options, "independent", fitted=first))
+    assert done.model is not None
+    assert done.model.log_likelihood == first.log_likelihood
+    assert done.model.transform is not None
+    assert first.transform is not None
+    assert done.model.transform.note == first.transform.note
+    correlated = fit_manifold(data, 2, np.random.default_rng(0), options, noise_model="correlated")
+    [done] = list(
+        iter_fit(data, 2, np.random.default_rng(5), options, "correlated", fitted=correlated)
+    )
+    assert done.model is correlated
+    with pytest.raises(InvalidInputError, match="fitted"):
+        iter_fit(data, 3, np.random.default_rng(5), options, "auto", fitted=first)
+    with pytest.raises(InvalidInputError, match="fitted"):
+        iter_fit(data, 2, np.random.default_rng(5), options, None, fitted=first)
+    bare = fit_manifold(data, 2, np.random.default_rng(0), options)  # no transform
+    with pytest.raises(InvalidInputError, match="fitted"):
+        list(iter_fit(data, 2, np.random.default_rng(5), options, "auto", fitted=bare))
