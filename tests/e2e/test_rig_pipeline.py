@@ -34,6 +34,9 @@ CONTROL_PERIOD_S = 0.04
 # step) a loaded CI host skipped 44% of the setpoints, distorting the touches it learned from and
 # recognised with (a miss at p = 1.000).
 SPEED = 10.0
+# The rest before each touch: one recovery time of the simulated skin (4 s) keeps the touches
+# alike here at a fifth of the default's wall time (every touch rests at real-time / SPEED).
+SETTLE_S = 5.0
 CHOSEN = "clear_plastic_cup"  # O3: the paper finds it close to the paper cup (O1)
 
 
@@ -44,7 +47,10 @@ def test_collect_fit_and_recognise_on_the_serial_rig() -> None:
     design = np.random.default_rng(0).uniform(-3.0, 3.0, size=(ACTIONS_PER_OBJECT, 6))
     records: list[TouchRecord] = []
     sim = pty_rig(
-        PAPER_CUPS, seed=2, speed=SPEED, rig_config=RigConfig(control_period_s=CONTROL_PERIOD_S)
+        PAPER_CUPS,
+        seed=2,
+        speed=SPEED,
+        rig_config=RigConfig(control_period_s=CONTROL_PERIOD_S, settle_s=SETTLE_S),
     )
     try:
         with sim.rig.acquire("acceptance") as lease:
