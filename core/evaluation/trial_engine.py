@@ -223,7 +223,10 @@ class ModelSamples:
         # and mapped to raw units: with correlated noise the raw predictive is not diagonal.
         mean, variance = predict_model_space(model, latents, actions)
         if offset is not None:
-            assert model.placement_variance is not None
+            if model.placement_variance is None:
+                raise InvalidInputError(
+                    "offset: a placement offset needs a model with a placement variance."
+                )
             mean, variance = mean + offset, variance - model.placement_variance
         draw = mean + np.sqrt(variance) * rng.standard_normal(mean.shape)
         if model.transform is not None:
