@@ -384,10 +384,15 @@ class WarmStart:
     Attributes:
         latents: Shape (L, ds); normalised when the fit starts.
         hyperparameters: Hyperparameters of the fit's data, with ds latent dimensions.
+        placement_fraction: ρ_a = σ_b,a² / σ_n,a², held fixed: the fit's likelihood and its
+            posterior then let touches sharing a placement share an offset
+            (:class:`core.gp.likelihood.ManifoldLikelihood`; dense path). ``None``:
+            independent noise. Shape (dy,).
     """
 
     latents: FloatArray
     hyperparameters: Hyperparameters
+    placement_fraction: FloatArray | None = None
 
 
 def first_stage(
@@ -483,9 +488,23 @@ class FitRun:
         self.rng = rng
         self.warm_start = warm_start
         self.options = options
+        self.placement_fraction = None if warm_start is None else warm_start.placement_fraction
         self.structure, _ = resolve_structure(data, options.structure)
+        if self.placement_fraction is not None:
+            # The shared offsets break a shared design's product form; sparse is not offered.
+            if self.structure == "sparse" or options.structure == "kronecker":
+                raise InvalidInputError(
+                    f"warm_start.placement_fraction: a placement effect in the fit needs the "
+                    f"dense likelihood, not {self.structure!r}."
+                )
+            self.structure = "dense"
         full = make_likelihood(
-            data, self.latent_dim, self.structure, options.n_inducing, options.threads
+            data,
+            self.latent_dim,
+            self.structure,
+            options.n_inducing,
+            options.threads,
+            placement_fraction=self.placement_fraction,
         )
         self.layout: ParameterLayout = full.layout
         lower, upper = parameter_bounds(data, self.layout, options.latent_bound)
@@ -940,7 +959,14 @@ class FitRun:
             diagnostics,
             structure=self.structure,
             n_inducing=self.options.n_inducing,
+            placement_variance=self._placement_variance(hyper),
         )
+
+    def _placement_variance(self, hyper: Hyperparameters) -> FloatArray | None:
+        """σ_b² = ρ σ_n² at ``hyper`` when the fit has a placement fraction."""
+        if self.placement_fraction is None:
+            return None
+        return np.asarray(self.placement_fraction * hyper.noise_variance, dtype=np.float64)
 
     def best_model_so_far(self) -> ManifoldModel | None:
         """The best parameters reached so far, conditioned on all the data (or ``None``)."""
@@ -955,7 +981,12 @@ class FitRun:
         best = min(done, key=lambda s: s.full_value)
         latents, hyper = normalise_latents(*self.layout.unpack(best.vector))
         return condition(
-            self.data, latents, hyper, structure=self.structure, n_inducing=self.options.n_inducing
+            self.data,
+            latents,
+            hyper,
+            structure=self.structure,
+            n_inducing=self.options.n_inducing,
+            placement_variance=self._placement_variance(hyper),
         )
 
 

@@ -3,13 +3,15 @@
     -log p(Y | S, X, γ) = Σ_a ½ y_aᵀ K_a⁻¹ y_a + ½ log det K_a + (N/2) log 2π   docs/method.md (M2)
 
 with K_a = σ_f,a² K^s_a[obj, obj] ∘ K^x_a + σ_n,a² I (eq. (M1)) and y_a centred on the
-per-feature observation mean (as :func:`core.gp.posterior.condition` does).
+per-feature observation mean (as :func:`core.gp.posterior.condition` does). With a placement
+fraction ρ_a the noise part is σ_n,a² ((1 − ρ_a) I + ρ_a Z Zᵀ) instead: touches sharing a
+placement share an offset of variance σ_b,a² = ρ_a σ_n,a² (:mod:`core.gp.placement_groups`).
 
 Gradient. With W_a = K_a⁻¹ - β_a β_aᵀ, ∂(-log p)/∂K_a = ½ W_a. Writing M_a = W_a ∘ K_f,a for the
 noise-free part K_f,a = K_a - σ_n,a² I, every derivative is a weighted sum of M_a:
 
 * log σ_f²:   ½ Σ_ij M_ij
-* log σ_n²:   ½ σ_n² tr W
+* log σ_n²:   ½ σ_n² (tr W + ρ Σ_G Σ_{i≠j∈G} W_ij)   (ρ = 0 without placements)
 * log ℓ^x_d:  ½ Σ_ij M_ij (x_id - x_jd)² / ℓ_d²  =  (Σ_i r_i x_id² - x_dᵀ M x_d) / ℓ_d², r = M 1
 * log ℓ^s_d:  ½ Σ_ll' B_ll' (s_ld - s_l'd)² / ℓ_d²
 * s_ld:       -Σ_l' B_ll' (s_ld - s_l'd) / ℓ_d²
@@ -48,6 +50,7 @@ import scipy.linalg.lapack
 from core.errors import InvalidInputError
 from core.gp.linalg import cholesky_with_jitter, inverse_from_cholesky
 from core.gp.parameters import ParameterLayout
+from core.gp.placement_groups import shared_groups
 from core.types import Hyperparameters, TrainingData
 from core.validation import FloatArray, as_float_array
 
@@ -116,19 +119,39 @@ class ManifoldLikelihood:
         latent_dim: ds ≥ 1.
         threads: Python threads the features of one evaluation run on (module docstring);
             the results do not depend on it.
+        placement_fraction: ρ_a = σ_b,a² / σ_n,a² in [0, 1) per feature, held fixed: the share
+            of each touch's noise variance that its placement's touches share (module
+            docstring). Needs ``data.placement_index``. ``None``: independent noise. Shape (dy,).
     """
 
     #: Above this many entries (dx · N²) the per-dimension squared action differences are not
     #: cached and are recomputed at every evaluation.
     CACHE_LIMIT = 16_000_000
 
-    def __init__(self, data: TrainingData, latent_dim: int, threads: int = 1) -> None:
+    def __init__(
+        self,
+        data: TrainingData,
+        latent_dim: int,
+        threads: int = 1,
+        placement_fraction: FloatArray | None = None,
+    ) -> None:
         if isinstance(latent_dim, bool) or int(latent_dim) != latent_dim or latent_dim < 1:
             raise InvalidInputError(f"latent_dim: must be an integer ≥ 1, received {latent_dim}.")
         self.threads = check_threads(threads)
         self.data = data
         self.layout = ParameterLayout.for_data(data, int(latent_dim))
-        order = np.argsort(data.object_index, kind="stable")
+        self.placement_fraction = check_placement_fraction(
+            placement_fraction, data, self.layout.observation_dim
+        )
+        placement = data.placement_index
+        if self.placement_fraction is not None and placement is not None:
+            # Touches of one placement contiguous (inside their object's block).
+            order = np.lexsort((placement, data.object_index))
+            sorted_groups = shared_groups(data.object_index[order], placement[order])
+            self._blocks = [(int(g[0]), int(g[-1]) + 1) for g in sorted_groups]
+        else:
+            order = np.argsort(data.object_index, kind="stable")
+            self._blocks = []
         # Centred actions: squared distances are shift invariant and lose less precision.
         actions = data.actions[order] - data.actions.mean(axis=0)
         self._actions = np.ascontiguousarray(actions)
@@ -177,21 +200,39 @@ class ManifoldLikelihood:
                 exponent[:, first : first + count, :] += rows[:, obj, None, :]
         return np.asarray(np.exp(exponent, out=exponent), dtype=np.float64)
 
+    def _noisy(self, gram_free: FloatArray, noise: float, feature: int) -> FloatArray:
+        """K_a: a copy of K_f,a with σ_n² on the diagonal and σ_b² = ρ_a σ_n² on the
+        off-diagonal entries of touches sharing a placement."""
+        gram = gram_free.copy()
+        gram.ravel()[self._diag] += noise
+        if self._blocks and self.placement_fraction is not None:
+            shared = noise * float(self.placement_fraction[feature])
+            for first, stop in self._blocks:
+                gram[first:stop, first:stop] += shared
+                gram.ravel()[self._diag[first:stop]] -= shared
+        return gram
+
+    def _shared_sum(self, half: FloatArray) -> float:
+        """Σ_G Σ_{i≠j∈G} W_ij from the lower triangle ``half`` of W (zeros above)."""
+        total = 0.0
+        for first, stop in self._blocks:
+            block = half[first:stop, first:stop]
+            total += 2.0 * (float(block.sum()) - float(np.trace(block)))
+        return total
+
     def _factor(
         self, gram_free: FloatArray, noise: float, feature: int
     ) -> tuple[FloatArray, float]:
-        """Upper Cholesky factor U of K_a = K_f,a + σ_n² I = UᵀU, Fortran-ordered with a zero
+        """Upper Cholesky factor U of K_a = UᵀU (:meth:`_noisy`), Fortran-ordered with a zero
         strictly lower triangle (what LAPACK reads without copying), and the jitter added
         (0 unless the plain factorisation failed)."""
-        gram = gram_free.copy()
-        gram.ravel()[self._diag] += noise
+        gram = self._noisy(gram_free, noise, feature)
         # Fast path: plain LAPACK in place on the symmetric matrix (its transpose is itself, so
         # the C-ordered copy is read as Fortran). Jitter ladder only on failure.
         upper, info = scipy.linalg.lapack.dpotrf(gram.T, lower=0, clean=1, overwrite_a=1)
         if info == 0:
             return np.asarray(upper, dtype=np.float64), 0.0
-        gram = gram_free.copy()
-        gram.ravel()[self._diag] += noise
+        gram = self._noisy(gram_free, noise, feature)
         factor, jitter = cholesky_with_jitter(gram, what=f"Gram matrix of feature {feature}")
         return np.asarray(factor.T, dtype=np.float64), float(jitter)
 
@@ -263,7 +304,10 @@ class ManifoldLikelihood:
             inverse = inverse_from_cholesky(upper, overwrite=True)  # the factor is done
             inverse = scipy.linalg.blas.dsyr(-1.0, beta, lower=0, a=inverse, overwrite_a=1)
             half = inverse.T
-            g_sn_a = 0.5 * noise[a] * float(half.ravel()[self._diag].sum())
+            trace = float(half.ravel()[self._diag].sum())
+            if self._blocks and self.placement_fraction is not None:
+                trace += float(self.placement_fraction[a]) * self._shared_sum(half)
+            g_sn_a = 0.5 * noise[a] * trace
             gram_free[a] *= half  # X_a = tril(W_a) ∘ K_f,a, in place of K_f,a
             return term, g_sn_a, jitter
 
@@ -300,6 +344,28 @@ class ManifoldLikelihood:
         )
         grad = layout.join(g_latents, g_sf, g_sn, g_ls, g_lx)
         return total, grad
+
+
+def check_placement_fraction(
+    fraction: FloatArray | None, data: TrainingData, observation_dim: int
+) -> FloatArray | None:
+    """ρ as dy values in [0, 1), or ``None``.
+
+    Raises:
+        InvalidInputError: Wrong length, out of range, or given for data without placements.
+    """
+    if fraction is None:
+        return None
+    value = as_float_array(fraction, "placement_fraction", (observation_dim,))
+    if np.any(value < 0.0) or np.any(value >= 1.0):
+        raise InvalidInputError(
+            f"placement_fraction: every ρ_a must lie in [0, 1), received {value.tolist()}."
+        )
+    if data.placement_index is None:
+        raise InvalidInputError(
+            "placement_fraction: the training touches record no placements to share an offset."
+        )
+    return value
 
 
 def negative_log_likelihood(
