@@ -4,14 +4,15 @@
 
 with K_a = σ_f,a² K^s_a[obj, obj] ∘ K^x_a + σ_n,a² I (eq. (M1)) and y_a centred on the
 per-feature observation mean (as :func:`core.gp.posterior.condition` does). With a placement
-fraction ρ_a the noise part is σ_n,a² ((1 − ρ_a) I + ρ_a Z Zᵀ) instead: touches sharing a
-placement share an offset of variance σ_b,a² = ρ_a σ_n,a² (:mod:`core.gp.placement_groups`).
+variance σ_b,a² (held fixed) the noise part is σ_b,a² Z Zᵀ + σ_n,a² I instead: touches sharing a
+placement share an offset (:mod:`core.gp.placement_groups`), every touch meets one, and the
+fitted σ_n,a² is then the within-placement noise σ_w,a².
 
 Gradient. With W_a = K_a⁻¹ - β_a β_aᵀ, ∂(-log p)/∂K_a = ½ W_a. Writing M_a = W_a ∘ K_f,a for the
 noise-free part K_f,a = K_a - σ_n,a² I, every derivative is a weighted sum of M_a:
 
 * log σ_f²:   ½ Σ_ij M_ij
-* log σ_n²:   ½ σ_n² (tr W + ρ Σ_G Σ_{i≠j∈G} W_ij)   (ρ = 0 without placements)
+* log σ_n²:   ½ σ_n² tr W
 * log ℓ^x_d:  ½ Σ_ij M_ij (x_id - x_jd)² / ℓ_d²  =  (Σ_i r_i x_id² - x_dᵀ M x_d) / ℓ_d², r = M 1
 * log ℓ^s_d:  ½ Σ_ll' B_ll' (s_ld - s_l'd)² / ℓ_d²
 * s_ld:       -Σ_l' B_ll' (s_ld - s_l'd) / ℓ_d²
@@ -119,9 +120,10 @@ class ManifoldLikelihood:
         latent_dim: ds ≥ 1.
         threads: Python threads the features of one evaluation run on (module docstring);
             the results do not depend on it.
-        placement_fraction: ρ_a = σ_b,a² / σ_n,a² in [0, 1) per feature, held fixed: the share
-            of each touch's noise variance that its placement's touches share (module
-            docstring). Needs ``data.placement_index``. ``None``: independent noise. Shape (dy,).
+        placement_variance: σ_b,a² ≥ 0 per feature, held fixed: the variance of the offset
+            shared by the touches of one placement (module docstring); the packed noise
+            variance is then the within-placement σ_w,a². Needs ``data.placement_index``.
+            ``None``: independent noise. Shape (dy,).
     """
 
     #: Above this many entries (dx · N²) the per-dimension squared action differences are not
@@ -133,18 +135,18 @@ class ManifoldLikelihood:
         data: TrainingData,
         latent_dim: int,
         threads: int = 1,
-        placement_fraction: FloatArray | None = None,
+        placement_variance: FloatArray | None = None,
     ) -> None:
         if isinstance(latent_dim, bool) or int(latent_dim) != latent_dim or latent_dim < 1:
             raise InvalidInputError(f"latent_dim: must be an integer ≥ 1, received {latent_dim}.")
         self.threads = check_threads(threads)
         self.data = data
         self.layout = ParameterLayout.for_data(data, int(latent_dim))
-        self.placement_fraction = check_placement_fraction(
-            placement_fraction, data, self.layout.observation_dim
+        self.placement_variance = check_placement_variance(
+            placement_variance, data, self.layout.observation_dim
         )
         placement = data.placement_index
-        if self.placement_fraction is not None and placement is not None:
+        if self.placement_variance is not None and placement is not None:
             # Touches of one placement contiguous (inside their object's block).
             order = np.lexsort((placement, data.object_index))
             sorted_groups = shared_groups(data.object_index[order], placement[order])
@@ -201,24 +203,18 @@ class ManifoldLikelihood:
         return np.asarray(np.exp(exponent, out=exponent), dtype=np.float64)
 
     def _noisy(self, gram_free: FloatArray, noise: float, feature: int) -> FloatArray:
-        """K_a: a copy of K_f,a with σ_n² on the diagonal and σ_b² = ρ_a σ_n² on the
-        off-diagonal entries of touches sharing a placement."""
+        """K_a: a copy of K_f,a plus σ_n² I, and with a placement variance σ_b² Z Zᵀ (on the
+        diagonal and on the entries of touches sharing a placement)."""
         gram = gram_free.copy()
-        gram.ravel()[self._diag] += noise
-        if self._blocks and self.placement_fraction is not None:
-            shared = noise * float(self.placement_fraction[feature])
-            for first, stop in self._blocks:
-                gram[first:stop, first:stop] += shared
-                gram.ravel()[self._diag[first:stop]] -= shared
-        return gram
-
-    def _shared_sum(self, half: FloatArray) -> float:
-        """Σ_G Σ_{i≠j∈G} W_ij from the lower triangle ``half`` of W (zeros above)."""
-        total = 0.0
+        if self.placement_variance is None:
+            gram.ravel()[self._diag] += noise
+            return gram
+        shared = float(self.placement_variance[feature])
+        gram.ravel()[self._diag] += noise + shared
         for first, stop in self._blocks:
-            block = half[first:stop, first:stop]
-            total += 2.0 * (float(block.sum()) - float(np.trace(block)))
-        return total
+            gram[first:stop, first:stop] += shared
+            gram.ravel()[self._diag[first:stop]] -= shared
+        return gram
 
     def _factor(
         self, gram_free: FloatArray, noise: float, feature: int
@@ -304,10 +300,7 @@ class ManifoldLikelihood:
             inverse = inverse_from_cholesky(upper, overwrite=True)  # the factor is done
             inverse = scipy.linalg.blas.dsyr(-1.0, beta, lower=0, a=inverse, overwrite_a=1)
             half = inverse.T
-            trace = float(half.ravel()[self._diag].sum())
-            if self._blocks and self.placement_fraction is not None:
-                trace += float(self.placement_fraction[a]) * self._shared_sum(half)
-            g_sn_a = 0.5 * noise[a] * trace
+            g_sn_a = 0.5 * noise[a] * float(half.ravel()[self._diag].sum())
             gram_free[a] *= half  # X_a = tril(W_a) ∘ K_f,a, in place of K_f,a
             return term, g_sn_a, jitter
 
@@ -346,24 +339,24 @@ class ManifoldLikelihood:
         return total, grad
 
 
-def check_placement_fraction(
-    fraction: FloatArray | None, data: TrainingData, observation_dim: int
+def check_placement_variance(
+    variance: FloatArray | None, data: TrainingData, observation_dim: int
 ) -> FloatArray | None:
-    """ρ as dy values in [0, 1), or ``None``.
+    """σ_b² as dy values ≥ 0, or ``None``.
 
     Raises:
-        InvalidInputError: Wrong length, out of range, or given for data without placements.
+        InvalidInputError: Wrong length, negative, or given for data without placements.
     """
-    if fraction is None:
+    if variance is None:
         return None
-    value = as_float_array(fraction, "placement_fraction", (observation_dim,))
-    if np.any(value < 0.0) or np.any(value >= 1.0):
+    value = as_float_array(variance, "placement_variance", (observation_dim,))
+    if np.any(value < 0.0):
         raise InvalidInputError(
-            f"placement_fraction: every ρ_a must lie in [0, 1), received {value.tolist()}."
+            f"placement_variance: every σ_b,a² must be ≥ 0, received {value.tolist()}."
         )
     if data.placement_index is None:
         raise InvalidInputError(
-            "placement_fraction: the training touches record no placements to share an offset."
+            "placement_variance: the training touches record no placements to share an offset."
         )
     return value
 

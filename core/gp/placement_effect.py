@@ -162,11 +162,12 @@ def with_placement_effect(
     """The model with the placement effect of its training touches, if they record placements.
 
     σ_b² is estimated (:func:`estimate_placement_variance`); then, ``rounds`` times, the model is
-    refitted from where it stands with σ_b² in its likelihood (ρ = σ_b² / σ_n² held fixed,
-    :func:`core.gp.manifold.refit_warm`) and σ_b² estimated again under the refit. The result is
-    conditioned with the last estimate in its training covariance (``placement_in_fit``), which
-    is also the σ_b² a trial is scored with. A sparse posterior (no dense training covariance)
-    keeps its fit and gets the first estimate for scoring only.
+    refitted from where it stands with σ_b² held fixed in its likelihood and the
+    within-placement noise fitted (:func:`core.gp.manifold.refit_warm`), and σ_b² estimated
+    again under the refit. The result is conditioned with the last estimate in its training
+    covariance (``placement_in_fit``), which is also the σ_b² a trial is scored with. A sparse
+    posterior (no dense training covariance) keeps its fit and gets the first estimate for
+    scoring only.
 
     Args:
         model: A fitted model; its raw training data may carry ``placement_index``.
@@ -194,8 +195,7 @@ def with_placement_effect(
         return dataclasses.replace(model, placement_variance=estimate.variance), estimate
     diagnostics = model.diagnostics  # the fit's own (its starts), not the refits'
     for _ in range(rounds):
-        fraction = estimate.variance / model.hyperparameters.noise_variance
-        model = refit_warm(model.raw_data, model, options, placement_fraction=fraction)
+        model = refit_warm(model.raw_data, model, options, placement_variance=estimate.variance)
         estimate = estimate_placement_variance(model, placement)
     model = dataclasses.replace(model, diagnostics=diagnostics)
     return _conditioned_with(model, estimate.variance), estimate

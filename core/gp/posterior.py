@@ -108,7 +108,7 @@ def make_likelihood(
     structure: Structure = "auto",
     n_inducing: int = DEFAULT_INDUCING_POINTS,
     threads: int = 1,
-    placement_fraction: FloatArray | None = None,
+    placement_variance: FloatArray | None = None,
 ) -> Likelihood:
     """The likelihood for ``data`` under a structure (see :func:`resolve_structure`).
 
@@ -118,22 +118,22 @@ def make_likelihood(
         structure: ``"auto"``, ``"dense"``, ``"kronecker"`` or ``"sparse"``.
         n_inducing: Inducing points of the sparse path.
         threads: Threads of a dense evaluation's features (:mod:`core.gp.likelihood`).
-        placement_fraction: ρ per feature for touches sharing a placement (dense only, see
-            :class:`core.gp.likelihood.ManifoldLikelihood`). Shape (dy,).
+        placement_variance: σ_b² per feature, held fixed, for touches sharing a placement
+            (dense only, see :class:`core.gp.likelihood.ManifoldLikelihood`). Shape (dy,).
 
     Raises:
-        InvalidInputError: A placement fraction for a Kronecker or sparse structure.
+        InvalidInputError: A placement variance for a Kronecker or sparse structure.
     """
     chosen, design = resolve_structure(data, structure)
-    if placement_fraction is not None and chosen != "dense":
+    if placement_variance is not None and chosen != "dense":
         raise InvalidInputError(
-            f"placement_fraction: only the dense likelihood has a placement effect, not {chosen!r}."
+            f"placement_variance: only the dense likelihood has a placement effect, not {chosen!r}."
         )
     if chosen == "kronecker":
         return KroneckerLikelihood(data, latent_dim, design)
     if chosen == "sparse":
         return SparseLikelihood(data, latent_dim, n_inducing=n_inducing)
-    return ManifoldLikelihood(data, latent_dim, threads, placement_fraction)
+    return ManifoldLikelihood(data, latent_dim, threads, placement_variance)
 
 
 def support_points(model: ManifoldModel) -> tuple[IntArray, FloatArray]:

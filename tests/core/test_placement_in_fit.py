@@ -71,34 +71,36 @@ def test_shared_offsets_are_the_indicator_product() -> None:
 
 
 def test_likelihood_equals_the_direct_gaussian_with_shared_offsets() -> None:
+    """The likelihood fits the within-placement noise σ_w²; its Gaussian is the posterior's,
+    whose noise variance is each touch's whole σ_w² + σ_b²."""
     data = _runs(12, 3, 0.1, 0)
-    hyper = _hyper(0.1)
-    fraction = np.array([0.3, 0.5, 0.0])
-    variance = fraction * hyper.noise_variance
-    likelihood = ManifoldLikelihood(data, 1, placement_fraction=fraction)
-    vector = likelihood.layout.pack(LATENTS, hyper)
+    within = _hyper(0.1)
+    variance = np.array([0.006, 0.01, 0.0])
+    whole = dataclasses.replace(within, noise_variance=within.noise_variance + variance)
+    likelihood = ManifoldLikelihood(data, 1, placement_variance=variance)
+    vector = likelihood.layout.pack(LATENTS, within)
     direct = 0.0
     for a in range(3):
-        gram = gram_matrix(data, LATENTS, hyper, a, variance)
+        gram = gram_matrix(data, LATENTS, whole, a, variance)
         centred = data.observations[:, a] - data.observation_mean[a]
         direct -= scipy.stats.multivariate_normal(np.zeros(data.n_touches), gram).logpdf(centred)
     assert likelihood.value(vector) == pytest.approx(direct, rel=1e-10)
     value, _ = likelihood.value_and_gradient(vector)
     assert value == pytest.approx(direct, rel=1e-10)
-    model = condition(data, LATENTS, hyper, placement_variance=variance)
+    model = condition(data, LATENTS, whole, placement_variance=variance)
     assert model.log_likelihood == pytest.approx(-direct, rel=1e-10)
     assert model.placement_in_fit
     np.testing.assert_array_equal(model.placement_variance, variance)
-    # Without the offsets the value differs (the test can fail) and ρ = 0 gives it back.
-    plain = ManifoldLikelihood(data, 1).value(vector)
+    # Without the offsets the value differs (the test can fail) and σ_b² = 0 gives it back.
+    plain = ManifoldLikelihood(data, 1).value(likelihood.layout.pack(LATENTS, whole))
     assert abs(plain - direct) > 1.0
-    zero = ManifoldLikelihood(data, 1, placement_fraction=np.zeros(3))
-    assert zero.value(vector) == pytest.approx(plain, rel=1e-12)
+    zero = ManifoldLikelihood(data, 1, placement_variance=np.zeros(3))
+    assert zero.value(vector) == pytest.approx(ManifoldLikelihood(data, 1).value(vector), rel=1e-12)
 
 
 def test_gradient_with_shared_offsets_matches_finite_differences() -> None:
     data = _runs(8, 3, 0.1, 1)
-    likelihood = ManifoldLikelihood(data, 2, placement_fraction=np.array([0.6, 0.2, 0.4]))
+    likelihood = ManifoldLikelihood(data, 2, placement_variance=np.array([0.03, 0.01, 0.02]))
     rng = np.random.default_rng(2)
     hyper = Hyperparameters(
         signal_variance=np.array([0.18, 0.2, 0.27]),
@@ -142,11 +144,11 @@ def test_posterior_predicts_as_the_direct_formula() -> None:
 def test_bad_placement_effects_are_refused() -> None:
     data = _runs(6, 3, 0.1, 4)
     hyper = _hyper(0.1)
-    with pytest.raises(InvalidInputError, match="placement_fraction"):
-        ManifoldLikelihood(data, 1, placement_fraction=np.array([0.1, 1.0, 0.2]))
+    with pytest.raises(InvalidInputError, match="placement_variance"):
+        ManifoldLikelihood(data, 1, placement_variance=np.array([0.1, -1e-3, 0.2]))
     unplaced = dataclasses.replace(data, placement_index=None)
     with pytest.raises(InvalidInputError, match="record no placements"):
-        ManifoldLikelihood(unplaced, 1, placement_fraction=np.full(3, 0.2))
+        ManifoldLikelihood(unplaced, 1, placement_variance=np.full(3, 0.002))
     with pytest.raises(InvalidInputError, match="record no placements"):
         condition(unplaced, LATENTS, hyper, placement_variance=np.full(3, 0.001))
     with pytest.raises(InvalidInputError, match=r"\[0, σ_n,a²\)"):
@@ -178,12 +180,10 @@ def test_rounds_refit_with_the_effect_in_the_likelihood() -> None:
     options = FitOptions(max_iterations=60)
     assert data.placement_index is not None
     first = estimate_placement_variance(start, data.placement_index)
-    fraction = first.variance / hyper.noise_variance
-    refit = refit_warm(data, start, options, placement_fraction=fraction)
+    refit = refit_warm(data, start, options, placement_variance=first.variance)
     assert refit.placement_in_fit
-    np.testing.assert_allclose(
-        refit.placement_variance, fraction * refit.hyperparameters.noise_variance
-    )
+    np.testing.assert_array_equal(refit.placement_variance, first.variance)
+    assert np.all(refit.hyperparameters.noise_variance > first.variance)
     # The refit climbs the likelihood with the effect from where the model stood.
     before = condition(data, start.latents, hyper, placement_variance=first.variance)
     assert refit.log_likelihood >= before.log_likelihood - 1e-6
