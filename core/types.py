@@ -414,6 +414,10 @@ class ManifoldModel:
             placement, per model-space feature (:mod:`core.gp.placement_effect`); ``None`` (or all
             zero) when not estimated: the touches of a trial are then independent given the
             object. Shape (dy,).
+        placement_in_fit: Whether σ_b² is also in the training covariance the posterior was
+            conditioned with (touches of one training placement share an offset,
+            :func:`core.gp.posterior.condition`); ``False``: the training touches' noise was
+            taken as independent and σ_b² only enters the scoring of a trial.
         latent_covariance: Σ_l, the Laplace covariance of every object's latent point
             (:mod:`core.recognition.latent_uncertainty`, docs/method.md (L1)); ``None``: the latents
             are taken as known and the object likelihood uses them as points. Shape (L, ds, ds).
@@ -433,6 +437,7 @@ class ManifoldModel:
     transform: ObservationTransform | None = None
     source_data: TrainingData | None = None
     placement_variance: FloatArray | None = None
+    placement_in_fit: bool = False
     features: FeaturePipeline | None = None
     latent_covariance: FloatArray | None = None
     tempering: float | None = None

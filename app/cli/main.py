@@ -376,7 +376,7 @@ def fit(
                 start_map=None if engine is None else engine.start_map,
                 fitted=None if selection is None else selection.chosen_model,
             )
-        model, placement = with_placement_effect(model)
+        model, placement = with_placement_effect(model, options)
         laplace = None
         if latent_uncertainty:
             model, laplace = with_latent_uncertainty(model)

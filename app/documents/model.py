@@ -118,7 +118,9 @@ def model_to_document(
     if data.placement_index is not None:
         document["training_data"]["placements"] = data.placement_index.tolist()
     if model.placement_variance is not None:
-        document["placement_effect"] = placement_effect_field(model.placement_variance)
+        document["placement_effect"] = placement_effect_field(
+            model.placement_variance, model.placement_in_fit
+        )
     if model.latent_covariance is not None:
         document["latent_uncertainty"] = {
             "covariance": model.latent_covariance.tolist(),
@@ -153,14 +155,50 @@ def model_to_document(
     return document
 
 
-def placement_effect_field(variance: npt.NDArray[np.float64]) -> dict[str, Any]:
+def placement_effect_field(
+    variance: npt.NDArray[np.float64], in_fit: bool = False
+) -> dict[str, Any]:
     """The ``placement_effect`` field of σ_b² (model space, shape (dy,)): a model document's,
-    and a server's model row keeps the same in its posterior record."""
+    and a server's model row keeps the same in its posterior record. ``in_fit``: σ_b² is also
+    in the training covariance the GP was fitted and conditioned with
+    (``in_training_covariance``; the model is then rebuilt with it)."""
     return {
         "variance": [float(v) for v in variance],
         "space": "model",
-        "estimator": "leave-one-placement-out method of moments (docs/calibration.md)",
+        "in_training_covariance": bool(in_fit),
+        "estimator": (
+            "leave-one-placement-out method of moments, refitted with it in the likelihood "
+            "(docs/calibration.md)"
+            if in_fit
+            else "leave-one-placement-out method of moments (docs/calibration.md)"
+        ),
     }
+
+
+def placement_in_fit_variance(
+    record: Mapping[str, Any], where: str = "model document"
+) -> npt.NDArray[np.float64] | None:
+    """σ_b² to condition the GP with, when ``record``'s ``placement_effect`` says it is in the
+    training covariance (``in_training_covariance``); ``None`` otherwise (no field, or σ_b² only
+    scores trials). Its range is checked when the GP is conditioned.
+
+    Raises:
+        DocumentError: (column ``placement_effect``) a flag that is not a boolean, or a variance
+            that is not a list of numbers.
+    """
+    field = record.get("placement_effect")
+    if not isinstance(field, Mapping):
+        return None
+    flag = field.get("in_training_covariance", False)
+    if not isinstance(flag, bool):
+        raise DocumentError(
+            f"{where}: placement_effect.in_training_covariance must be true or false, found "
+            f"{reprlib.repr(flag)}.",
+            column="placement_effect",
+        )
+    if not flag:
+        return None
+    return _array("placement_effect.variance", _field(field, "variance", "placement_effect"))
 
 
 def read_placement_effect(
@@ -471,7 +509,13 @@ def model_from_document(document: Any) -> ManifoldModel:
     transform = read_noise_model_field(document.get("noise_model"), data.observation_dim)
     features = read_features_field(document.get("features"), data.observation_dim)
     model = condition_as_recorded(
-        data, latents, hyperparameters, diagnostics, document.get("posterior"), transform=transform
+        data,
+        latents,
+        hyperparameters,
+        diagnostics,
+        document.get("posterior"),
+        transform=transform,
+        placement_variance=placement_in_fit_variance(document),
     )
     if features is not None:
         model = dataclasses.replace(model, features=features)

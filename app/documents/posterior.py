@@ -134,6 +134,7 @@ def condition_as_recorded(
     field: Any,
     where: str = "model document",
     transform: ObservationTransform | None = None,
+    placement_variance: npt.NDArray[np.float64] | None = None,
 ) -> ManifoldModel:
     """Condition the GP exactly as a ``posterior`` field recorded (:func:`posterior_field`).
 
@@ -150,6 +151,8 @@ def condition_as_recorded(
         where: What holds the field, to start error messages (``"model document"``).
         transform: The observation transform the model was fitted with (``None``: identity);
             the GP is conditioned on the transformed observations and keeps the transform.
+        placement_variance: σ_b² in the training covariance (a model fitted with its
+            placement effect, :func:`core.gp.posterior.condition`); ``None``: none.
 
     Returns:
         The conditioned model.
@@ -165,7 +168,16 @@ def condition_as_recorded(
     recorded = read_posterior_field(field, data, where)
     try:
         model_data = data if transform is None else transform_data(data, transform)
-        if recorded is None:
+        if placement_variance is not None:
+            model = condition(
+                model_data,
+                latents,
+                hyperparameters,
+                diagnostics,
+                structure="dense" if recorded is None else recorded.structure,
+                placement_variance=placement_variance,
+            )
+        elif recorded is None:
             model = condition(model_data, latents, hyperparameters, diagnostics)
         elif recorded.inducing is not None:
             model = condition_sparse(

@@ -377,7 +377,7 @@ def run_fit(
     if fitted is None:
         raise ValueError("the fit ended without a model")
     job.checkpoint()
-    fitted, _ = with_placement_effect(fitted)
+    fitted, _ = with_placement_effect(fitted, options)
     if pipeline is not None:
         fitted = dataclasses.replace(fitted, features=pipeline)
     return fitted, selection, time.perf_counter() - started

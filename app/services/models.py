@@ -32,6 +32,7 @@ from app.documents.model import (
     model_from_document,
     model_to_document,
     placement_effect_field,
+    placement_in_fit_variance,
     read_placement_effect,
 )
 from app.documents.noise_model import noise_model_field, read_noise_model_field
@@ -133,7 +134,9 @@ def store_fitted(
         if featurised:
             record[FEATURISED] = True
     if model.placement_variance is not None:
-        record["placement_effect"] = placement_effect_field(model.placement_variance)
+        record["placement_effect"] = placement_effect_field(
+            model.placement_variance, model.placement_in_fit
+        )
     row.posterior = record
     row.signal_variance = h.signal_variance
     row.noise_variance = h.noise_variance
@@ -402,6 +405,7 @@ class ReadyModels:
                 row.posterior,
                 where="model row",
                 transform=read_noise_model_field(noise, data.observation_dim, where="model row"),
+                placement_variance=placement_in_fit_variance(record, "model row"),
             )
             if pipeline is not None:
                 model = dataclasses.replace(model, features=pipeline)

@@ -384,10 +384,17 @@ class WarmStart:
     Attributes:
         latents: Shape (L, ds); normalised when the fit starts.
         hyperparameters: Hyperparameters of the fit's data, with ds latent dimensions.
+        placement_variance: σ_b,a², held fixed: the fit's likelihood and its posterior then
+            let touches sharing a placement share an offset
+            (:class:`core.gp.likelihood.ManifoldLikelihood`; dense path). The noise variances
+            of ``hyperparameters`` and of the result are each touch's whole noise variance
+            σ_b,a² + σ_w,a² (the convention of :class:`core.types.ManifoldModel`); the run
+            fits σ_w,a². ``None``: independent noise. Shape (dy,).
     """
 
     latents: FloatArray
     hyperparameters: Hyperparameters
+    placement_variance: FloatArray | None = None
 
 
 def first_stage(
@@ -483,9 +490,24 @@ class FitRun:
         self.rng = rng
         self.warm_start = warm_start
         self.options = options
+        self.placement_variance = None if warm_start is None else warm_start.placement_variance
         self.structure, _ = resolve_structure(data, options.structure)
+        if warm_start is not None and self.placement_variance is not None:
+            # The shared offsets break a shared design's product form; sparse is not offered.
+            if self.structure == "sparse" or options.structure == "kronecker":
+                raise InvalidInputError(
+                    f"warm_start.placement_variance: a placement effect in the fit needs the "
+                    f"dense likelihood, not {self.structure!r}."
+                )
+            self.structure = "dense"
+            self.warm_start = warm_start = _within_placement(warm_start, self.placement_variance)
         full = make_likelihood(
-            data, self.latent_dim, self.structure, options.n_inducing, options.threads
+            data,
+            self.latent_dim,
+            self.structure,
+            options.n_inducing,
+            options.threads,
+            placement_variance=self.placement_variance,
         )
         self.layout: ParameterLayout = full.layout
         lower, upper = parameter_bounds(data, self.layout, options.latent_bound)
@@ -933,6 +955,17 @@ class FitRun:
         )
         latents, hyper = self.layout.unpack(winner.vector)
         latents, hyper = normalise_latents(latents, hyper)
+        return self._condition(latents, hyper, diagnostics)
+
+    def _condition(
+        self, latents: FloatArray, hyper: Hyperparameters, diagnostics: FitDiagnostics | None
+    ) -> ManifoldModel:
+        """The posterior at fitted parameters; with a placement variance, the fitted σ_w² made
+        each touch's whole noise variance σ_w² + σ_b² again (:class:`WarmStart`)."""
+        if self.placement_variance is not None:
+            hyper = dataclasses.replace(
+                hyper, noise_variance=hyper.noise_variance + self.placement_variance
+            )
         return condition(
             self.data,
             latents,
@@ -940,6 +973,7 @@ class FitRun:
             diagnostics,
             structure=self.structure,
             n_inducing=self.options.n_inducing,
+            placement_variance=self.placement_variance,
         )
 
     def best_model_so_far(self) -> ManifoldModel | None:
@@ -954,9 +988,25 @@ class FitRun:
             return None
         best = min(done, key=lambda s: s.full_value)
         latents, hyper = normalise_latents(*self.layout.unpack(best.vector))
-        return condition(
-            self.data, latents, hyper, structure=self.structure, n_inducing=self.options.n_inducing
+        return self._condition(latents, hyper, None)
+
+
+def _within_placement(warm: WarmStart, placement_variance: FloatArray) -> WarmStart:
+    """The warm start with each touch's whole noise variance split: σ_w² = σ_n² − σ_b², the
+    noise variance the run fits (kept above 1 % of σ_n²).
+
+    Raises:
+        InvalidInputError: σ_b² of another length than dy, or negative.
+    """
+    h = warm.hyperparameters
+    variance = as_float_array(placement_variance, "placement_variance", (h.observation_dim,))
+    if np.any(variance < 0.0):
+        raise InvalidInputError(
+            f"warm_start.placement_variance: every σ_b,a² must be ≥ 0, received "
+            f"{variance.tolist()}."
         )
+    within = np.maximum(h.noise_variance - variance, 0.01 * h.noise_variance)
+    return dataclasses.replace(warm, hyperparameters=dataclasses.replace(h, noise_variance=within))
 
 
 def _check_warm_start(warm: WarmStart, data: TrainingData, latent_dim: int) -> None:

@@ -153,6 +153,7 @@ def feature_data(data: TrainingData, feature: int) -> TrainingData:
         object_index=data.object_index,
         actions=data.actions,
         observations=data.observations[:, feature : feature + 1],
+        placement_index=data.placement_index,
     )
 
 

@@ -3,7 +3,10 @@
     -log p(Y | S, X, γ) = Σ_a ½ y_aᵀ K_a⁻¹ y_a + ½ log det K_a + (N/2) log 2π   docs/method.md (M2)
 
 with K_a = σ_f,a² K^s_a[obj, obj] ∘ K^x_a + σ_n,a² I (eq. (M1)) and y_a centred on the
-per-feature observation mean (as :func:`core.gp.posterior.condition` does).
+per-feature observation mean (as :func:`core.gp.posterior.condition` does). With a placement
+variance σ_b,a² (held fixed) the noise part is σ_b,a² Z Zᵀ + σ_n,a² I instead: touches sharing a
+placement share an offset (:mod:`core.gp.placement_groups`), every touch meets one, and the
+fitted σ_n,a² is then the within-placement noise σ_w,a².
 
 Gradient. With W_a = K_a⁻¹ - β_a β_aᵀ, ∂(-log p)/∂K_a = ½ W_a. Writing M_a = W_a ∘ K_f,a for the
 noise-free part K_f,a = K_a - σ_n,a² I, every derivative is a weighted sum of M_a:
@@ -48,6 +51,7 @@ import scipy.linalg.lapack
 from core.errors import InvalidInputError
 from core.gp.linalg import cholesky_with_jitter, inverse_from_cholesky
 from core.gp.parameters import ParameterLayout
+from core.gp.placement_groups import shared_groups
 from core.types import Hyperparameters, TrainingData
 from core.validation import FloatArray, as_float_array
 
@@ -116,19 +120,40 @@ class ManifoldLikelihood:
         latent_dim: ds ≥ 1.
         threads: Python threads the features of one evaluation run on (module docstring);
             the results do not depend on it.
+        placement_variance: σ_b,a² ≥ 0 per feature, held fixed: the variance of the offset
+            shared by the touches of one placement (module docstring); the packed noise
+            variance is then the within-placement σ_w,a². Needs ``data.placement_index``.
+            ``None``: independent noise. Shape (dy,).
     """
 
     #: Above this many entries (dx · N²) the per-dimension squared action differences are not
     #: cached and are recomputed at every evaluation.
     CACHE_LIMIT = 16_000_000
 
-    def __init__(self, data: TrainingData, latent_dim: int, threads: int = 1) -> None:
+    def __init__(
+        self,
+        data: TrainingData,
+        latent_dim: int,
+        threads: int = 1,
+        placement_variance: FloatArray | None = None,
+    ) -> None:
         if isinstance(latent_dim, bool) or int(latent_dim) != latent_dim or latent_dim < 1:
             raise InvalidInputError(f"latent_dim: must be an integer ≥ 1, received {latent_dim}.")
         self.threads = check_threads(threads)
         self.data = data
         self.layout = ParameterLayout.for_data(data, int(latent_dim))
-        order = np.argsort(data.object_index, kind="stable")
+        self.placement_variance = check_placement_variance(
+            placement_variance, data, self.layout.observation_dim
+        )
+        placement = data.placement_index
+        if self.placement_variance is not None and placement is not None:
+            # Touches of one placement contiguous (inside their object's block).
+            order = np.lexsort((placement, data.object_index))
+            sorted_groups = shared_groups(data.object_index[order], placement[order])
+            self._blocks = [(int(g[0]), int(g[-1]) + 1) for g in sorted_groups]
+        else:
+            order = np.argsort(data.object_index, kind="stable")
+            self._blocks = []
         # Centred actions: squared distances are shift invariant and lose less precision.
         actions = data.actions[order] - data.actions.mean(axis=0)
         self._actions = np.ascontiguousarray(actions)
@@ -177,21 +202,33 @@ class ManifoldLikelihood:
                 exponent[:, first : first + count, :] += rows[:, obj, None, :]
         return np.asarray(np.exp(exponent, out=exponent), dtype=np.float64)
 
+    def _noisy(self, gram_free: FloatArray, noise: float, feature: int) -> FloatArray:
+        """K_a: a copy of K_f,a plus σ_n² I, and with a placement variance σ_b² Z Zᵀ (on the
+        diagonal and on the entries of touches sharing a placement)."""
+        gram = gram_free.copy()
+        if self.placement_variance is None:
+            gram.ravel()[self._diag] += noise
+            return gram
+        shared = float(self.placement_variance[feature])
+        gram.ravel()[self._diag] += noise + shared
+        for first, stop in self._blocks:
+            gram[first:stop, first:stop] += shared
+            gram.ravel()[self._diag[first:stop]] -= shared
+        return gram
+
     def _factor(
         self, gram_free: FloatArray, noise: float, feature: int
     ) -> tuple[FloatArray, float]:
-        """Upper Cholesky factor U of K_a = K_f,a + σ_n² I = UᵀU, Fortran-ordered with a zero
+        """Upper Cholesky factor U of K_a = UᵀU (:meth:`_noisy`), Fortran-ordered with a zero
         strictly lower triangle (what LAPACK reads without copying), and the jitter added
         (0 unless the plain factorisation failed)."""
-        gram = gram_free.copy()
-        gram.ravel()[self._diag] += noise
+        gram = self._noisy(gram_free, noise, feature)
         # Fast path: plain LAPACK in place on the symmetric matrix (its transpose is itself, so
         # the C-ordered copy is read as Fortran). Jitter ladder only on failure.
         upper, info = scipy.linalg.lapack.dpotrf(gram.T, lower=0, clean=1, overwrite_a=1)
         if info == 0:
             return np.asarray(upper, dtype=np.float64), 0.0
-        gram = gram_free.copy()
-        gram.ravel()[self._diag] += noise
+        gram = self._noisy(gram_free, noise, feature)
         factor, jitter = cholesky_with_jitter(gram, what=f"Gram matrix of feature {feature}")
         return np.asarray(factor.T, dtype=np.float64), float(jitter)
 
@@ -300,6 +337,28 @@ class ManifoldLikelihood:
         )
         grad = layout.join(g_latents, g_sf, g_sn, g_ls, g_lx)
         return total, grad
+
+
+def check_placement_variance(
+    variance: FloatArray | None, data: TrainingData, observation_dim: int
+) -> FloatArray | None:
+    """σ_b² as dy values ≥ 0, or ``None``.
+
+    Raises:
+        InvalidInputError: Wrong length, negative, or given for data without placements.
+    """
+    if variance is None:
+        return None
+    value = as_float_array(variance, "placement_variance", (observation_dim,))
+    if np.any(value < 0.0):
+        raise InvalidInputError(
+            f"placement_variance: every σ_b,a² must be ≥ 0, received {value.tolist()}."
+        )
+    if data.placement_index is None:
+        raise InvalidInputError(
+            "placement_variance: the training touches record no placements to share an offset."
+        )
+    return value
 
 
 def negative_log_likelihood(

@@ -121,7 +121,10 @@ def iter_fit(
 
 
 def refit_warm(
-    data: TrainingData, model: ManifoldModel, options: FitOptions = FitOptions()
+    data: TrainingData,
+    model: ManifoldModel,
+    options: FitOptions = FitOptions(),
+    placement_variance: FloatArray | None = None,
 ) -> ManifoldModel:
     """The model refitted to ``data`` from where it stands: one joint L-BFGS-B run on all of
     ``data`` from its latents and hyperparameters (:class:`core.gp.fit_run.WarmStart`: no
@@ -138,6 +141,10 @@ def refit_warm(
         model: A fitted model (``model.latent_dim`` is the refit's ds).
         options: Fit settings (``max_iterations``, the stall rule of the joint run,
             ``structure``, ``threads``).
+        placement_variance: σ_b,a² held fixed in the refit: touches of ``data`` sharing a
+            placement share an offset in its likelihood and posterior, and the refit fits the
+            within-placement noise (:class:`core.gp.fit_run.WarmStart`; dense). ``None``:
+            independent noise. Shape (dy,).
 
     Returns:
         The refitted model, conditioned on ``data`` (with the model's transform, if any).
@@ -163,7 +170,7 @@ def refit_warm(
         )
     transform = model.transform
     model_data = data if transform is None else transform_data(data, transform)
-    warm = WarmStart(model.latents, model.hyperparameters)
+    warm = WarmStart(model.latents, model.hyperparameters, placement_variance)
     # A warm run draws nothing at random; the generator is only FitRun's argument.
     run = FitRun(model_data, model.latent_dim, np.random.default_rng(0), options, warm_start=warm)
     fitted: ManifoldModel | None = None

@@ -92,6 +92,7 @@ def transform_data(data: TrainingData, transform: ObservationTransform) -> Train
         object_index=data.object_index,
         actions=data.actions,
         observations=transform.apply(data.observations),
+        placement_index=data.placement_index,
     )
 
 

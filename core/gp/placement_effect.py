@@ -20,7 +20,11 @@ GP's cross-covariances between the touches included). The evidence of repeated t
 saturates: a shared offset counts once, not once per touch.
 
 σ_b² is estimated from a collection that records placements (several touches per placement):
-:func:`estimate_placement_variance`.
+:func:`estimate_placement_variance`. The fit then carries it into its own likelihood
+(:func:`with_placement_effect`): a GP fitted with independent noise to touches taken in runs at one
+placement learns part of the runs' shared offsets as a response to the actions, so the model is
+refitted with σ_b² in its training covariance (:mod:`core.gp.placement_groups`), σ_b² estimated
+again under the refitted model, and so on for a few rounds.
 """
 
 from __future__ import annotations
@@ -32,15 +36,34 @@ import numpy as np
 import scipy.linalg
 
 from core.errors import InvalidInputError
+from core.gp.fit_options import FitOptions
 from core.gp.kernels import squared_exponential
 from core.gp.kronecker import predictive_covariance_kronecker
 from core.gp.linalg import cholesky_with_jitter
-from core.gp.posterior import gram_matrix, predict_model_space, support_points
+from core.gp.manifold import refit_warm
+from core.gp.noise_model import attach_transform
+from core.gp.placement_groups import placement_groups, shared_groups
+from core.gp.posterior import condition, gram_matrix, predict_model_space, support_points
 from core.types import ManifoldModel
 from core.validation import FloatArray, IntArray, as_float_array
 
 #: σ_b,a² is kept at or below this fraction of σ_n,a², so that σ_w,a² stays positive.
 MAX_PLACEMENT_FRACTION = 0.95
+
+#: Rounds of (refit with σ_b² in the likelihood, estimate σ_b² again) after the first estimate.
+PLACEMENT_ROUNDS = 2
+
+__all__ = [
+    "MAX_PLACEMENT_FRACTION",
+    "PLACEMENT_ROUNDS",
+    "PlacementEstimate",
+    "check_placement_variance",
+    "estimate_placement_variance",
+    "placement_groups",
+    "predictive_covariance",
+    "trial_log_likelihoods",
+    "with_placement_effect",
+]
 
 
 @dataclass(frozen=True)
@@ -61,23 +84,6 @@ class PlacementEstimate:
     pairs: int
 
 
-def placement_groups(object_index: IntArray, placement_index: IntArray) -> list[IntArray]:
-    """Touch indices of every placement, a placement being one (object, placement number).
-
-    Args:
-        object_index: Object of every touch. Shape (N,).
-        placement_index: Placement number of every touch. Shape (N,).
-
-    Returns:
-        One index array per placement, in order of first appearance.
-    """
-    keys = np.stack([np.asarray(object_index), np.asarray(placement_index)], axis=1)
-    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    order = np.argsort(first)
-    return [np.flatnonzero(inverse == g) for g in order]
-
-
 def estimate_placement_variance(
     model: ManifoldModel, placement_index: IntArray
 ) -> PlacementEstimate:
@@ -95,6 +101,10 @@ def estimate_placement_variance(
     unbiased whatever the GP's own uncertainty at the held-out touches (it is subtracted), then
     clipped to [0, MAX_PLACEMENT_FRACTION · σ_n,a²]. Leaving the whole placement out matters:
     leaving one touch out would let its placement-mates' shared offset leak into the prediction.
+
+    A model whose training covariance already holds a σ_b,0² (``placement_in_fit``) has it in
+    A_G's within-placement entries, so the sum estimates σ_b² − σ_b,0² and σ_b,0² is added back;
+    the other placements' touches are then predicted with their own offsets accounted for.
 
     Args:
         model: A model fitted on the touches (dense, Kronecker or sparse: the Gram matrices are
@@ -115,19 +125,22 @@ def estimate_placement_variance(
             f"placement_index: expected {data.n_touches} integers, received dtype "
             f"{placement.dtype} with shape {placement.shape}."
         )
-    groups = [g for g in placement_groups(data.object_index, placement) if g.size >= 2]
+    groups = shared_groups(data.object_index, placement)
     h = model.hyperparameters
     dy = h.observation_dim
     pairs = int(sum(g.size * (g.size - 1) for g in groups))
     if not groups:
         zero = np.zeros(dy)
         return PlacementEstimate(variance=zero, raw_variance=zero.copy(), groups=0, pairs=0)
+    current = model.placement_variance if model.placement_in_fit else None
+    training = dataclasses.replace(data, placement_index=placement)
     centred = data.observations - data.observation_mean
     identity = np.eye(data.n_touches)
     raw = np.empty(dy)
     for a in range(dy):
         factor, _ = cholesky_with_jitter(
-            gram_matrix(data, model.latents, h, a), what=f"Gram matrix of feature {a}"
+            gram_matrix(training, model.latents, h, a, current),
+            what=f"Gram matrix of feature {a}",
         )
         inverse = scipy.linalg.cho_solve((factor, True), identity, check_finite=False)
         beta = inverse @ centred[:, a]
@@ -138,32 +151,65 @@ def estimate_placement_variance(
             cross = float(residual.sum() ** 2 - residual @ residual)
             expected = float(held_out_cov.sum() - np.trace(held_out_cov))
             total += cross - expected
-        raw[a] = total / pairs
+        raw[a] = total / pairs + (0.0 if current is None else float(current[a]))
     variance = np.clip(raw, 0.0, MAX_PLACEMENT_FRACTION * h.noise_variance)
     return PlacementEstimate(variance=variance, raw_variance=raw, groups=len(groups), pairs=pairs)
 
 
 def with_placement_effect(
-    model: ManifoldModel,
+    model: ManifoldModel, options: FitOptions = FitOptions(), rounds: int = PLACEMENT_ROUNDS
 ) -> tuple[ManifoldModel, PlacementEstimate | None]:
-    """The model with σ_b² estimated from its training touches' placements, if they were recorded.
+    """The model with the placement effect of its training touches, if they record placements.
+
+    σ_b² is estimated (:func:`estimate_placement_variance`); then, ``rounds`` times, the model is
+    refitted from where it stands with σ_b² held fixed in its likelihood and the
+    within-placement noise fitted (:func:`core.gp.manifold.refit_warm`), and σ_b² estimated
+    again under the refit. The result is conditioned with the last estimate in its training
+    covariance (``placement_in_fit``), which is also the σ_b² a trial is scored with. A sparse
+    posterior (no dense training covariance) keeps its fit and gets the first estimate for
+    scoring only.
 
     Args:
         model: A fitted model; its raw training data may carry ``placement_index``.
+        options: Settings of the warm refits (``threads``, the joint run's iteration limit and
+            stall rule).
+        rounds: Refits with σ_b² in the likelihood (0: estimate only, the fit left as it is).
 
     Returns:
-        The model with ``placement_variance`` set, and the estimate; the model unchanged and
-        ``None`` when the training touches have no placements, or none touched twice (every
-        touch met its own placement: nothing to estimate from, and the model stays as without
-        placements).
+        The model and the last estimate; the model unchanged and ``None`` when the training
+        touches have no placements, or none touched twice (every touch met its own placement:
+        nothing to estimate from, and the model stays as without placements).
+
+    Raises:
+        InvalidInputError: ``rounds`` is not an integer ≥ 0.
     """
+    if isinstance(rounds, bool) or not isinstance(rounds, int) or rounds < 0:
+        raise InvalidInputError(f"rounds: expected an integer ≥ 0, received {rounds!r}.")
     placement = model.raw_data.placement_index
     if placement is None:
         return model, None
     estimate = estimate_placement_variance(model, placement)
     if estimate.groups == 0:
         return model, None
-    return dataclasses.replace(model, placement_variance=estimate.variance), estimate
+    if model.posterior.inducing is not None or options.structure in ("kronecker", "sparse"):
+        return dataclasses.replace(model, placement_variance=estimate.variance), estimate
+    diagnostics = model.diagnostics  # the fit's own (its starts), not the refits'
+    for _ in range(rounds):
+        model = refit_warm(model.raw_data, model, options, placement_variance=estimate.variance)
+        estimate = estimate_placement_variance(model, placement)
+    model = dataclasses.replace(model, diagnostics=diagnostics)
+    return _conditioned_with(model, estimate.variance), estimate
+
+
+def _conditioned_with(model: ManifoldModel, variance: FloatArray) -> ManifoldModel:
+    """``model`` conditioned again with σ_b² = ``variance`` in its training covariance."""
+    data = dataclasses.replace(model.data, placement_index=model.raw_data.placement_index)
+    conditioned = condition(
+        data, model.latents, model.hyperparameters, model.diagnostics, placement_variance=variance
+    )
+    if model.transform is None:
+        return conditioned
+    return attach_transform(conditioned, model.transform, model.raw_data)
 
 
 def check_placement_variance(model: ManifoldModel, variance: FloatArray) -> FloatArray:

@@ -27,6 +27,7 @@ from core.gp.kronecker import require_shared_design as _require_shared_design
 from core.gp.likelihood import ManifoldLikelihood
 from core.gp.linalg import cholesky_with_jitter, log_det_from_cholesky
 from core.gp.parameters import ParameterLayout, check_conditioning
+from core.gp.placement_groups import add_shared_offsets, shared_groups
 from core.gp.sparse import DEFAULT_INDUCING_POINTS, SparseLikelihood, condition_sparse
 from core.types import (
     FitDiagnostics,
@@ -107,6 +108,7 @@ def make_likelihood(
     structure: Structure = "auto",
     n_inducing: int = DEFAULT_INDUCING_POINTS,
     threads: int = 1,
+    placement_variance: FloatArray | None = None,
 ) -> Likelihood:
     """The likelihood for ``data`` under a structure (see :func:`resolve_structure`).
 
@@ -116,13 +118,22 @@ def make_likelihood(
         structure: ``"auto"``, ``"dense"``, ``"kronecker"`` or ``"sparse"``.
         n_inducing: Inducing points of the sparse path.
         threads: Threads of a dense evaluation's features (:mod:`core.gp.likelihood`).
+        placement_variance: σ_b² per feature, held fixed, for touches sharing a placement
+            (dense only, see :class:`core.gp.likelihood.ManifoldLikelihood`). Shape (dy,).
+
+    Raises:
+        InvalidInputError: A placement variance for a Kronecker or sparse structure.
     """
     chosen, design = resolve_structure(data, structure)
+    if placement_variance is not None and chosen != "dense":
+        raise InvalidInputError(
+            f"placement_variance: only the dense likelihood has a placement effect, not {chosen!r}."
+        )
     if chosen == "kronecker":
         return KroneckerLikelihood(data, latent_dim, design)
     if chosen == "sparse":
         return SparseLikelihood(data, latent_dim, n_inducing=n_inducing)
-    return ManifoldLikelihood(data, latent_dim, threads)
+    return ManifoldLikelihood(data, latent_dim, threads, placement_variance)
 
 
 def support_points(model: ManifoldModel) -> tuple[IntArray, FloatArray]:
@@ -135,7 +146,11 @@ def support_points(model: ManifoldModel) -> tuple[IntArray, FloatArray]:
 
 
 def gram_matrix(
-    data: TrainingData, latents: FloatArray, hyperparameters: Hyperparameters, feature: int
+    data: TrainingData,
+    latents: FloatArray,
+    hyperparameters: Hyperparameters,
+    feature: int,
+    placement_variance: FloatArray | None = None,
 ) -> FloatArray:
     """Noisy Gram matrix K_a = σ_f² K^s[obj, obj] ∘ K^x + σ_n² I of one feature (M1).
 
@@ -144,6 +159,9 @@ def gram_matrix(
         latents: Object latents. Shape (L, ds).
         hyperparameters: GP hyperparameters.
         feature: The feature index a.
+        placement_variance: σ_b² per feature, shared by touches of one placement (added to
+            their off-diagonal entries, :mod:`core.gp.placement_groups`); ``None``: none.
+            Shape (dy,).
 
     Returns:
         K_a. Shape (N, N).
@@ -154,6 +172,9 @@ def gram_matrix(
     obj = data.object_index
     gram = h.signal_variance[feature] * latent_gram[np.ix_(obj, obj)] * action_gram
     gram[np.diag_indices_from(gram)] += h.noise_variance[feature]
+    if placement_variance is not None:
+        groups = shared_groups(data.object_index, data.placement_index)
+        add_shared_offsets(gram, groups, float(placement_variance[feature]))
     return np.asarray(gram, dtype=np.float64)
 
 
@@ -164,6 +185,7 @@ def condition(
     diagnostics: FitDiagnostics | None = None,
     structure: Structure = "auto",
     n_inducing: int = DEFAULT_INDUCING_POINTS,
+    placement_variance: FloatArray | None = None,
 ) -> ManifoldModel:
     """Build a :class:`ManifoldModel`: β_a, K_a⁻¹ (or its structured form) and the
     log-likelihood.
@@ -181,17 +203,67 @@ def condition(
         structure: ``"auto"`` (default, see :func:`resolve_structure`), ``"dense"``,
             ``"kronecker"`` or ``"sparse"``.
         n_inducing: Inducing points of the sparse path.
+        placement_variance: σ_b² per feature in the training covariance: touches sharing a
+            placement (``data.placement_index``) share an offset (:mod:`core.gp.placement_groups`).
+            The model keeps it (``placement_variance``, ``placement_in_fit``). Dense only: a
+            Kronecker structure asked with ``"auto"`` becomes dense (the offsets break the
+            shared design's product form). ``None``: independent noise. Shape (dy,).
 
     Raises:
-        InvalidInputError: Shapes disagree between data, latents and hyperparameters, or the
-            structure cannot be used for the data.
+        InvalidInputError: Shapes disagree between data, latents and hyperparameters, the
+            structure cannot be used for the data, or a placement variance is given for a
+            sparse or Kronecker structure, out of range or without recorded placements.
         NotPositiveDefiniteError: A Gram matrix is singular even with jitter.
     """
+    if placement_variance is not None:
+        return _condition_with_placements(
+            data, latents, hyperparameters, diagnostics, structure, placement_variance
+        )
     chosen, design = resolve_structure(data, structure)
     if chosen == "kronecker":
         return condition_kronecker(data, latents, hyperparameters, diagnostics, design)
     if chosen == "sparse":
         return condition_sparse(data, latents, hyperparameters, diagnostics, n_inducing=n_inducing)
+    return _condition_dense(data, latents, hyperparameters, diagnostics, None)
+
+
+def _condition_with_placements(
+    data: TrainingData,
+    latents: FloatArray,
+    hyperparameters: Hyperparameters,
+    diagnostics: FitDiagnostics | None,
+    structure: Structure,
+    placement_variance: FloatArray,
+) -> ManifoldModel:
+    """:func:`condition` with σ_b² in the training covariance (the dense path)."""
+    h = hyperparameters
+    variance = as_float_array(placement_variance, "placement_variance", (h.observation_dim,))
+    if np.any(variance < 0) or np.any(variance >= h.noise_variance):
+        raise InvalidInputError(
+            f"placement_variance: every σ_b,a² must lie in [0, σ_n,a²) = [0, "
+            f"{h.noise_variance.tolist()}), received {variance.tolist()}."
+        )
+    if data.placement_index is None:
+        raise InvalidInputError(
+            "placement_variance: the training touches record no placements to share an offset."
+        )
+    chosen, _ = resolve_structure(data, structure)
+    if chosen == "sparse" or structure == "kronecker":
+        raise InvalidInputError(
+            f"placement_variance: a placement effect in the training covariance needs the "
+            f"dense posterior, not {chosen!r} (structure {structure!r})."
+        )
+    return _condition_dense(data, latents, h, diagnostics, variance)
+
+
+def _condition_dense(
+    data: TrainingData,
+    latents: FloatArray,
+    hyperparameters: Hyperparameters,
+    diagnostics: FitDiagnostics | None,
+    placement_variance: FloatArray | None,
+) -> ManifoldModel:
+    """The dense posterior: each K_a factored, K_a⁻¹ stored."""
     h = hyperparameters
     latents = check_conditioning(data, latents, h)
     n = data.n_touches
@@ -203,7 +275,8 @@ def condition(
     identity = np.eye(n)
     for a in range(h.observation_dim):
         factor, jitter[a] = cholesky_with_jitter(
-            gram_matrix(data, latents, h, a), what=f"Gram matrix of feature {a}"
+            gram_matrix(data, latents, h, a, placement_variance),
+            what=f"Gram matrix of feature {a}",
         )
         beta[a] = scipy.linalg.cho_solve((factor, True), centred[:, a], check_finite=False)
         gram_inverse[a] = scipy.linalg.cho_solve((factor, True), identity, check_finite=False)
@@ -223,6 +296,8 @@ def condition(
         posterior=GPPosterior(beta=beta, gram_inverse=gram_inverse, jitter=jitter),
         log_likelihood=float(log_likelihood),
         diagnostics=diagnostics,
+        placement_variance=placement_variance,
+        placement_in_fit=placement_variance is not None,
     )
 
 

@@ -22,6 +22,7 @@ from app.services.collections import (
     stage_sizes,
 )
 from core.evaluation.reference_model import experiment1_at_true_latents
+from core.gp.posterior import condition
 from core.types import TrainingData
 
 runner = CliRunner()
@@ -164,6 +165,28 @@ def test_model_document_keeps_the_placement_effect() -> None:
         model_from_document(document)
 
 
+def test_model_document_rebuilds_a_placement_effect_in_the_training_covariance() -> None:
+    model = experiment1_at_true_latents(seed=0, touches_per_object=6)
+    data = dataclasses.replace(model.data, placement_index=np.arange(24) // 3)
+    variance = 0.3 * model.hyperparameters.noise_variance
+    in_fit = condition(data, model.latents, model.hyperparameters, placement_variance=variance)
+    document = json.loads(json.dumps(model_to_document(in_fit)))
+    assert document["placement_effect"]["in_training_covariance"] is True
+    loaded = model_from_document(document)
+    assert loaded.placement_in_fit
+    np.testing.assert_array_equal(loaded.placement_variance, variance)
+    assert loaded.log_likelihood == pytest.approx(in_fit.log_likelihood, rel=1e-12)
+    np.testing.assert_allclose(loaded.posterior.beta, in_fit.posterior.beta, rtol=1e-10)
+    # σ_b² for scoring only (a document of an earlier fit) leaves the posterior as fitted.
+    document["placement_effect"]["in_training_covariance"] = False
+    scored = model_from_document(document)
+    assert not scored.placement_in_fit
+    assert scored.log_likelihood != pytest.approx(in_fit.log_likelihood, rel=1e-6)
+    document["placement_effect"]["in_training_covariance"] = "yes"
+    with pytest.raises(DocumentError, match="in_training_covariance"):
+        model_from_document(document)
+
+
 def test_fit_estimates_the_placement_effect_into_the_document(tmp_path: Path) -> None:
     rng = np.random.default_rng(0)
     base = experiment1_at_true_latents(seed=1, touches_per_object=20).data
@@ -198,7 +221,10 @@ def test_fit_estimates_the_placement_effect_into_the_document(tmp_path: Path) ->
     variance = np.asarray(document["placement_effect"]["variance"])
     assert variance.shape == (3,)
     assert np.any(variance > 0)
-    assert model_from_document(document).placement_variance is not None
+    assert document["placement_effect"]["in_training_covariance"] is True
+    loaded = model_from_document(document)
+    assert loaded.placement_in_fit
+    np.testing.assert_array_equal(loaded.placement_variance, variance)
 
 
 def test_placement_runs_split_unevenly_and_refuse_empty_placements() -> None:
