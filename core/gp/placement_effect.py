@@ -85,7 +85,7 @@ class PlacementEstimate:
 
 
 def estimate_placement_variance(
-    model: ManifoldModel, placement_index: IntArray
+    model: ManifoldModel, placement_index: IntArray, within_noise: bool = True
 ) -> PlacementEstimate:
     """σ_b,a² from the leave-one-placement-out residuals of the training touches.
 
@@ -111,6 +111,9 @@ def estimate_placement_variance(
             rebuilt here, O(N³) per feature).
         placement_index: Placement number of every training touch (with the object it forms the
             placement). Shape (N,).
+        within_noise: Clip to [0, MAX_PLACEMENT_FRACTION · σ_n,a²], for a split of the fitted
+            σ_n,a² (σ_b² for scoring only, eq. (C2)); ``False``: only to ≥ 0, for a refit that
+            fits σ_w,a² beside it (:func:`with_placement_effect`).
 
     Returns:
         The estimate; ``variance`` is zero when no placement has two touches.
@@ -152,7 +155,8 @@ def estimate_placement_variance(
             expected = float(held_out_cov.sum() - np.trace(held_out_cov))
             total += cross - expected
         raw[a] = total / pairs + (0.0 if current is None else float(current[a]))
-    variance = np.clip(raw, 0.0, MAX_PLACEMENT_FRACTION * h.noise_variance)
+    upper = MAX_PLACEMENT_FRACTION * h.noise_variance if within_noise else np.inf
+    variance = np.clip(raw, 0.0, upper)
     return PlacementEstimate(variance=variance, raw_variance=raw, groups=len(groups), pairs=pairs)
 
 
@@ -164,16 +168,18 @@ def with_placement_effect(
     σ_b² is estimated (:func:`estimate_placement_variance`); then, ``rounds`` times, the model is
     refitted from where it stands with σ_b² held fixed in its likelihood and the
     within-placement noise fitted (:func:`core.gp.manifold.refit_warm`), and σ_b² estimated
-    again under the refit. The result is conditioned with the last estimate in its training
-    covariance (``placement_in_fit``), which is also the σ_b² a trial is scored with. A sparse
-    posterior (no dense training covariance) keeps its fit and gets the first estimate for
-    scoring only.
+    again under the refit. σ_b² is not bounded by the fitted σ_n² here (the refit fits σ_w²
+    beside it). The result is conditioned with the last estimate in its training covariance
+    (``placement_in_fit``; each touch's noise variance σ_w² + σ_b²), which is also the σ_b² a
+    trial is scored with. A sparse posterior (no dense training covariance) keeps its fit and
+    gets the first estimate, clipped below σ_n², for scoring only.
 
     Args:
         model: A fitted model; its raw training data may carry ``placement_index``.
         options: Settings of the warm refits (``threads``, the joint run's iteration limit and
             stall rule).
-        rounds: Refits with σ_b² in the likelihood (0: estimate only, the fit left as it is).
+        rounds: Refits with σ_b² in the likelihood (0: σ_b² split off the fitted σ_n² for
+            scoring trials only, eq. (C2), the fit left as it is).
 
     Returns:
         The model and the last estimate; the model unchanged and ``None`` when the training
@@ -188,24 +194,35 @@ def with_placement_effect(
     placement = model.raw_data.placement_index
     if placement is None:
         return model, None
-    estimate = estimate_placement_variance(model, placement)
+    scoring_only = (
+        rounds == 0
+        or model.posterior.inducing is not None
+        or options.structure in ("kronecker", "sparse")
+    )
+    estimate = estimate_placement_variance(model, placement, within_noise=scoring_only)
     if estimate.groups == 0:
         return model, None
-    if model.posterior.inducing is not None or options.structure in ("kronecker", "sparse"):
+    if scoring_only:
         return dataclasses.replace(model, placement_variance=estimate.variance), estimate
     diagnostics = model.diagnostics  # the fit's own (its starts), not the refits'
     for _ in range(rounds):
         model = refit_warm(model.raw_data, model, options, placement_variance=estimate.variance)
-        estimate = estimate_placement_variance(model, placement)
+        estimate = estimate_placement_variance(model, placement, within_noise=False)
     model = dataclasses.replace(model, diagnostics=diagnostics)
     return _conditioned_with(model, estimate.variance), estimate
 
 
 def _conditioned_with(model: ManifoldModel, variance: FloatArray) -> ManifoldModel:
-    """``model`` conditioned again with σ_b² = ``variance`` in its training covariance."""
+    """``model`` conditioned again with σ_b² = ``variance`` in its training covariance; each
+    touch's noise variance becomes σ_w² + σ_b² with the model's own within-placement σ_w² (its
+    σ_n² less the σ_b² it holds, or all of σ_n² for a model without one in its covariance)."""
+    h = model.hyperparameters
+    held = model.placement_variance if model.placement_in_fit else None
+    within = h.noise_variance if held is None else h.noise_variance - held
+    hyper = dataclasses.replace(h, noise_variance=within + variance)
     data = dataclasses.replace(model.data, placement_index=model.raw_data.placement_index)
     conditioned = condition(
-        data, model.latents, model.hyperparameters, model.diagnostics, placement_variance=variance
+        data, model.latents, hyper, model.diagnostics, placement_variance=variance
     )
     if model.transform is None:
         return conditioned

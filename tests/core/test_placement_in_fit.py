@@ -197,3 +197,29 @@ def test_rounds_refit_with_the_effect_in_the_likelihood() -> None:
     assert fitted.diagnostics is start.diagnostics
     with pytest.raises(InvalidInputError, match="rounds"):
         with_placement_effect(start, options, rounds=-1)
+
+
+def test_the_rounds_are_not_bounded_by_the_fitted_noise() -> None:
+    """A model whose σ_n² is far below the placements' offsets (σ_b² = 0.09, σ_n² = 0.02):
+    split off σ_n² the estimate is clipped at 0.95 σ_n²; in the rounds it is not, and the
+    refitted within-placement noise sits beside it."""
+    data = _runs(60, 5, 0.3, 13)
+    hyper = _hyper(0.1)
+    assert data.placement_index is not None
+    model = condition(data, LATENTS, hyper)
+    clipped = estimate_placement_variance(model, data.placement_index)
+    np.testing.assert_allclose(clipped.variance, 0.95 * hyper.noise_variance)
+    free = estimate_placement_variance(model, data.placement_index, within_noise=False)
+    assert np.all(free.variance > 0.05)
+    np.testing.assert_array_equal(free.variance, np.maximum(free.raw_variance, 0.0))
+    fitted, estimate = with_placement_effect(model, FitOptions(max_iterations=60), rounds=2)
+    assert estimate is not None
+    assert np.all(estimate.variance > 0.05)
+    assert np.all(estimate.variance < 0.14)
+    within = fitted.hyperparameters.noise_variance - fitted.placement_variance
+    assert np.all(within > 0.0)
+    assert np.all(within < 0.03)  # σ_w² = 0.01
+    scored, split = with_placement_effect(model, rounds=0)
+    assert split is not None
+    assert not scored.placement_in_fit
+    np.testing.assert_array_equal(scored.placement_variance, clipped.variance)
