@@ -117,23 +117,7 @@ def model_to_document(
     }
     if data.placement_index is not None:
         document["training_data"]["placements"] = data.placement_index.tolist()
-    if model.placement_variance is not None:
-        document["placement_effect"] = placement_effect_field(
-            model.placement_variance, model.placement_in_fit
-        )
-    if model.latent_covariance is not None:
-        document["latent_uncertainty"] = {
-            "covariance": model.latent_covariance.tolist(),
-            "method": "Laplace, per object, hyperparameters fixed (docs/method.md (L1))",
-        }
-    if model.tempering is not None:
-        document["tempering"] = {
-            "exponent": float(model.tempering),
-            "method": (
-                "held-out log-loss of leave-touches-out training trials "
-                "(core.recognition.tempering)"
-            ),
-        }
+    document.update(calibration_fields(model))
     noise = noise_model_field(model.transform)
     if noise is not None:
         document["noise_model"] = noise
@@ -153,6 +137,31 @@ def model_to_document(
             "hyperparameters_at_bounds": list(d.hyperparameters_at_bounds),
         }
     return document
+
+
+def calibration_fields(model: ManifoldModel) -> dict[str, Any]:
+    """The optional calibration fields of ``model`` (``placement_effect``,
+    ``latent_uncertainty``, ``tempering``), each when the model has it: a model document's, and
+    a server's model row keeps the same in its posterior record (:func:`read_calibrations`)."""
+    fields: dict[str, Any] = {}
+    if model.placement_variance is not None:
+        fields["placement_effect"] = placement_effect_field(
+            model.placement_variance, model.placement_in_fit
+        )
+    if model.latent_covariance is not None:
+        fields["latent_uncertainty"] = {
+            "covariance": model.latent_covariance.tolist(),
+            "method": "Laplace, per object, hyperparameters fixed (docs/method.md (L1))",
+        }
+    if model.tempering is not None:
+        fields["tempering"] = {
+            "exponent": float(model.tempering),
+            "method": (
+                "held-out log-loss of leave-touches-out training trials "
+                "(core.recognition.tempering)"
+            ),
+        }
+    return fields
 
 
 def placement_effect_field(
@@ -201,22 +210,19 @@ def placement_in_fit_variance(
     return _array("placement_effect.variance", _field(field, "variance", "placement_effect"))
 
 
-def read_placement_effect(
-    record: Mapping[str, Any], model: ManifoldModel
-) -> npt.NDArray[np.float64] | None:
-    """σ_b² of the ``placement_effect`` field of ``record`` (a model document or a model row's
-    posterior record), checked against ``model``; ``None`` without the field.
+def read_calibrations(record: Mapping[str, Any], model: ManifoldModel) -> ManifoldModel:
+    """``model`` with the calibration fields of ``record`` (a model document or a model row's
+    posterior record, :func:`calibration_fields`), each checked against the model.
 
     Raises:
-        DocumentError: (column ``placement_effect``) a malformed field, or σ_b² of another
-            length than dy or outside [0, σ_n²).
+        DocumentError: (column: the field's name) a malformed field, or a value that does not
+            fit the model (e.g. σ_b² of another length than dy or outside [0, σ_n²)).
     """
-    return _read_calibration(
-        record,
-        "placement_effect",
-        "variance",
-        lambda value: check_placement_variance(model, np.asarray(value, dtype=np.float64)),
-    )
+    for name, key, attribute, check in _CALIBRATIONS:
+        value = _read_calibration(record, name, key, functools.partial(check, model))
+        if value is not None:
+            model = dataclasses.replace(model, **{attribute: value})
+    return model
 
 
 def _check_number(document: Mapping[str, Any], name: str, minimum: float | None = None) -> None:
@@ -519,8 +525,4 @@ def model_from_document(document: Any) -> ManifoldModel:
     )
     if features is not None:
         model = dataclasses.replace(model, features=features)
-    for name, key, attribute, check in _CALIBRATIONS:
-        value = _read_calibration(document, name, key, functools.partial(check, model))
-        if value is not None:
-            model = dataclasses.replace(model, **{attribute: value})
-    return model
+    return read_calibrations(document, model)

@@ -29,11 +29,11 @@ from app.db.tables import ModelRecord, utc_now
 from app.documents.errors import DocumentError
 from app.documents.features import features_field, read_features_field
 from app.documents.model import (
+    calibration_fields,
     model_from_document,
     model_to_document,
-    placement_effect_field,
     placement_in_fit_variance,
-    read_placement_effect,
+    read_calibrations,
 )
 from app.documents.noise_model import noise_model_field, read_noise_model_field
 from app.documents.posterior import condition_as_recorded, posterior_field
@@ -115,8 +115,9 @@ def store_fitted(
 ) -> None:
     """Copy a fitted model's latents, hyperparameters, posterior record
     (:func:`app.documents.posterior.posterior_field`, with the observation transform under
-    ``noise_model``, the feature pipeline under ``features`` and σ_b² under
-    ``placement_effect``, as the model document has them), diagnostics (with
+    ``noise_model``, the feature pipeline under ``features`` and the calibration fields —
+    ``placement_effect``, ``latent_uncertainty``, ``tempering`` — as the model document has
+    them, :func:`app.documents.model.calibration_fields`), diagnostics (with
     ``latent_selection`` when ds was chosen) into its row; mark ready.
 
     ``featurised``: the model's y were made by its pipeline from the dataset's raw touches (not
@@ -133,10 +134,7 @@ def store_fitted(
         record["features"] = features_field(model.features)
         if featurised:
             record[FEATURISED] = True
-    if model.placement_variance is not None:
-        record["placement_effect"] = placement_effect_field(
-            model.placement_variance, model.placement_in_fit
-        )
+    record.update(calibration_fields(model))
     row.posterior = record
     row.signal_variance = h.signal_variance
     row.noise_variance = h.noise_variance
@@ -409,9 +407,7 @@ class ReadyModels:
             )
             if pipeline is not None:
                 model = dataclasses.replace(model, features=pipeline)
-            placement = read_placement_effect(record, model)
-            if placement is not None:
-                model = dataclasses.replace(model, placement_variance=placement)
+            model = read_calibrations(record, model)
         except (CoreError, ValueError, KeyError, TypeError) as exc:
             raise StoredModelError(
                 f"Model {model_id} cannot be rebuilt from what is stored: "

@@ -78,3 +78,28 @@ def test_fit_computes_them_only_when_asked(tmp_path: Path) -> None:
     assert model.latent_covariance.shape == (4, 1, 1)
     assert model.tempering is not None
     assert 0 < model.tempering <= 1
+
+
+def test_the_server_keeps_them_through_an_import_and_a_restart(tmp_path: Path) -> None:
+    """An imported document's latent covariance and tempering are stored with the model row,
+    served by the export, and rebuilt by a new server from the row."""
+    from app.main import create_app
+    from tests.app.conftest import TestClient, make_settings
+
+    model = experiment1_at_true_latents(seed=0, touches_per_object=6)
+    covariance = np.array([[[0.01]], [[0.02]], [[0.03]], [[0.04]]])
+    richer = dataclasses.replace(model, latent_covariance=covariance, tempering=0.6)
+    document = json.loads(json.dumps(model_to_document(richer)))
+    settings = make_settings(tmp_path)
+    with TestClient(create_app(settings)) as client:
+        imported = client.post("/api/v1/models/import", json=document)
+        assert imported.status_code == 201, imported.text
+        model_id = imported.json()["id"]
+        exported = client.get(f"/api/v1/models/{model_id}/export").json()
+    assert exported["latent_uncertainty"]["covariance"] == covariance.tolist()
+    assert exported["tempering"]["exponent"] == 0.6
+    with TestClient(create_app(settings)) as client:  # rebuilt from the row
+        again = client.get(f"/api/v1/models/{model_id}/export").json()
+    rebuilt = model_from_document(again)
+    np.testing.assert_array_equal(rebuilt.latent_covariance, covariance)
+    assert rebuilt.tempering == 0.6
