@@ -292,6 +292,13 @@ class PlacementEffectPublic(BaseModel):
             "touches of one placement share (0: none, the touches count as independent)."
         )
     )
+    in_training_covariance: bool = Field(
+        default=False,
+        description=(
+            "Whether the fit also has σ_b² in its own likelihood (the training touches of one "
+            "placement share the offset); false: σ_b² only scores trials."
+        ),
+    )
 
 
 class ModelPublic(BaseModel):

@@ -206,7 +206,11 @@ def _placement_effect_public(row: ModelRecord) -> PlacementEffectPublic | None:
     except (KeyError, TypeError, ValueError):  # changed behind the server's back; load() says so
         logger.warning("model %d: malformed placement_effect record %r", row.id, field)
         return None
-    return PlacementEffectPublic(variance=variance.tolist(), noise_ratio=ratio.tolist())
+    return PlacementEffectPublic(
+        variance=variance.tolist(),
+        noise_ratio=ratio.tolist(),
+        in_training_covariance=field.get("in_training_covariance") is True,
+    )
 
 
 def _latent_selection_public(row: ModelRecord) -> LatentSelectionPublic | None:

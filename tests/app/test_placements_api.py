@@ -185,6 +185,7 @@ def test_a_server_fit_estimates_the_placement_effect(tmp_path: Path) -> None:
         assert effect is not None
         noise = np.array([h["noise_variance"] for h in model["hyperparameters"]])
         np.testing.assert_allclose(effect["noise_ratio"], np.array(effect["variance"]) / noise)
+        assert effect["in_training_covariance"] is True
         assert np.any(np.array(effect["variance"]) > 0)
         document = client.get(f"{API}/models/{model['id']}/export").json()
         plain = client.post(f"{API}/datasets", content=experiment1_csv(touches_per_object=8),
