@@ -22,13 +22,16 @@ from app.main import create_app
 from core.evaluation.reference_model import experiment1_at_true_latents
 from core.evaluation.worlds import sample_experiment1
 from core.types import ManifoldModel, TrainingData
+from tests.conftest import SETTLE_S
 
 
 def make_settings(tmp_path: Path, **overrides: object) -> Settings:
-    """Settings for a test app: temp DB file, mock hardware, no .env, no frontend."""
+    """Settings for a test app: temp DB file, mock hardware resting
+    :data:`tests.conftest.SETTLE_S` before each touch, no .env, no frontend."""
     values: dict[str, object] = {
         "database_url": f"sqlite:///{tmp_path / 'test.db'}",
         "hardware": "mock",
+        "settle_s": SETTLE_S,
         "frontend_dir": tmp_path / "no-frontend",
     }
     values.update(overrides)

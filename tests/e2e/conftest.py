@@ -21,6 +21,7 @@ import pytest
 from rich.console import Console
 
 from app.cli.demo import DemoOptions, DemoServer, DemoState
+from tests.conftest import SETTLE_S
 
 ROOT = Path(__file__).resolve().parents[2]
 CHROMIUM = Path(os.environ.get("ACTIVETOUCH_CHROMIUM", "/usr/bin/chromium"))
@@ -38,9 +39,6 @@ SCREENSHOTS = ROOT / "artifacts" / "screenshots"
 DOCS_SCREENSHOTS = ROOT / "docs" / "screenshots"
 VIEWPORT = {"width": 1440, "height": 1000}
 DOCS_FLAG = "ACTIVETOUCH_UPDATE_DOCS_SCREENSHOTS"
-SETTLE_S = 5.0
-"""The demo rig's rest before each touch: one recovery time of the simulated skin (4 s) keeps the
-touches alike at a quarter of the default's cost (the rest is simulated, touch by touch)."""
 
 
 @dataclass
