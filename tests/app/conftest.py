@@ -45,6 +45,13 @@ def settings(tmp_path: Path) -> Settings:
 
 
 @pytest.fixture
+def cli_rig_rest(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The CLI's simulated rig (``--sim``) rests :data:`tests.conftest.SETTLE_S` before each
+    touch, as the test servers' does (``ACTIVETOUCH_SETTLE_S``, the default of ``--settle``)."""
+    monkeypatch.setenv("ACTIVETOUCH_SETTLE_S", str(SETTLE_S))
+
+
+@pytest.fixture
 def client(settings: Settings) -> Iterator[TestClient]:
     """A client of a freshly built app (lifespan run: migrations from empty)."""
     with TestClient(create_app(settings)) as test_client:

@@ -25,6 +25,7 @@ from core.evaluation.reference_model import experiment1_at_true_latents
 from core.types import TrainingData
 
 runner = CliRunner()
+pytestmark = pytest.mark.usefixtures("cli_rig_rest")  # 5 s before each touch, not 20 s
 OBJECTS = ["--object", "paper_cup", "--object", "stainless_cup"]
 
 
