@@ -16,6 +16,11 @@ import pytest  # noqa: E402
 
 pytest_plugins = ["tests.dask_fixtures"]
 
+SETTLE_S = 5.0
+"""Rest before each touch of the simulated rigs that tests drive through a server (the default is
+20 s). One recovery time of the simulated skin (4 s) keeps the touches alike at a quarter of the
+cost: the rest is simulated, sample by sample. tests/hardware/test_settle.py tests the rest."""
+
 
 def pytest_addoption(parser: pytest.Parser) -> None:
     group = parser.getgroup("activetouch hardware", "tests against real devices")

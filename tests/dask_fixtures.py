@@ -1,6 +1,8 @@
-"""A Dask ``LocalCluster`` for tests: 2 single-threaded worker processes, started once per module.
+"""A Dask ``LocalCluster`` for tests: 2 single-threaded worker processes, started once per session.
 
-Registered from ``tests/conftest.py`` (``pytest_plugins``).
+Registered from ``tests/conftest.py`` (``pytest_plugins``). Starting the cluster costs seconds, so
+every module that asks for it shares one: a test must leave it as it found it (cancel or wait for
+what it submitted), and may not rely on what earlier tests left on the workers.
 """
 
 from __future__ import annotations
@@ -12,9 +14,9 @@ from typing import Any
 import pytest
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def dask_cluster() -> Iterator[Any]:
-    """A running ``LocalCluster`` (2 worker processes, 1 thread each); closed after the module."""
+    """A running ``LocalCluster`` (2 worker processes, 1 thread each), closed after the session."""
     from distributed import LocalCluster
 
     cluster = LocalCluster(

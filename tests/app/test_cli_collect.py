@@ -23,10 +23,11 @@ from core.features.pipeline import means_pipeline
 from core.gp.kronecker import find_shared_design
 from hardware.clock import VirtualClock
 from hardware.errors import ServoHardwareErrorFlags
-from hardware.rig import RigConfig
 from hardware.sim.rig import SimulatedRig, in_process_rig
+from tests.conftest import SETTLE_S
 
 runner = CliRunner()
+pytestmark = pytest.mark.usefixtures("cli_rig_rest")  # 5 s before each touch, not 20 s
 
 
 def said(result: Any) -> str:
@@ -285,7 +286,7 @@ class TriggerClock(VirtualClock):
 def rig_with_trigger(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
     """``collect --sim`` opens a simulated rig whose clock fires an action 13 s after the rest
     before the first touch (after the first touch, before the last)."""
-    made: dict[str, Any] = {"clock": TriggerClock(at_s=RigConfig().settle_s + 13.0)}
+    made: dict[str, Any] = {"clock": TriggerClock(at_s=SETTLE_S + 13.0)}
 
     def open_rig(**kwargs: Any) -> RigHandle:
         simulation: SimulatedRig = in_process_rig(

@@ -19,6 +19,7 @@ from tests.app.waits import finished, wait_until
 from tests.hardware.test_table_file import CERAMIC
 
 runner = CliRunner()
+pytestmark = pytest.mark.usefixtures("cli_rig_rest")  # 5 s before each touch, not 20 s
 
 #: Two objects, the mug of the hardware tests' ceramic; the cork asks for slot 0.
 CORK = {

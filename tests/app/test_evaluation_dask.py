@@ -11,6 +11,7 @@ import pytest
 from app.documents.model import model_from_document
 from app.errors import BadInputError
 from app.evaluation.cluster import batches
+from app.evaluation.report import EvaluationReport
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
 from core.evaluation.worlds import sample_experiment1
@@ -26,8 +27,13 @@ def model() -> ManifoldModel:
 SPEC = EvaluationSpec(world="exp1", trials_per_target=3, steps=5)
 
 
-def test_a_cluster_run_equals_the_serial_run_trial_by_trial(model, dask_cluster):
-    serial = run_evaluation(model, SPEC)
+@pytest.fixture(scope="module")
+def serial(model) -> EvaluationReport:
+    """The in-process run of :data:`SPEC` (read only)."""
+    return run_evaluation(model, SPEC)
+
+
+def test_a_cluster_run_equals_the_serial_run_trial_by_trial(model, serial, dask_cluster):
     seen = []
     distributed = run_evaluation(
         model, SPEC, scheduler=dask_cluster.scheduler_address, on_trial=seen.append
@@ -53,8 +59,7 @@ def test_a_replay_on_the_cluster_equals_the_serial_replay(model, dask_cluster):
     assert distributed.records == serial.records
 
 
-def test_stopping_a_cluster_run_keeps_finished_trials(model, dask_cluster):
-    serial = run_evaluation(model, SPEC)
+def test_stopping_a_cluster_run_keeps_finished_trials(model, serial, dask_cluster):
     seen = []
     stopped = run_evaluation(
         model,

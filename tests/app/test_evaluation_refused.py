@@ -11,15 +11,14 @@ import pytest
 from app.errors import DeviceUnavailableError
 from app.evaluation import runner as evaluation_runner
 from app.evaluation.context import TrialContext, TrialKey, rig_table
+from app.evaluation.report import EvaluationReport
 from app.evaluation.rig_trial import RigTrial
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
 from core.evaluation.records import RefusedTrial, TrialRecord
-from core.types import ManifoldModel
 from core.validation import FloatArray
 from hardware.errors import DeviceDisconnected, ServoHardwareErrorFlags
 from hardware.records import TouchRecord
-from tests.app.test_evaluation_rig import OBJECTS, fitted_on_the_rig
 
 #: The trial whose touch is refused, and which touch (1-based).
 REFUSED_KEYS = (("active", "paper_cup", 1), ("passive", "paper_cup", 1))
@@ -79,11 +78,6 @@ class DisconnectingContext(RefusingContext):
 
 
 @pytest.fixture(scope="module")
-def rig_model() -> ManifoldModel:
-    return fitted_on_the_rig("default", OBJECTS, touches=6, latent_dim=2, seed=3)
-
-
-@pytest.fixture(scope="module")
 def clean(rig_model):
     """The same evaluation on a rig that refuses nothing."""
     return run_evaluation(rig_model, SPEC)
@@ -94,9 +88,18 @@ def refusing(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(evaluation_runner, "TrialContext", RefusingContext)
 
 
-def test_a_refused_touch_ends_only_its_trial_and_is_recorded(rig_model, clean, refusing):
+@pytest.fixture(scope="module")
+def refused(rig_model) -> tuple[EvaluationReport, list[object]]:
+    """The evaluation on a rig that refuses one touch of each of :data:`REFUSED_KEYS`, and what
+    ``on_trial`` was called with (read only: several tests look at the one run)."""
     seen: list[object] = []
-    report = run_evaluation(rig_model, SPEC, on_trial=seen.append)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(evaluation_runner, "TrialContext", RefusingContext)
+        return run_evaluation(rig_model, SPEC, on_trial=seen.append), seen
+
+
+def test_a_refused_touch_ends_only_its_trial_and_is_recorded(clean, refused):
+    report, seen = refused
     assert len(seen) == 8
     assert [r.key for r in report.refused] == list(REFUSED_KEYS)
     # Every other trial ran as on a rig that refuses nothing.
@@ -112,8 +115,8 @@ def test_a_refused_touch_ends_only_its_trial_and_is_recorded(rig_model, clean, r
         assert "FFJ3" in refused.reason
 
 
-def test_the_report_counts_refused_trials_and_states_the_denominator(rig_model, refusing):
-    report = run_evaluation(rig_model, SPEC)
+def test_the_report_counts_refused_trials_and_states_the_denominator(refused):
+    report, _ = refused
     document = report.to_dict()
     assert document["refused_trials"] == 2
     assert document["refused_by_policy"] == {"active": 1, "passive": 1}
@@ -148,8 +151,8 @@ def test_the_report_counts_refused_trials_and_states_the_denominator(rig_model, 
     assert len(rows) == 1 + 6 * 3 + 2 * (1 + 1)
 
 
-def test_a_resumed_run_keeps_refused_trials_without_redoing_them(rig_model, refusing):
-    first = run_evaluation(rig_model, SPEC)
+def test_a_resumed_run_keeps_refused_trials_without_redoing_them(rig_model, refused, refusing):
+    first, _ = refused
     seen: list[object] = []
     again = run_evaluation(
         rig_model, SPEC, done=[*first.records, *first.refused], on_trial=seen.append
@@ -184,8 +187,8 @@ def test_a_rig_failure_on_dask_fails_the_evaluation_naming_the_trial(
         run_evaluation(rig_model, SPEC, scheduler=dask_cluster.scheduler_address)
 
 
-def test_refused_trials_are_the_same_on_dask(rig_model, refusing, dask_cluster):
-    serial = run_evaluation(rig_model, SPEC)
+def test_refused_trials_are_the_same_on_dask(rig_model, refused, refusing, dask_cluster):
+    serial, _ = refused
     distributed = run_evaluation(rig_model, SPEC, scheduler=dask_cluster.scheduler_address)
     assert distributed.workers == 2
     assert distributed.records == serial.records
@@ -345,17 +348,16 @@ def _evaluate(model_path, *args: str):
     )
 
 
-def test_the_cli_counts_refused_trials(model_path, refusing):
+def test_the_cli_counts_refused_trials(model_path, refusing, tmp_path):
     import json
 
-    table = _evaluate(model_path)
+    out = tmp_path / "report.json"
+    table = _evaluate(model_path, "--out", str(out))  # the table, and the JSON report (--json's)
     assert table.exit_code == 0, table.output
     assert "refused" in table.stdout
     assert "completed" in table.stdout
     assert "the rig refused a touch in 1 of 4 trials" in " ".join(table.stdout.split())
-    as_json = _evaluate(model_path, "--json")
-    assert as_json.exit_code == 0, as_json.output
-    document = json.loads(as_json.stdout)
+    document = json.loads(out.read_text())
     assert document["refused_by_policy"] == {"active": 1, "passive": 1}
     assert [(r["policy"], r["refused"]["touch"]) for r in document["refused"]] == [
         ("active", REFUSED_TOUCH),

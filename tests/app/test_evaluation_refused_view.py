@@ -21,7 +21,6 @@ from tests.app.test_evaluation_refused import (
     RefusingContext,
     _api_evaluation,
     _FaultyTrial,
-    rig_model,  # noqa: F401 (the fixture)
 )
 
 #: Refused touch of each trial of :data:`REFUSED_KEYS`: the first, then the second.
@@ -44,7 +43,7 @@ class FirstOrSecondTouchContext(RefusingContext):
 
 def test_the_view_of_a_refused_trial_has_its_touches_before_the_refusal_and_no_answer(
     tmp_path,
-    rig_model,  # noqa: F811
+    rig_model,
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     monkeypatch.setattr(evaluation_runner, "TrialContext", FirstOrSecondTouchContext)

@@ -10,42 +10,7 @@ from app.evaluation.context import rig_tables
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec, Placement
 from app.rig.actions import TouchActions
-from app.rig.build import SimulationMode, open_rig
-from app.rig.collection import iter_collect
-from core.gp.manifold import FitOptions, fit_manifold
-from core.types import ManifoldModel, TrainingData
-
-OBJECTS = ("paper_cup", "ceramic_mug", "foam_sponge")
-
-
-def fitted_on_the_rig(
-    table: str, objects: tuple[str, ...], touches: int, latent_dim: int, seed: int
-) -> ManifoldModel:
-    """A model fitted on ``touches`` random touches of each of ``objects`` on a simulated table."""
-    slots_of = rig_tables()[table]
-    handle = open_rig(simulate=SimulationMode.in_process, table=table, seed=seed)
-    try:
-        lease = handle.rig.acquire("test")
-        lease.connect()
-        design = np.random.default_rng(seed).standard_normal((touches, 6))
-        slots = {name: slots_of.index(name) for name in objects}
-        collected = list(iter_collect(lease, TouchActions.from_teaching(), slots, design))
-        lease.release()
-    finally:
-        handle.close()
-    data = TrainingData(
-        object_names=objects,
-        object_index=np.array([objects.index(t.object_name) for t in collected]),
-        actions=np.array([t.action for t in collected]),
-        observations=np.array([t.record.observation for t in collected]),
-    )
-    return fit_manifold(data, latent_dim, np.random.default_rng(0), FitOptions(restarts=0))
-
-
-@pytest.fixture(scope="module")
-def rig_model() -> ManifoldModel:
-    """A ds=2 model fitted on 6 touches of three objects of the default simulated table."""
-    return fitted_on_the_rig("default", OBJECTS, touches=6, latent_dim=2, seed=3)
+from tests.app.conftest import RIG_OBJECTS, fitted_on_the_rig
 
 
 def spec(**changes: object) -> EvaluationSpec:
@@ -174,7 +139,9 @@ def test_a_rig_trial_simulates_the_noise_model_it_is_given() -> None:
     from hardware.sim.noise import NO_DRIFT, NoiseModel
 
     quiet = replace(NoiseModel(), drift=NO_DRIFT, placement_std_deg=0.0)
-    trial = RigTrial(TouchActions.from_teaching(), OBJECTS, "ceramic_mug", rig_seed=1, noise=quiet)
+    trial = RigTrial(
+        TouchActions.from_teaching(), RIG_OBJECTS, "ceramic_mug", rig_seed=1, noise=quiet
+    )
     try:
         assert trial._handle.simulation.devices.plant.noise is quiet  # type: ignore[union-attr]
     finally:

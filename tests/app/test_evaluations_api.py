@@ -432,10 +432,10 @@ def test_the_server_runs_trials_on_its_dask_cluster_or_local_workers(
     monkeypatch.setenv("ACTIVETOUCH_DASK_SCHEDULER", dask_cluster.scheduler_address)
     settings = make_settings(tmp_path)
     assert settings.dask_scheduler == dask_cluster.scheduler_address
-    body = {"world": "exp1", "trials_per_target": 2, "steps": 3, "seed": 9}
+    body = {"world": "exp1", "trials_per_target": 1, "steps": 3, "seed": 9}
     model = model_from_document(experiment1_document())
     serial = run_evaluation(
-        model, EvaluationSpec(world="exp1", trials_per_target=2, steps=3, seed=9)
+        model, EvaluationSpec(world="exp1", trials_per_target=1, steps=3, seed=9)
     ).to_dict()
     with TestClient(create_app(settings)) as client:
         model_id = import_model(client)

@@ -26,6 +26,7 @@ from core.gp.posterior import condition
 from core.types import TrainingData
 
 runner = CliRunner()
+pytestmark = pytest.mark.usefixtures("cli_rig_rest")  # 5 s before each touch, not 20 s
 OBJECTS = ["--object", "paper_cup", "--object", "stainless_cup"]
 
 

@@ -134,7 +134,7 @@ def test_model_trial_shares_one_placement_offset_between_its_touches(model, shar
     actions = [np.array([0.2]), np.array([-0.9])]
     rng = np.random.default_rng(8)
     pairs = []
-    for _ in range(6000):
+    for _ in range(3000):
         source = ModelTrial(placed, "O3", shared_placement=shared)
         pairs.append(placed.to_model_space(np.array([source.touch(x, rng).observation
                                                      for x in actions])))  # fmt: skip

@@ -21,6 +21,7 @@ import pytest
 from rich.console import Console
 
 from app.cli.demo import DemoOptions, DemoServer, DemoState
+from tests.conftest import SETTLE_S
 
 ROOT = Path(__file__).resolve().parents[2]
 CHROMIUM = Path(os.environ.get("ACTIVETOUCH_CHROMIUM", "/usr/bin/chromium"))
@@ -98,7 +99,8 @@ def running_demo(
 
     Args:
         database_dir: Folder of the demo's database.
-        settings_overrides: Server settings besides ``_env_file=None``.
+        settings_overrides: Server settings besides ``_env_file=None`` and
+            ``settle_s=``:data:`SETTLE_S`.
         options: :class:`DemoOptions` fields instead of the defaults here (the simulated rig's
             ``default`` table, whose objects any touch tells apart, 10 touches per object at
             action std 1, ds = 2, a short fit: the UI flows, fast; the demo's own table needs
@@ -123,7 +125,7 @@ def running_demo(
     server = DemoServer(
         DemoOptions(**chosen),
         console=Console(stderr=True, force_terminal=False),
-        settings_overrides={"_env_file": None, **(settings_overrides or {})},
+        settings_overrides={"_env_file": None, "settle_s": SETTLE_S, **(settings_overrides or {})},
     )
     server.start()
     try:
@@ -132,9 +134,13 @@ def running_demo(
         server.stop()
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Demo]:
-    """The demo on free loopback ports with a fresh SQLite file, prepared (dataset + model)."""
+    """The demo on free loopback ports with a fresh SQLite file, prepared (dataset + model).
+
+    Collecting and fitting take half a minute, so every module that uses it shares one: a test
+    may add to it (trials, collections) but must not count on being the first to.
+    """
     with running_demo(tmp_path_factory.mktemp("demo")) as running:
         yield running
 

@@ -93,7 +93,7 @@ def test_start_an_evaluation_watch_it_and_open_a_trial(
     expect(page.get_by_test_id("page-evaluation")).to_be_visible()
     expect(page.get_by_test_id("eval-model")).to_have_value(str(served.model_id))
     expect(page.get_by_test_id("eval-world")).to_have_value("exp1")  # chosen for the model
-    page.get_by_test_id("eval-trials").fill("25")
+    page.get_by_test_id("eval-trials").fill("12")
     page.get_by_test_id("eval-steps").fill("6")
     page.get_by_test_id("eval-seed").fill("5")
     # Record every progress text the page shows, to see it fill in while the job runs.
@@ -113,7 +113,7 @@ def test_start_an_evaluation_watch_it_and_open_a_trial(
     evaluations = served.client.get("/evaluations").json()["data"]
     assert len(evaluations) == 1
     evaluation = served.client.get(f"/evaluations/{evaluations[0]['id']}").json()
-    total = 2 * 4 * 25
+    total = 2 * 4 * 12
     assert evaluation["status"] == "completed"
     assert evaluation["done"] == evaluation["total"] == total
     assert evaluation["spec"]["steps"] == 6
