@@ -24,6 +24,7 @@ from app.services.collections import (
 from core.evaluation.reference_model import experiment1_at_true_latents
 from core.gp.posterior import condition
 from core.types import TrainingData
+from tests.app.test_placements_api import placed_data
 
 runner = CliRunner()
 pytestmark = pytest.mark.usefixtures("cli_rig_rest")  # 5 s before each touch, not 20 s
@@ -189,15 +190,9 @@ def test_model_document_rebuilds_a_placement_effect_in_the_training_covariance()
 
 
 def test_fit_estimates_the_placement_effect_into_the_document(tmp_path: Path) -> None:
-    rng = np.random.default_rng(0)
-    base = experiment1_at_true_latents(seed=1, touches_per_object=20).data
-    placement = np.tile(np.repeat(np.arange(4), 5), 4)
-    observations = base.observations.copy()
-    for obj in range(4):
-        for p in range(4):
-            rows = (base.object_index == obj) & (placement == p)
-            observations[rows] += rng.normal(0.0, 0.1, size=3)
-    data = TrainingData(base.object_names, base.object_index, base.actions, observations, placement)
+    data = placed_data(seed=1)
+    placement = data.placement_index
+    assert placement is not None
     csv_path, out = tmp_path / "placed.csv", tmp_path / "model.json"
     csv_path.write_text(write_training_csv(data))
     result = runner.invoke(
