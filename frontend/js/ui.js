@@ -1,5 +1,7 @@
 // Small DOM helpers shared by the pages.
 
+import { num } from "./lib/format.js";
+
 /** Create an element: el("td", {class: "x", dataset: {id: 1}}, "text", child, ...). */
 export function el(tag, attrs = {}, ...children) {
   const node = document.createElement(tag);
@@ -27,13 +29,8 @@ export function fill(node, ...children) {
   node.replaceChildren(...children.flat().filter((c) => c !== null && c !== undefined));
 }
 
-/** A number with `digits` significant digits, or "—". */
-export function num(value, digits = 4) {
-  if (value === null || value === undefined || !Number.isFinite(Number(value))) return "—";
-  const n = Number(value);
-  if (n !== 0 && (Math.abs(n) >= 1e5 || Math.abs(n) < 1e-3)) return n.toExponential(Math.max(0, digits - 1));
-  return Number(n.toPrecision(digits)).toString();
-}
+/** A number with `digits` significant digits, or "—" (lib/format.js, shared with the pure helpers). */
+export { num };
 
 /** A vector as "[a, b, c]" with `digits` significant digits. */
 export function vec(values, digits = 3) {

@@ -69,6 +69,9 @@ def test_every_page_renders_with_the_estop(page: Any, demo: Demo) -> None:
     )
     # The demo's collection placed every touch anew: no run to estimate a placement effect from.
     assert model["placement_effect"] is None
+    expect(page.get_by_test_id("model-detail")).to_contain_text(
+        "none (no placements recorded: touches scored as independent)"
+    )
     expect(page.get_by_test_id("model-export")).to_have_attribute(
         "href", f"api/v1/models/{demo.state.model_id}/export"
     )

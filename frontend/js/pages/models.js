@@ -5,6 +5,7 @@
 import { api } from "../api.js";
 import { manifoldChart } from "../charts.js";
 import { formatDuration } from "../lib/analysis.js";
+import { placementText } from "../lib/model_text.js";
 import { MODEL_ACTIVE } from "../states.js";
 import * as store from "../store.js";
 import { $, badge, el, fill, guarded, num, setOptions, throttle, timeOf, toast } from "../ui.js";
@@ -185,13 +186,6 @@ function noiseText(noise) {
     }
   }
   return `correlated (largest ${pair}: ${num(largest, 2)}) — ${noise.note}`;
-}
-
-// σ_b² / σ_n² per feature: how much of a touch's noise the touches of one placement share.
-function placementText(model) {
-  const effect = model.placement_effect;
-  if (!effect) return model.status === "ready" ? "none (no placements recorded: touches scored as independent)" : "—";
-  return `σ_b²/σ_n² = ${effect.noise_ratio.map((v) => num(v, 2)).join(", ")}`;
 }
 
 function latentText(model) {
