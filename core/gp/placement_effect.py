@@ -42,7 +42,7 @@ from core.gp.kronecker import predictive_covariance_kronecker
 from core.gp.linalg import cholesky_with_jitter
 from core.gp.manifold import refit_warm
 from core.gp.noise_model import attach_transform
-from core.gp.placement_groups import placement_groups, shared_groups
+from core.gp.placement_groups import checked_placement_variance, placement_groups, shared_groups
 from core.gp.posterior import condition, gram_matrix, predict_model_space, support_points
 from core.types import ManifoldModel
 from core.validation import FloatArray, IntArray, as_float_array
@@ -236,13 +236,7 @@ def check_placement_variance(model: ManifoldModel, variance: FloatArray) -> Floa
         InvalidInputError: Wrong length, negative, or not below the noise variance.
     """
     h = model.hyperparameters
-    value = as_float_array(variance, "placement_variance", (h.observation_dim,))
-    if np.any(value < 0) or np.any(value >= h.noise_variance):
-        raise InvalidInputError(
-            f"placement_variance: every σ_b,a² must lie in [0, σ_n,a²) = [0, "
-            f"{h.noise_variance.tolist()}), received {value.tolist()}."
-        )
-    return value
+    return checked_placement_variance(variance, h.noise_variance, h.observation_dim)
 
 
 def predictive_covariance(

@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from core.validation import FloatArray, IntArray
+from core.errors import InvalidInputError
+from core.validation import FloatArray, IntArray, as_float_array
 
 
 def placement_groups(object_index: IntArray, placement_index: IntArray) -> list[IntArray]:
@@ -65,3 +66,35 @@ def add_shared_offsets(gram: FloatArray, groups: list[IntArray], variance: float
         block = np.ix_(group, group)
         gram[block] += variance
         gram[group, group] -= variance
+
+
+def checked_placement_variance(
+    variance: object, noise_variance: FloatArray | None, observation_dim: int
+) -> FloatArray:
+    """σ_b² as dy checked values: ≥ 0, and below each feature's σ_n,a² when ``noise_variance`` is
+    given (σ_b,a² is then a part of the touch's noise variance, so σ_w,a² = σ_n,a² − σ_b,a² > 0).
+
+    Args:
+        variance: σ_b,a² per feature. Shape (dy,).
+        noise_variance: σ_n,a² per feature, or ``None`` (σ_w,a² is fitted beside σ_b,a²).
+            Shape (dy,).
+        observation_dim: dy.
+
+    Returns:
+        The values as a float array. Shape (dy,).
+
+    Raises:
+        InvalidInputError: Wrong length, not finite, negative, or not below σ_n,a².
+    """
+    value = as_float_array(variance, "placement_variance", (observation_dim,))
+    if noise_variance is None:
+        if np.any(value < 0.0):
+            raise InvalidInputError(
+                f"placement_variance: every σ_b,a² must be ≥ 0, received {value.tolist()}."
+            )
+    elif np.any(value < 0.0) or np.any(value >= noise_variance):
+        raise InvalidInputError(
+            f"placement_variance: every σ_b,a² must lie in [0, σ_n,a²) = [0, "
+            f"{np.asarray(noise_variance).tolist()}), received {value.tolist()}."
+        )
+    return value

@@ -27,7 +27,11 @@ from core.gp.kronecker import require_shared_design as _require_shared_design
 from core.gp.likelihood import ManifoldLikelihood
 from core.gp.linalg import cholesky_with_jitter, log_det_from_cholesky
 from core.gp.parameters import ParameterLayout, check_conditioning
-from core.gp.placement_groups import add_shared_offsets, shared_groups
+from core.gp.placement_groups import (
+    add_shared_offsets,
+    checked_placement_variance,
+    shared_groups,
+)
 from core.gp.sparse import DEFAULT_INDUCING_POINTS, SparseLikelihood, condition_sparse
 from core.types import (
     FitDiagnostics,
@@ -237,12 +241,7 @@ def _condition_with_placements(
 ) -> ManifoldModel:
     """:func:`condition` with σ_b² in the training covariance (the dense path)."""
     h = hyperparameters
-    variance = as_float_array(placement_variance, "placement_variance", (h.observation_dim,))
-    if np.any(variance < 0) or np.any(variance >= h.noise_variance):
-        raise InvalidInputError(
-            f"placement_variance: every σ_b,a² must lie in [0, σ_n,a²) = [0, "
-            f"{h.noise_variance.tolist()}), received {variance.tolist()}."
-        )
+    variance = checked_placement_variance(placement_variance, h.noise_variance, h.observation_dim)
     if data.placement_index is None:
         raise InvalidInputError(
             "placement_variance: the training touches record no placements to share an offset."
