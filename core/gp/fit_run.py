@@ -63,6 +63,12 @@ feature's ℓ^s of that dimension (and to shifting S); its gradient is orthogona
 directions (tests/core/test_likelihood.py), so the fit leaves the symmetry alone and normalises
 at the end (5.).
 
+**Tied kernels** (``FitOptions.kernels = "tied"``): every problem's likelihood (all the data,
+the screening subsample) is :class:`core.gp.tied_likelihood.TiedLikelihood` on a tied layout,
+and the hyperparameter stage with S frozen is one problem over every hyperparameter
+(:func:`core.gp.hyperparameter_fit.iter_fit_jointly`: the shared length-scales couple the
+features); the stages are otherwise the same (docs/fitting.md, "Tied kernels").
+
 Bounds (log space, relative to the data): see :func:`core.gp.parameters.parameter_bounds`.
 """
 
