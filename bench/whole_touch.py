@@ -48,6 +48,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import scipy.special
 from threadpoolctl import threadpool_limits
 
 from app.documents.raw_touches import raw_touch_from_record, read_raw_touches
@@ -280,17 +281,19 @@ def evaluation_counts(data: TrainingData) -> dict[str, int]:
 def held_out_scores(
     model: ManifoldModel, index: IntArray, actions: FloatArray, observations: FloatArray
 ) -> dict[str, float]:
-    """Mean held-out predictive log-density per touch under its own object, and the share of
-    held-out touches recognised from that one touch (most likely object)."""
+    """Mean held-out predictive log-density per touch under its own object; from each held-out
+    touch alone (uniform prior over the objects): the share recognised (most likely object)
+    and the mean log-loss, -log P(true object | touch)."""
     density = touch_log_likelihoods(model, index, actions, observations)
-    right = [
-        int(np.argmax(object_log_likelihoods(model, actions[t : t + 1], observations[t : t + 1])))
-        == int(index[t])
-        for t in range(index.size)
-    ]
+    right, losses = [], []
+    for t in range(index.size):
+        scores = object_log_likelihoods(model, actions[t : t + 1], observations[t : t + 1])
+        right.append(int(np.argmax(scores)) == int(index[t]))
+        losses.append(float(scipy.special.logsumexp(scores) - scores[index[t]]))
     return {
         "held_out_log_density_per_touch": float(np.mean(density)),
         "one_touch_accuracy": float(np.mean(right)),
+        "one_touch_log_loss": float(np.mean(losses)),
     }
 
 
