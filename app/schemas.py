@@ -145,6 +145,16 @@ class ModelCreate(BaseModel):
         ),
     )
     optimizer: Literal["lbfgs", "de"] = "lbfgs"
+    kernels: Literal["per_feature", "tied"] = Field(
+        default="per_feature",
+        description=(
+            "per_feature: every feature has its own length-scales. tied: the features share "
+            "their length-scales (each keeps its signal and noise variance), so one "
+            "eigendecomposition per evaluation serves them all: much faster fits from about "
+            "5 features on (docs/fitting.md, 'Tied kernels'). Recorded in the model's "
+            "diagnostics.kernels."
+        ),
+    )
     restarts: Annotated[int, Field(ge=0, le=50)] = 2
     seed: Seed | None = None
     max_iterations: Annotated[int, Field(ge=1, le=20_000)] | None = None

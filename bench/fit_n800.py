@@ -98,6 +98,7 @@ from core.gp.fit_run import FitRun
 from core.gp.likelihood import ManifoldLikelihood, feature_pool
 from core.gp.noise_model import NOISE_MODEL_CHOICES
 from core.gp.parameters import initial_hyperparameters
+from core.gp.tied_likelihood import TiedLikelihood
 from core.types import TrainingData
 
 #: (N, dy) -> [evaluations, seconds] of every ManifoldLikelihood evaluation in the process.
@@ -118,11 +119,13 @@ def _timed(name: str, method: Callable[..., Any]) -> Callable[..., Any]:
 
 
 def instrument() -> None:
-    """Count and time every evaluation (bench only: wraps the methods in place)."""
-    ManifoldLikelihood.value_and_gradient = _timed(  # type: ignore[method-assign]
-        "grad", ManifoldLikelihood.value_and_gradient
-    )
-    ManifoldLikelihood.value = _timed("value", ManifoldLikelihood.value)  # type: ignore[method-assign]
+    """Count and time every evaluation, per-feature and tied (bench only: wraps the methods in
+    place)."""
+    for cls in (ManifoldLikelihood, TiedLikelihood):
+        cls.value_and_gradient = _timed(  # type: ignore[method-assign]
+            "grad", cls.__dict__["value_and_gradient"]
+        )
+        cls.value = _timed("value", cls.__dict__["value"])  # type: ignore[method-assign]
 
 
 def make_data(seed: int) -> TrainingData:

@@ -18,14 +18,22 @@ Two parts:
    touch a fresh simulated touch through the model's pipeline). Each accuracy comes with its
    calibration: the ECE and "sure and wrong" (answers given with p ≥ 0.95 that were wrong) after
    touch 1 and touch 3, and the reliability table over every touch.
-2. **Fit time** (``--part fit``): 20 objects × 40 synthetic whole touches shaped like a
-   multimodal fingertip's (19 electrodes and pressure/thermal channels at 100 Hz, a vibration
-   at 2.2 kHz); the time to fit the feature pipeline (dy chosen by cross-validation), then the
-   manifold at ``--fit-dims`` features (ds = 3, noise model independent, 2 restarts).
+2. **Fit time** (``--part fit``): 20 objects × ``--fit-touches`` (40) synthetic whole touches
+   shaped like a multimodal fingertip's (19 electrodes and pressure/thermal channels at 100 Hz,
+   a vibration at 2.2 kHz); the time to fit the feature pipeline (dy chosen by
+   cross-validation), then the manifold at ``--fit-dims`` features (ds = 3, noise model
+   independent, 2 restarts) with each of ``--kernels`` (``tied`` by default: the features share
+   their length-scales, docs/fitting.md "Tied kernels"; ``per_feature`` is today's model, slow
+   from dy = 10 on): wall and CPU seconds, likelihood evaluations (on all the data, with
+   gradient and value alone, and on smaller problems) and the log-likelihood. ``--held-out K``
+   touches per object more are drawn and held out: each model's mean held-out predictive
+   log-density per touch and one-touch recognition. ``--eval-dims`` times one evaluation with
+   gradient on all the data per dy, per-feature and tied (where they cross over).
 
 Run: ``.venv/bin/python -m bench.whole_touch [--part twins|fit|both] [--data FILE.jsonl]
 [--features means whole] [--touches 100] [--fit 80] [--trials 50] [--rig-trials 10]
-[--workers 2] [--json]``.
+[--workers 2] [--fit-dims 10 20 30] [--kernels tied per_feature] [--fit-touches 40]
+[--held-out 0] [--eval-dims 1 5 10] [--json]``.
 The figures measured are in docs/results.md ("Whole touch against channel means").
 """
 
@@ -40,6 +48,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import scipy.special
 from threadpoolctl import threadpool_limits
 
 from app.documents.raw_touches import raw_touch_from_record, read_raw_touches
@@ -48,10 +57,13 @@ from app.evaluation.spec import EvaluationSpec
 from app.rig.actions import TouchActions
 from app.rig.build import SimulationMode, open_rig
 from app.services.collections import iter_collection
+from bench.fit_n800 import _COUNTS, instrument
 from core.evaluation import random_design
 from core.features.pipeline import FeatureKind, fit_features
 from core.features.raw import RawTouch, raw_touch
-from core.gp import FitOptions, fit_manifold
+from core.gp import KERNELS, FitOptions, fit_manifold, make_likelihood
+from core.gp.parameters import initial_hyperparameters
+from core.recognition import object_log_likelihoods, touch_log_likelihoods
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray, IntArray
 from hardware.rig import RigConfig
@@ -237,39 +249,112 @@ def synthetic_fingertip(
     return np.asarray(index), np.asarray(xs), raws
 
 
+def time_evaluations(data: TrainingData, kernels: str, repeats: int, latent_dim: int = 3) -> float:
+    """Median seconds of one evaluation with gradient on all of ``data`` (initial
+    hyperparameters, random latents) with ``kernels``."""
+    likelihood = make_likelihood(data, latent_dim, "dense", kernels=kernels)  # type: ignore[arg-type]
+    rng = np.random.default_rng(0)
+    vector = likelihood.layout.pack(
+        rng.standard_normal((data.n_objects, latent_dim)),
+        initial_hyperparameters(data, latent_dim),
+    )
+    seconds = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        likelihood.value_and_gradient(vector)
+        seconds.append(time.perf_counter() - started)
+    return float(np.median(seconds))
+
+
+def evaluation_counts(data: TrainingData) -> dict[str, int]:
+    """Evaluations counted since the last reset: with gradient and value alone, on all the
+    data and on smaller problems (screening subsample; one-feature hyperparameter stages)."""
+    out = {"all_data_gradient": 0, "all_data_value": 0, "smaller_problems": 0}
+    for (size, features, kind), (evaluations, _) in _COUNTS.items():
+        if (size, features) == (data.n_touches, data.observation_dim):
+            out["all_data_gradient" if kind == "grad" else "all_data_value"] += int(evaluations)
+        else:
+            out["smaller_problems"] += int(evaluations)
+    return out
+
+
+def held_out_scores(
+    model: ManifoldModel, index: IntArray, actions: FloatArray, observations: FloatArray
+) -> dict[str, float]:
+    """Mean held-out predictive log-density per touch under its own object; from each held-out
+    touch alone (uniform prior over the objects): the share recognised (most likely object)
+    and the mean log-loss, -log P(true object | touch)."""
+    density = touch_log_likelihoods(model, index, actions, observations)
+    right, losses = [], []
+    for t in range(index.size):
+        scores = object_log_likelihoods(model, actions[t : t + 1], observations[t : t + 1])
+        right.append(int(np.argmax(scores)) == int(index[t]))
+        losses.append(float(scipy.special.logsumexp(scores) - scores[index[t]]))
+    return {
+        "held_out_log_density_per_touch": float(np.mean(density)),
+        "one_touch_accuracy": float(np.mean(right)),
+        "one_touch_log_loss": float(np.mean(losses)),
+    }
+
+
 def run_fit(args: argparse.Namespace) -> dict[str, Any]:
-    """Part 2: time of the pipeline and of the manifold fit at several dy, 20 × 40 touches."""
-    index, actions, raws = synthetic_fingertip(20, 40, args.seed)
-    names = tuple(f"material_{k:02d}" for k in range(20))
+    """Part 2: time of the pipeline and of the manifold fit at several dy and kernels."""
+    n_objects, touches = 20, args.fit_touches
+    index, actions, raws = synthetic_fingertip(n_objects, touches + args.held_out, args.seed)
+    # synthetic_fingertip goes round the objects: the first ``touches`` rounds train.
+    train = np.arange(index.size) < n_objects * touches
+    train_raws = [r for r, keep in zip(raws, train, strict=True) if keep]
+    test_raws = [r for r, keep in zip(raws, train, strict=True) if not keep]
+    names = tuple(f"material_{k:02d}" for k in range(n_objects))
     started = time.perf_counter()
-    chosen = fit_features(raws, index, "whole", seed=args.seed)
+    chosen = fit_features(train_raws, index[train], "whole", seed=args.seed)
     print(f"pipeline fitted in {time.perf_counter() - started:.1f} s", file=sys.stderr, flush=True)
     figures: dict[str, Any] = {
-        "touches": len(raws),
+        "touches": len(train_raws),
+        "held_out_touches": len(test_raws),
         "reduced_features": len(chosen.reduced_names),
         "pipeline_s": time.perf_counter() - started,
         "selection": chosen.selection.explanation if chosen.selection else None,
+        "evaluation_s": [],
         "fits": [],
     }
-    for dy in args.fit_dims:
-        pipeline = fit_features(raws, index, "whole", feature_dim=dy, projection="pca")
-        data = TrainingData(names, index, actions, pipeline.transform_many(raws))
-        started = time.perf_counter()
-        model = fit_manifold(
-            data,
-            3,
-            np.random.default_rng(args.seed),
-            FitOptions(restarts=2),
-            noise_model="independent",
-        )
-        figures["fits"].append(
-            {
+    instrument()
+    dims = sorted(set(args.fit_dims) | set(args.eval_dims))
+    for dy in dims:
+        pipeline = fit_features(train_raws, index[train], "whole", feature_dim=dy, projection="pca")
+        observations = pipeline.transform_many(train_raws)
+        data = TrainingData(names, index[train], actions[train], observations)
+        if dy in args.eval_dims:
+            for kernels in KERNELS:
+                seconds = time_evaluations(data, kernels, 3)
+                entry = {"dy": dy, "kernels": kernels, "seconds": seconds}
+                figures["evaluation_s"].append(entry)
+                print(json.dumps(entry), file=sys.stderr, flush=True)
+        if dy not in args.fit_dims:
+            continue
+        for kernels in args.kernels:
+            _COUNTS.clear()
+            started, cpu_started = time.perf_counter(), time.process_time()
+            model = fit_manifold(
+                data,
+                3,
+                np.random.default_rng(args.seed),
+                FitOptions(restarts=2, kernels=kernels),
+                noise_model="independent",
+            )
+            entry = {
                 "dy": dy,
+                "kernels": kernels,
                 "fit_s": time.perf_counter() - started,
+                "cpu_s": time.process_time() - cpu_started,
+                "evaluations": evaluation_counts(data),
                 "log_likelihood": model.log_likelihood,
             }
-        )
-        print(json.dumps(figures["fits"][-1]), file=sys.stderr, flush=True)
+            if test_raws:
+                observations = pipeline.transform_many(test_raws)
+                entry.update(held_out_scores(model, index[~train], actions[~train], observations))
+            figures["fits"].append(entry)
+            print(json.dumps(entry), file=sys.stderr, flush=True)
     return figures
 
 
@@ -298,7 +383,31 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--rig-trials", type=int, default=10, help="Rig trials per object.")
     parser.add_argument("--workers", type=int, default=None, help="Dask workers of the trials.")
     parser.add_argument(
-        "--fit-dims", type=int, nargs="+", default=[10, 20, 30], help="dy of the timed fits."
+        "--fit-dims", type=int, nargs="*", default=[10, 20, 30], help="dy of the timed fits."
+    )
+    parser.add_argument(
+        "--kernels",
+        nargs="+",
+        choices=("per_feature", "tied"),
+        default=["tied"],
+        help="Kernels of the timed fits (per_feature is slow from dy = 10 on).",
+    )
+    parser.add_argument(
+        "--fit-touches", type=int, default=40, help="Training touches per object of the fit part."
+    )
+    parser.add_argument(
+        "--held-out",
+        type=int,
+        default=0,
+        help="Touches per object held out of the fit part: held-out log-density and one-touch "
+        "recognition of every fitted model.",
+    )
+    parser.add_argument(
+        "--eval-dims",
+        type=int,
+        nargs="*",
+        default=[],
+        help="dy at which one evaluation with gradient is timed, per-feature and tied.",
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", action="store_true", help="Print the figures as JSON only.")

@@ -376,6 +376,8 @@ class FitDiagnostics:
         message: The optimiser's message for the kept start.
         jitter_used: Largest jitter added to any Gram matrix during the fit (0 if none).
         hyperparameters_at_bounds: Names of hyperparameters that ended on a bound.
+        kernels: ``"per_feature"`` (every feature its own length-scales) or ``"tied"`` (the
+            features shared them in the fit: ``FitOptions.kernels``).
     """
 
     starts_log_likelihood: tuple[float, ...]
@@ -385,6 +387,7 @@ class FitDiagnostics:
     message: str
     jitter_used: float
     hyperparameters_at_bounds: tuple[str, ...] = field(default_factory=tuple)
+    kernels: str = "per_feature"
 
 
 @dataclass(frozen=True)

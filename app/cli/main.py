@@ -254,6 +254,15 @@ def fit(
     ] = "auto",
     optimizer: Annotated[Optimizer, typer.Option(help="lbfgs or de")] = Optimizer.lbfgs,
     restarts: Annotated[int, typer.Option(min=0, help="Random restarts after the PCA start.")] = 4,
+    kernels: Annotated[
+        Literal["per_feature", "tied"],
+        typer.Option(
+            help="per_feature: every feature its own length-scales. tied: the features share "
+            "them (each keeps its variances), one eigendecomposition per evaluation for all: "
+            "much faster from about 5 features on (docs/fitting.md, 'Tied kernels'). Dense "
+            "structure only."
+        ),
+    ] = "per_feature",
     seed: Annotated[int, typer.Option(help="Seed of the random restarts.")] = 0,
     structure: Annotated[
         Literal["auto", "dense", "kronecker", "sparse"],
@@ -351,6 +360,7 @@ def fit(
         options = FitOptions(
             optimizer=optimizer.value,
             restarts=restarts,
+            kernels=kernels,
             structure=structure,
             n_inducing=inducing,
             threads=available_cores() if threads is None else threads,

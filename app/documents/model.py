@@ -34,7 +34,7 @@ from app.documents.noise_model import noise_model_field, read_noise_model_field
 from app.documents.posterior import condition_as_recorded, posterior_field
 from app.documents.training_csv import MAX_NAME_CHARACTERS
 from core.errors import InvalidInputError
-from core.gp import check_placement_variance
+from core.gp import KERNELS, check_placement_variance
 from core.recognition import check_exponent, check_latent_covariance
 from core.selection import LatentSelection
 from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
@@ -135,6 +135,7 @@ def model_to_document(
             "message": d.message,
             "jitter_used": d.jitter_used,
             "hyperparameters_at_bounds": list(d.hyperparameters_at_bounds),
+            "kernels": d.kernels,
         }
     return document
 
@@ -296,6 +297,7 @@ _DIAGNOSTICS_FIELDS: _Fields = {
         f"a list of at most {MAX_RECORD_ITEMS} texts",
         _list_of(_is_text),
     ),
+    "kernels": (f"one of {', '.join(KERNELS)}", lambda value: value in KERNELS),
 }
 _LATENT_SELECTION_FIELDS: _Fields = {
     "chosen": ("an integer", _is_integer),
@@ -505,6 +507,7 @@ def model_from_document(document: Any) -> ManifoldModel:
             message=str(d.get("message", "")),
             jitter_used=float(d.get("jitter_used", 0.0)),
             hyperparameters_at_bounds=tuple(d.get("hyperparameters_at_bounds", [])),
+            kernels=str(d.get("kernels", "per_feature")),
         )
     if document.get("latent_selection") is not None:
         selection = _check_object(

@@ -45,6 +45,7 @@ from core.gp import (
     FitProgress,
     NoiseModelChoice,
     fit_manifold,
+    fit_structure,
     iter_fit,
     refit_warm,
     with_placement_effect,
@@ -120,6 +121,7 @@ class FitService:
         """
         data = datasets.load_training_data(session, body.dataset_id)
         self._models.check_size(data.n_touches, "dataset_id")
+        fit_structure(data, "auto", body.kernels)  # tied kernels: dense only (422 otherwise)
         touches = None if body.features is None else self._raw_touches(session, body)
         fewest = int(data.touches_per_object().min())
         if body.latent_dim == "auto" and fewest < 4:
@@ -335,6 +337,7 @@ def run_fit(
     body, data = request.body, request.data
     options_kwargs: dict[str, Any] = {
         "optimizer": body.optimizer,
+        "kernels": body.kernels,
         "restarts": body.restarts,
         "threads": available_cores(),  # feature threads here; 1 in a Dask worker (fit_tasks)
     }

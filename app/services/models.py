@@ -89,6 +89,7 @@ def _diagnostics_dict(diagnostics: FitDiagnostics | None) -> dict[str, Any] | No
         "message": str(diagnostics.message),
         "jitter_used": float(diagnostics.jitter_used),
         "hyperparameters_at_bounds": list(diagnostics.hyperparameters_at_bounds),
+        "kernels": diagnostics.kernels,
     }
 
 
@@ -103,6 +104,7 @@ def _diagnostics_from_dict(values: dict[str, Any] | None) -> FitDiagnostics | No
         message=values["message"],
         jitter_used=values["jitter_used"],
         hyperparameters_at_bounds=tuple(values["hyperparameters_at_bounds"]),
+        kernels=str(values.get("kernels", "per_feature")),  # rows stored before tied kernels
     )
 
 

@@ -2,7 +2,8 @@
 
 The model: kernels (``kernels``), the structured linear algebra (``linalg``, ``kronecker``,
 ``kronecker_blocks``, ``sparse``), the hyperparameter layout (``parameters``), the marginal
-likelihood (``likelihood``) and the posterior it conditions (``posterior``). Its fit: options and
+likelihood (``likelihood``; with tied kernels ``tied_likelihood``) and the posterior it
+conditions (``posterior``). Its fit: options and
 progress (``fit_options``), the optimisation (``fit_run``, ``hyperparameter_fit``,
 ``optimiser_stream``), starting latents (``initialisation``), the entry points (``manifold``), the
 noise model (``noise_model``) and the placement effect (``placement_effect``).
@@ -11,7 +12,14 @@ Callers outside ``core`` use the names below; tests and benchmarks may reach the
 """
 
 from core.gp.fit_options import FitOptions, FitProgress
-from core.gp.fit_run import StartMap, StartPlan, StartResult, StartTask, run_first_stage
+from core.gp.fit_run import (
+    StartMap,
+    StartPlan,
+    StartResult,
+    StartTask,
+    fit_structure,
+    run_first_stage,
+)
 from core.gp.manifold import (
     FitCancelledError,
     fit_hyperparameters,
@@ -39,11 +47,14 @@ from core.gp.posterior import (
     predict_model_space,
 )
 from core.gp.sparse import condition_sparse
+from core.gp.tied_likelihood import KERNELS, Kernels
 
 __all__ = [
+    "KERNELS",
     "FitCancelledError",
     "FitOptions",
     "FitProgress",
+    "Kernels",
     "NoiseModelChoice",
     "StartMap",
     "StartPlan",
@@ -58,6 +69,7 @@ __all__ = [
     "estimate_placement_variance",
     "fit_hyperparameters",
     "fit_manifold",
+    "fit_structure",
     "gram_matrix",
     "iter_fit",
     "make_likelihood",

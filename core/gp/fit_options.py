@@ -11,6 +11,7 @@ import numpy as np
 from core.errors import InvalidInputError
 from core.gp.posterior import STRUCTURES, Structure
 from core.gp.sparse import DEFAULT_INDUCING_POINTS
+from core.gp.tied_likelihood import KERNELS, Kernels, refuse_structured
 from core.types import ManifoldModel
 from core.validation import FloatArray
 
@@ -118,6 +119,16 @@ class FitOptions:
             (:mod:`core.gp.likelihood`). The fit's result does not depend on it. Set it to
             the cores the process may use when it has them to itself, 1 in a Dask worker
             (the ``activetouch`` commands and the server do).
+        kernels: ``"per_feature"`` (default): every feature has its own length-scales
+            (docs/method.md (M1)). ``"tied"``: the features share ℓ^s and ℓ^x and keep their own
+            σ_f² and σ_n², so one eigendecomposition per evaluation serves every feature
+            (:mod:`core.gp.tied_likelihood`, docs/fitting.md "Tied kernels"): a different,
+            smaller model, not an approximation, much cheaper per evaluation from dy ≈ 5 on.
+            Every stage of the fit (starts, screening, restarts, polish, warm refits) then uses
+            it; the fitted hyperparameters are per feature, the shared length-scales repeated.
+            Dense only: with structure ``"kronecker"`` or ``"sparse"`` it is refused, and a
+            placement effect is not put into a tied fit's likelihood
+            (:func:`core.gp.placement_effect.with_placement_effect` keeps it for scoring).
         initial_latents: Extra starting latents, each of shape (L, ds) for the data and ds of
             the fit (checked when the fit starts; here: 2-D and finite). Each is normalised
             (centred, unit RMS spread) and treated like the data-driven starts: the
@@ -154,6 +165,7 @@ class FitOptions:
     polish_lbfgs_memory: int = 100
     restart_reach_iterations: int = 10
     threads: int = 1
+    kernels: Kernels = "per_feature"
     initial_latents: tuple[FloatArray, ...] = field(default=(), compare=False)
 
     def __post_init__(self) -> None:
@@ -191,6 +203,12 @@ class FitOptions:
             raise InvalidInputError(
                 f"structure: expected one of {', '.join(STRUCTURES)}, received {self.structure!r}."
             )
+        if self.kernels not in KERNELS:
+            raise InvalidInputError(
+                f"kernels: expected one of {', '.join(KERNELS)}, received {self.kernels!r}."
+            )
+        if self.kernels == "tied":
+            refuse_structured(self.structure)
         for name in ("stall_nats", "stall_relative", "joint_stall_nats"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float | np.floating):

@@ -63,6 +63,12 @@ feature's ℓ^s of that dimension (and to shifting S); its gradient is orthogona
 directions (tests/core/test_likelihood.py), so the fit leaves the symmetry alone and normalises
 at the end (5.).
 
+**Tied kernels** (``FitOptions.kernels = "tied"``): every problem's likelihood (all the data,
+the screening subsample) is :class:`core.gp.tied_likelihood.TiedLikelihood` on a tied layout,
+and the hyperparameter stage with S frozen is one problem over every hyperparameter
+(:func:`core.gp.hyperparameter_fit.iter_fit_jointly`: the shared length-scales couple the
+features); the stages are otherwise the same (docs/fitting.md, "Tied kernels").
+
 Bounds (log space, relative to the data): see :func:`core.gp.parameters.parameter_bounds`.
 """
 
@@ -85,6 +91,7 @@ from core.gp.hyperparameter_fit import (
     SeparableProgress,
     SeparableResult,
     feature_data,
+    iter_fit_jointly,
     iter_fit_separately,
     minimize_free,
 )
@@ -93,9 +100,23 @@ from core.gp.kronecker import find_shared_design
 from core.gp.likelihood import ManifoldLikelihood, check_threads
 from core.gp.optimiser_stream import run_to_end, stream_optimiser
 from core.gp.parameters import ParameterLayout, initial_hyperparameters, parameter_bounds
-from core.gp.posterior import Likelihood, Structure, condition, make_likelihood, resolve_structure
+from core.gp.posterior import (
+    AUTO_SPARSE_ABOVE,
+    Likelihood,
+    Structure,
+    condition,
+    make_likelihood,
+    resolve_structure,
+)
 from core.gp.sparse import DEFAULT_INDUCING_POINTS
-from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
+from core.gp.tied_likelihood import Kernels, tied_structure
+from core.types import (
+    FitDiagnostics,
+    Hyperparameters,
+    ManifoldModel,
+    PosteriorStructure,
+    TrainingData,
+)
 from core.validation import FloatArray, as_float_array
 
 #: Distance (log units) from a bound that counts as sitting on it.
@@ -173,6 +194,11 @@ class FitProblem:
     n_inducing: int = DEFAULT_INDUCING_POINTS
     _features: list[Likelihood] | None = None
 
+    @property
+    def tied(self) -> bool:
+        """Whether the likelihood's features share their length-scales (tied kernels)."""
+        return self.likelihood.layout.tied
+
     def feature_likelihoods(self) -> list[Likelihood]:
         """One likelihood per feature (dy = 1 each), built on first use."""
         if self._features is None:
@@ -202,7 +228,24 @@ class FitProblem:
         self, vector: FloatArray, layout: ParameterLayout, options: FitOptions, max_iterations: int
     ) -> Generator[SeparableProgress, None, SeparableResult]:
         """The hyperparameters of ``vector`` fitted feature by feature, S fixed
-        (:func:`core.gp.hyperparameter_fit.iter_fit_separately` with ``options``' settings)."""
+        (:func:`core.gp.hyperparameter_fit.iter_fit_separately` with ``options``' settings); all
+        at once with tied kernels, whose shared length-scales couple the features
+        (:func:`core.gp.hyperparameter_fit.iter_fit_jointly`)."""
+        if self.tied:
+            return iter_fit_jointly(
+                self.likelihood,
+                layout,
+                vector,
+                self.lower,
+                self.upper,
+                max_iterations,
+                options.ftol,
+                options.gtol,
+                options.hyperparameter_latent_lengthscales,
+                options.stall_nats,
+                options.stall_iterations,
+                options.stall_relative,
+            )
         return iter_fit_separately(
             self.feature_likelihoods(),
             layout,
@@ -491,7 +534,13 @@ class FitRun:
         self.warm_start = warm_start
         self.options = options
         self.placement_variance = None if warm_start is None else warm_start.placement_variance
-        self.structure, _ = resolve_structure(data, options.structure)
+        self.structure = fit_structure(data, options.structure, options.kernels)
+        if self.placement_variance is not None and options.kernels == "tied":
+            raise InvalidInputError(
+                "warm_start.placement_variance: tied kernels have no placement effect in their "
+                "likelihood (σ_b² Z Zᵀ would break the eigenbasis the features share); fit "
+                "with kernels 'per_feature' to put it there."
+            )
         if warm_start is not None and self.placement_variance is not None:
             # The shared offsets break a shared design's product form; sparse is not offered.
             if self.structure == "sparse" or options.structure == "kronecker":
@@ -508,6 +557,7 @@ class FitRun:
             options.n_inducing,
             options.threads,
             placement_variance=self.placement_variance,
+            kernels=options.kernels,
         )
         self.layout: ParameterLayout = full.layout
         lower, upper = parameter_bounds(data, self.layout, options.latent_bound)
@@ -531,7 +581,12 @@ class FitRun:
                 self.screen = self.full
             else:
                 screen_likelihood = make_likelihood(
-                    subset, self.latent_dim, screen_structure, options.n_inducing, options.threads
+                    subset,
+                    self.latent_dim,
+                    screen_structure,
+                    options.n_inducing,
+                    options.threads,
+                    kernels=options.kernels,
                 )
                 # Bounds stay those of all the data, so screened vectors are valid full vectors.
                 self.screen = FitProblem(
@@ -916,7 +971,7 @@ class FitRun:
     def _is_degenerate(self, vector: FloatArray) -> bool:
         layout = self.layout
         sl = layout.log_latent_lengthscales
-        log_ls = vector[sl].reshape(layout.observation_dim, layout.latent_dim)
+        log_ls = vector[sl].reshape(layout.lengthscale_rows, layout.latent_dim)
         low = self.full.lower[sl].reshape(log_ls.shape)
         high = self.full.upper[sl].reshape(log_ls.shape)
         at_low = log_ls <= low + AT_BOUND
@@ -952,6 +1007,7 @@ class FitRun:
                 self.remote_jitter,
             ),
             hyperparameters_at_bounds=on_bounds,
+            kernels=self.options.kernels,
         )
         latents, hyper = self.layout.unpack(winner.vector)
         latents, hyper = normalise_latents(latents, hyper)
@@ -1023,6 +1079,21 @@ def _check_warm_start(warm: WarmStart, data: TrainingData, latent_dim: int) -> N
         raise InvalidInputError(
             f"warm_start.hyperparameters: expected (dy, ds, dx) = {expected}, received {received}."
         )
+
+
+def fit_structure(data: TrainingData, structure: Structure, kernels: Kernels) -> PosteriorStructure:
+    """The structure a fit evaluates its likelihood with: that of
+    :func:`core.gp.posterior.resolve_structure`, or dense for tied kernels
+    (:func:`core.gp.tied_likelihood.tied_structure`).
+
+    Raises:
+        InvalidInputError: As those do.
+    """
+    if kernels == "tied":
+        tied_structure(data, structure, AUTO_SPARSE_ABOVE)
+        return "dense"
+    chosen, _ = resolve_structure(data, structure)
+    return chosen
 
 
 def evaluation_cost(data: TrainingData, structure: Structure, n_inducing: int) -> float:

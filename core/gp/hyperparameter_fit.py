@@ -308,3 +308,84 @@ def _value(objective: Any, vector: FloatArray) -> float:
     except NotPositiveDefiniteError:
         return FAILED_VALUE
     return float(value)
+
+
+def iter_fit_jointly(
+    objective: Any,
+    layout: ParameterLayout,
+    vector: FloatArray,
+    lower: FloatArray,
+    upper: FloatArray,
+    max_iterations: int,
+    ftol: float,
+    gtol: float,
+    latent_lengthscale_starts: Sequence[float] = (),
+    stall_nats: float = 0.0,
+    stall_iterations: int = 20,
+    stall_relative: float = 0.0,
+    memory: int = DEFAULT_LBFGS_MEMORY,
+) -> Generator[SeparableProgress, None, SeparableResult]:
+    """Optimise every hyperparameter at once, S fixed: the stage of :func:`iter_fit_separately`
+    for tied kernels (:mod:`core.gp.tied_likelihood`), whose shared length-scales couple the
+    features, so the problem does not separate. The same starts (the starting vector, then the
+    shared latent length-scales set to each of ``latent_lengthscale_starts``); the best
+    optimum is kept.
+
+    Args:
+        objective: The tied likelihood (``value_and_gradient`` at vectors of ``layout``).
+        layout: Its (tied) layout.
+        vector, lower, upper, max_iterations, ftol, gtol, latent_lengthscale_starts,
+        stall_nats, stall_iterations, stall_relative, memory: As for
+            :func:`iter_fit_separately`.
+
+    Yields:
+        :class:`SeparableProgress` after each start (``feature`` is the last feature: every
+        feature moved at once).
+
+    Returns:
+        :class:`SeparableResult` (the generator's return value).
+    """
+    free = np.zeros(layout.size, dtype=bool)
+    free[layout.hyperparameters] = True
+    ls = layout.log_latent_lengthscales
+    starts = [vector.copy()]
+    for length in latent_lengthscale_starts:
+        alternative = vector.copy()
+        alternative[ls] = np.clip(np.log(length), lower[ls], upper[ls])
+        if not np.allclose(alternative, starts[0]):
+            starts.append(alternative)
+    best_value, best_vector, best_result = _value(objective, vector), vector.copy(), None
+    total_iterations = 0
+    for start in starts:
+        result = minimize_free(
+            objective,
+            start,
+            free,
+            lower,
+            upper,
+            max_iterations,
+            ftol,
+            gtol,
+            stall_nats=stall_nats,
+            stall_iterations=stall_iterations,
+            stall_relative=stall_relative,
+            memory=memory,
+        )
+        total_iterations += int(result.nit)
+        if float(result.fun) < best_value:
+            best_value = float(result.fun)
+            best_vector = start.copy()
+            best_vector[free] = result.x
+            best_result = result
+        yield SeparableProgress(
+            feature=layout.observation_dim - 1, iterations=total_iterations, value=best_value
+        )
+    return SeparableResult(
+        vector=best_vector,
+        value=best_value,
+        iterations=total_iterations,
+        converged=best_result is None or bool(best_result.success),
+        message="no start improved on the starting point"
+        if best_result is None
+        else str(best_result.message),
+    )

@@ -178,7 +178,25 @@ class ManifoldLikelihood:
         on object blocks) added block row by block row. Shape (dy, N, N).
         """
         latents, log_sf, _, log_ls, log_lx = self.layout.split(vector)
-        dy = self.layout.observation_dim
+        return self.gram_rows(latents, log_sf, log_ls, log_lx)
+
+    def gram_rows(
+        self, latents: FloatArray, log_sf: FloatArray, log_ls: FloatArray, log_lx: FloatArray
+    ) -> FloatArray:
+        """σ_f,r² K^s_r[obj, obj] ∘ K^x_r for every row r of length-scales (the noise-free Gram
+        matrix of each feature, or the one unit-variance K of tied kernels), in the internal
+        order.
+
+        Args:
+            latents: S. Shape (L, ds).
+            log_sf: log σ_f² per row. Shape (R,).
+            log_ls: log ℓ^s per row. Shape (R, ds).
+            log_lx: log ℓ^x per row. Shape (R, dx).
+
+        Returns:
+            Shape (R, N, N).
+        """
+        dy = log_sf.shape[0]
         n = self.data.n_touches
         inv_lx2 = np.exp(-2.0 * log_lx)  # (dy, dx)
         if self._sq_actions is not None:
@@ -310,11 +328,31 @@ class ManifoldLikelihood:
             total += term  # summed in feature order, whichever thread computed it
             g_sn[a] = g_sn_a
             self.max_jitter = max(self.max_jitter, jitter)
-        halves = gram_free.reshape(dy, n * n)
-        diagonals = halves[:, self._diag]  # (dy, N)
+        g_latents, g_sf, g_ls, g_lx = self.kernel_gradient(gram_free, latents, inv_ls2, inv_lx2)
+        grad = layout.join(g_latents, g_sf, g_sn, g_ls, g_lx)
+        return total, grad
+
+    def kernel_gradient(
+        self, products: FloatArray, latents: FloatArray, inv_ls2: FloatArray, inv_lx2: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """The gradient's sums over M = W ∘ K_f (module docstring), per row r of length-scales.
+
+        Args:
+            products: X_r = tril(W_r) ∘ K_f,r. Shape (R, N, N).
+            latents: S. Shape (L, ds).
+            inv_ls2: 1/ℓ^s² per row. Shape (R, ds).
+            inv_lx2: 1/ℓ^x² per row. Shape (R, dx).
+
+        Returns:
+            ∂/∂S (L, ds) summed over rows, ½ Σ M_r per row (R,) (∂/∂log σ_f² of a feature's
+            own row), ∂/∂log ℓ^s (R, ds) and ∂/∂log ℓ^x (R, dx).
+        """
+        rows, n = products.shape[0], products.shape[1]
+        halves = products.reshape(rows, n * n)
+        diagonals = halves[:, self._diag]  # (R, N)
         lower_blocks = np.add.reduceat(
-            np.add.reduceat(gram_free, self._starts, axis=2), self._starts, axis=1
-        )  # Pᵀ X P, (dy, L, L)
+            np.add.reduceat(products, self._starts, axis=2), self._starts, axis=1
+        )  # Pᵀ X P, (R, L, L)
         g_sf = np.sum(lower_blocks, axis=(1, 2)) - 0.5 * np.sum(diagonals, axis=1)
         if self._sq_actions is not None:
             # Σ X ∘ Δ_d for all features in one GEMM (the cached differences read once).
@@ -322,21 +360,20 @@ class ManifoldLikelihood:
         else:
             x = self._actions
             squares = x**2
-            g_lx = (np.sum(gram_free, axis=2) + np.sum(gram_free, axis=1)) @ squares
-            g_lx -= 2.0 * np.einsum("and,nd->ad", gram_free @ x, x)
+            g_lx = (np.sum(products, axis=2) + np.sum(products, axis=1)) @ squares
+            g_lx -= 2.0 * np.einsum("and,nd->ad", products @ x, x)
             g_lx *= inv_lx2
         blocks = lower_blocks + np.swapaxes(lower_blocks, 1, 2)  # B = Pᵀ M P
-        diagonal_blocks = np.add.reduceat(diagonals, self._starts, axis=1)  # (dy, L)
-        blocks -= diagonal_blocks[:, :, None] * np.eye(layout.n_objects)
+        diagonal_blocks = np.add.reduceat(diagonals, self._starts, axis=1)  # (R, L)
+        blocks -= diagonal_blocks[:, :, None] * np.eye(self.layout.n_objects)
         sq_pair = (latents[:, None, :] - latents[None, :, :]) ** 2  # (L, L, ds)
         g_ls = 0.5 * np.einsum("alm,lmd->ad", blocks, sq_pair) * inv_ls2
-        row_sums = blocks.sum(axis=2)  # (dy, L)
+        row_sums = blocks.sum(axis=2)  # (R, L)
         # ∂/∂s_l = -Σ_a Σ_l' B_a[l,l'] (s_l - s_l') / ℓ_a²
         g_latents = -(
             latents * (row_sums.T @ inv_ls2) - np.einsum("ald,ad->ld", blocks @ latents, inv_ls2)
         )
-        grad = layout.join(g_latents, g_sf, g_sn, g_ls, g_lx)
-        return total, grad
+        return g_latents, g_sf, g_ls, g_lx
 
 
 def check_placement_variance(

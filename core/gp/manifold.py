@@ -15,7 +15,15 @@ import numpy as np
 
 from core.errors import ConvergenceError, CoreError, InvalidInputError
 from core.gp.fit_options import OPTIMIZERS, FitOptions, FitProgress, Optimizer
-from core.gp.fit_run import FitProblem, FitRun, StartMap, WarmStart, at_bounds, normalise_latents
+from core.gp.fit_run import (
+    FitProblem,
+    FitRun,
+    StartMap,
+    WarmStart,
+    at_bounds,
+    fit_structure,
+    normalise_latents,
+)
 from core.gp.initialisation import normalise_spread
 from core.gp.noise_model import (
     NOISE_MODEL_CHOICES,
@@ -26,7 +34,7 @@ from core.gp.noise_model import (
 )
 from core.gp.optimiser_stream import run_to_end
 from core.gp.parameters import initial_hyperparameters, parameter_bounds
-from core.gp.posterior import condition, make_likelihood, resolve_structure
+from core.gp.posterior import condition, make_likelihood
 from core.types import FitDiagnostics, ManifoldModel, TrainingData
 from core.validation import FloatArray, as_float_array
 
@@ -252,7 +260,7 @@ def fit_hyperparameters(
     Args:
         data: Training touches.
         latents: Fixed object latents. Shape (L, ds).
-        options: Fit settings (only the L-BFGS-B ones are used).
+        options: Fit settings (the L-BFGS-B ones, ``structure`` and ``kernels``).
 
     Returns:
         The model; ``diagnostics`` describe the single start.
@@ -261,8 +269,10 @@ def fit_hyperparameters(
     if latents.shape[1] < 1:
         raise InvalidInputError(f"latents: need at least one column, received {latents.shape}.")
     normalised, _, _ = normalise_spread(latents)
-    structure, _ = resolve_structure(data, options.structure)
-    likelihood = make_likelihood(data, latents.shape[1], structure, options.n_inducing)
+    structure = fit_structure(data, options.structure, options.kernels)
+    likelihood = make_likelihood(
+        data, latents.shape[1], structure, options.n_inducing, kernels=options.kernels
+    )
     layout = likelihood.layout
     lower, upper = parameter_bounds(data, layout, max(options.latent_bound, 1.0))
     hyper = initial_hyperparameters(data, layout.latent_dim, options.initial_latent_lengthscale)
@@ -282,6 +292,7 @@ def fit_hyperparameters(
         message=result.message,
         jitter_used=problem.max_jitter,
         hyperparameters_at_bounds=on_bounds,
+        kernels=options.kernels,
     )
     s, h = normalise_latents(s, h)
     return condition(data, s, h, diagnostics, structure=structure, n_inducing=options.n_inducing)

@@ -10,6 +10,12 @@ The optimiser of docs/method.md eq. (M2) works on one flat vector θ holding, in
 
 Length-scales are packed as logs of length-scales (not of squared length-scales), so
 Λ^s_a = diag(exp(2 θ_ls[a])).
+
+A *tied* layout (``ParameterLayout.tied``, the tied kernels of docs/fitting.md) holds one row of
+length-scales shared by every feature instead: ds latent and dx action length-scales, after the
+dy signal and dy noise variances. It unpacks to the ordinary per-feature
+:class:`~core.types.Hyperparameters` (the shared row repeated per feature), so nothing downstream
+of a fit knows the difference.
 """
 
 from __future__ import annotations
@@ -43,17 +49,26 @@ class ParameterLayout:
         latent_dim: ds.
         action_dim: dx.
         observation_dim: dy.
+        tied: One row of length-scales shared by every feature (module docstring), not one
+            row per feature.
     """
 
     n_objects: int
     latent_dim: int
     action_dim: int
     observation_dim: int
+    tied: bool = False
 
     @classmethod
-    def for_data(cls, data: TrainingData, latent_dim: int) -> ParameterLayout:
-        """The layout for ``data`` with ``latent_dim`` latent dimensions."""
-        return cls(data.n_objects, int(latent_dim), data.action_dim, data.observation_dim)
+    def for_data(cls, data: TrainingData, latent_dim: int, tied: bool = False) -> ParameterLayout:
+        """The layout for ``data`` with ``latent_dim`` latent dimensions (shared length-scales
+        when ``tied``)."""
+        return cls(data.n_objects, int(latent_dim), data.action_dim, data.observation_dim, tied)
+
+    @property
+    def lengthscale_rows(self) -> int:
+        """Rows of length-scales: 1 when :attr:`tied`, dy otherwise."""
+        return 1 if self.tied else self.observation_dim
 
     @property
     def latents(self) -> slice:
@@ -74,15 +89,15 @@ class ParameterLayout:
 
     @property
     def log_latent_lengthscales(self) -> slice:
-        """log ℓ^s, dy·ds entries."""
+        """log ℓ^s, dy·ds entries (ds when tied)."""
         start = self.log_noise_variance.stop
-        return slice(start, start + self.observation_dim * self.latent_dim)
+        return slice(start, start + self.lengthscale_rows * self.latent_dim)
 
     @property
     def log_action_lengthscales(self) -> slice:
-        """log ℓ^x, dy·dx entries."""
+        """log ℓ^x, dy·dx entries (dx when tied)."""
         start = self.log_latent_lengthscales.stop
-        return slice(start, start + self.observation_dim * self.action_dim)
+        return slice(start, start + self.lengthscale_rows * self.action_dim)
 
     @property
     def hyperparameters(self) -> slice:
@@ -95,7 +110,12 @@ class ParameterLayout:
         return int(self.log_action_lengthscales.stop)
 
     def pack(self, latents: FloatArray, hyperparameters: Hyperparameters) -> FloatArray:
-        """Pack S (L, ds) and the hyperparameters into one vector of length :attr:`size`."""
+        """Pack S (L, ds) and the hyperparameters into one vector of length :attr:`size`.
+
+        A tied layout packs, per dimension, the mean over features of the log length-scales:
+        exactly the shared ones of a tied model, the geometric mean of a per-feature model's
+        (e.g. a warm start from it).
+        """
         h = hyperparameters
         latents = as_float_array(latents, "latents", (self.n_objects, self.latent_dim))
         if (h.observation_dim, h.latent_dim, h.action_dim) != (
@@ -108,13 +128,18 @@ class ParameterLayout:
                 f"dx={self.action_dim}; received dy={h.observation_dim}, ds={h.latent_dim}, "
                 f"dx={h.action_dim}."
             )
+        log_ls = np.log(h.latent_lengthscales)
+        log_lx = np.log(h.action_lengthscales)
+        if self.tied:
+            log_ls = log_ls.mean(axis=0)
+            log_lx = log_lx.mean(axis=0)
         return np.concatenate(
             [
                 latents.ravel(),
                 np.log(h.signal_variance),
                 np.log(h.noise_variance),
-                np.log(h.latent_lengthscales).ravel(),
-                np.log(h.action_lengthscales).ravel(),
+                log_ls.ravel(),
+                log_lx.ravel(),
             ]
         )
 
@@ -133,8 +158,8 @@ class ParameterLayout:
             latents: Shape (L, ds) or (L·ds,).
             log_signal_variance: Shape (dy,).
             log_noise_variance: Shape (dy,).
-            log_latent_lengthscales: Shape (dy, ds) or (dy·ds,).
-            log_action_lengthscales: Shape (dy, dx) or (dy·dx,).
+            log_latent_lengthscales: Shape (dy, ds) or (dy·ds,); (ds,) or (1, ds) when tied.
+            log_action_lengthscales: Shape (dy, dx) or (dy·dx,); (dx,) or (1, dx) when tied.
         """
         vector = np.empty(self.size)
         vector[self.latents] = np.ravel(latents)
@@ -148,8 +173,8 @@ class ParameterLayout:
         self, vector: FloatArray
     ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
         """Views of the groups: S (L, ds), log σ_f² (dy,), log σ_n² (dy,), log ℓ^s (dy, ds),
-        log ℓ^x (dy, dx)."""
-        dy = self.observation_dim
+        log ℓ^x (dy, dx); the length-scales (1, ds) and (1, dx) when tied."""
+        dy = self.lengthscale_rows
         return (
             vector[self.latents].reshape(self.n_objects, self.latent_dim),
             vector[self.log_signal_variance],
@@ -162,11 +187,12 @@ class ParameterLayout:
         """S (L, ds) and the :class:`Hyperparameters` held in a packed vector."""
         vector = as_float_array(vector, "parameter vector", (self.size,))
         latents, log_sf, log_sn, log_ls, log_lx = self.split(vector)
+        repeats = self.observation_dim if self.tied else 1  # the shared row, once per feature
         return latents.copy(), Hyperparameters(
             signal_variance=np.exp(log_sf),
             noise_variance=np.exp(log_sn),
-            latent_lengthscales=np.exp(log_ls),
-            action_lengthscales=np.exp(log_lx),
+            latent_lengthscales=np.repeat(np.exp(log_ls), repeats, axis=0),
+            action_lengthscales=np.repeat(np.exp(log_lx), repeats, axis=0),
         )
 
     def names(self) -> tuple[str, ...]:
@@ -178,16 +204,13 @@ class ParameterLayout:
         ]
         names += [f"signal_variance[feature {a}]" for a in range(self.observation_dim)]
         names += [f"noise_variance[feature {a}]" for a in range(self.observation_dim)]
-        names += [
-            f"latent_lengthscale[feature {a}, dim {d}]"
-            for a in range(self.observation_dim)
-            for d in range(self.latent_dim)
-        ]
-        names += [
-            f"action_lengthscale[feature {a}, dim {d}]"
-            for a in range(self.observation_dim)
-            for d in range(self.action_dim)
-        ]
+        rows = (
+            ["every feature"]
+            if self.tied
+            else [f"feature {a}" for a in range(self.observation_dim)]
+        )
+        names += [f"latent_lengthscale[{r}, dim {d}]" for r in rows for d in range(self.latent_dim)]
+        names += [f"action_lengthscale[{r}, dim {d}]" for r in rows for d in range(self.action_dim)]
         return tuple(names)
 
 
@@ -253,8 +276,8 @@ def parameter_bounds(
     upper[layout.log_latent_lengthscales] = ls_high
     x_low = 0.5 * np.log(ACTION_LENGTHSCALE_SQUARED_RANGE[0] * x_var)
     x_high = 0.5 * np.log(ACTION_LENGTHSCALE_SQUARED_RANGE[1] * x_var)
-    lower[layout.log_action_lengthscales] = np.tile(x_low, layout.observation_dim)
-    upper[layout.log_action_lengthscales] = np.tile(x_high, layout.observation_dim)
+    lower[layout.log_action_lengthscales] = np.tile(x_low, layout.lengthscale_rows)
+    upper[layout.log_action_lengthscales] = np.tile(x_high, layout.lengthscale_rows)
     return lower, upper
 
 

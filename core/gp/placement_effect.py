@@ -171,8 +171,9 @@ def with_placement_effect(
     again under the refit. σ_b² is not bounded by the fitted σ_n² here (the refit fits σ_w²
     beside it). The result is conditioned with the last estimate in its training covariance
     (``placement_in_fit``; each touch's noise variance σ_w² + σ_b²), which is also the σ_b² a
-    trial is scored with. A sparse posterior (no dense training covariance) keeps its fit and
-    gets the first estimate, clipped below σ_n², for scoring only.
+    trial is scored with. A sparse posterior (no dense training covariance), and a fit with tied
+    kernels (whose shared eigenbasis σ_b² Z Zᵀ would break), keep their fit and get the first
+    estimate, clipped below σ_n², for scoring only.
 
     Args:
         model: A fitted model; its raw training data may carry ``placement_index``.
@@ -198,6 +199,7 @@ def with_placement_effect(
         rounds == 0
         or model.posterior.inducing is not None
         or options.structure in ("kronecker", "sparse")
+        or options.kernels == "tied"
     )
     estimate = estimate_placement_variance(model, placement, within_noise=scoring_only)
     if estimate.groups == 0:

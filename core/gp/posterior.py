@@ -33,6 +33,7 @@ from core.gp.placement_groups import (
     shared_groups,
 )
 from core.gp.sparse import DEFAULT_INDUCING_POINTS, SparseLikelihood, condition_sparse
+from core.gp.tied_likelihood import Kernels, TiedLikelihood, tied_structure
 from core.types import (
     FitDiagnostics,
     GPPosterior,
@@ -113,6 +114,7 @@ def make_likelihood(
     n_inducing: int = DEFAULT_INDUCING_POINTS,
     threads: int = 1,
     placement_variance: FloatArray | None = None,
+    kernels: Kernels = "per_feature",
 ) -> Likelihood:
     """The likelihood for ``data`` under a structure (see :func:`resolve_structure`).
 
@@ -124,10 +126,23 @@ def make_likelihood(
         threads: Threads of a dense evaluation's features (:mod:`core.gp.likelihood`).
         placement_variance: σ_b² per feature, held fixed, for touches sharing a placement
             (dense only, see :class:`core.gp.likelihood.ManifoldLikelihood`). Shape (dy,).
+        kernels: ``"tied"``: length-scales shared by the features
+            (:class:`core.gp.tied_likelihood.TiedLikelihood`, dense, its own fast path; ``threads``
+            does not apply).
 
     Raises:
-        InvalidInputError: A placement variance for a Kronecker or sparse structure.
+        InvalidInputError: A placement variance for a Kronecker or sparse structure, or for
+            tied kernels; tied kernels with a structure they cannot use
+            (:func:`core.gp.tied_likelihood.tied_structure`).
     """
+    if kernels == "tied":
+        tied_structure(data, structure, AUTO_SPARSE_ABOVE)
+        if placement_variance is not None:
+            raise InvalidInputError(
+                "placement_variance: tied kernels have no placement effect in their likelihood "
+                "(σ_b² Z Zᵀ would break the eigenbasis the features share)."
+            )
+        return TiedLikelihood(data, latent_dim)
     chosen, design = resolve_structure(data, structure)
     if placement_variance is not None and chosen != "dense":
         raise InvalidInputError(

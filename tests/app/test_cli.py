@@ -166,6 +166,42 @@ def test_fit_with_a_sparse_structure_records_it_in_the_document(csv_path):
     )
 
 
+def test_fit_with_tied_kernels_records_them_and_the_document_round_trips(csv_path):
+    from app.documents.model import model_from_document, model_to_document
+
+    result = runner.invoke(
+        app,
+        ["fit", str(csv_path), "--latent-dim", "1", "--restarts", "0", "--kernels", "tied",
+         "--json"],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    document = json.loads(result.stdout)
+    assert document["diagnostics"]["kernels"] == "tied"
+    rows = {(tuple(h["latent_lengthscales"]), tuple(h["action_lengthscales"]))
+            for h in document["hyperparameters"]}  # fmt: skip
+    assert len(rows) == 1  # every feature's length-scales are the shared ones
+    model = model_from_document(document)
+    assert model.diagnostics is not None
+    assert model.diagnostics.kernels == "tied"
+    assert model_to_document(model)["diagnostics"] == document["diagnostics"]
+    older = {**document, "diagnostics": {k: v for k, v in document["diagnostics"].items()
+                                         if k != "kernels"}}  # fmt: skip
+    assert model_from_document(older).diagnostics.kernels == "per_feature"  # type: ignore[union-attr]
+
+
+@pytest.mark.parametrize(
+    ("args", "fragment"),
+    [
+        (["--kernels", "shared"], "--kernels"),
+        (["--kernels", "tied", "--structure", "kronecker"], "kernels: 'tied'"),
+    ],
+)
+def test_fit_refuses_kernels_it_cannot_use(csv_path, args, fragment):
+    result = runner.invoke(app, ["fit", str(csv_path), "--latent-dim", "1", *args])
+    assert result.exit_code == 2
+    assert fragment in result.output
+
+
 def test_results_without_json_go_to_stdout_and_lines_are_not_folded(csv_path, model_path):
     fitted = runner.invoke(app, ["fit", str(csv_path), "--latent-dim", "1", "--restarts", "0"])
     assert fitted.exit_code == 0, fitted.output

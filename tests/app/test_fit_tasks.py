@@ -114,14 +114,19 @@ def test_workers_or_a_scheduler_is_needed() -> None:
         FitEngine(0, None)
 
 
-def test_the_starts_of_a_fit_on_a_cluster_give_the_serial_model(dask_cluster: Any) -> None:
+@pytest.mark.parametrize("kernels", ["per_feature", "tied"])
+def test_the_starts_of_a_fit_on_a_cluster_give_the_serial_model(
+    dask_cluster: Any, kernels: Any
+) -> None:
     rng = np.random.default_rng(5)
     world = random_experiment2_world(
         rng, n_objects=5, latent_dim=2, action_dim=1, observation_dim=2
     )
     data = sample_dataset(world, rng, touches_per_object=16)
     # Screened on 6 touches per object: data-driven and random starts, then a polish.
-    options = FitOptions(restarts=2, screen_touches_per_object=6, max_iterations=200)
+    options = FitOptions(
+        restarts=2, screen_touches_per_object=6, max_iterations=200, kernels=kernels
+    )
     serial = fit_manifold(data, 2, np.random.default_rng(2), options, noise_model="correlated")
     phases: list[str] = []
     with FitEngine(None, dask_cluster.scheduler_address) as engine:
@@ -141,6 +146,8 @@ def test_the_starts_of_a_fit_on_a_cluster_give_the_serial_model(dask_cluster: An
             getattr(distributed.hyperparameters, name), getattr(serial.hyperparameters, name)
         )
     assert distributed.diagnostics == serial.diagnostics
+    assert distributed.diagnostics is not None
+    assert distributed.diagnostics.kernels == kernels
     # One event per start from the cluster; the correlated refit is one warm joint run here.
     assert phases.count("independent: screen done") == 3
     assert "independent: screen" not in phases

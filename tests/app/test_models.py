@@ -97,3 +97,23 @@ def test_too_many_touches_for_this_server(tmp_path) -> None:  # type: ignore[no-
         response = client.post(f"{API}/models", json={"dataset_id": dataset_id})
         assert response.status_code == 422
         assert "24 touches" in response.json()["detail"]
+
+
+def test_tied_kernels_reach_the_fit_and_are_recorded(client: TestClient) -> None:
+    dataset_id = upload(client)
+    unknown = client.post(f"{API}/models", json={"dataset_id": dataset_id, "kernels": "shared"})
+    assert unknown.status_code == 422
+    assert unknown.json()["detail"][0]["loc"][:2] == ["body", "kernels"]
+    accepted = client.post(
+        f"{API}/models",
+        json={"dataset_id": dataset_id, "latent_dim": 1, "restarts": 0, "seed": 0,
+              "kernels": "tied"},
+    )  # fmt: skip
+    assert accepted.status_code == 202
+    model = wait_ready(client, accepted.json()["id"])
+    assert model["status"] == "ready", model["reason"]
+    assert model["diagnostics"]["kernels"] == "tied"
+    lengthscales = {tuple(h["latent_lengthscales"]) for h in model["hyperparameters"]}
+    assert len(lengthscales) == 1  # shared by the three features
+    exported = client.get(f"{API}/models/{model['id']}/export").json()
+    assert exported["diagnostics"]["kernels"] == "tied"
