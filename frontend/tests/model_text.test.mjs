@@ -3,7 +3,7 @@ import assert from "node:assert/strict";
 import test from "node:test";
 
 import { num } from "../js/lib/format.js";
-import { placementText } from "../js/lib/model_text.js";
+import { kernelsText, placementText } from "../js/lib/model_text.js";
 
 test("num keeps significant digits and marks missing values", () => {
   assert.equal(num(0.123456, 2), "0.12");
@@ -31,4 +31,11 @@ test("a placement effect for scoring only says so", () => {
 test("no placement effect: independent touches once fitted, a dash before", () => {
   assert.match(placementText({ status: "ready", placement_effect: null }), /^none/);
   assert.equal(placementText({ status: "fitting", placement_effect: null }), "—");
+});
+
+test("kernels: tied, per feature, or not yet fitted", () => {
+  assert.equal(kernelsText({ status: "ready", diagnostics: { kernels: "tied" } }), "tied: the features share their length-scales");
+  assert.equal(kernelsText({ status: "ready", diagnostics: { kernels: "per_feature" } }), "one per feature");
+  assert.equal(kernelsText({ status: "ready", diagnostics: null }), "one per feature");
+  assert.equal(kernelsText({ status: "fitting", diagnostics: null }), "—");
 });

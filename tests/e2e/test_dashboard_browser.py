@@ -72,6 +72,7 @@ def test_every_page_renders_with_the_estop(page: Any, demo: Demo) -> None:
     expect(page.get_by_test_id("model-detail")).to_contain_text(
         "none (no placements recorded: touches scored as independent)"
     )
+    expect(page.get_by_test_id("model-detail")).to_contain_text("one per feature")
     expect(page.get_by_test_id("model-export")).to_have_attribute(
         "href", f"api/v1/models/{demo.state.model_id}/export"
     )

@@ -14,3 +14,12 @@ export function placementText(model) {
     ? `${ratios} — in the fit's likelihood and in scoring trials`
     : `${ratios} — in scoring trials only (the fit took the touches as independent)`;
 }
+
+// Whether every feature has its own length-scales or the features share one set (tied kernels,
+// one factorisation for all: docs/fitting.md "Tied kernels"). Older models record none: per feature.
+export function kernelsText(model) {
+  if (model.status !== "ready") return "—";
+  return model.diagnostics?.kernels === "tied"
+    ? "tied: the features share their length-scales"
+    : "one per feature";
+}

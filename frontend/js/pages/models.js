@@ -5,7 +5,7 @@
 import { api } from "../api.js";
 import { manifoldChart } from "../charts.js";
 import { formatDuration } from "../lib/analysis.js";
-import { placementText } from "../lib/model_text.js";
+import { kernelsText, placementText } from "../lib/model_text.js";
 import { MODEL_ACTIVE } from "../states.js";
 import * as store from "../store.js";
 import { $, badge, el, fill, guarded, num, setOptions, throttle, timeOf, toast } from "../ui.js";
@@ -153,6 +153,7 @@ export async function select(id) {
       ["log-likelihood", num(model.log_likelihood, 8)],
       ["features", featuresText(model.features)],
       ["noise model", noiseText(model.noise_model)],
+      ["kernels", kernelsText(model)],
       ["placement effect", placementText(model)],
       ["latent dim", latentText(model)],
       ["fit time", formatDuration(model.fit_seconds)],
@@ -201,6 +202,7 @@ async function fit() {
     latent_dim: $("fit-dim").value.trim().toLowerCase() === "auto" ? "auto" : Number($("fit-dim").value),
     noise_model: $("fit-noise").value,
     optimizer: $("fit-optimizer").value,
+    kernels: $("fit-kernels").value,
     restarts: Number($("fit-restarts").value),
   };
   if ($("fit-seed").value !== "") body.seed = Number($("fit-seed").value);
