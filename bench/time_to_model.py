@@ -26,7 +26,7 @@ The machine is shared: the load average before and after each run is printed; qu
 
 Run: ``.venv/bin/python -m bench.time_to_model [--dy 5 20] [--workers 0 2] [--objects 20]
 [--touches 40] [--max-dim 5] [--folds 5] [--restarts 4] [--seed 0] [--fixed-ds K]
-[--threads T] [--cold]``
+[--threads T] [--cold] [--kernels per_feature|tied]``
 (``--workers 0``: serial).
 """
 
@@ -151,14 +151,21 @@ def main() -> None:
     parser.add_argument(
         "--cold", action="store_true", help="the selection without warm folds (as before them)"
     )
+    parser.add_argument(
+        "--kernels",
+        choices=("per_feature", "tied"),
+        default=FitOptions().kernels,
+        help="length-scales per feature, or shared by the features (docs/fitting.md 'Tied "
+        "kernels')",
+    )
     args = parser.parse_args()
     instrument()
-    options = FitOptions(restarts=args.restarts, threads=args.threads)
+    options = FitOptions(restarts=args.restarts, threads=args.threads, kernels=args.kernels)
     print(
         f"{args.objects} objects x {args.touches} touches, dx = 1, true ds = {TRUE_DIM}, "
         f"candidates 1..{args.max_dim}, {args.folds} folds, restarts {args.restarts}, "
         f"{os.cpu_count()} cores, {args.threads} feature thread(s), data seed {args.seed}, "
-        f"{'cold' if args.cold else 'warm'} folds"
+        f"{'cold' if args.cold else 'warm'} folds, kernels {args.kernels}"
     )
     print(" dy workers  select_s  final_s  total_s  chosen  log-lik    same  load before/after")
     for dy in args.dy:
