@@ -231,23 +231,12 @@ class FitProblem:
         (:func:`core.gp.hyperparameter_fit.iter_fit_separately` with ``options``' settings); all
         at once with tied kernels, whose shared length-scales couple the features
         (:func:`core.gp.hyperparameter_fit.iter_fit_jointly`)."""
-        if self.tied:
-            return iter_fit_jointly(
-                self.likelihood,
-                layout,
-                vector,
-                self.lower,
-                self.upper,
-                max_iterations,
-                options.ftol,
-                options.gtol,
-                options.hyperparameter_latent_lengthscales,
-                options.stall_nats,
-                options.stall_iterations,
-                options.stall_relative,
-            )
-        return iter_fit_separately(
-            self.feature_likelihoods(),
+        fit: Callable[..., Generator[SeparableProgress, None, SeparableResult]] = (
+            iter_fit_jointly if self.tied else iter_fit_separately
+        )
+        objective: object = self.likelihood if self.tied else self.feature_likelihoods()
+        return fit(
+            objective,
             layout,
             vector,
             self.lower,

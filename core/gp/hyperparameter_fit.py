@@ -244,6 +244,7 @@ def iter_fit_separately(
     Returns:
         :class:`SeparableResult` (the generator's return value).
     """
+    run = _Lbfgs(max_iterations, ftol, gtol, stall_nats, stall_iterations, stall_relative, memory)
     out = vector.copy()
     per_feature = [feature_indices(layout, a) for a in range(layout.observation_dim)]
     pairs = list(zip(feature_objectives, per_feature, strict=True))
@@ -256,37 +257,15 @@ def iter_fit_separately(
         sub_lower, sub_upper = lower[idx], upper[idx]
         free = np.ones(idx.size, dtype=bool)
         free[: layout.n_objects * ds] = False
-        starts = [out[idx].copy()]
         ls = slice(layout.n_objects * ds + 2, layout.n_objects * ds + 2 + ds)
-        for length in latent_lengthscale_starts:
-            alternative = out[idx].copy()
-            alternative[ls] = np.clip(np.log(length), sub_lower[ls], sub_upper[ls])
-            if not np.allclose(alternative, starts[0]):
-                starts.append(alternative)
-        best_value, best_vector, best_result = values[a], out[idx].copy(), None
+        starts = _lengthscale_starts(out[idx], ls, sub_lower, sub_upper, latent_lengthscale_starts)
+        best = _Best(values[a], out[idx].copy())
         for start in starts:
-            result = minimize_free(
-                objective,
-                start,
-                free,
-                sub_lower,
-                sub_upper,
-                max_iterations,
-                ftol,
-                gtol,
-                stall_nats=stall_nats,
-                stall_iterations=stall_iterations,
-                stall_relative=stall_relative,
-                memory=memory,
-            )
-            total_iterations += int(result.nit)
-            if float(result.fun) < best_value:
-                best_value = float(result.fun)
-                best_vector = start.copy()
-                best_vector[free] = result.x
-                best_result = result
-        out[idx] = best_vector
-        values[a] = best_value
+            best.improve(start, free, run.minimise(objective, start, free, sub_lower, sub_upper))
+        total_iterations += best.iterations
+        out[idx] = best.vector
+        values[a] = best.value
+        best_result = best.result
         if best_result is not None:
             if not best_result.success and converged:
                 converged, message = False, str(best_result.message)
@@ -300,6 +279,76 @@ def iter_fit_separately(
         converged=converged,
         message=message or "no start improved on the starting point",
     )
+
+
+def _lengthscale_starts(
+    vector: FloatArray,
+    lengthscales: slice,
+    lower: FloatArray,
+    upper: FloatArray,
+    lengths: Sequence[float],
+) -> list[FloatArray]:
+    """``vector``, then a copy with the latent length-scales (``lengthscales``, log) set to each of
+    ``lengths`` (clipped to the bounds), skipping copies equal to ``vector``."""
+    starts = [vector.copy()]
+    for length in lengths:
+        alternative = vector.copy()
+        alternative[lengthscales] = np.clip(
+            np.log(length), lower[lengthscales], upper[lengthscales]
+        )
+        if not np.allclose(alternative, starts[0]):
+            starts.append(alternative)
+    return starts
+
+
+@dataclass(frozen=True)
+class _Lbfgs:
+    """One L-BFGS-B run's settings (:func:`minimize_free`)."""
+
+    max_iterations: int
+    ftol: float
+    gtol: float
+    stall_nats: float
+    stall_iterations: int
+    stall_relative: float
+    memory: int
+
+    def minimise(
+        self, objective: Any, start: FloatArray, free: Any, lower: FloatArray, upper: FloatArray
+    ) -> scipy.optimize.OptimizeResult:
+        return minimize_free(
+            objective,
+            start,
+            free,
+            lower,
+            upper,
+            self.max_iterations,
+            self.ftol,
+            self.gtol,
+            stall_nats=self.stall_nats,
+            stall_iterations=self.stall_iterations,
+            stall_relative=self.stall_relative,
+            memory=self.memory,
+        )
+
+
+@dataclass
+class _Best:
+    """The best optimum over several starts (lowest value), and the iterations they took."""
+
+    value: float
+    vector: FloatArray
+    result: scipy.optimize.OptimizeResult | None = None
+    iterations: int = 0
+
+    def improve(self, start: FloatArray, free: Any, result: scipy.optimize.OptimizeResult) -> None:
+        """Count ``result``'s iterations; keep it if it is below the best so far."""
+        self.iterations += int(result.nit)
+        if float(result.fun) < self.value:
+            self.value = float(result.fun)
+            self.vector = start.copy()
+            self.vector[free] = result.x
+            self.result = result
 
 
 def _value(objective: Any, vector: FloatArray) -> float:
@@ -347,45 +396,22 @@ def iter_fit_jointly(
     """
     free = np.zeros(layout.size, dtype=bool)
     free[layout.hyperparameters] = True
-    ls = layout.log_latent_lengthscales
-    starts = [vector.copy()]
-    for length in latent_lengthscale_starts:
-        alternative = vector.copy()
-        alternative[ls] = np.clip(np.log(length), lower[ls], upper[ls])
-        if not np.allclose(alternative, starts[0]):
-            starts.append(alternative)
-    best_value, best_vector, best_result = _value(objective, vector), vector.copy(), None
-    total_iterations = 0
+    run = _Lbfgs(max_iterations, ftol, gtol, stall_nats, stall_iterations, stall_relative, memory)
+    starts = _lengthscale_starts(
+        vector, layout.log_latent_lengthscales, lower, upper, latent_lengthscale_starts
+    )
+    best = _Best(_value(objective, vector), vector.copy())
     for start in starts:
-        result = minimize_free(
-            objective,
-            start,
-            free,
-            lower,
-            upper,
-            max_iterations,
-            ftol,
-            gtol,
-            stall_nats=stall_nats,
-            stall_iterations=stall_iterations,
-            stall_relative=stall_relative,
-            memory=memory,
-        )
-        total_iterations += int(result.nit)
-        if float(result.fun) < best_value:
-            best_value = float(result.fun)
-            best_vector = start.copy()
-            best_vector[free] = result.x
-            best_result = result
+        best.improve(start, free, run.minimise(objective, start, free, lower, upper))
         yield SeparableProgress(
-            feature=layout.observation_dim - 1, iterations=total_iterations, value=best_value
+            feature=layout.observation_dim - 1, iterations=best.iterations, value=best.value
         )
     return SeparableResult(
-        vector=best_vector,
-        value=best_value,
-        iterations=total_iterations,
-        converged=best_result is None or bool(best_result.success),
+        vector=best.vector,
+        value=best.value,
+        iterations=best.iterations,
+        converged=best.result is None or bool(best.result.success),
         message="no start improved on the starting point"
-        if best_result is None
-        else str(best_result.message),
+        if best.result is None
+        else str(best.result.message),
     )
