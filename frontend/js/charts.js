@@ -1,6 +1,7 @@
 // Chart.js helpers (window.Chart from node_modules/chart.js/dist/chart.umd.min.js).
 
 import { ellipsePoints } from "./lib/analysis.js";
+import { labelAnchor } from "./lib/label_anchor.js";
 
 export const PALETTE = [
   "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd",
@@ -26,7 +27,9 @@ const pointLabels = {
         const label = dataset.data[j] && dataset.data[j].label;
         if (!label) return;
         ctx.fillStyle = dataset.labelColor || "#1c2430";
-        ctx.fillText(label, element.x + 7, element.y - 4);
+        const anchor = labelAnchor(element.x, ctx.measureText(label).width, chart.width);
+        ctx.textAlign = anchor.align;
+        ctx.fillText(label, anchor.x, element.y - 4);
       });
     });
     ctx.restore();

@@ -73,6 +73,21 @@ def test_every_page_renders_with_the_estop(page: Any, demo: Demo) -> None:
         "none (no placements recorded: touches scored as independent)"
     )
     expect(page.get_by_test_id("model-detail")).to_contain_text("one per feature")
+    # Every choice of the fit form shows its whole label (padding and the arrow beside it).
+    clipped = page.evaluate(
+        """() => {
+          const ctx = document.createElement("canvas").getContext("2d");
+          return [...document.querySelectorAll("#fit-form select")].filter((select) => {
+            const style = getComputedStyle(select);
+            ctx.font = style.font;
+            const text = select.options[select.selectedIndex]?.text ?? "";
+            const room = select.clientWidth - parseFloat(style.paddingLeft)
+              - parseFloat(style.paddingRight) - 16;
+            return ctx.measureText(text).width > room;
+          }).map((select) => select.id);
+        }"""
+    )
+    assert clipped == [], f"fit form choices cut short: {clipped}"
     expect(page.get_by_test_id("model-export")).to_have_attribute(
         "href", f"api/v1/models/{demo.state.model_id}/export"
     )
