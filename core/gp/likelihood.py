@@ -51,7 +51,7 @@ import scipy.linalg.lapack
 from core.errors import InvalidInputError
 from core.gp.linalg import cholesky_with_jitter, inverse_from_cholesky
 from core.gp.parameters import ParameterLayout
-from core.gp.placement_groups import shared_groups
+from core.gp.placement_groups import checked_placement_variance, shared_groups
 from core.types import Hyperparameters, TrainingData
 from core.validation import FloatArray, as_float_array
 
@@ -386,11 +386,7 @@ def check_placement_variance(
     """
     if variance is None:
         return None
-    value = as_float_array(variance, "placement_variance", (observation_dim,))
-    if np.any(value < 0.0):
-        raise InvalidInputError(
-            f"placement_variance: every σ_b,a² must be ≥ 0, received {value.tolist()}."
-        )
+    value = checked_placement_variance(variance, None, observation_dim)
     if data.placement_index is None:
         raise InvalidInputError(
             "placement_variance: the training touches record no placements to share an offset."
