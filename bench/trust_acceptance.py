@@ -219,7 +219,8 @@ def assess(documents: Mapping[str, Mapping[str, Any]], cushions: bool) -> list[C
 
 
 def touch_table(document: Mapping[str, Any]) -> list[str]:
-    """Per policy and touch: accuracy % (95 % interval), ECE, and wrong/sure at p ≥ 0.95."""
+    """Per policy and touch: accuracy % (95 % interval), ECE, wrong/sure at p ≥ 0.95, and the
+    effective number of trials where trials share recorded touches (replay)."""
     lines = [
         f"world {document['world']}: {document['trials_per_target']} trials per target, "
         f"T = {document['steps']}, {document['seconds']:.0f} s on {document['workers']} "
@@ -230,15 +231,24 @@ def touch_table(document: Mapping[str, Any]) -> list[str]:
         summary = _policy(document, policy)
         lines.append(f"  {policy} ({summary['trials']} trials)")
         by_touch = summary["calibration"]["by_touch"]
-        for touch, (accuracy, (low, high), scored) in enumerate(
-            zip(summary["accuracy_by_touch"], summary["accuracy_interval"], by_touch, strict=True),
+        # Reports written before effective_trials: every trial counted.
+        effective = summary.get("effective_trials") or [summary["trials"]] * len(by_touch)
+        for touch, (accuracy, (low, high), scored, size) in enumerate(
+            zip(
+                summary["accuracy_by_touch"],
+                summary["accuracy_interval"],
+                by_touch,
+                effective,
+                strict=True,
+            ),
             1,
         ):
             sure, wrong = _sure(scored)
             ece = "—" if scored["ece"] is None else f"{scored['ece']:.3f}"
+            shared = f"  n_eff {size:.1f}" if size < summary["trials"] else ""
             lines.append(
                 f"    touch {touch}: {100 * accuracy:5.1f} % ({100 * low:5.1f}–{100 * high:5.1f})"
-                f"  ECE {ece}  sure & wrong {wrong}/{sure}"
+                f"  ECE {ece}  sure & wrong {wrong}/{sure}{shared}"
             )
         scored = summary["calibration"]["all_touches"]
         sure, wrong = _sure(scored)

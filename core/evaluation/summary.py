@@ -8,6 +8,7 @@ Pure functions of :class:`core.evaluation.records.TrialRecord` lists; the result
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Sequence
 from typing import Any
 
@@ -21,12 +22,13 @@ from core.evaluation.records import TrialRecord
 Z_95 = 1.959963984540054
 
 
-def wilson_interval(successes: int, trials: int, z: float = Z_95) -> tuple[float, float]:
+def wilson_interval(successes: float, trials: float, z: float = Z_95) -> tuple[float, float]:
     """The Wilson score interval of a binomial proportion.
 
     With p̂ = k/n: centre (p̂ + z²/2n) / (1 + z²/n), half-width
     z / (1 + z²/n) · sqrt(p̂(1 - p̂)/n + z²/4n²). Unlike p̂ ± z·sqrt(p̂(1-p̂)/n) it stays inside
-    [0, 1] and is not empty at k = 0 or k = n.
+    [0, 1] and is not empty at k = 0 or k = n. A non-integer n is an effective sample size
+    (:func:`effective_trials`), with k = p̂·n.
 
     Args:
         successes: k, 0 ≤ k ≤ n.
@@ -47,6 +49,38 @@ def wilson_interval(successes: int, trials: int, z: float = Z_95) -> tuple[float
     centre = (p + z * z / (2.0 * n)) / denominator
     half = z / denominator * math.sqrt(p * (1.0 - p) / n + z * z / (4.0 * n * n))
     return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def effective_trials(keys: Sequence[object]) -> float:
+    """Kish's effective sample size of trials that share their evidence: (Σ n_c)² / Σ n_c².
+
+    Trials with equal keys — the same recorded touches so far, hence the same posterior and the
+    same answer — are one observation counted n_c times: their outcomes are perfectly
+    correlated, so the variance of the accuracy is p(1 − p) Σ n_c² / n² instead of p(1 − p)/n.
+    When every key differs (fresh touches on the rig or from the model) this is the number of
+    trials. Replay, where the planners pick the same few recorded touches in many trials, is
+    the case it is for (docs/method.md, "Evaluation protocols").
+
+    Args:
+        keys: One hashable key per trial.
+
+    Raises:
+        InvalidInputError: No keys.
+    """
+    if not keys:
+        raise InvalidInputError("effective_trials: need at least one trial.")
+    counts = np.array(list(Counter(keys).values()), dtype=np.float64)
+    return float(counts.sum() ** 2 / np.sum(counts**2))
+
+
+def evidence_key(record: TrialRecord, touch: int) -> tuple[object, ...]:
+    """What a trial's answer after ``touch`` (1-based, carried forward after an early stop)
+    rests on: the target, the actions touched so far and the posterior they gave. Equal keys
+    mean equal recorded touches (the posterior is a deterministic function of them); on the
+    rig or the model's samples every touch's observation is fresh and no two keys are equal."""
+    done = min(touch, record.touches)
+    posterior = record.probabilities[done - 1] if done else ()
+    return (record.target, record.actions[:done], posterior)
 
 
 def touches_to_confidence(
@@ -103,15 +137,16 @@ def summarise(
             between policies.
 
     Returns:
-        Per policy (in order of first appearance): ``accuracy_by_touch`` [T],
-        ``accuracy_interval`` [[lo, hi]]·T (95 % Wilson), ``per_object`` {object: {"accuracy",
+        Per policy (in order of first appearance): ``accuracy_by_touch`` [T], ``accuracy_interval``
+        [[lo, hi]]·T (95 % Wilson, on the effective number of trials), ``effective_trials`` [T]
+        (:func:`effective_trials` of the trials' evidence after each touch, :func:`evidence_key`:
+        the trials unless some share recorded touches), ``per_object`` {object: {"accuracy",
         "trials"}} (final answers), ``confusion`` {true: {answer: count}} (final answers, every
-        model object as a row and column), ``median_touches_to_confidence`` (median over trials
-        of the first touch whose answer has probability ≥ ``confidence``; trials that never get
-        there count as more than T; ``None`` when at least half never do),
-        ``touches_to_accuracy`` (first touch whose accuracy is ≥ ``confidence``, or ``None``),
-        ``calibration`` (:func:`calibration_summary`, its "sure and wrong" at ``confidence``),
-        ``trials``.
+        model object as a row and column), ``median_touches_to_confidence`` (median over trials of
+        the first touch whose answer has probability ≥ ``confidence``; trials that never get there
+        count as more than T; ``None`` when at least half never do), ``touches_to_accuracy`` (first
+        touch whose accuracy is ≥ ``confidence``, or ``None``), ``calibration``
+        (:func:`calibration_summary`, its "sure and wrong" at ``confidence``), ``trials``.
 
     Raises:
         InvalidInputError: No records, bad ``steps`` or ``confidence``, a record longer than
@@ -154,7 +189,12 @@ def _summarise_policy(
     )  # (n, T)
     counts = correct.sum(axis=0)
     accuracy = [float(c) / n for c in counts]
-    intervals = [list(wilson_interval(int(c), n)) for c in counts]
+    effective = [
+        effective_trials([evidence_key(r, touch) for r in records]) for touch in range(1, steps + 1)
+    ]
+    intervals = [
+        list(wilson_interval(p * size, size)) for p, size in zip(accuracy, effective, strict=True)
+    ]
     per_object: dict[str, dict[str, Any]] = {}
     confusion: dict[str, dict[str, int]] = {}
     for name in names:
@@ -171,6 +211,7 @@ def _summarise_policy(
     return {
         "accuracy_by_touch": accuracy,
         "accuracy_interval": intervals,
+        "effective_trials": effective,
         "per_object": per_object,
         "confusion": confusion,
         "median_touches_to_confidence": median_touches(reached),

@@ -12,6 +12,7 @@ from core.evaluation.records import TrialRecord, trial_seed
 from core.evaluation.summary import (
     calibration_summary,
     comparison_sentence,
+    effective_trials,
     median_touches,
     summarise,
     touches_to_confidence,
@@ -237,3 +238,58 @@ def test_calibration_summary_rejects_what_it_cannot_score():
         calibration_summary([record("B", ("A",), (0.9,))], ("A", "Z", "C"), 3, 0.95)
     with pytest.raises(InvalidInputError, match="threshold"):
         calibration_summary([record("A", ("A",), (0.9,))], NAMES, 1, 1.5)
+
+
+def test_effective_trials_is_kish_for_shared_evidence():
+    # (Σ n_c)² / Σ n_c²: three trials on one key and one alone → 16 / (9 + 1).
+    assert effective_trials(["a", "a", "a", "b"]) == pytest.approx(1.6)
+    assert effective_trials(["a", "b", "c"]) == 3.0
+    assert effective_trials(["a"] * 5) == 1.0
+    with pytest.raises(InvalidInputError, match="at least one"):
+        effective_trials([])
+
+
+def test_wilson_interval_on_an_effective_sample_size():
+    # By hand: p̂ = 1.2/1.6 = 0.75, 1 + z²/n = 3.40091, centre (0.75 + 1.20046)/3.40091 = 0.57351,
+    # half-width 0.57630 · sqrt(0.117188 + 0.375143) = 0.40437.
+    assert wilson_interval(1.2, 1.6) == pytest.approx((0.16914, 0.97788), abs=1e-5)
+
+
+def _replayed(first: tuple[float, ...], top: float, answer: str, trial: int) -> TrialRecord:
+    """A two-touch trial of A whose first touch is the recorded touch at ``first``."""
+    second = (0.5 + 0.01 * trial,)
+    probabilities = tuple(
+        tuple(p if n == a else (1.0 - p) / 2 for n in NAMES)
+        for a, p in ((answer, top), ("A", 0.9 + 0.001 * trial))
+    )
+    return TrialRecord(
+        policy="active",
+        target="A",
+        trial=trial,
+        seed=trial_seed(0, "A", trial),
+        answers=(answer, "A"),
+        probabilities=probabilities,
+        actions=(first, second),
+        mutual_information=(0.5, 0.5),
+        touches=2,
+        stop_reason="max_steps",
+        correct=True,
+    )
+
+
+def test_trials_sharing_recorded_touches_count_once_in_the_interval():
+    # Replay: three trials start with the same recorded touch (same action, same posterior:
+    # all answer B), one with another (answers A); their second touches all differ.
+    records = [_replayed((0.3,), 0.7, "B", t) for t in range(3)]
+    records.append(_replayed((0.8,), 0.8, "A", 3))
+    summary = summarise(records, NAMES, steps=2, confidence=0.95)["active"]
+    assert summary["accuracy_by_touch"] == [0.25, 1.0]
+    assert summary["effective_trials"] == pytest.approx([1.6, 4.0])
+    assert summary["accuracy_interval"][0] == pytest.approx(list(wilson_interval(0.4, 1.6)))
+    assert summary["accuracy_interval"][1] == pytest.approx(list(wilson_interval(4, 4)))
+    # Four trials with the same first action but fresh observations (other posteriors), as
+    # on the rig: four observations.
+    fresh = [_replayed((0.3,), 0.6 + 0.01 * t, "B" if t else "A", t) for t in range(4)]
+    summary = summarise(fresh, NAMES, steps=2, confidence=0.95)["active"]
+    assert summary["effective_trials"] == [4.0, 4.0]
+    assert summary["accuracy_interval"][0] == pytest.approx(list(wilson_interval(1, 4)))
