@@ -761,6 +761,12 @@ class EvaluationPolicySummary(BaseModel):
 
     accuracy_by_touch: list[float]
     accuracy_interval: list[list[float]]
+    effective_trials: list[float] | None = Field(
+        default=None,
+        description="Per touch, the trials counted once per distinct evidence (Kish's effective "
+        "sample size, what the interval uses): fewer than trials where trials share recorded "
+        "touches (replay); null in reports written before it.",
+    )
     trials: int
     calibration: PolicyCalibration | None = None
 
