@@ -22,6 +22,7 @@ figure on a shared machine) of the fits on all the touches, the folds and the fi
 every candidate's mean held-out score. ``--fixed-ds K`` times one fit at ds = K instead (no
 selection).
 
+BLAS runs on one thread in this process, as ``activetouch fit`` runs it, and in the workers.
 The machine is shared: the load average before and after each run is printed; quote it.
 
 Run: ``.venv/bin/python -m bench.time_to_model [--dy 5 20] [--workers 0 2] [--objects 20]
@@ -38,6 +39,7 @@ import os
 import time
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from app.config import available_cores
 from app.services.fit_tasks import FitEngine, FoldFit
@@ -161,6 +163,14 @@ def main() -> None:
     args = parser.parse_args()
     instrument()
     options = FitOptions(restarts=args.restarts, threads=args.threads, kernels=args.kernels)
+    # BLAS on one thread in this process, as `activetouch fit` runs it: otherwise the serial
+    # run's NumPy calls (the tied kernels' eigh, every GEMM) take both cores and "serial" is not.
+    with threadpool_limits(limits=1):
+        run(args, options)
+
+
+def run(args: argparse.Namespace, options: FitOptions) -> None:
+    """Every figure of the module docstring, for ``args``' cases."""
     print(
         f"{args.objects} objects x {args.touches} touches, dx = 1, true ds = {TRUE_DIM}, "
         f"candidates 1..{args.max_dim}, {args.folds} folds, restarts {args.restarts}, "
