@@ -142,7 +142,7 @@ class ManifoldLikelihood:
         self.threads = check_threads(threads)
         self.data = data
         self.layout = ParameterLayout.for_data(data, int(latent_dim))
-        self.placement_variance = check_placement_variance(
+        self.placement_variance = _training_placement_variance(
             placement_variance, data, self.layout.observation_dim
         )
         placement = data.placement_index
@@ -376,7 +376,7 @@ class ManifoldLikelihood:
         return g_latents, g_sf, g_ls, g_lx
 
 
-def check_placement_variance(
+def _training_placement_variance(
     variance: FloatArray | None, data: TrainingData, observation_dim: int
 ) -> FloatArray | None:
     """σ_b² as dy values ≥ 0, or ``None``.
