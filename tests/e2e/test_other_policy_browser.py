@@ -3,10 +3,13 @@
 A finished trial of the default policy (discriminative) shows "Run with passive"; clicking it
 creates a new trial with the same model, target, seed and settings and the passive policy, and
 the page follows that one; the finished passive trial offers "Run with discriminative" back.
+A reload of the first trial that answers after the click (its late events fire such reloads)
+must not bring the first trial back.
 """
 
 from __future__ import annotations
 
+import re
 from typing import Any
 
 import pytest
@@ -37,7 +40,22 @@ def test_run_with_the_other_policy(page: Any, demo: Demo, page_errors: PageError
 
     other = page.get_by_test_id("trial-run-other")
     expect(other).to_have_text("Run with passive")
+    # A reload of the first trial is held in flight while the button is clicked, and answers
+    # only once the page shows the new trial.
+    held: list[Any] = []
+    first_url = re.compile(rf"/api/v1/trials/{first['id']}$")
+
+    def hold(route: Any) -> None:
+        held.append(route)
+
+    page.route(first_url, hold)
+    page.evaluate(f"location.hash = '#trials?trial={first['id']}'")
+    while not held:
+        page.wait_for_timeout(20)
     other.click()
+    expect(page.locator("#trial-title")).to_contain_text("— passive", timeout=30_000)
+    held[0].continue_()
+    page.unroute(first_url)
     expect(page.get_by_test_id("trial-run-other")).to_have_text(
         "Run with discriminative", timeout=90_000
     )

@@ -7,9 +7,11 @@ import { etaSeconds, formatDuration, normalizeTrace } from "../lib/analysis.js";
 import * as store from "../store.js";
 import { $, badge, el, fill, guarded, throttle, toast, vec } from "../ui.js";
 import { ACTIVE } from "../states.js";
+import { newestLoads } from "../lib/newest.js";
 import { bindRunControls, enableRunControls, runControls } from "../run_controls.js";
 
 let run = null; // the collection on show
+const beginLoad = newestLoads(); // only the newest load draws
 
 // What each action design (the API's action_design) does, shown under the select.
 const DESIGN_HELP = {
@@ -119,7 +121,10 @@ function renderTrace(raw) {
 }
 
 async function loadRun(id) {
-  run = await api(`/collections/${id}`);
+  const current = beginLoad();
+  const record = await api(`/collections/${id}`);
+  if (!current()) return; // a later load (another run) has begun
+  run = record;
   renderRun();
   const trace = run.trace || run.last_trace || (run.params && run.params.last_trace);
   if (trace) renderTrace(trace);

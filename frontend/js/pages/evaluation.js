@@ -10,10 +10,12 @@ import { bottomLegend, colorOf, compactNumber, renderChart, scatterPlugins } fro
 import * as store from "../store.js";
 import { $, badge, el, fill, guarded, num, setOptions, throttle, toast } from "../ui.js";
 import { ACTIVE } from "../states.js";
+import { newestLoads } from "../lib/newest.js";
 
 const SHOWN_TRIALS = 500; // finished trials listed (the newest)
 const POLICY_COLORS = { active: "#1f5fbf", discriminative: "#2e9e5b", passive: "#d9822b" };
 let evaluation = null; // GET /evaluations/{id}
+const beginLoad = newestLoads(); // only the newest load draws
 let pollTimer = null;
 let worldChosen = false; // the world follows the first model offered, then the user's choice
 
@@ -89,7 +91,10 @@ async function startEvaluation() {
 }
 
 export async function load(id) {
-  evaluation = await api(`/evaluations/${id}`);
+  const current = beginLoad();
+  const record = await api(`/evaluations/${id}`);
+  if (!current()) return; // a later load (another evaluation) has begun
+  evaluation = record;
   render();
   await renderTrials();
   schedulePoll();

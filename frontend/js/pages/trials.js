@@ -9,6 +9,7 @@
 import { api, apiList, apiOptional } from "../api.js";
 import { lineChart, manifoldChart, posteriorChart } from "../charts.js";
 import { formatDuration, isotropicCov, normalizeTrajectory, rankedProbabilities } from "../lib/analysis.js";
+import { newestLoads } from "../lib/newest.js";
 import * as store from "../store.js";
 import { fact, renderEvaluationTrial } from "./evaluation_trial.js";
 import { $, badge, el, fill, guarded, num, setOptions, throttle, toast, vec } from "../ui.js";
@@ -22,6 +23,9 @@ let pollTimer = null;
 let viserLoaded = false;
 let evaluationTrial = null; // GET /evaluations/{id}/trials/{n}, shown read-only
 let stepsHead = null; // the steps table's own header, restored after an evaluation trial
+// A reload of the trial shown, fired by its late events, may answer after the page has moved on
+// to another trial (e.g. "Run with passive"): only the newest load draws.
+const beginLoad = newestLoads();
 
 function worldFor(model) {
   if (model.action_dim === 1 && model.observation_dim === 3) return "exp1";
@@ -151,11 +155,14 @@ function otherPolicyButton() {
 }
 
 export async function load(id) {
+  const current = beginLoad();
   const record = await api(`/trials/${id}`);
+  const model = !trialModel || trialModel.id !== record.model_id ? await store.model(record.model_id) : trialModel;
+  if (!current()) return;
   showTrialHeader();
   if (!trial || trial.id !== record.id) plannedTrajectory = null;
   trial = record;
-  if (!trialModel || trialModel.id !== trial.model_id) trialModel = await store.model(trial.model_id);
+  trialModel = model;
   render();
   schedulePoll();
 }
@@ -314,11 +321,13 @@ function showTrialHeader() {
 
 /** Show finished trial `number` of evaluation `evaluationId` (read-only; a refused trial too). */
 export async function loadEvaluationTrial(evaluationId, number) {
+  const current = beginLoad();
   const record = await api(`/evaluations/${evaluationId}/trials/${number}`);
+  const model = await store.model(record.model_id);
+  if (!current()) return;
   clearTimeout(pollTimer);
   trial = null;
   evaluationTrial = record;
-  const model = await store.model(record.model_id);
   const head = $("steps-body").parentElement.tHead;
   if (stepsHead === null) stepsHead = head.innerHTML;
   renderEvaluationTrial(record, model, evaluationId, number);
