@@ -10,4 +10,5 @@ export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1
 echo "== ruff"; ruff check . && ruff format --check .
 echo "== mypy"; mypy core hardware app bench
 echo "== import-linter"; lint-imports
-echo "== pytest"; pytest "$@"
+# Two xdist workers (one per core); tests sharing the demo or the Dask cluster stay together.
+echo "== pytest"; pytest -n 2 --dist loadgroup "$@"

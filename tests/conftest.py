@@ -2,6 +2,10 @@
 
 ``--turntable-port``, ``--finger-port``, ``--tactile-port``: serial ports of real devices; the
 ``*_with_device.py`` tests are skipped unless the port they need is given.
+
+The suite runs on two pytest-xdist workers (``scripts/test.sh``: ``-n 2 --dist loadgroup``); the
+browser tests share one demo and the Dask tests one cluster, so each of those kinds stays on one
+worker (:func:`pytest_collection_modifyitems`).
 """
 
 from __future__ import annotations
@@ -27,3 +31,14 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     group.addoption("--turntable-port", default=None, help="GRBL turntable port (115200 baud)")
     group.addoption("--finger-port", default=None, help="Dynamixel bus port (1 Mbaud)")
     group.addoption("--tactile-port", default=None, help="tactile sensor port (460800 baud)")
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist's own hook reads the groups
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Keep the tests that share a session fixture on one xdist worker: the browser tests (one
+    demo, prepared in a minute) and the tests on the Dask cluster (one ``LocalCluster``)."""
+    for item in items:
+        if item.get_closest_marker("browser") is not None:
+            item.add_marker(pytest.mark.xdist_group("browser"))
+        elif "dask_cluster" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.xdist_group("dask"))

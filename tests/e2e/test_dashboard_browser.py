@@ -155,7 +155,7 @@ def test_viser_view_connects_and_follows_the_trial(
     frame = page.get_by_test_id("viser-frame")
     expect(frame).to_be_visible()
     assert f":{view.port}/" in (frame.get_attribute("src") or "")
-    assert wait_for_clients(view, 1, timeout_s=30), "the embedded viser client did not connect"
+    assert wait_for_clients(view, 1, timeout_s=90), "the embedded viser client did not connect"
     # The follower shows the model, and follows a trial started through the API to its end.
     assert view.model is not None
     names = [o["name"] for o in demo.get(f"/models/{demo.state.model_id}")["objects"]]
@@ -184,7 +184,7 @@ def test_viser_view_connects_and_follows_the_trial(
         alone = context.new_page()
         alone.on("pageerror", lambda error: page_errors.exceptions.append(str(error)))
         alone.goto(view.url)
-        assert wait_for_clients(view, 2, timeout_s=30)
+        assert wait_for_clients(view, 2, timeout_s=90), "the viser page alone did not connect"
         # The client eases the camera in and fades the scene in; with software WebGL at a few
         # frames a second that takes long: wait more when refreshing the README's copy.
         alone.wait_for_timeout(25_000 if os.environ.get(DOCS_FLAG) == "1" else 6_000)
