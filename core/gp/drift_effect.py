@@ -1,4 +1,4 @@
-"""The drift effect: the slow drift of the sensor and the room, shared by touches made close in time.
+"""The drift effect: the slow drift of sensor and room, shared by touches made close in time.
 
 A fingertip's heater and the room's temperature wander over minutes; so does a pressure baseline.
 Every touch made in those minutes is shifted alike, whatever the object. A trial's T touches are
@@ -21,6 +21,7 @@ have (no placement, no object), so their excess covariance over the fitted model
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,7 +38,14 @@ from core.validation import FloatArray, as_float_array
 #: trial made at the collection's pace.
 WINDOW_GAPS = 5
 
-__all__ = ["WINDOW_GAPS", "DriftEstimate", "default_window_s", "estimate_drift_variance"]
+__all__ = [
+    "WINDOW_GAPS",
+    "DriftEstimate",
+    "check_drift_variance",
+    "default_window_s",
+    "estimate_drift_variance",
+    "with_drift_effect",
+]
 
 
 @dataclass(frozen=True)
@@ -139,4 +147,45 @@ def estimate_drift_variance(
         raw[a] = float(np.mean(residual[pair_i] * residual[pair_j] - expected))
     upper = np.maximum(MAX_PLACEMENT_FRACTION * h.noise_variance - shared, 0.0)
     variance = np.clip(raw, 0.0, upper)
-    return DriftEstimate(variance=variance, raw_variance=raw, window_s=window, pairs=int(pair_i.size))
+    pairs = int(pair_i.size)
+    return DriftEstimate(variance=variance, raw_variance=raw, window_s=window, pairs=pairs)
+
+
+def with_drift_effect(model: ManifoldModel) -> tuple[ManifoldModel, DriftEstimate | None]:
+    """The model with the drift effect of its training touches, if they record their times.
+
+    σ_d² (:func:`estimate_drift_variance`, default window) is split off each touch's noise for
+    scoring trials (the fit is left as it is: its σ_n² already holds the drift its training
+    touches saw). Run it after :func:`core.gp.placement_effect.with_placement_effect`, so that
+    the placements' offsets are in the model the residuals are taken under.
+
+    Returns:
+        The model and the estimate; the model unchanged and ``None`` when the training touches
+        have no times, or no two touches of different objects fall in the window.
+    """
+    times = model.raw_data.touch_times_s
+    if times is None:
+        return model, None
+    estimate = estimate_drift_variance(model, times)
+    if estimate.pairs == 0:
+        return model, None
+    return dataclasses.replace(model, drift_variance=estimate.variance), estimate
+
+
+def check_drift_variance(model: ManifoldModel, variance: object) -> FloatArray:
+    """σ_d² as a checked array: dy values ≥ 0 whose sum with the model's σ_b² stays below σ_n²
+    (the touch keeps a noise of its own). Shape (dy,).
+
+    Raises:
+        InvalidInputError: Wrong length, not finite, negative, or σ_b² + σ_d² not below σ_n².
+    """
+    h = model.hyperparameters
+    value = as_float_array(variance, "drift_variance", (h.observation_dim,))
+    placement = model.placement_variance
+    shared = value if placement is None else value + placement
+    if np.any(value < 0.0) or np.any(shared >= h.noise_variance):
+        raise InvalidInputError(
+            f"drift_variance: every σ_d,a² must be ≥ 0 with σ_b,a² + σ_d,a² below σ_n,a² = "
+            f"{h.noise_variance.tolist()}, received {value.tolist()}."
+        )
+    return value

@@ -9,8 +9,19 @@ import pytest
 
 from core.errors import InvalidInputError
 from core.evaluation.worlds import EXPERIMENT1_THETAS, sample_experiment1
-from core.gp.drift_effect import default_window_s, estimate_drift_variance
+from core.gp.drift_effect import (
+    check_drift_variance,
+    default_window_s,
+    estimate_drift_variance,
+    with_drift_effect,
+)
+from core.gp.placement_effect import trial_log_likelihoods
 from core.gp.posterior import condition
+from core.recognition.object_posterior import (
+    object_log_likelihoods,
+    object_posterior,
+    shared_variance,
+)
 from core.types import Hyperparameters, ManifoldModel, TrainingData
 
 GAP_S = 10.0  # one touch every 10 s, in rounds over the 4 objects
@@ -110,3 +121,49 @@ def test_bad_times_are_named(drifting: ManifoldModel) -> None:
             model.data.observations,
             touch_times_s=np.full(400, np.nan),
         )
+
+
+def test_recognition_counts_the_drift_once_whatever_the_placement(drifting: ManifoldModel) -> None:
+    """A trial's touches are scored jointly with σ_d² shared (and σ_b² too when they met one
+    placement): the same as the joint likelihood with that shared variance."""
+    rng = np.random.default_rng(6)
+    x = rng.normal(size=(4, 1))
+    y = drifting.data.observations[:4] + 0.05
+    noise = drifting.hyperparameters.noise_variance
+    both = dataclasses.replace(drifting, placement_variance=0.3 * noise, drift_variance=0.4 * noise)
+    np.testing.assert_array_equal(shared_variance(both), 0.7 * noise)
+    np.testing.assert_array_equal(shared_variance(both, shared_placement=False), 0.4 * noise)
+    np.testing.assert_array_equal(shared_variance(drifting), np.zeros(3))
+    for shared, variance in ((True, 0.7 * noise), (False, 0.4 * noise)):
+        np.testing.assert_allclose(
+            object_log_likelihoods(both, x, y, shared_placement=shared),
+            trial_log_likelihoods(both, x, y, variance),
+            rtol=1e-12,
+        )
+    # A model without a drift variance scores as before.
+    assert not np.allclose(object_posterior(both, x, y), object_posterior(drifting, x, y))
+
+
+def test_with_drift_effect_needs_times(drifting: ManifoldModel) -> None:
+    fitted, estimate = with_drift_effect(drifting)
+    assert estimate is not None
+    assert fitted.drift_variance is not None
+    np.testing.assert_array_equal(fitted.drift_variance, estimate.variance)
+    untimed = dataclasses.replace(
+        drifting, data=dataclasses.replace(drifting.data, touch_times_s=None)
+    )
+    unchanged, nothing = with_drift_effect(untimed)
+    assert unchanged is untimed
+    assert nothing is None
+
+
+def test_check_drift_variance_leaves_the_touch_its_own_noise(drifting: ManifoldModel) -> None:
+    noise = drifting.hyperparameters.noise_variance
+    placed = dataclasses.replace(drifting, placement_variance=0.5 * noise)
+    np.testing.assert_array_equal(check_drift_variance(placed, 0.4 * noise), 0.4 * noise)
+    with pytest.raises(InvalidInputError, match="drift_variance"):
+        check_drift_variance(placed, 0.5 * noise)
+    with pytest.raises(InvalidInputError, match="drift_variance"):
+        check_drift_variance(drifting, -0.1 * noise)
+    with pytest.raises(InvalidInputError, match="drift_variance"):
+        check_drift_variance(drifting, noise[:2])
