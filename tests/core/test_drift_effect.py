@@ -28,7 +28,7 @@ GAP_S = 10.0  # one touch every 10 s, in rounds over the 4 objects
 BLOCK = 20  # the drift holds for 20 touches (200 s), then jumps to a fresh draw
 
 
-def _drifting(drift_std: float, seed: int) -> ManifoldModel:
+def drifting_model(drift_std: float, seed: int) -> ManifoldModel:
     """Experiment 1, 100 touches per object made in rounds over the objects, every feature
     shifted by a drift common to all objects that holds for :data:`BLOCK` touches."""
     rng = np.random.default_rng(seed)
@@ -65,7 +65,7 @@ def test_the_window_is_five_gaps_of_the_collection() -> None:
 
 @pytest.fixture(scope="module")
 def drifting() -> ManifoldModel:
-    return _drifting(0.1, 1)
+    return drifting_model(0.1, 1)
 
 
 def test_estimator_recovers_the_drift_variance(drifting: ManifoldModel) -> None:
@@ -83,7 +83,7 @@ def test_estimator_recovers_the_drift_variance(drifting: ManifoldModel) -> None:
 
 
 def test_estimator_finds_no_drift_without_one() -> None:
-    model = _drifting(0.0, 2)
+    model = drifting_model(0.0, 2)
     assert model.data.touch_times_s is not None
     estimate = estimate_drift_variance(model, model.data.touch_times_s)
     assert np.all(np.abs(estimate.raw_variance) < 0.002)
