@@ -161,14 +161,16 @@ def create_dataset(
 def add_samples(
     session: Session,
     dataset: Dataset,
-    samples: Iterable[tuple[str, FloatArray, FloatArray, dict[str, Any] | None, int | None]],
+    samples: Iterable[
+        tuple[str, FloatArray, FloatArray, dict[str, Any] | None, int | None, float | None]
+    ],
 ) -> int:
-    """Append ``(object name, action, observation, raw, placement)`` samples; return how many
-    were added."""
+    """Append ``(object name, action, observation, raw, placement, time_s)`` samples; return how
+    many were added."""
     rows = list(samples)
     objects = get_or_create_objects(session, (name for name, *_ in rows))
     start = dataset.n_samples
-    for offset, (name, action, observation, raw, placement) in enumerate(rows):
+    for offset, (name, action, observation, raw, placement, time_s) in enumerate(rows):
         session.add(
             Sample(
                 dataset_id=dataset.id,
@@ -178,6 +180,7 @@ def add_samples(
                 observation=observation,
                 raw=raw,
                 placement=placement,
+                time_s=time_s,
             )
         )
     dataset.n_samples = start + len(rows)
@@ -200,28 +203,35 @@ def list_datasets(session: Session, limit: int, offset: int) -> tuple[list[Datas
 
 def dataset_samples(
     session: Session, dataset_id: int
-) -> list[tuple[str, FloatArray, FloatArray, int | None]]:
-    """``(object name, action, observation, placement)`` of every sample, in upload order."""
+) -> list[tuple[str, FloatArray, FloatArray, int | None, float | None]]:
+    """``(object name, action, observation, placement, time_s)`` of every sample, in upload
+    order."""
     rows = session.execute(
-        select(ObjectRecord.name, Sample.action, Sample.observation, Sample.placement)
+        select(
+            ObjectRecord.name, Sample.action, Sample.observation, Sample.placement, Sample.time_s
+        )
         .join(ObjectRecord, Sample.object_id == ObjectRecord.id)
         .where(Sample.dataset_id == dataset_id)
         .order_by(Sample.position)
     ).all()
-    return [(str(name), action, y, placement) for name, action, y, placement in rows]
+    return [
+        (str(name), action, y, placement, time_s) for name, action, y, placement, time_s in rows
+    ]
 
 
 def dataset_raw_samples(
     session: Session, dataset_id: int
-) -> list[tuple[str, FloatArray, dict[str, Any] | None, int | None]]:
-    """``(object name, action, raw, placement)`` of every sample, in upload order."""
+) -> list[tuple[str, FloatArray, dict[str, Any] | None, int | None, float | None]]:
+    """``(object name, action, raw, placement, time_s)`` of every sample, in upload order."""
     rows = session.execute(
-        select(ObjectRecord.name, Sample.action, Sample.raw, Sample.placement)
+        select(ObjectRecord.name, Sample.action, Sample.raw, Sample.placement, Sample.time_s)
         .join(ObjectRecord, Sample.object_id == ObjectRecord.id)
         .where(Sample.dataset_id == dataset_id)
         .order_by(Sample.position)
     ).all()
-    return [(str(name), action, raw, placement) for name, action, raw, placement in rows]
+    return [
+        (str(name), action, raw, placement, time_s) for name, action, raw, placement, time_s in rows
+    ]
 
 
 # --- models -----------------------------------------------------------------------------------

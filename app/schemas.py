@@ -78,7 +78,8 @@ class Health(BaseModel):
 
 class SampleIn(BaseModel):
     """One touch: object name, action x (dx,), observation y (dy,), and optionally which
-    placement of its object it met (every sample of an upload gives one, or none does)."""
+    placement of its object it met and when it was made (every sample of an upload gives one,
+    or none does)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -91,6 +92,14 @@ class SampleIn(BaseModel):
             "Which placement of its object the touch met (0, 1, …): touches of one object with "
             "one number shared a placement, and the fit estimates how much a placement shifts "
             "its touches alike (the model's placement_effect). Null: not recorded."
+        ),
+    )
+    time_s: FiniteFloat | None = Field(
+        default=None,
+        description=(
+            "When the touch was made, in seconds since the collection's first touch (any "
+            "origin, one clock for the whole upload): the fit estimates the drift shared by "
+            "touches made close together from these times. Null: not recorded."
         ),
     )
 

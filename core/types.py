@@ -31,6 +31,9 @@ class TrainingData:
             down once and touched several times), or ``None`` when not recorded (every touch
             then counts as its own placement). Touches share a placement when they share both
             object and placement number. Shape (N,), values ≥ 0.
+        touch_times_s: When each touch was made, in seconds on one clock (any origin), or
+            ``None`` when not recorded. The slow drift of the sensor and the room is shared by
+            touches made close together (:mod:`core.gp.drift_effect`). Shape (N,), finite.
     """
 
     object_names: tuple[str, ...]
@@ -38,6 +41,7 @@ class TrainingData:
     actions: FloatArray
     observations: FloatArray
     placement_index: IntArray | None = None
+    touch_times_s: FloatArray | None = None
 
     def __post_init__(self) -> None:
         names = tuple(str(n) for n in self.object_names)
@@ -89,6 +93,9 @@ class TrainingData:
                     f"placement_index: values must be ≥ 0, received {placement.min()}."
                 )
             store_read_only(self, placement_index=placement.astype(np.int64))
+        if self.touch_times_s is not None:
+            times = as_float_array(self.touch_times_s, "touch_times_s", (n,))
+            store_read_only(self, touch_times_s=times)
 
     @property
     def n_objects(self) -> int:
@@ -429,6 +436,10 @@ class ManifoldModel:
             resort); ``None``: untempered.
         features: The feature pipeline that turns a raw touch into y
             (:mod:`core.features.pipeline`); ``None``: y is given as it is (the channel means).
+        drift_variance: σ_d,a², the variance of the slow drift shared by a trial's touches
+            (made within a minute or two) whatever the placement, per model-space feature
+            (:mod:`core.gp.drift_effect`); a part of σ_n,a², like σ_b² under (C2). ``None``:
+            not estimated (the training touches' times were not recorded). Shape (dy,).
     """
 
     data: TrainingData
@@ -444,6 +455,7 @@ class ManifoldModel:
     features: FeaturePipeline | None = None
     latent_covariance: FloatArray | None = None
     tempering: float | None = None
+    drift_variance: FloatArray | None = None
 
     @property
     def raw_data(self) -> TrainingData:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +40,11 @@ class TouchRecord:
         late_steps: Setpoints skipped because the control loop ran late.
         complete: Whether the touch ran to its end.
         failure: Why it did not (the error message), else None.
+        started_s: When the commanded trajectory started, on the rig's clock (``rig.clock``:
+            simulated seconds on a simulated rig), or None if it never started. The touch-local
+            times above count from it; comparing it across touches tells how far apart in time
+            they were made (the slow drift of the sensor and the room is shared by touches
+            made close together).
     """
 
     slot: int | None
@@ -58,6 +64,7 @@ class TouchRecord:
     late_steps: int = 0
     complete: bool = True
     failure: str | None = None
+    started_s: float | None = None
 
     def __post_init__(self) -> None:
         n_channels = len(self.channel_names)
@@ -84,6 +91,10 @@ class TouchRecord:
             raise HardwareError(
                 f"TouchRecord: {m} joint positions but {len(self.joint_times_s)} times and "
                 f"{len(self.joint_currents_ma)} currents."
+            )
+        if self.started_s is not None and not math.isfinite(self.started_s):
+            raise HardwareError(
+                f"TouchRecord.started_s: must be finite, received {self.started_s}."
             )
         for name in (
             "commanded_deg",

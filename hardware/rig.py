@@ -697,6 +697,7 @@ class _TouchSession:
             late_steps=self.late_steps,
             complete=complete,
             failure=failure,
+            started_s=self.host_start,
         )
 
     def check_integrity(self, record: TouchRecord) -> None:

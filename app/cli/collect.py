@@ -31,6 +31,11 @@ not the default: "Placements in the default collection, measured" there). The ad
 stages each get placements of their own
 (:func:`app.services.collections.stage_placements`).
 
+Every touch also records when it was made in the CSV's ``time_s`` column: seconds from the start
+of the collection's first touch to the start of this one, on the rig's clock (simulated seconds
+with ``--sim``). The slow drift of the sensor and the room is shared by touches made close
+together; ``fit`` estimates it from these times (:mod:`core.gp.drift_effect`).
+
 Each touch is appended to the CSV (and, with ``--raw``, its raw tactile series to a raw-touch
 file, JSON lines as ``docs/raw-touches.md`` describes, with the frame times and joint series
 added) and flushed to disk the moment it is recorded. A device fault stops the collection: the rig
@@ -273,7 +278,10 @@ def _sync(stream: TextIO) -> None:
 def collect_command(
     options: RigOptions,
     out: Annotated[
-        Path, typer.Option("--out", help="Training CSV to write: object,x_1..x_dx,y_1..y_dy.")
+        Path,
+        typer.Option(
+            "--out", help="Training CSV to write: object,placement,time_s,x_1..x_dx,y_1..y_dy."
+        ),
     ],
     objects: Annotated[
         list[str] | None,
@@ -434,6 +442,7 @@ def _collect(
             actions.action_dim,
             len(handle.rig.tactile.config.channel_names),
             placements=True,
+            times=True,
         )
         _sync(csv_file)
         with progress_bar() as bar:
@@ -456,6 +465,7 @@ def _collect(
                         touch.action,
                         touch.record.observation,
                         touch.placement,
+                        touch.time_s,
                     )
                     _sync(csv_file)
                     if raw_file is not None:
@@ -465,6 +475,7 @@ def _collect(
                             raw_touch_from_record(touch.record),
                             index=touch.index,
                             placement=touch.placement,
+                            time_s=touch.time_s,
                             observation=touch.record.observation.tolist(),
                             **motion_series(touch.record),
                         )

@@ -339,7 +339,7 @@ def fit(
     from app.config import available_cores
     from app.documents.model import latent_selection_dict, model_to_document
     from core.errors import CoreError
-    from core.gp import FitOptions, with_placement_effect
+    from core.gp import FitOptions, with_drift_effect, with_placement_effect
     from core.recognition import fit_tempering, with_latent_uncertainty
 
     requested_dim = _parse_latent_dim(latent_dim)
@@ -387,6 +387,7 @@ def fit(
                 fitted=None if selection is None else selection.chosen_model,
             )
         model, placement = with_placement_effect(model, options)
+        model, drift = with_drift_effect(model)
         laplace = None
         if latent_uncertainty:
             model, laplace = with_latent_uncertainty(model)
@@ -432,6 +433,12 @@ def fit(
             f"placement effect from {placement.groups:d} placements: σ_b² / σ_n² = "
             f"{escape(np.array2string(share, precision=2))} per feature"
             + (f" (clipped from {escape(', '.join(clipped))})" if clipped else "")
+        )
+    if drift is not None:
+        drift_share = drift.variance / model.hyperparameters.noise_variance
+        stdout.print(
+            f"drift effect from {drift.pairs:d} pairs of touches within {drift.window_s:.0f} s: "
+            f"σ_d² / σ_n² = {escape(np.array2string(drift_share, precision=2))} per feature"
         )
     if laplace is not None:
         spread = np.sqrt(np.trace(laplace.covariance, axis1=1, axis2=2))

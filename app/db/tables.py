@@ -118,7 +118,9 @@ class Sample(Base):
 
     ``placement``: which placement of its object the touch met (0, 1, …; touches of one object
     with one number shared it), ``None`` when it was not recorded (an upload without placements,
-    a row from before revision 0006).
+    a row from before revision 0006). ``time_s``: when the touch was made, in seconds since its
+    collection's first touch (finite), ``None`` when it was not recorded (an upload without
+    times, a row from before revision 0007).
     """
 
     __tablename__ = "samples"
@@ -132,6 +134,7 @@ class Sample(Base):
     observation: Mapped[FloatArray] = mapped_column(FloatArrayType)
     raw: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)
     placement: Mapped[int | None] = mapped_column(Integer, default=None)
+    time_s: Mapped[float | None] = mapped_column(Float, default=None)
 
     dataset: Mapped[Dataset] = relationship(back_populates="samples")
     object: Mapped[ObjectRecord] = relationship()

@@ -6,8 +6,12 @@ The training data are included; β and K⁻¹ are recomputed on load, conditione
 ``noise_model`` field (:mod:`app.documents.noise_model`). ``latent_selection`` (optional) reports
 how ``--latent-dim auto`` chose ds. ``placement_effect`` (optional) holds σ_b², the variance of
 the offset shared by one placement's touches (docs/calibration.md), estimated at fit time from
-``training_data.placements`` (optional, the placement number of every touch); a document without
-it scores a trial's touches as independent (σ_b² = 0). ``latent_uncertainty`` (optional) holds
+``training_data.placements`` (optional, the placement number of every touch; ``times_s``, also
+optional, when each touch was made); a document without
+it scores a trial's touches as independent (σ_b² = 0). ``drift_effect`` (optional) holds σ_d²,
+the variance of the slow drift a trial's touches share whatever the placement, estimated at fit
+time from the training touches' times (:mod:`core.gp.drift_effect`); without it, σ_d² = 0.
+``latent_uncertainty`` (optional) holds
 the Laplace covariance Σ_l of every object's latent point (docs/method.md (L1)); a document with
 it integrates each s_l over N(s_l, Σ_l) in the object likelihood, one without takes s_l as known.
 ``tempering`` (optional) holds β, the exponent on the object likelihood fitted by cross-validation
@@ -34,7 +38,7 @@ from app.documents.noise_model import noise_model_field, read_noise_model_field
 from app.documents.posterior import condition_as_recorded, posterior_field
 from app.documents.training_csv import MAX_NAME_CHARACTERS
 from core.errors import InvalidInputError
-from core.gp import KERNELS, check_placement_variance
+from core.gp import KERNELS, check_drift_variance, check_placement_variance
 from core.recognition import check_exponent, check_latent_covariance
 from core.selection import LatentSelection
 from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
@@ -117,6 +121,8 @@ def model_to_document(
     }
     if data.placement_index is not None:
         document["training_data"]["placements"] = data.placement_index.tolist()
+    if data.touch_times_s is not None:
+        document["training_data"]["times_s"] = data.touch_times_s.tolist()
     document.update(calibration_fields(model))
     noise = noise_model_field(model.transform)
     if noise is not None:
@@ -149,6 +155,15 @@ def calibration_fields(model: ManifoldModel) -> dict[str, Any]:
         fields["placement_effect"] = placement_effect_field(
             model.placement_variance, model.placement_in_fit
         )
+    if model.drift_variance is not None:
+        fields["drift_effect"] = {
+            "variance": [float(v) for v in model.drift_variance],
+            "space": "model",
+            "estimator": (
+                "leave-one-out residuals of touches of different objects made close in time, "
+                "method of moments (docs/calibration.md, the drift effect)"
+            ),
+        }
     if model.latent_covariance is not None:
         fields["latent_uncertainty"] = {
             "covariance": model.latent_covariance.tolist(),
@@ -385,6 +400,8 @@ _CALIBRATIONS: tuple[tuple[str, str, str, Callable[[ManifoldModel, Any], Any]], 
         "placement_variance",
         lambda model, value: check_placement_variance(model, np.asarray(value, dtype=np.float64)),
     ),
+    # After the placement effect: σ_b² + σ_d² must stay below σ_n².
+    ("drift_effect", "variance", "drift_variance", check_drift_variance),
 )
 
 
@@ -461,6 +478,11 @@ def model_from_document(document: Any) -> ManifoldModel:
                 None
                 if training.get("placements") is None
                 else np.asarray(training["placements"], dtype=np.int64)
+            ),
+            touch_times_s=(
+                None
+                if training.get("times_s") is None
+                else _array("training_data.times_s", training["times_s"])
             ),
         )
         per_feature = {

@@ -10,7 +10,10 @@ Each line is a JSON object::
 A channel is a series of n samples, each a number or a vector of one common width (an
 electrode array), with its sample rate in Hz. An optional ``placement`` (an integer ≥ 0, on
 every line or on none) says which placement of its object the touch met, as the training CSV's
-``placement`` column does; the fit estimates the placement effect from it. Other keys
+``placement`` column does; the fit estimates the placement effect from it. An optional ``time_s``
+(a finite number, on every line or on none) says when the touch was made, in seconds since the
+collection's first touch, as the training CSV's ``time_s`` column does; the fit estimates the
+drift shared by touches made close together from it (:mod:`core.gp.drift_effect`). Other keys
 (``collect --raw`` adds the frame times, joint series and the channel means) are kept by nobody
 and ignored here.
 
@@ -23,6 +26,7 @@ its window likewise. Nothing is half-read: either every touch is good or an erro
 from __future__ import annotations
 
 import json
+import math
 import re
 import reprlib
 from collections.abc import Mapping, Sequence
@@ -57,6 +61,8 @@ class RawTouchSet:
         lines: Line of the file each touch came from. Length N.
         placement_index: Placement of its object each touch met, when every line gave one.
             Shape (N,).
+        touch_times_s: When each touch was made (seconds, one clock), when every line gave it.
+            Shape (N,).
     """
 
     object_names: tuple[str, ...]
@@ -65,6 +71,7 @@ class RawTouchSet:
     touches: tuple[RawTouch, ...]
     lines: tuple[int, ...]
     placement_index: IntArray | None = None
+    touch_times_s: FloatArray | None = None
 
     @property
     def channel_names(self) -> tuple[str, ...]:
@@ -161,8 +168,9 @@ def read_raw_touches(text: str) -> RawTouchSet:
         DocumentError: A line that is not a JSON object, a missing or empty object name, an
             action of another length than the first line's or not finite, a channel set or
             width different from the first touch's, a missing sample rate, NaN/inf or ragged
-            series, a ``placement`` that is not an integer ≥ 0 or is given on some lines but
-            not on others. The message names the line and the channel (or key).
+            series, a ``placement`` that is not an integer ≥ 0 or a ``time_s`` that is not a
+            finite number, either given on some lines but not on others. The message names the
+            line and the channel (or key).
     """
     names: list[str] = []
     index: list[int] = []
@@ -170,6 +178,7 @@ def read_raw_touches(text: str) -> RawTouchSet:
     touches: list[RawTouch] = []
     lines: list[int] = []
     placements: list[int | None] = []
+    times_s: list[float | None] = []
     for line, content in enumerate(text.splitlines(), start=1):
         if not content.strip():
             continue
@@ -220,6 +229,15 @@ def read_raw_touches(text: str) -> RawTouchSet:
                 "touch a placement or none.",
                 "placement",
             )
+        time_s = _time_s(item.get("time_s"), line)
+        if times_s and (time_s is None) != (times_s[0] is None):
+            raise _line_error(
+                line,
+                f"'time_s' is {'missing' if time_s is None else 'given'} here but "
+                f"{'not ' if times_s[0] is None else ''}on line {lines[0]}; give every "
+                "touch a time or none.",
+                "time_s",
+            )
         name = name.strip()
         if name not in names:
             names.append(name)
@@ -228,6 +246,7 @@ def read_raw_touches(text: str) -> RawTouchSet:
         touches.append(touch)
         lines.append(line)
         placements.append(placement)
+        times_s.append(time_s)
     if not touches:
         raise DocumentError("raw touches: the file holds no touch.", row=1)
     return RawTouchSet(
@@ -237,6 +256,7 @@ def read_raw_touches(text: str) -> RawTouchSet:
         tuple(touches),
         tuple(lines),
         None if placements[0] is None else np.asarray(placements, dtype=np.int64),
+        None if times_s[0] is None else np.asarray(times_s, dtype=np.float64),
     )
 
 
@@ -251,6 +271,24 @@ def _placement(value: Any, line: int) -> int | None:
             "placement",
         )
     return value
+
+
+def _time_s(value: Any, line: int) -> float | None:
+    """A line's ``time_s``: ``None`` (absent or null) or a finite number of seconds."""
+    if value is None:
+        return None
+    try:
+        number = float(value) if not isinstance(value, bool | str) else math.nan
+    except (TypeError, ValueError, OverflowError):  # a list, an object, an int beyond a float
+        number = math.nan
+    if not math.isfinite(number):
+        raise _line_error(
+            line,
+            f"'time_s' must be a finite number of seconds (or left out), received "
+            f"{reprlib.repr(value)}.",
+            "time_s",
+        )
+    return number
 
 
 def featurise(touches: RawTouchSet, pipeline: FeaturePipeline) -> TrainingData:
@@ -273,6 +311,7 @@ def featurise(touches: RawTouchSet, pipeline: FeaturePipeline) -> TrainingData:
             actions=touches.actions,
             observations=np.asarray(rows, dtype=np.float64),
             placement_index=touches.placement_index,
+            touch_times_s=touches.touch_times_s,
         )
     except InvalidInputError as exc:
         raise DocumentError(f"raw touches: {exc}") from exc

@@ -2,7 +2,10 @@
 
 An optional ``placement`` column after ``object`` (integers ≥ 0) records which placement of its
 object each touch met (``activetouch collect --placements``); the fit estimates the placement
-effect from it (docs/calibration.md).
+effect from it (docs/calibration.md). An optional ``time_s`` column after those (finite seconds,
+on every row or on none) records when each touch was made, in seconds since the collection's
+first touch (``activetouch collect`` and the server's collections write it); the fit estimates
+the drift shared by touches made close together from it (:mod:`core.gp.drift_effect`).
 
 :func:`read_training_csv` parses and checks a file; :class:`TrainingCsvWriter` appends rows as
 touches arrive (a collection keeps what it recorded); :func:`write_training_csv` renders a whole
@@ -60,10 +63,13 @@ def _oversized_field(text: str, line_number: int, columns: list[str]) -> Documen
 
 #: The optional column of placement numbers.
 PLACEMENT_COLUMN = "placement"
+#: The optional column of touch times (seconds since the collection's first touch).
+TIME_COLUMN = "time_s"
 
 
-def _check_header(header: list[str]) -> tuple[int, int, bool]:
-    """Validate the CSV header; return (dx, dy, whether it has the placement column)."""
+def _check_header(header: list[str]) -> tuple[int, int, bool, bool]:
+    """Validate the CSV header; return (dx, dy, whether it has the placement column, whether it
+    has the time column)."""
     names = [h.strip() for h in header]
     if not names or names[0] != "object":
         raise DocumentError(
@@ -74,6 +80,18 @@ def _check_header(header: list[str]) -> tuple[int, int, bool]:
     placed = len(names) > 1 and names[1] == PLACEMENT_COLUMN
     if placed:
         names = [names[0], *names[2:]]
+    timed = len(names) > 1 and names[1] == TIME_COLUMN
+    if timed:
+        names = [names[0], *names[2:]]
+    for optional in (PLACEMENT_COLUMN, TIME_COLUMN):
+        if optional in names[1:]:
+            raise DocumentError(
+                f"CSV header: column {optional!r} must come right after 'object' (and "
+                f"'{PLACEMENT_COLUMN}' before '{TIME_COLUMN}'): expected "
+                f"object[,{PLACEMENT_COLUMN}][,{TIME_COLUMN}],x_1..x_dx,y_1..y_dy.",
+                row=1,
+                column=optional,
+            )
     unknown = [
         n for n in names[1:] if not (_ACTION_COLUMN.match(n) or _OBSERVATION_COLUMN.match(n))
     ]
@@ -97,7 +115,7 @@ def _check_header(header: list[str]) -> tuple[int, int, bool]:
             else "object,x_1..x_dx,y_1..y_dy with at least one x and one y"
         )
         raise DocumentError(f"CSV header: expected {wanted}, found {','.join(names)}.", row=1)
-    return len(actions), len(observations), placed
+    return len(actions), len(observations), placed, timed
 
 
 def read_training_csv(text: str) -> TrainingData:
@@ -116,18 +134,19 @@ def read_training_csv(text: str) -> TrainingData:
         raise DocumentError("CSV: the file is empty; expected a header line.", row=1) from None
     except csv.Error:
         raise _oversized_field(text, reader.line_num, columns) from None
-    dx, dy, placed = _check_header(header)
+    dx, dy, placed, timed = _check_header(header)
     columns = [h.strip() for h in header]
     try:
-        return _read_rows(reader, columns, dx, dy, placed)
+        return _read_rows(reader, columns, dx, dy, placed, timed)
     except csv.Error:
         raise _oversized_field(text, reader.line_num, columns) from None
 
 
 def _read_rows(
-    rows: Iterator[list[str]], columns: list[str], dx: int, dy: int, placed: bool
+    rows: Iterator[list[str]], columns: list[str], dx: int, dy: int, placed: bool, timed: bool
 ) -> TrainingData:
-    """The data rows after the header (line 2 on), checked; ``placed``: a placement column."""
+    """The data rows after the header (line 2 on), checked; ``placed``: a placement column,
+    ``timed``: a time column (read with x and y: a finite number on every row)."""
     names: list[str] = []
     index: list[int] = []
     placements: list[int] = []
@@ -190,13 +209,15 @@ def _read_rows(
     if not values:
         raise DocumentError("CSV: no data rows after the header.", row=2)
     array = np.asarray(values, dtype=np.float64)
+    first = 1 if timed else 0
     try:
         return TrainingData(
             object_names=tuple(names),
             object_index=np.asarray(index, dtype=np.int64),
-            actions=array[:, :dx],
-            observations=array[:, dx : dx + dy],
+            actions=array[:, first : first + dx],
+            observations=array[:, first + dx : first + dx + dy],
             placement_index=np.asarray(placements, dtype=np.int64) if placed else None,
+            touch_times_s=array[:, 0] if timed else None,
         )
     except DocumentError:
         raise
@@ -205,12 +226,14 @@ def _read_rows(
 
 
 def training_csv_header(
-    action_dim: int, observation_dim: int, placements: bool = False
+    action_dim: int, observation_dim: int, placements: bool = False, times: bool = False
 ) -> list[str]:
-    """The CSV header ``object,x_1..x_dx,y_1..y_dy`` (``object,placement,…`` with placements)."""
+    """The CSV header ``object,x_1..x_dx,y_1..y_dy`` (``object,placement,…`` with placements,
+    ``object[,placement],time_s,…`` with times)."""
     return (
         ["object"]
         + ([PLACEMENT_COLUMN] if placements else [])
+        + ([TIME_COLUMN] if times else [])
         + [f"x_{i + 1}" for i in range(action_dim)]
         + [f"y_{i + 1}" for i in range(observation_dim)]
     )
@@ -228,10 +251,16 @@ class TrainingCsvWriter:
         action_dim: dx.
         observation_dim: dy.
         placements: Write the ``placement`` column (every :meth:`write` then gives one).
+        times: Write the ``time_s`` column (every :meth:`write` then gives one).
     """
 
     def __init__(
-        self, stream: TextIO, action_dim: int, observation_dim: int, placements: bool = False
+        self,
+        stream: TextIO,
+        action_dim: int,
+        observation_dim: int,
+        placements: bool = False,
+        times: bool = False,
     ) -> None:
         if action_dim < 1 or observation_dim < 1:
             raise DocumentError(
@@ -240,10 +269,11 @@ class TrainingCsvWriter:
         self.action_dim = int(action_dim)
         self.observation_dim = int(observation_dim)
         self.placements = bool(placements)
+        self.times = bool(times)
         self.rows = 0
         self._writer = csv.writer(stream, lineterminator="\n")
         self._writer.writerow(
-            training_csv_header(self.action_dim, self.observation_dim, self.placements)
+            training_csv_header(self.action_dim, self.observation_dim, self.placements, self.times)
         )
 
     def write(
@@ -252,12 +282,14 @@ class TrainingCsvWriter:
         action: npt.ArrayLike,
         observation: npt.ArrayLike,
         placement: int | None = None,
+        time_s: float | None = None,
     ) -> None:
-        """Append one touch: object ``name``, action (dx,), observation (dy,), its placement.
+        """Append one touch: object ``name``, action (dx,), observation (dy,), its placement
+        and when it was made (seconds).
 
         Raises:
             DocumentError: An empty name, wrong lengths, values that are not finite, or a
-                placement missing (or given) against the header.
+                placement or time missing (or given) against the header.
         """
         if self.placements != (placement is not None) or (placement is not None and placement < 0):
             raise DocumentError(
@@ -265,6 +297,13 @@ class TrainingCsvWriter:
                 + ("an integer ≥ 0 is needed" if self.placements else "this file has no column")
                 + f", received {placement!r}.",
                 column=PLACEMENT_COLUMN,
+            )
+        if self.times != (time_s is not None) or (time_s is not None and not math.isfinite(time_s)):
+            raise DocumentError(
+                f"CSV: {TIME_COLUMN} of {name!r}: "
+                + ("a finite number is needed" if self.times else "this file has no column")
+                + f", received {time_s!r}.",
+                column=TIME_COLUMN,
             )
         x = np.asarray(action, dtype=np.float64).reshape(-1)
         y = np.asarray(observation, dtype=np.float64).reshape(-1)
@@ -281,22 +320,29 @@ class TrainingCsvWriter:
             if not np.all(np.isfinite(values)):
                 raise DocumentError(f"CSV: {what} of {name!r} is not finite: {values.tolist()}.")
         lead = [name] if placement is None else [name, str(int(placement))]
+        if time_s is not None:
+            lead.append(repr(float(time_s)))
         self._writer.writerow([*lead, *map(repr, map(float, x)), *map(repr, map(float, y))])
         self.rows += 1
 
 
 def write_training_csv(data: TrainingData) -> str:
-    """Render training data as CSV text (floats written with ``repr``, so they round-trip)."""
+    """Render training data as CSV text (floats written with ``repr``, so they round-trip), with
+    the ``placement`` and ``time_s`` columns when the data records them."""
     out = io.StringIO()
     placed = data.placement_index is not None
-    writer = TrainingCsvWriter(out, data.action_dim, data.observation_dim, placed)
+    timed = data.touch_times_s is not None
+    writer = TrainingCsvWriter(out, data.action_dim, data.observation_dim, placed, timed)
     placements: list[int | None] = (
         data.placement_index.tolist()
         if data.placement_index is not None
         else [None] * data.n_touches
     )
-    for obj, x, y, p in zip(
-        data.object_index, data.actions, data.observations, placements, strict=True
+    times_s: list[float | None] = (
+        data.touch_times_s.tolist() if data.touch_times_s is not None else [None] * data.n_touches
+    )
+    for obj, x, y, p, t in zip(
+        data.object_index, data.actions, data.observations, placements, times_s, strict=True
     ):
-        writer.write(data.object_names[obj], x, y, p)
+        writer.write(data.object_names[obj], x, y, p, t)
     return out.getvalue()

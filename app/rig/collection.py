@@ -1,12 +1,13 @@
 """The collection loop: every object touched with every action of a design, on a leased rig.
 
 :func:`iter_collect` is a generator (one event per touch), so callers stream progress, persist
-as they go and stop.
+as they go and stop; :func:`since_first_touch` dates each touch of a collection from its first.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import dataclasses
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +34,9 @@ class CollectedTouch:
         record: What the rig recorded; ``record.observation`` is y.
         placement: Which placement of its object the touch met (0, 1, …), when the collection
             recorded placements; ``None`` when every touch met its own.
+        time_s: When the touch was made: seconds from the start of the collection's first
+            touch to the start of this one, on the rig's clock (``record.started_s``); ``None``
+            when the rig did not record it.
     """
 
     index: int
@@ -42,6 +46,30 @@ class CollectedTouch:
     action: FloatArray
     record: TouchRecord
     placement: int | None = None
+    time_s: float | None = None
+
+
+def since_first_touch(touches: Iterable[CollectedTouch]) -> Iterator[CollectedTouch]:
+    """The touches with ``time_s``: their ``record.started_s`` minus the first touch's.
+
+    The slow drift of the sensor and the room is shared by touches made close together; these
+    times let the fit estimate it (:mod:`core.gp.drift_effect`). A touch whose record (or the
+    first touch's) has no ``started_s`` gets ``time_s = None``.
+
+    Args:
+        touches: A collection's touches, in the order they were made (consumed lazily).
+
+    Yields:
+        Each touch, dated.
+    """
+    origin_s: float | None = None
+    first = True
+    for touch in touches:
+        started_s = touch.record.started_s
+        if first:
+            origin_s, first = started_s, False
+        time_s = None if started_s is None or origin_s is None else started_s - origin_s
+        yield dataclasses.replace(touch, time_s=time_s)
 
 
 def iter_collect(
@@ -71,7 +99,8 @@ def iter_collect(
         order_seed: Seed of the objects' permutations (the same seed, the same order).
 
     Yields:
-        One :class:`CollectedTouch` per touch, as soon as it is recorded.
+        One :class:`CollectedTouch` per touch, as soon as it is recorded, dated from the first
+        (:func:`since_first_touch`).
     """
     design = np.asarray(action_design, dtype=np.float64)
     if design.ndim != 2 or design.shape[1] != actions.action_dim:
@@ -80,6 +109,17 @@ def iter_collect(
         )
     if not slots:
         raise ConfigurationError("slots: at least one object is needed.")
+    yield from since_first_touch(_rounds(lease, actions, slots, design, order_seed))
+
+
+def _rounds(
+    lease: RigLease,
+    actions: TouchActions,
+    slots: dict[str, int],
+    design: FloatArray,
+    order_seed: int,
+) -> Iterator[CollectedTouch]:
+    """:func:`iter_collect`'s touches, undated."""
     n_actions = design.shape[0]
     total = n_actions * len(slots)
     rng = np.random.default_rng(order_seed)

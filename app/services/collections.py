@@ -6,11 +6,11 @@ collection's stages (the adaptive design's initial half and rounds), each with i
 placements (:func:`collection_stages`); the server's runs here and ``activetouch collect`` both
 drive the rig through them, and check their object lists with :func:`check_objects`.
 
-Each touch is stored as a sample (with its raw tactile series and its placement) the moment it
-is recorded; the dataset is ``collecting`` during the run, then ``ready`` (or ``failed`` if too
-little was gathered to learn from). Each ``collection.progress`` event carries the touch's
-features, its placement and a thinned copy of its raw tactile series (``trace``: at most 200
-frames) for the live plot.
+Each touch is stored as a sample (with its raw tactile series, its placement and its time:
+seconds since the collection's first touch) the moment it is recorded; the dataset is
+``collecting`` during the run, then ``ready`` (or ``failed`` if too little was gathered to learn
+from). Each ``collection.progress`` event carries the touch's features, its placement, its time
+and a thinned copy of its raw tactile series (``trace``: at most 200 frames) for the live plot.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from app.db import Database
 from app.db.tables import Run
 from app.errors import AppError, BadInputError, ConflictError
 from app.rig.actions import TouchActions
-from app.rig.collection import CollectedTouch, iter_collect
+from app.rig.collection import CollectedTouch, iter_collect, since_first_touch
 from app.schemas import CollectionCreate, Page, RunPublic, from_row
 from app.services import objects
 from app.services.events import EventBus
@@ -258,13 +258,28 @@ def iter_collection(
 
     Yields:
         One :class:`~app.rig.collection.CollectedTouch` per touch (``index``/``total`` count the
-        whole design).
+        whole design; ``time_s`` from the design's first touch).
 
     Raises:
         BadInputError: The design touches an object that is not in ``slots``, a shared
             design gives the objects different numbers of actions, or ``placements`` is
             outside 1..N_l for some object.
     """
+    yield from since_first_touch(
+        _design_touches(lease, actions, slots, design, placements, order_seed, first_placement)
+    )
+
+
+def _design_touches(
+    lease: RigLease,
+    actions: TouchActions,
+    slots: Mapping[str, int],
+    design: CollectionDesign,
+    placements: int | None,
+    order_seed: int,
+    first_placement: int,
+) -> Iterator[CollectedTouch]:
+    """:func:`iter_collection`'s touches, in the order they are made (undated)."""
     names = list(slots)
     index = np.asarray(design.object_index)
     if index.size and (int(index.min()) < 0 or int(index.max()) >= len(names)):
@@ -349,8 +364,25 @@ def iter_stages(
         planning: Called before each next round is planned (e.g. to say so on a progress bar).
 
     Yields:
-        One :class:`~app.rig.collection.CollectedTouch` per touch, as it is recorded.
+        One :class:`~app.rig.collection.CollectedTouch` per touch, as it is recorded, its
+        ``time_s`` counted from the first touch of the first stage.
     """
+    yield from since_first_touch(
+        _stage_touches(lease, actions, slots, plan, placements, next_round, seed, planning)
+    )
+
+
+def _stage_touches(
+    lease: RigLease,
+    actions: TouchActions,
+    slots: Mapping[str, int],
+    plan: CollectionDesign,
+    placements: Sequence[int],
+    next_round: Callable[[list[CollectedTouch]], CollectionDesign | None] | None,
+    seed: int,
+    planning: Callable[[], None] | None,
+) -> Iterator[CollectedTouch]:
+    """:func:`iter_stages`'s touches, stage after stage (each dated from its stage's first)."""
     recorded: list[CollectedTouch] = []
     current: CollectionDesign | None = plan
     for stage, count in enumerate(placements):
@@ -597,8 +629,8 @@ class CollectionService:
         return AdaptiveRounds(names, touches, sizes, 0 if body.seed is None else body.seed)
 
     def _store(self, run_id: int, touch: CollectedTouch) -> None:
-        """Store a touch as a sample of the run's dataset (with its raw series and placement)
-        and announce it."""
+        """Store a touch as a sample of the run's dataset (with its raw series, placement and
+        time) and announce it."""
         name, record = touch.object_name, touch.record
         with self._jobs.run_lock(KIND, run_id), self._database.session() as session:
             run = require(session, run_id)
@@ -607,7 +639,16 @@ class CollectionService:
             crud.add_samples(
                 session,
                 dataset,
-                [(name, touch.action, record.observation, raw_series(record), touch.placement)],
+                [
+                    (
+                        name,
+                        touch.action,
+                        record.observation,
+                        raw_series(record),
+                        touch.placement,
+                        touch.time_s,
+                    )
+                ],
             )
             run.done += 1
             session.commit()
@@ -621,6 +662,7 @@ class CollectionService:
                 "status": status,
                 "object": name,
                 "placement": touch.placement,
+                "time_s": touch.time_s,
                 "observation": record.observation.tolist(),
                 "trace": trace_preview(record),
             },

@@ -31,7 +31,7 @@ from core.errors import InvalidInputError
 from core.features.pipeline import FeatureKind, FeaturePipeline, check_touches, means_pipeline
 from core.features.raw import RawTouch
 from core.types import TrainingData
-from core.validation import IntArray
+from core.validation import FloatArray, IntArray
 
 
 def to_public(dataset: Dataset) -> DatasetPublic:
@@ -47,6 +47,14 @@ def placement_index(placements: Sequence[int | None]) -> IntArray | None:
     return np.asarray(placements, dtype=np.int64)
 
 
+def touch_times(times_s: Sequence[float | None]) -> FloatArray | None:
+    """The samples' times as ``TrainingData.touch_times_s`` (seconds): ``None`` unless every
+    sample recorded one (a dataset either records when its touches were made or does not)."""
+    if not times_s or any(t is None for t in times_s):
+        return None
+    return np.asarray(times_s, dtype=np.float64)
+
+
 def store_training_data(
     session: Session,
     data: TrainingData,
@@ -55,7 +63,7 @@ def store_training_data(
     raw: Sequence[dict[str, Any]] | None = None,
 ) -> Dataset:
     """Add a complete dataset holding ``data`` (not committed), with each touch's placement
-    when ``data`` records them.
+    and time when ``data`` records them.
 
     ``raw``: each sample's raw record (its channels), kept so it can be featurised again.
     """
@@ -76,17 +84,23 @@ def store_training_data(
         if data.placement_index is None
         else [int(p) for p in data.placement_index]
     )
+    times_s: list[float | None] = (
+        [None] * len(data.object_index)
+        if data.touch_times_s is None
+        else [float(t) for t in data.touch_times_s]
+    )
     crud.add_samples(
         session,
         dataset,
         (
-            (data.object_names[obj], action, observation, record, placement)
-            for obj, action, observation, record, placement in zip(
+            (data.object_names[obj], action, observation, record, placement, time_s)
+            for obj, action, observation, record, placement, time_s in zip(
                 data.object_index,
                 data.actions,
                 data.observations,
                 records,
                 placements,
+                times_s,
                 strict=True,
             )
         ),
@@ -127,23 +141,25 @@ def training_data_from_samples(samples: list[SampleIn]) -> TrainingData:
 
     Raises:
         BadInputError: Ragged action/observation lengths (naming ``samples[i].field``), a
-            placement given for some samples but not for all (``samples[i].placement``), fewer
-            than 2 objects or an object with fewer than 2 samples.
+            placement or time given for some samples but not for all (``samples[i].placement``,
+            ``samples[i].time_s``), fewer than 2 objects or an object with fewer than 2 samples.
     """
     first = samples[0]
     dx, dy = len(first.action), len(first.observation)
     names: list[str] = []
     index: list[int] = []
     for i, sample in enumerate(samples):
-        if (sample.placement is None) != (first.placement is None):
-            raise BadInputError(
-                f"samples[{i}].placement: "
-                + ("missing" if sample.placement is None else "given")
-                + ", but samples[0].placement is "
-                + ("not" if first.placement is None else "given")
-                + "; give every sample a placement or none.",
-                field=f"samples[{i}].placement",
-            )
+        for field, what in (("placement", "a placement"), ("time_s", "a time")):
+            given, first_given = getattr(sample, field), getattr(first, field)
+            if (given is None) != (first_given is None):
+                raise BadInputError(
+                    f"samples[{i}].{field}: "
+                    + ("missing" if given is None else "given")
+                    + f", but samples[0].{field} is "
+                    + ("not" if first_given is None else "given")
+                    + f"; give every sample {what} or none.",
+                    field=f"samples[{i}].{field}",
+                )
         for field, values, expected in (
             ("action", sample.action, dx),
             ("observation", sample.observation, dy),
@@ -164,6 +180,7 @@ def training_data_from_samples(samples: list[SampleIn]) -> TrainingData:
             actions=np.asarray([s.action for s in samples], dtype=np.float64),
             observations=np.asarray([s.observation for s in samples], dtype=np.float64),
             placement_index=placement_index([s.placement for s in samples]),
+            touch_times_s=touch_times([s.time_s for s in samples]),
         )
     except InvalidInputError as exc:
         raise BadInputError(f"samples: {exc}", field="samples") from exc
@@ -229,14 +246,15 @@ def export_raw(session: Session, dataset_id: int) -> str:
 
     Samples uploaded as raw touches keep their channels; samples a rig collection recorded
     keep their frames, regrouped into channels by name (``docs/raw-touches.md``). A sample
-    that recorded its placement writes it as the line's ``placement``.
+    that recorded its placement writes it as the line's ``placement``, one that recorded its
+    time as the line's ``time_s``.
 
     Raises:
         BadInputError: (→ 422) a sample without its raw series (uploaded as y only).
     """
     dataset = require(session, dataset_id)
     lines = []
-    for k, (name, action, raw, placement) in enumerate(
+    for k, (name, action, raw, placement, time_s) in enumerate(
         crud.dataset_raw_samples(session, dataset.id)
     ):
         if raw is not None and "channels" in raw:
@@ -252,6 +270,8 @@ def export_raw(session: Session, dataset_id: int) -> str:
         line: dict[str, Any] = {"object": name, "action": action.tolist(), "channels": channels}
         if placement is not None:
             line["placement"] = placement
+        if time_s is not None:
+            line["time_s"] = time_s
         lines.append(json.dumps(line))
     return "".join(line + "\n" for line in lines)
 
@@ -300,7 +320,9 @@ def training_data(session: Session, dataset_id: int) -> TrainingData:
 
 def _training_data(session: Session, dataset: Dataset) -> TrainingData:
     """The samples as training data, with ``placement_index`` when every sample recorded its
-    placement (the fit then estimates the placement effect)."""
+    placement (the fit then estimates the placement effect) and ``touch_times_s`` when every
+    sample recorded its time (the drift shared by touches made close together,
+    :mod:`core.gp.drift_effect`)."""
     rows = crud.dataset_samples(session, dataset.id)
     names = list(dataset.object_names)
     position = {name: i for i, name in enumerate(names)}
@@ -315,6 +337,7 @@ def _training_data(session: Session, dataset: Dataset) -> TrainingData:
                 len(rows), dataset.observation_dim
             ),
             placement_index=placement_index([row[3] for row in rows]),
+            touch_times_s=touch_times([row[4] for row in rows]),
         )
     except InvalidInputError as exc:
         raise BadInputError(
@@ -337,7 +360,7 @@ def raw_touches(session: Session, dataset_id: int) -> tuple[TrainingData, list[R
     dataset = require(session, dataset_id)
     data = _training_data(session, dataset)
     touches: list[RawTouch] = []
-    for k, (_, _, raw, _) in enumerate(crud.dataset_raw_samples(session, dataset.id), start=1):
+    for k, (_, _, raw, *_) in enumerate(crud.dataset_raw_samples(session, dataset.id), start=1):
         if raw is None:
             raise BadInputError(
                 f"features: dataset {dataset_id}, sample {k} has no raw series (it was uploaded "
@@ -357,7 +380,7 @@ def raw_touches(session: Session, dataset_id: int) -> tuple[TrainingData, list[R
 def has_raw_touches(session: Session, dataset_id: int) -> bool:
     """Whether every sample of the dataset keeps its raw series."""
     rows = crud.dataset_raw_samples(session, dataset_id)
-    return bool(rows) and all(raw is not None for _, _, raw, _ in rows)
+    return bool(rows) and all(raw is not None for _, _, raw, *_ in rows)
 
 
 def featurised_data(session: Session, dataset_id: int, pipeline: FeaturePipeline) -> TrainingData:
@@ -380,7 +403,8 @@ def featurised_data(session: Session, dataset_id: int, pipeline: FeaturePipeline
 
 def export_csv(session: Session, dataset_id: int) -> str:
     """The dataset as training CSV (floats written with ``repr``: exact round trip), with the
-    ``placement`` column when every sample recorded its placement.
+    ``placement`` column when every sample recorded its placement and the ``time_s`` column
+    when every sample recorded its time.
 
     Written touch by touch by :class:`app.documents.training_csv.TrainingCsvWriter`, so a
     partial dataset (a collection in progress or interrupted, which is not yet training data)
@@ -389,19 +413,25 @@ def export_csv(session: Session, dataset_id: int) -> str:
     dataset = require(session, dataset_id)
     rows = crud.dataset_samples(session, dataset.id)
     placed = placement_index([row[3] for row in rows]) is not None
+    timed = touch_times([row[4] for row in rows]) is not None
     out = io.StringIO()
-    writer = TrainingCsvWriter(out, dataset.action_dim, dataset.observation_dim, placements=placed)
-    for name, action, observation, placement in rows:
-        writer.write(name, action, observation, placement if placed else None)
+    writer = TrainingCsvWriter(
+        out, dataset.action_dim, dataset.observation_dim, placements=placed, times=timed
+    )
+    for name, action, observation, placement, time_s in rows:
+        writer.write(
+            name, action, observation, placement if placed else None, time_s if timed else None
+        )
     return out.getvalue()
 
 
 def export_json(session: Session, dataset_id: int) -> DatasetCreate:
     """The dataset in the JSON upload format (each sample's ``placement`` when every sample
-    recorded one)."""
+    recorded one, its ``time_s`` likewise)."""
     dataset = require(session, dataset_id)
     rows = crud.dataset_samples(session, dataset.id)
     placed = placement_index([row[3] for row in rows]) is not None
+    timed = touch_times([row[4] for row in rows]) is not None
     return DatasetCreate(
         name=dataset.name,
         samples=[
@@ -410,7 +440,8 @@ def export_json(session: Session, dataset_id: int) -> DatasetCreate:
                 action=action.tolist(),
                 observation=observation.tolist(),
                 placement=placement if placed else None,
+                time_s=time_s if timed else None,
             )
-            for name, action, observation, placement in rows
+            for name, action, observation, placement, time_s in rows
         ],
     )

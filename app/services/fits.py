@@ -48,6 +48,7 @@ from core.gp import (
     fit_structure,
     iter_fit,
     refit_warm,
+    with_drift_effect,
     with_placement_effect,
 )
 from core.selection import (
@@ -381,6 +382,7 @@ def run_fit(
         raise ValueError("the fit ended without a model")
     job.checkpoint()
     fitted, _ = with_placement_effect(fitted, options)
+    fitted, _ = with_drift_effect(fitted)
     if pipeline is not None:
         fitted = dataclasses.replace(fitted, features=pipeline)
     return fitted, selection, time.perf_counter() - started

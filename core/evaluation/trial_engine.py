@@ -210,12 +210,14 @@ class ModelSamples:
         actions: FloatArray,
         rng: np.random.Generator,
         offset: FloatArray | None = None,
+        offset_variance: FloatArray | None = None,
     ) -> FloatArray:
         """One draw at each of ``actions`` (n, dx) for object ``object_index``. Shape (n, dy).
 
-        ``offset``: a placement's offset b (dy,) in model space, shared by these draws; its
-        variance σ_b² (the model's ``placement_variance``) is then taken out of each draw's
-        noise, so every single draw keeps the predictive variance v (docs/calibration.md (C1)).
+        ``offset``: an offset (dy,) in model space shared by these draws (a placement's b, the
+        drift's d, or both); its variance ``offset_variance`` (dy,) (default: the model's
+        ``placement_variance``) is then taken out of each draw's noise, so every single draw
+        keeps the predictive variance v (docs/calibration.md (C1)).
         """
         model = self.model
         latents = np.repeat(model.latents[object_index][None, :], actions.shape[0], axis=0)
@@ -223,11 +225,13 @@ class ModelSamples:
         # and mapped to raw units: with correlated noise the raw predictive is not diagonal.
         mean, variance = predict_model_space(model, latents, actions)
         if offset is not None:
-            if model.placement_variance is None:
+            if offset_variance is None:
+                offset_variance = model.placement_variance
+            if offset_variance is None:
                 raise InvalidInputError(
                     "offset: a placement offset needs a model with a placement variance."
                 )
-            mean, variance = mean + offset, variance - model.placement_variance
+            mean, variance = mean + offset, variance - offset_variance
         draw = mean + np.sqrt(variance) * rng.standard_normal(mean.shape)
         if model.transform is not None:
             draw = model.transform.restore_mean(draw)
@@ -242,8 +246,9 @@ class ModelTrial:
     b_a ~ N(0, σ_b,a²) per placement and ε_ta of variance v_a − σ_b,a² (docs/calibration.md
     (C1); σ_b² the model's ``placement_variance``). With ``shared_placement`` the trial places its
     object once (the offset is drawn at the first touch and kept), otherwise anew before every
-    touch. A model without a placement variance draws exactly as
-    ``WorldTouches(ModelSamples(model), target)``.
+    touch. A model with a drift variance σ_d² also draws one drift offset d ~ N(0, σ_d²) at the
+    first touch and keeps it for the trial (:mod:`core.gp.drift_effect`). A model with neither
+    draws exactly as ``WorldTouches(ModelSamples(model), target)``.
 
     Raises:
         InvalidInputError: ``target`` is not an object of the model.
@@ -255,13 +260,26 @@ class ModelTrial:
         self.index = model.object_names.index(target)
         self.shared_placement = shared_placement
         self.offset: FloatArray | None = None
+        self.drift: FloatArray | None = None
 
     def touch(self, action: FloatArray, rng: np.random.Generator) -> Touch:
         """A draw at ``action`` (dx,) for the target."""
-        variance = self.samples.model.placement_variance
+        model = self.samples.model
+        variance = model.placement_variance
         if variance is not None and (self.offset is None or not self.shared_placement):
             self.offset = np.sqrt(variance) * rng.standard_normal(variance.shape)
-        observation = self.samples.observe(self.index, action[None, :], rng, self.offset)[0]
+        drift = model.drift_variance
+        if drift is not None and self.drift is None:  # once per trial, whatever the placement
+            self.drift = np.sqrt(drift) * rng.standard_normal(drift.shape)
+        if self.drift is None:
+            observation = self.samples.observe(self.index, action[None, :], rng, self.offset)[0]
+        else:
+            assert drift is not None
+            offset = self.drift if self.offset is None else self.offset + self.drift
+            offset_variance = drift if variance is None else variance + drift
+            observation = self.samples.observe(
+                self.index, action[None, :], rng, offset, offset_variance
+            )[0]
         return Touch(
             action=np.asarray(action, dtype=np.float64),
             observation=np.asarray(observation, dtype=np.float64),

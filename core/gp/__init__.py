@@ -11,6 +11,7 @@ noise model (``noise_model``) and the placement effect (``placement_effect``).
 Callers outside ``core`` use the names below; tests and benchmarks may reach the modules.
 """
 
+from core.gp.drift_effect import check_drift_variance, estimate_drift_variance, with_drift_effect
 from core.gp.fit_options import FitOptions, FitProgress
 from core.gp.fit_run import (
     StartMap,
@@ -62,10 +63,12 @@ __all__ = [
     "StartTask",
     "Structure",
     "attach_transform",
+    "check_drift_variance",
     "check_placement_variance",
     "choose_noise_model",
     "condition",
     "condition_sparse",
+    "estimate_drift_variance",
     "estimate_placement_variance",
     "fit_hyperparameters",
     "fit_manifold",
@@ -78,5 +81,6 @@ __all__ = [
     "refit_warm",
     "run_first_stage",
     "transform_data",
+    "with_drift_effect",
     "with_placement_effect",
 ]

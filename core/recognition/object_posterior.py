@@ -99,6 +99,18 @@ def object_log_likelihoods(
     return np.asarray(model.tempering * values, dtype=np.float64)
 
 
+def shared_variance(model: ManifoldModel, shared_placement: bool = True) -> FloatArray:
+    """The variance of the offset all of a trial's touches share, per model-space feature: the
+    drift's σ_d² (:mod:`core.gp.drift_effect`), plus the placement's σ_b² when the touches met one
+    placement. Zeros for a model with neither. Shape (dy,)."""
+    variance = np.zeros(model.hyperparameters.observation_dim)
+    if shared_placement and model.placement_variance is not None:
+        variance = variance + model.placement_variance
+    if model.drift_variance is not None:
+        variance = variance + model.drift_variance
+    return variance
+
+
 def _untempered_log_likelihoods(
     model: ManifoldModel,
     actions: FloatArray,
@@ -111,11 +123,7 @@ def _untempered_log_likelihoods(
     n_objects = model.latents.shape[0]
     if x.shape[0] == 0:
         return np.zeros(n_objects)
-    variance = (
-        model.placement_variance
-        if shared_placement and model.placement_variance is not None
-        else np.zeros(model.hyperparameters.observation_dim)
-    )
+    variance = shared_variance(model, shared_placement)
     if model.latent_covariance is not None:
         # docs/method.md (L3): every s_l integrated over its Laplace posterior.
         if trial_likelihood == "joint":

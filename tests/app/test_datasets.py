@@ -157,7 +157,7 @@ def test_a_partial_dataset_exports_in_the_same_format(client: TestClient) -> Non
             session, name="partial", source="collection", status="collecting",
             object_names=["cup"], action_dim=2, observation_dim=3,
         )  # fmt: skip
-        crud.add_samples(session, dataset, [("cup", action, observation, None, None)])
+        crud.add_samples(session, dataset, [("cup", action, observation, None, None, None)])
         session.commit()
         dataset_id = dataset.id
     exported = client.get(f"/api/v1/datasets/{dataset_id}/export?format=csv")

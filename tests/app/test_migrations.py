@@ -1,6 +1,6 @@
 """Alembic migrations: head matches the tables of :mod:`app.db.tables`; 0002 (``models.posterior``)
 upgrades a database with models of revision 0001, which keep loading as before, and downgrades;
-0006 (``samples.placement``) likewise.
+0006 (``samples.placement``) and 0007 (``samples.time_s``) likewise.
 """
 
 from __future__ import annotations
@@ -124,6 +124,34 @@ def test_samples_placement_of_revision_0006_downgrades_and_upgrades(tmp_path: Pa
         assert "placement" in sample_columns(database)
         with database.session() as session:
             assert training_data(session, dataset_id).placement_index is None
+    finally:
+        database.dispose()
+
+
+def test_samples_time_of_revision_0007_downgrades_and_upgrades(tmp_path: Path) -> None:
+    settings = make_settings(tmp_path)
+    database = Database(settings.database_url)
+    data = sample_experiment1(np.random.default_rng(4), touches_per_object=3)
+    timed = dataclasses.replace(data, touch_times_s=24.1 * np.arange(data.n_touches) + 1 / 3)
+    try:
+        upgrade_to_head(database.engine, settings.migrations_dir)
+        with database.session() as session:
+            dataset_id = store_training_data(session, timed, "timed", "upload").id
+            session.commit()
+        with database.session() as session:
+            stored = training_data(session, dataset_id).touch_times_s
+        assert stored is not None
+        assert stored.tolist() == timed.touch_times_s.tolist()  # exact: a float64 column
+        # Back to 0006: the column goes, the samples stay; up again: their times are NULL.
+        migrate(database, settings.migrations_dir, "0006_sample_placement", down=True)
+        assert "time_s" not in sample_columns(database)
+        with database.engine.connect() as connection:
+            count = connection.execute(text("SELECT count(*) FROM samples")).scalar()
+        assert count == data.n_touches
+        migrate(database, settings.migrations_dir, "head")
+        assert "time_s" in sample_columns(database)
+        with database.session() as session:
+            assert training_data(session, dataset_id).touch_times_s is None
     finally:
         database.dispose()
 

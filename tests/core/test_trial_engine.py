@@ -124,13 +124,21 @@ def test_model_trial_without_a_placement_effect_draws_as_the_model_world(model):
         )
 
 
-@pytest.mark.parametrize("shared", [True, False])
-def test_model_trial_shares_one_placement_offset_between_its_touches(model, shared):
+@pytest.mark.parametrize(
+    ("placement_share", "drift_share", "shared"),
+    [(0.6, 0.0, True), (0.6, 0.0, False), (0.3, 0.4, True), (0.3, 0.4, False)],
+)
+def test_model_trial_shares_one_placement_offset_between_its_touches(
+    model, placement_share, drift_share, shared
+):
     # Moments vs Monte Carlo: two touches of a trial at different actions. Every draw keeps the
-    # predictive variance v; the two share the offset b, so their covariance is σ_b² (0 when
-    # the object is placed anew before each touch).
-    sigma_b = 0.6 * model.hyperparameters.noise_variance
-    placed = dataclasses.replace(model, placement_variance=sigma_b)
+    # predictive variance v; the two share the placement's offset b (σ_b², 0 when the object is
+    # placed anew before each touch) and the drift's d (σ_d², whatever the placement).
+    noise = model.hyperparameters.noise_variance
+    sigma_b, sigma_d = placement_share * noise, drift_share * noise
+    placed = dataclasses.replace(
+        model, placement_variance=sigma_b, drift_variance=sigma_d if drift_share else None
+    )
     actions = [np.array([0.2]), np.array([-0.9])]
     rng = np.random.default_rng(8)
     pairs = []
@@ -146,7 +154,7 @@ def test_model_trial_shares_one_placement_offset_between_its_touches(model, shar
         assert np.allclose(draws[:, t].var(axis=0), variance[t], rtol=0.1)
     centred = draws - draws.mean(axis=0)
     covariance = (centred[:, 0] * centred[:, 1]).mean(axis=0)
-    expected = sigma_b if shared else np.zeros_like(sigma_b)
+    expected = (sigma_b if shared else np.zeros_like(sigma_b)) + sigma_d
     # Standard error of the sample covariance ≈ sqrt(v_1 v_2 / n); 5 of them.
     tolerance = 5 * np.sqrt(variance[0] * variance[1] / len(pairs))
     assert np.all(np.abs(covariance - expected) < tolerance)

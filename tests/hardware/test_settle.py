@@ -49,6 +49,18 @@ def test_every_touch_starts_from_the_rested_skin_temperature() -> None:
     assert min(gaps_s) >= RigConfig().settle_s + 4.0
 
 
+def test_each_touch_records_when_it_started_on_the_rig_clock() -> None:
+    """``started_s`` is the rig clock's time at the trajectory's start: consecutive touches
+    start at least the rest and the touch apart (and not much more: the same clock)."""
+    config = RigConfig()
+    records, _ = three_touches(config.settle_s)
+    started_s = [r.started_s for r in records]
+    assert all(s is not None and np.isfinite(s) for s in started_s)
+    gaps_s = np.diff(np.asarray(started_s, dtype=np.float64))
+    assert np.all(gaps_s >= config.settle_s + records[0].duration_s)
+    assert gaps_s.max() < config.settle_s + records[0].duration_s + 1.0
+
+
 def test_without_the_rest_a_touch_right_after_another_starts_cooler() -> None:
     records, _ = three_touches(0.0)
     start_c = [r.tactile[0, TEMPERATURE] for r in records]
