@@ -83,6 +83,21 @@ def _line_error(line: int, message: str, column: str | None = None) -> DocumentE
     return DocumentError(f"raw touches, line {line}: {message}", row=line, column=column)
 
 
+def _check_all_or_none(
+    key: str, what: str, value: object, earlier: list[Any], line: int, lines: list[int]
+) -> None:
+    """An optional ``key`` (``placement``, ``time_s``) is given on every line or on none: refuse
+    ``value`` of ``line`` if it differs in that from the first line's (``earlier[0]``)."""
+    if earlier and (value is None) != (earlier[0] is None):
+        raise _line_error(
+            line,
+            f"'{key}' is {'missing' if value is None else 'given'} here but "
+            f"{'not ' if earlier[0] is None else ''}on line {lines[0]}; give every "
+            f"touch {what} or none.",
+            key,
+        )
+
+
 def _read_channels(value: Any, line: int) -> RawTouch:
     if not isinstance(value, Mapping) or not value:
         raise _line_error(
@@ -221,23 +236,9 @@ def read_raw_touches(text: str) -> RawTouchSet:
             except InvalidInputError as exc:
                 raise _line_error(line, str(exc), "channels") from None
         placement = _placement(item.get("placement"), line)
-        if placements and (placement is None) != (placements[0] is None):
-            raise _line_error(
-                line,
-                f"'placement' is {'missing' if placement is None else 'given'} here but "
-                f"{'not ' if placements[0] is None else ''}on line {lines[0]}; give every "
-                "touch a placement or none.",
-                "placement",
-            )
+        _check_all_or_none("placement", "a placement", placement, placements, line, lines)
         time_s = _time_s(item.get("time_s"), line)
-        if times_s and (time_s is None) != (times_s[0] is None):
-            raise _line_error(
-                line,
-                f"'time_s' is {'missing' if time_s is None else 'given'} here but "
-                f"{'not ' if times_s[0] is None else ''}on line {lines[0]}; give every "
-                "touch a time or none.",
-                "time_s",
-            )
+        _check_all_or_none("time_s", "a time", time_s, times_s, line, lines)
         name = name.strip()
         if name not in names:
             names.append(name)

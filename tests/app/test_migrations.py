@@ -10,6 +10,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 from alembic import command
 from alembic.autogenerate import compare_metadata
 from alembic.config import Config
@@ -101,57 +102,41 @@ def test_models_of_revision_0001_upgrade_and_load_as_before(tmp_path: Path) -> N
         np.testing.assert_allclose(left, right, rtol=0.0, atol=1e-12)
 
 
-def test_samples_placement_of_revision_0006_downgrades_and_upgrades(tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("column", "field", "previous", "values"),
+    [
+        ("placement", "placement_index", "0005_evaluation_trial_refused", np.arange(12) % 2),
+        ("time_s", "touch_times_s", "0006_sample_placement", 24.1 * np.arange(12) + 1 / 3),
+    ],
+    ids=["0006 placement", "0007 time"],
+)
+def test_a_samples_column_downgrades_and_upgrades(
+    tmp_path: Path, column: str, field: str, previous: str, values: np.ndarray
+) -> None:
+    """Stored, then the revision that added the column undone (it goes, the samples stay) and
+    redone (the column is back, NULL: the data no longer record it)."""
     settings = make_settings(tmp_path)
     database = Database(settings.database_url)
     data = sample_experiment1(np.random.default_rng(4), touches_per_object=3)
-    placed = dataclasses.replace(data, placement_index=np.arange(data.n_touches) % 2)
+    recorded = dataclasses.replace(data, **{field: values})
     try:
         upgrade_to_head(database.engine, settings.migrations_dir)
         with database.session() as session:
-            dataset_id = store_training_data(session, placed, "placed", "upload").id
+            dataset_id = store_training_data(session, recorded, column, "upload").id
             session.commit()
         with database.session() as session:
-            stored = training_data(session, dataset_id).placement_index
-        np.testing.assert_array_equal(stored, placed.placement_index)
-        # Back to 0005: the column goes, the samples stay; up again: their placements are NULL.
-        migrate(database, settings.migrations_dir, "0005_evaluation_trial_refused", down=True)
-        assert "placement" not in sample_columns(database)
-        with database.engine.connect() as connection:
-            count = connection.execute(text("SELECT count(*) FROM samples")).scalar()
-        assert count == data.n_touches
-        migrate(database, settings.migrations_dir, "head")
-        assert "placement" in sample_columns(database)
-        with database.session() as session:
-            assert training_data(session, dataset_id).placement_index is None
-    finally:
-        database.dispose()
-
-
-def test_samples_time_of_revision_0007_downgrades_and_upgrades(tmp_path: Path) -> None:
-    settings = make_settings(tmp_path)
-    database = Database(settings.database_url)
-    data = sample_experiment1(np.random.default_rng(4), touches_per_object=3)
-    timed = dataclasses.replace(data, touch_times_s=24.1 * np.arange(data.n_touches) + 1 / 3)
-    try:
-        upgrade_to_head(database.engine, settings.migrations_dir)
-        with database.session() as session:
-            dataset_id = store_training_data(session, timed, "timed", "upload").id
-            session.commit()
-        with database.session() as session:
-            stored = training_data(session, dataset_id).touch_times_s
+            stored = getattr(training_data(session, dataset_id), field)
         assert stored is not None
-        assert stored.tolist() == timed.touch_times_s.tolist()  # exact: a float64 column
-        # Back to 0006: the column goes, the samples stay; up again: their times are NULL.
-        migrate(database, settings.migrations_dir, "0006_sample_placement", down=True)
-        assert "time_s" not in sample_columns(database)
+        assert stored.tolist() == values.tolist()  # exact: float64 and integer columns
+        migrate(database, settings.migrations_dir, previous, down=True)
+        assert column not in sample_columns(database)
         with database.engine.connect() as connection:
             count = connection.execute(text("SELECT count(*) FROM samples")).scalar()
         assert count == data.n_touches
         migrate(database, settings.migrations_dir, "head")
-        assert "time_s" in sample_columns(database)
+        assert column in sample_columns(database)
         with database.session() as session:
-            assert training_data(session, dataset_id).touch_times_s is None
+            assert getattr(training_data(session, dataset_id), field) is None
     finally:
         database.dispose()
 
