@@ -5,7 +5,8 @@
 
 The suite runs on two pytest-xdist workers (``scripts/test.sh``: ``-n 2 --dist loadgroup``); the
 browser tests share one demo and the Dask tests one cluster, so each of those kinds stays on one
-worker (:func:`pytest_collection_modifyitems`).
+worker (:func:`pytest_collection_modifyitems`). Schemathesis' API tests, generated at run time,
+run on their own after (under xdist only the first would run).
 """
 
 from __future__ import annotations
