@@ -188,7 +188,8 @@ def test_viser_view_connects_and_follows_the_trial(
         # The client eases the camera in and fades the scene in; with software WebGL at a few
         # frames a second that takes long: wait more when refreshing the README's copy.
         alone.wait_for_timeout(25_000 if os.environ.get(DOCS_FLAG) == "1" else 6_000)
-        save_screenshot(alone, "viser-view", docs=True)
+        # Taking it waits for a frame from software WebGL, which can take long on a busy machine.
+        save_screenshot(alone, "viser-view", docs=True, timeout=120_000)
     finally:
         context.close()
 
