@@ -705,6 +705,12 @@ class EvaluationCreate(BaseModel):
         description="How the object posterior scores a trial's touches: one Gaussian with the "
         "GP's full covariance (joint) or a product over touches (independent).",
     )
+    plan_under: Literal["objects", "gaussian"] = Field(
+        default="objects",
+        description="The belief the active policy plans under: the mixture over the learned "
+        "objects that the object posterior implies (objects) or the paper's Gaussian belief "
+        "(gaussian).",
+    )
     stop_at_confidence: StrictBool = Field(
         default=False,
         description="Also stop a trial once its answer's probability reaches `confidence` (the "

@@ -48,6 +48,7 @@ from rich.table import Table
 
 from app.cli.options import (
     PlacementOption,
+    PlanUnderOption,
     TableFile,
     TableName,
     TrialLikelihoodOption,
@@ -203,6 +204,7 @@ def evaluate_command(
     table_file: TableFile = None,
     placement: PlacementOption = "trial",
     trial_likelihood: TrialLikelihoodOption = "joint",
+    plan_under: PlanUnderOption = "objects",
     workers: Annotated[
         int | None, typer.Option(help="Run on a LocalCluster of K single-threaded processes.")
     ] = None,
@@ -223,7 +225,7 @@ def evaluate_command(
     from app.evaluation.runner import run_evaluation
     from app.evaluation.spec import EvaluationSpec, Placement, world_name
     from core.errors import CoreError
-    from core.recognition import TrialLikelihood
+    from core.recognition import PlanningBelief, TrialLikelihood
 
     if workers is not None and scheduler is not None:
         raise fail("--workers and --scheduler: give one (a local cluster or an existing one)")
@@ -247,6 +249,7 @@ def evaluate_command(
         table=chosen_table,
         placement=cast(Placement, placement),
         trial_likelihood=cast(TrialLikelihood, trial_likelihood),
+        plan_under=cast(PlanningBelief, plan_under),
         stop_at_confidence=stop_at_confidence,
     )
     try:

@@ -43,6 +43,15 @@ TrialLikelihoodOption = Annotated[
 ]
 """``--trial-likelihood``: see :class:`app.evaluation.spec.EvaluationSpec`."""
 
+PlanUnderOption = Annotated[
+    str,
+    typer.Option(
+        help="The belief the active policy plans under: objects (the mixture over the learned "
+        "objects the object posterior implies, the default) or gaussian (the paper's).",
+    ),
+]
+"""``--plan-under``: see :class:`app.evaluation.spec.EvaluationSpec`."""
+
 #: How a simulated rig is wired (the values of :class:`app.rig.build.SimulationMode`).
 SimulationName = Literal["in-process", "pty"]
 

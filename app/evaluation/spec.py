@@ -8,7 +8,13 @@ from typing import TYPE_CHECKING, Literal, cast, get_args
 from app.errors import BadInputError
 from core.evaluation import TrialSettings
 from core.evaluation import WorldName as SyntheticWorld
-from core.recognition import EVALUATION_POLICIES, TRIAL_LIKELIHOODS, TrialLikelihood
+from core.recognition import (
+    EVALUATION_POLICIES,
+    PLANNING_BELIEFS,
+    TRIAL_LIKELIHOODS,
+    PlanningBelief,
+    TrialLikelihood,
+)
 from core.types import ManifoldModel, TrainingData
 
 if TYPE_CHECKING:
@@ -61,6 +67,9 @@ class EvaluationSpec:
             variance σ_b² enters only on the rig and the model world with
             ``placement="trial"``, the worlds whose trial touches share a placement (a
             replay's touches each met their own).
+        plan_under: The belief actions are planned under: ``"objects"`` (default; the mixture
+            over the learned objects the object posterior implies) or ``"gaussian"`` (the
+            paper's Gaussian belief; the paper's experiments use it).
     """
 
     world: WorldName
@@ -78,6 +87,7 @@ class EvaluationSpec:
     prior_variance: float | None = None
     placement: Placement = "trial"
     trial_likelihood: TrialLikelihood = "joint"
+    plan_under: PlanningBelief = "objects"
 
     def target_names(self, model: ManifoldModel) -> tuple[str, ...]:
         """The targets, in the model's object order."""
@@ -94,6 +104,7 @@ class EvaluationSpec:
             prior_variance=self.prior_variance,
             trial_likelihood=self.trial_likelihood,
             shared_placement=self.world in ("rig", "model") and self.placement == "trial",
+            plan_under=self.plan_under,
         )
 
     def steps_used(self, model: ManifoldModel, replay: TrainingData | None) -> int:
@@ -148,6 +159,11 @@ class EvaluationSpec:
                 f"trial_likelihood: {self.trial_likelihood!r} is not one of "
                 f"{list(TRIAL_LIKELIHOODS)}.",
                 field="trial_likelihood",
+            )
+        if self.plan_under not in PLANNING_BELIEFS:
+            raise BadInputError(
+                f"plan_under: {self.plan_under!r} is not one of {list(PLANNING_BELIEFS)}.",
+                field="plan_under",
             )
         if self.seed < 0:
             raise BadInputError(f"seed: must be ≥ 0, received {self.seed}.", field="seed")

@@ -190,6 +190,7 @@ def run_experiment1(
                 noise_std=noise_std,
                 prior_variance=prior_variance,
                 trial_likelihood=trial_likelihood,
+                plan_under="gaussian",  # the paper's planning, as its prior
             )
             report = run_evaluation(used, spec)
             steps = sum(r.touches for r in report.records)

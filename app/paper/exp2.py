@@ -345,6 +345,7 @@ def run_experiment2(
             table=settings.table if source == "rig" else None,
             prior_variance=settings.prior_variance,
             placement=settings.placement,
+            plan_under="gaussian",  # the paper's planning, as its prior
         )
         done = [0]
 

@@ -54,6 +54,7 @@ def build_spec(body: EvaluationCreate) -> EvaluationSpec:
             table=body.table,
             placement=body.placement,
             trial_likelihood=body.trial_likelihood,
+            plan_under=body.plan_under,
             stop_at_confidence=body.stop_at_confidence,
         )
     except (CoreError, ValueError, TypeError) as exc:

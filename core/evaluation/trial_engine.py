@@ -37,6 +37,7 @@ from core.gp.posterior import predict_model_space
 from core.recognition.object_posterior import TrialLikelihood
 from core.recognition.planning import EVALUATION_POLICIES, Planner, ReplayScore, policy_entry
 from core.recognition.session import (
+    PlanningBelief,
     RecognitionSession,
     RecognitionSettings,
     RecognitionStep,
@@ -416,6 +417,9 @@ class TrialSettings:
             (:class:`core.recognition.session.RecognitionSettings`): ``"joint"`` or
             ``"independent"``.
         shared_placement: Whether a trial's touches meet one placement of the object.
+        plan_under: The belief actions are planned under
+            (:class:`core.recognition.session.RecognitionSettings`): ``"objects"`` or
+            ``"gaussian"`` (the paper's).
     """
 
     steps: int
@@ -424,6 +428,7 @@ class TrialSettings:
     prior_variance: float | None = None
     trial_likelihood: TrialLikelihood = "joint"
     shared_placement: bool = True
+    plan_under: PlanningBelief = "objects"
 
     def recognition(self, steps: int | None = None) -> RecognitionSettings:
         """The recognition settings (``steps`` overrides T, e.g. capped by a replay pool)."""
@@ -433,6 +438,7 @@ class TrialSettings:
             confidence_threshold=self.stop_confidence,
             trial_likelihood=self.trial_likelihood,
             shared_placement=self.shared_placement,
+            plan_under=self.plan_under,
         )
 
     def prior(self, model: ManifoldModel) -> GaussianBelief:

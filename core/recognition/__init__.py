@@ -24,6 +24,7 @@ from core.recognition.moments import (
     predictive_moments,
     update_belief,
 )
+from core.recognition.object_mixture import ObjectMixture, mixture_information
 from core.recognition.object_posterior import (
     TRIAL_LIKELIHOODS,
     TrialLikelihood,
@@ -42,23 +43,29 @@ from core.recognition.planning import (
     policy_entry,
 )
 from core.recognition.session import (
+    PLANNING_BELIEFS,
+    PlanningBelief,
     RecognitionFinishedError,
     RecognitionSession,
     RecognitionSettings,
     RecognitionStep,
     default_prior,
+    objects_belief,
 )
 from core.recognition.tempering import check_exponent, fit_tempering
 
 __all__ = [
     "EVALUATION_POLICIES",
+    "PLANNING_BELIEFS",
     "POLICIES",
     "TRIAL_LIKELIHOODS",
     "ActionBox",
     "ActivePolicy",
     "BasisResponses",
     "DMPActionSpace",
+    "ObjectMixture",
     "Planner",
+    "PlanningBelief",
     "Policy",
     "RecognitionFinishedError",
     "RecognitionSession",
@@ -74,9 +81,11 @@ __all__ = [
     "fit_dmp",
     "fit_tempering",
     "make_policy",
+    "mixture_information",
     "mutual_information",
     "object_log_likelihoods",
     "object_posterior",
+    "objects_belief",
     "policy_entry",
     "predictive_moments",
     "touch_log_likelihoods",

@@ -35,6 +35,7 @@ from core.recognition.moments import (
     predictive_moments,
 )
 from core.recognition.object_information import label_information_mc, object_predictives
+from core.recognition.object_mixture import ObjectMixture, mixture_information
 from core.types import GaussianBelief, ManifoldModel
 from core.validation import FloatArray, as_float_array
 
@@ -309,21 +310,26 @@ class Planner:
             self._statistics = action_statistics(self.model, candidates)
         return self._statistics
 
-    def mutual_information(self, belief: GaussianBelief, actions: FloatArray) -> FloatArray:
+    def mutual_information(
+        self, belief: GaussianBelief | ObjectMixture, actions: FloatArray
+    ) -> FloatArray:
         """U1 of arbitrary actions (C, dx) under ``belief``. Shape (C,)."""
         stats = action_statistics(self.model, actions)
+        if isinstance(belief, ObjectMixture):
+            return mixture_information(self.model, belief, stats)
         return mutual_information(predictive_moments(self.model, belief, stats), belief)
 
     def plan(
         self,
-        belief: GaussianBelief,
+        belief: GaussianBelief | ObjectMixture,
         rng: np.random.Generator,
         probabilities: FloatArray | None = None,
     ) -> PlannedAction:
         """Choose the next action under ``belief``.
 
         Args:
-            belief: s ~ N(μ, Σ) to plan for.
+            belief: The belief over s to plan for: the Gaussian s ~ N(μ, Σ), or the mixture
+                over the learned objects (:mod:`core.recognition.object_mixture`).
             rng: Source of randomness (passive draws).
             probabilities: The current object posterior p_l (discriminative policy; uniform when
                 ``None``). Shape (L,).
@@ -368,7 +374,7 @@ class Planner:
 
     def _plan_discriminative(
         self,
-        belief: GaussianBelief,
+        belief: GaussianBelief | ObjectMixture,
         policy: DiscriminativePolicy,
         probabilities: FloatArray | None,
     ) -> PlannedAction:
@@ -383,8 +389,17 @@ class Planner:
             object_information=float(scores[best]),
         )
 
-    def _plan_active(self, belief: GaussianBelief) -> PlannedAction:
+    def _plan_active(self, belief: GaussianBelief | ObjectMixture) -> PlannedAction:
         stats = self.candidate_statistics
+        if isinstance(belief, ObjectMixture):
+            # The candidates only: the analytic gradient of U1 is the single Gaussian's.
+            mixture_scores = mixture_information(self.model, belief, stats)
+            chosen = int(np.argmax(mixture_scores))
+            return PlannedAction(
+                action=stats.actions[chosen].copy(),
+                mutual_information=float(mixture_scores[chosen]),
+                policy="active",
+            )
         terms = belief_terms(self.model, belief)
         scores = mutual_information(moments_from_terms(self.model, terms, stats), belief)
         order = np.argsort(-scores)
@@ -424,18 +439,26 @@ class Planner:
 #: How a policy scores the unused recorded actions (C, dx) of a replay trial, given the planner,
 #: the belief to plan under and the current object posterior (L,); the largest score is touched
 #: next. Shape (C,).
-ReplayScore = Callable[[Planner, GaussianBelief, FloatArray, FloatArray], FloatArray]
+ReplayScore = Callable[
+    [Planner, GaussianBelief | ObjectMixture, FloatArray, FloatArray], FloatArray
+]
 
 
 def information_score(
-    planner: Planner, belief: GaussianBelief, probabilities: FloatArray, actions: FloatArray
+    planner: Planner,
+    belief: GaussianBelief | ObjectMixture,
+    probabilities: FloatArray,
+    actions: FloatArray,
 ) -> FloatArray:
     """U1 of each recorded action under the belief (docs/method.md (M4)); posterior unused."""
     return planner.mutual_information(belief, actions)
 
 
 def label_information_score(
-    planner: Planner, belief: GaussianBelief, probabilities: FloatArray, actions: FloatArray
+    planner: Planner,
+    belief: GaussianBelief | ObjectMixture,
+    probabilities: FloatArray,
+    actions: FloatArray,
 ) -> FloatArray:
     """Estimated I(l; y | x) of each recorded action under the object posterior.
 

@@ -3,15 +3,20 @@
 Two beliefs are carried side by side:
 
 * the **Gaussian belief** s ~ N(μ, Σ) over the object latent (the paper's), updated by moment
-  matching after every touch; it drives the choice of actions;
+  matching after every touch;
 * the **object posterior** p(l | D_t) over the L learned objects
   (:mod:`core.recognition.object_posterior`), the exact GP likelihood of all touches so far under
   each object, by default jointly (the touches share one uncertain function f and, when the model
   has a placement effect, one placement: docs/calibration.md eq. (C3));
   ``trial_likelihood="independent"`` multiplies them.
 
-The Gaussian is a local approximation and can settle near the wrong object; the most informative
-actions under that wrong belief then need not dislodge it (docs/method.md, "A known failure mode").
+Actions are planned by default under the mixture Σ_l p_l N(s_l, c·I) that the object posterior
+implies (:mod:`core.recognition.object_mixture`); ``plan_under="gaussian"`` plans under the
+Gaussian, as the paper does.
+
+The Gaussian is a local approximation and can settle near the wrong object; planned under it, the
+most informative actions under that wrong belief need not dislodge it (docs/method.md, "A known
+failure mode").
 The session therefore watches for disagreement: the Gaussian's nearest object is much less
 probable under the posterior than the posterior's best object. By default it then re-centres the
 Gaussian on the evidence, replacing it by the Gaussian that moment-matches the posterior mixture
@@ -40,6 +45,7 @@ from core.recognition.moments import (
     predictive_moments,
     update_belief,
 )
+from core.recognition.object_mixture import ObjectMixture, mixture_information
 from core.recognition.object_posterior import (
     TrialLikelihood,
     check_trial_likelihood,
@@ -52,6 +58,8 @@ from core.validation import FloatArray, as_float_array
 
 Decision = Literal["posterior", "nearest"]
 DisagreementRule = Literal["recentre", "replan", "ignore"]
+PlanningBelief = Literal["objects", "gaussian"]
+PLANNING_BELIEFS: tuple[PlanningBelief, ...] = ("objects", "gaussian")
 StopReason = Literal["max_steps", "converged", "confident"]
 
 #: The Gaussian and the posterior "disagree" when the posterior probability of the Gaussian's
@@ -90,6 +98,13 @@ class RecognitionSettings:
             reports ``recentred=True`` and its belief is the re-centred one. ``"replan"``: keep
             the Gaussian as updated, but plan the next action under that mixture-matched belief.
             ``"ignore"``: the paper, always the Gaussian.
+        plan_under: The belief over s the next action is planned under (the active policy's
+            U1, and the U1 every step reports). ``"objects"`` (default): the mixture
+            Σ_l p_l N(s_l, c·I) over the learned latents weighted by the object posterior
+            (:mod:`core.recognition.object_mixture`; c = :data:`OBJECT_COMPONENT_VARIANCE`):
+            the object is one of the learned ones, so the information worth having is about
+            which. ``"gaussian"``: the paper, the Gaussian belief (as ``on_disagreement`` leaves
+            it). The Gaussian is updated by (M5) either way.
         trial_likelihood: How the object posterior scores the trial's touches
             (:func:`core.recognition.object_posterior.object_log_likelihoods`). ``"joint"``
             (default): one Gaussian over all of them with the GP's full covariance of f (and the
@@ -110,6 +125,7 @@ class RecognitionSettings:
     on_disagreement: DisagreementRule = "recentre"
     trial_likelihood: TrialLikelihood = "joint"
     shared_placement: bool = True
+    plan_under: PlanningBelief = "objects"
 
     def __post_init__(self) -> None:
         if isinstance(self.max_steps, bool) or int(self.max_steps) != self.max_steps:
@@ -136,6 +152,10 @@ class RecognitionSettings:
                 f"{self.on_disagreement!r}."
             )
         check_trial_likelihood(self.trial_likelihood)
+        if self.plan_under not in PLANNING_BELIEFS:
+            raise InvalidInputError(
+                f"plan_under: expected 'objects' or 'gaussian', received {self.plan_under!r}."
+            )
 
 
 @dataclass(frozen=True)
@@ -146,8 +166,8 @@ class RecognitionStep:
         step: 1 for the first touch.
         action: The action performed. Shape (dx,).
         observation: What was observed. Shape (dy,).
-        mutual_information: U1 of the performed action under the Gaussian belief before the
-            update, in nats.
+        mutual_information: U1 of the performed action under the belief it was planned under
+            (``settings.plan_under``) before the update, in nats.
         belief: The Gaussian belief after the update (M5).
         probabilities: The object posterior after this touch. Shape (L,).
         nearest_object: Index of the learned latent nearest the Gaussian mean.
@@ -209,6 +229,21 @@ def default_prior(model: ManifoldModel, variance: float | None = None) -> Gaussi
     return GaussianBelief(mean=model.latents.mean(axis=0), cov=variance * np.eye(ds))
 
 
+def objects_belief(model: ManifoldModel, probabilities: FloatArray | None = None) -> ObjectMixture:
+    """The belief Σ_l p_l N(s_l, c·I) over the learned latents (c =
+    :data:`OBJECT_COMPONENT_VARIANCE`) that actions are planned under by default.
+
+    Args:
+        model: A conditioned model.
+        probabilities: p_l, the object posterior; uniform (before any touch) when ``None``.
+            Shape (L,).
+    """
+    n_objects, ds = model.latents.shape
+    if probabilities is None:
+        probabilities = np.full(n_objects, 1.0 / n_objects)
+    return ObjectMixture(model.latents, probabilities, OBJECT_COMPONENT_VARIANCE * np.eye(ds))
+
+
 def nearest_object(model: ManifoldModel, point: FloatArray) -> int:
     """Index of the learned latent nearest (Euclidean) to ``point`` (ds,)."""
     distances = np.sum((model.latents - point[None, :]) ** 2, axis=1)
@@ -222,10 +257,7 @@ def mixture_belief(
 
     Mean Σ_l p_l s_l; covariance cov + Σ_l p_l (s_l - s̄)(s_l - s̄)ᵀ.
     """
-    centre = probabilities @ model.latents
-    spread = model.latents - centre
-    mixed = cov + (spread * probabilities[:, None]).T @ spread
-    return GaussianBelief(mean=centre, cov=0.5 * (mixed + mixed.T))
+    return ObjectMixture(model.latents, probabilities, cov).moment_matched()
 
 
 class RecognitionSession:
@@ -296,8 +328,10 @@ class RecognitionSession:
         nearest = nearest_object(self.model, self._belief.mean)
         return bool(probabilities[nearest] < DISAGREEMENT_RATIO * probabilities.max())
 
-    def planning_belief(self) -> GaussianBelief:
-        """The belief the next action is planned under (see the module docstring)."""
+    def planning_belief(self) -> GaussianBelief | ObjectMixture:
+        """The belief the next action is planned under (see :class:`RecognitionSettings`)."""
+        if self.settings.plan_under == "objects":
+            return objects_belief(self.model, self.probabilities)
         if self.settings.on_disagreement == "replan" and self.disagrees():
             return mixture_belief(self.model, self.probabilities, self._belief.cov)
         return self._belief
@@ -328,9 +362,13 @@ class RecognitionSession:
         x = as_float_array(action, "action", (h.action_dim,)).copy()
         y = as_float_array(observation, "observation", (h.observation_dim,)).copy()
         before = self._belief
+        planned_under = self.planning_belief()
         stats = action_statistics(self.model, x[None, :])
         moments = predictive_moments(self.model, before, stats)
-        information = float(mutual_information(moments, before)[0])
+        if isinstance(planned_under, ObjectMixture):
+            information = float(mixture_information(self.model, planned_under, stats)[0])
+        else:
+            information = float(mutual_information(moments, before)[0])
         # The moments are in the model's space y' = M (y - c): map the raw observation there
         # (the object posterior below takes it raw and maps it itself).
         y_model = self.model.to_model_space(y[None, :])[0]

@@ -172,6 +172,7 @@ def test_replay_world_caps_t_at_the_pool_and_says_so(exp1_model):
         ({"world": "rig", "table": "moon"}, "table: 'moon'.*'default'"),
         ({"world": "replay"}, "data: the replay world needs held-out touches"),
         ({"trial_likelihood": "product"}, r"trial_likelihood: 'product'.*'joint', 'independent'"),
+        ({"plan_under": "mixture"}, r"plan_under: 'mixture'.*'objects', 'gaussian'"),
     ],
 )
 def test_bad_specs_are_named(exp1_model, changes, message):
@@ -216,3 +217,4 @@ def test_the_placement_variance_enters_only_trials_that_share_a_placement(world,
     ).trial_settings()
     assert settings.recognition().shared_placement is shared
     assert settings.recognition().trial_likelihood == "joint"
+    assert settings.recognition().plan_under == "objects"

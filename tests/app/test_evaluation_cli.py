@@ -48,6 +48,21 @@ def test_json_prints_only_the_report_and_files_are_written(model_path, tmp_path)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["curves.png", "report.json"]
 
 
+def test_the_active_policy_plans_under_the_belief_asked_for(model_path):
+    def first_actions(plan_under: str) -> list[list[float]]:
+        result = evaluate(
+            model_path,
+            *("--world", "exp1", "--trials", "1", "--steps", "1", "--policies", "active"),
+            *("--plan-under", plan_under, "--json"),
+        )
+        assert result.exit_code == 0, result.output
+        return [trial["actions"][0] for trial in json.loads(result.stdout)["trials"]]
+
+    objects, gaussian = first_actions("objects"), first_actions("gaussian")
+    assert objects == first_actions("objects")  # deterministic
+    assert objects != gaussian
+
+
 def test_table_output_names_the_policies(model_path):
     result = evaluate(model_path, "--world", "model", "--trials", "1", "--steps", "2")
     assert result.exit_code == 0, result.output
@@ -117,6 +132,7 @@ def test_replay_from_a_csv_says_t_is_capped(model_path, tmp_path):
         (("--world", "exp1", "--out", "/nonexistent/dir/r.json"), "does not exist"),
         (("--world", "exp1", "--placement", "shelf"), "placement: 'shelf'"),
         (("--world", "exp1", "--placement", "touch"), "only the rig world"),
+        (("--world", "exp1", "--plan-under", "mixture"), "plan_under: 'mixture'"),
     ],
 )
 def test_bad_input_exits_2_naming_it(model_path, args, message):

@@ -165,7 +165,9 @@ def _locked_session(model: ManifoldModel, rule: DisagreementRule) -> Recognition
     """A confident Gaussian at object 0 while object 3 is touched (the known failure mode)."""
     wrong = GaussianBelief(mean=model.latents[0], cov=np.array([[1e-4]]))
     planner = Planner(model, ActivePolicy(), n_candidates=64)
-    settings = RecognitionSettings(max_steps=6, tolerance=0.0, on_disagreement=rule)
+    settings = RecognitionSettings(
+        max_steps=6, tolerance=0.0, on_disagreement=rule, plan_under="gaussian"
+    )
     return RecognitionSession(model, planner, wrong, settings)
 
 

@@ -43,7 +43,12 @@ from core.recognition.planning import (
     label_information_score,
     policy_entry,
 )
-from core.recognition.session import RecognitionSession, RecognitionSettings, default_prior
+from core.recognition.session import (
+    RecognitionSession,
+    RecognitionSettings,
+    default_prior,
+    objects_belief,
+)
 from core.types import ManifoldModel
 
 
@@ -210,7 +215,7 @@ def test_replay_draws_recorded_touches_without_replacement(model, held_out, poli
 def test_active_replay_picks_the_largest_information_first(model, held_out):
     pool, record = replay(model, held_out, "active")
     planner = Planner(model, policy_entry("active").make())
-    scores = planner.mutual_information(default_prior(model), pool.actions)
+    scores = planner.mutual_information(objects_belief(model), pool.actions)
     assert record.actions[0] == tuple(pool.actions[int(np.argmax(scores))])
     assert record.mutual_information[0] == pytest.approx(float(scores.max()), rel=1e-9)
 
@@ -229,7 +234,7 @@ def test_each_replay_trial_is_offered_its_own_half_of_the_pool(model, held_out):
         offered = {tuple(pool.actions[i]) for i in offer}
         assert set(record.actions) <= offered
         assert set(passive.actions) <= offered  # the same offer for every policy of a trial
-        scores = planner.mutual_information(default_prior(model), pool.actions[offer])
+        scores = planner.mutual_information(objects_belief(model), pool.actions[offer])
         assert record.actions[0] == tuple(pool.actions[offer[int(np.argmax(scores))]])
         firsts.add(record.actions[0])
         offers.add(tuple(offer))
