@@ -89,6 +89,7 @@ def test_an_evaluation_runs_to_the_engines_report(client: TestClient) -> None:
     assert created["status"] == "queued"
     assert (created["done"], created["total"]) == (0, 2 * 4 * 2)  # policies x objects x trials
     assert created["spec"]["world"] == "exp1"
+    assert created["spec"]["plan_under"] == "objects"  # the default, recorded
 
     ended = wait_ended(client, created["id"])
     assert ended["status"] == "completed", ended
@@ -386,6 +387,7 @@ def test_bad_requests_name_what_is_wrong(client: TestClient, settings: Settings)
         ("confidence", 1.5),
         ("stop_at_confidence", "yes"),
         ("stop_at_confidence", 1),
+        ("plan_under", "mixture"),
     ):
         out_of_range = post(client, model_id=model_id, world="exp1", **{field: value})
         assert out_of_range.status_code == 422, field
