@@ -154,7 +154,8 @@ class RecognitionSettings:
         check_trial_likelihood(self.trial_likelihood)
         if self.plan_under not in PLANNING_BELIEFS:
             raise InvalidInputError(
-                f"plan_under: expected 'objects' or 'gaussian', received {self.plan_under!r}."
+                f"plan_under: expected one of {list(PLANNING_BELIEFS)}, received "
+                f"{self.plan_under!r}."
             )
 
 
@@ -220,9 +221,7 @@ def default_prior(model: ManifoldModel, variance: float | None = None) -> Gaussi
             the objects' prior.
     """
     if variance is None:
-        n_objects = model.latents.shape[0]
-        uniform = np.full(n_objects, 1.0 / n_objects)
-        return mixture_belief(model, uniform, OBJECT_COMPONENT_VARIANCE * np.eye(model.latent_dim))
+        return objects_belief(model).moment_matched()
     if not np.isfinite(variance) or variance <= 0:
         raise InvalidInputError(f"variance: must be finite and > 0, received {variance}.")
     ds = model.latent_dim
