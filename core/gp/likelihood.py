@@ -52,6 +52,7 @@ from core.errors import InvalidInputError
 from core.gp.linalg import cholesky_with_jitter, inverse_from_cholesky
 from core.gp.parameters import ParameterLayout
 from core.gp.placement_groups import checked_placement_variance, shared_groups
+from core.gp.unlocked_lapack import potrf_upper
 from core.types import Hyperparameters, TrainingData
 from core.validation import FloatArray, as_float_array
 
@@ -243,9 +244,10 @@ class ManifoldLikelihood:
         gram = self._noisy(gram_free, noise, feature)
         # Fast path: plain LAPACK in place on the symmetric matrix (its transpose is itself, so
         # the C-ordered copy is read as Fortran). Jitter ladder only on failure.
-        upper, info = scipy.linalg.lapack.dpotrf(gram.T, lower=0, clean=1, overwrite_a=1)
-        if info == 0:
-            return np.asarray(upper, dtype=np.float64), 0.0
+        # (core.gp.unlocked_lapack: without the GIL, so feature threads factorise at once.)
+        upper = gram.T
+        if potrf_upper(upper) == 0:
+            return upper, 0.0
         gram = self._noisy(gram_free, noise, feature)
         factor, jitter = cholesky_with_jitter(gram, what=f"Gram matrix of feature {feature}")
         return np.asarray(factor.T, dtype=np.float64), float(jitter)

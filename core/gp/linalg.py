@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 import scipy.linalg.blas
-import scipy.linalg.lapack
 
 from core.errors import NotPositiveDefiniteError
+from core.gp.unlocked_lapack import lauum_upper, potri_upper, trtri_upper
 from core.validation import FloatArray
 
 #: Relative jitters tried in turn, as multiples of the mean diagonal (docs/method.md, M2 findings).
@@ -154,12 +154,13 @@ def upper_triangular_inverse(upper: FloatArray) -> FloatArray:
     """
     n = upper.shape[0]
     if n <= TRIANGULAR_BLOCK:
-        inverse, info = scipy.linalg.lapack.dtrtri(upper, lower=0)
+        inverse = np.array(upper, dtype=np.float64, order="F")  # a copy: dtrtri works in place
+        info = trtri_upper(inverse)
         if info != 0:
             raise NotPositiveDefiniteError(
                 f"dtrtri: the triangular factor is singular (info {info})."
             )
-        return np.asarray(inverse, dtype=np.float64)
+        return inverse
     half = n // 2 if n < 64 else n // 32 * 16  # aligned blocks for the GEMMs, 0 < half < n
     first = upper_triangular_inverse(upper[:half, :half])
     second = upper_triangular_inverse(upper[half:, half:])
@@ -172,7 +173,8 @@ def upper_triangular_inverse(upper: FloatArray) -> FloatArray:
 
 def inverse_from_cholesky(upper: FloatArray, overwrite: bool = False) -> FloatArray:
     """A⁻¹ = U⁻¹ U⁻ᵀ from the upper Cholesky factor of A = UᵀU (``dpotri`` by
-    :func:`upper_triangular_inverse` and LAPACK ``dlauum``).
+    :func:`upper_triangular_inverse` and LAPACK ``dlauum``), the O(n³) LAPACK calls without
+    the GIL (:mod:`core.gp.unlocked_lapack`).
 
     Args:
         upper: U, Fortran-ordered for speed; strictly lower triangle zero. Shape (n, n).
@@ -185,12 +187,13 @@ def inverse_from_cholesky(upper: FloatArray, overwrite: bool = False) -> FloatAr
         lower triangle is zero. Its C-ordered transpose has A⁻¹ in the lower triangle.
     """
     if upper.shape[0] > RECURSIVE_INVERSE_MAX:
-        product, info = scipy.linalg.lapack.dpotri(upper, lower=0, overwrite_c=int(overwrite))
-        if info != 0:  # pragma: no cover - the factor came from a successful Cholesky
-            raise NotPositiveDefiniteError(f"dpotri failed (info {info}).")
-        return np.asarray(product, dtype=np.float64)
+        product = upper if overwrite and upper.flags.f_contiguous else upper.copy(order="F")
+        info = potri_upper(product)
+        if info != 0:
+            raise NotPositiveDefiniteError(f"dpotri: the factor is singular (info {info}).")
+        return product
     inverse_u = upper_triangular_inverse(upper)
-    product, info = scipy.linalg.lapack.dlauum(inverse_u, lower=0, overwrite_c=1)
-    if info != 0:  # pragma: no cover - dlauum only fails on bad arguments
-        raise NotPositiveDefiniteError(f"dlauum failed (info {info}).")
-    return np.asarray(product, dtype=np.float64)
+    if not inverse_u.flags.f_contiguous:  # pragma: no cover - both branches build F order
+        inverse_u = inverse_u.copy(order="F")
+    lauum_upper(inverse_u)  # fails only on bad arguments, which _checked refuses first
+    return inverse_u
