@@ -7,7 +7,6 @@ what it submitted), and may not rely on what earlier tests left on the workers.
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Iterator
 from typing import Any
 
@@ -16,17 +15,12 @@ import pytest
 
 @pytest.fixture(scope="session")
 def dask_cluster() -> Iterator[Any]:
-    """A running ``LocalCluster`` (2 worker processes, 1 thread each), closed after the session."""
-    from distributed import LocalCluster
+    """A running ``LocalCluster`` (2 worker processes, 1 thread each), closed after the session:
+    the one ``activetouch`` starts for ``--workers 2``
+    (:func:`app.evaluation.cluster.local_cluster`)."""
+    from app.evaluation.cluster import local_cluster
 
-    cluster = LocalCluster(
-        n_workers=2,
-        threads_per_worker=1,
-        processes=True,
-        dashboard_address=":0",
-        silence_logs=logging.ERROR,
-        env={"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"},
-    )
+    cluster = local_cluster(2)
     try:
         yield cluster
     finally:

@@ -25,6 +25,19 @@ from core.evaluation import TrialOutcome
 #: Environment of every worker process: BLAS on one thread (the worker's one core).
 WORKER_ENVIRONMENT = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
+#: glibc's allocator in every worker, set before the process starts (Dask's
+#: ``distributed.nanny.pre-spawn-environ``). Dask sets ``MALLOC_TRIM_THRESHOLD_`` = 64 KiB
+#: there, which also freezes glibc's mmap threshold at 128 KiB: every N x N array of a fit
+#: (5 MB at N = 800) was then a fresh mmap, faulted in page by page and unmapped on release —
+#: 25 million page faults and 105-110 s of system time per worker in one ``--latent-dim
+#: auto`` run on 800 touches (docs/fitting.md, "Fits on workers"). Arrays up to 32 MiB (the
+#: most glibc allows) now come from the heap and are reused, and up to 256 MiB of freed heap
+#: stays with the process.
+WORKER_ALLOCATOR = {
+    "MALLOC_MMAP_THRESHOLD_": str(32 << 20),
+    "MALLOC_TRIM_THRESHOLD_": str(256 << 20),
+}
+
 #: How long to wait for an existing scheduler (and for it to have a worker).
 CONNECT_TIMEOUT_S = 5.0
 
@@ -39,17 +52,21 @@ TASKS_PER_WORKER = 4
 
 
 def local_cluster(workers: int) -> Any:
-    """A ``LocalCluster`` of ``workers`` single-threaded worker processes, BLAS on one thread."""
+    """A ``LocalCluster`` of ``workers`` single-threaded worker processes, BLAS on one thread
+    and glibc's allocator keeping large arrays on the heap (:data:`WORKER_ALLOCATOR`)."""
+    import dask.config
     from distributed import LocalCluster
 
-    return LocalCluster(
-        n_workers=workers,
-        threads_per_worker=1,
-        processes=True,
-        dashboard_address=":0",
-        silence_logs=logging.ERROR,
-        env=WORKER_ENVIRONMENT,
-    )
+    pre_spawn = {**dask.config.get("distributed.nanny.pre-spawn-environ"), **WORKER_ALLOCATOR}
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": pre_spawn}):
+        return LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=":0",
+            silence_logs=logging.ERROR,
+            env=WORKER_ENVIRONMENT,
+        )
 
 
 def probe(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> None:
