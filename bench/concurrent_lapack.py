@@ -7,7 +7,9 @@ each making ``--calls`` calls against the same calls made one after the other (B
 thread), as a speed-up (median of alternating rounds): ~2 on two free cores when the library runs
 concurrent calls in parallel, ~1 when it serialises them.
 
-* ``scipy dpotrf`` / ``scipy dpotri``: SciPy's LAPACK wrappers (its bundled OpenBLAS), the two
+* ``scipy dpotrf`` / ``scipy dpotri``: SciPy's f2py LAPACK wrappers (its bundled OpenBLAS);
+* ``unlocked dpotrf`` / ``unlocked dpotri``: the same routines of the same library through
+  SciPy's Cython pointers (:mod:`core.gp.unlocked_lapack`), which release the GIL — the two
   calls of every dense evaluation;
 * ``numpy cholesky`` / ``numpy matmul``: NumPy's own OpenBLAS;
 * ``scipy dpotrf beside numpy cholesky``: one thread of each, the rate of each against running
@@ -33,6 +35,7 @@ import scipy.linalg.lapack
 from threadpoolctl import threadpool_info, threadpool_limits
 
 from bench.harness import machine, measure
+from core.gp.unlocked_lapack import potrf_upper, potri_upper
 
 
 def _spd(size: int) -> np.ndarray:
@@ -109,6 +112,8 @@ def run(size: int, calls: int) -> dict[str, Any]:
     calls_by_name: dict[str, Callable[[], object]] = {
         "scipy dpotrf": lambda: scipy.linalg.lapack.dpotrf(matrix, lower=0),
         "scipy dpotri": lambda: scipy.linalg.lapack.dpotri(upper, lower=0),
+        "unlocked dpotrf": lambda: potrf_upper(np.asfortranarray(matrix).copy(order="F")),
+        "unlocked dpotri": lambda: potri_upper(upper.copy(order="F")),
         "numpy cholesky": lambda: np.linalg.cholesky(matrix),
         "numpy matmul": lambda: matrix @ matrix,
     }
@@ -155,7 +160,7 @@ def main() -> None:
     print("two threads against one after the other (BLAS on one thread each):")
     for name, figures in out["two_threads"].items():
         print(
-            f"  {name:16s} serial {figures['serial_s']:.3f} s, two threads "
+            f"  {name:17s} serial {figures['serial_s']:.3f} s, two threads "
             f"{figures['two_threads_s']:.3f} s: x{figures['speedup']:.2f}"
         )
     beside = out["scipy dpotrf beside numpy cholesky"]

@@ -248,7 +248,13 @@ class FitProblem:
             options.stall_nats,
             options.stall_iterations,
             options.stall_relative,
+            **({} if self.tied else {"threads": self._threads()}),
         )
+
+    def _threads(self) -> int:
+        """The threads of this problem's evaluations (1 but for a dense likelihood's)."""
+        likelihood = self.likelihood
+        return likelihood.threads if isinstance(likelihood, ManifoldLikelihood) else 1
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,8 @@ one feature kept a poorer optimum with a long length-scale and the fit ended 3,8
 
 from __future__ import annotations
 
-from collections.abc import Callable, Generator, Sequence
+import concurrent.futures
+from collections.abc import Callable, Generator, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -29,6 +30,7 @@ import numpy as np
 import scipy.optimize
 
 from core.errors import NotPositiveDefiniteError
+from core.gp.likelihood import feature_pool
 from core.gp.parameters import ParameterLayout
 from core.types import TrainingData
 from core.validation import FloatArray
@@ -220,6 +222,7 @@ def iter_fit_separately(
     stall_iterations: int = 20,
     stall_relative: float = 0.0,
     memory: int = DEFAULT_LBFGS_MEMORY,
+    threads: int = 1,
 ) -> Generator[SeparableProgress, None, SeparableResult]:
     """Optimise every feature's hyperparameters separately, S fixed (see the module docstring).
 
@@ -237,9 +240,12 @@ def iter_fit_separately(
         stall_nats, stall_iterations, stall_relative: Early stop of each L-BFGS-B run
             (:func:`minimize_free`).
         memory: L-BFGS-B correction pairs (:func:`minimize_free`).
+        threads: Features optimised at once on this many threads (the likelihood's feature
+            pool, :func:`core.gp.likelihood.feature_pool`): the problems are independent and
+            each runs as it would alone, so the result is the same on any number of threads.
 
     Yields:
-        :class:`SeparableProgress` after each feature.
+        :class:`SeparableProgress` after each feature, in feature order.
 
     Returns:
         :class:`SeparableResult` (the generator's return value).
@@ -253,15 +259,31 @@ def iter_fit_separately(
     converged = True
     message = ""
     ds = layout.latent_dim
-    for a, (objective, idx) in enumerate(pairs):
+    initial = [out[idx].copy() for _, idx in pairs]  # read before any feature is written
+
+    def fit_feature(a: int) -> _Best:
+        objective, idx = pairs[a]
         sub_lower, sub_upper = lower[idx], upper[idx]
         free = np.ones(idx.size, dtype=bool)
         free[: layout.n_objects * ds] = False
         ls = slice(layout.n_objects * ds + 2, layout.n_objects * ds + 2 + ds)
-        starts = _lengthscale_starts(out[idx], ls, sub_lower, sub_upper, latent_lengthscale_starts)
-        best = _Best(values[a], out[idx].copy())
+        starts = _lengthscale_starts(
+            initial[a], ls, sub_lower, sub_upper, latent_lengthscale_starts
+        )
+        best = _Best(values[a], initial[a].copy())
         for start in starts:
             best.improve(start, free, run.minimise(objective, start, free, sub_lower, sub_upper))
+        return best
+
+    fitted: Iterable[_Best]
+    if threads > 1 and len(pairs) > 1:
+        # One-feature objectives never use the pool themselves, so this cannot deadlock.
+        futures = [feature_pool(threads).submit(fit_feature, a) for a in range(len(pairs))]
+        concurrent.futures.wait(futures)  # no feature still running when an error is raised
+        fitted = (future.result() for future in futures)
+    else:
+        fitted = (fit_feature(a) for a in range(len(pairs)))
+    for a, ((_, idx), best) in enumerate(zip(pairs, fitted, strict=True)):
         total_iterations += best.iterations
         out[idx] = best.vector
         values[a] = best.value

@@ -104,6 +104,28 @@ def test_separate_fit_is_at_least_as_good_as_the_joint_hyperparameter_fit() -> N
     assert all(b <= a + 1e-9 for a, b in itertools.pairwise(values))
 
 
+def test_features_fitted_on_threads_give_the_one_thread_result_and_progress() -> None:
+    data, latents = small_world_data(seed=3)
+    layout = make_likelihood(data, 2, "dense").layout
+    lower, upper = parameter_bounds(data, layout, 5.0)
+    start = np.clip(layout.pack(latents, initial_hyperparameters(data, 2)), lower, upper)
+    outcomes = []
+    for threads in (1, 3):
+        features = [make_likelihood(feature_data(data, a), 2, "dense") for a in range(5)]
+        outcomes.append(
+            run_separately(
+                iter_fit_separately(
+                    features, layout, start, lower, upper, 500, 1e-12, 1e-8, (1.0,), threads=threads
+                )
+            )
+        )
+    (events_1, result_1), (events_3, result_3) = outcomes
+    np.testing.assert_array_equal(result_3.vector, result_1.vector)
+    assert (result_3.value, result_3.iterations) == (result_1.value, result_1.iterations)
+    assert (result_3.converged, result_3.message) == (result_1.converged, result_1.message)
+    assert events_3 == events_1  # the same progress, in feature order
+
+
 def test_unit_length_scale_start_avoids_the_independent_objects_corner() -> None:
     # L=4 objects, a shared design of 100 actions, dx=6: from ℓ^s = 10 alone the first
     # quasi-Newton steps throw every latent length-scale onto its lower bound (K^s = I).
