@@ -9,8 +9,9 @@ then the screening run). :class:`FitEngine` supplies all three on one client —
 of single-threaded processes started for it, or an existing scheduler
 (:func:`app.evaluation.cluster.open_client`): :meth:`FitEngine.rung_map` runs each candidate's fit
 on all the touches as one task (:func:`core.selection.nested_fits.fit_rung`, the starts of the fit
-as tasks of their own), :meth:`FitEngine.fold_map` each fold — its warm refits or all its nested
-candidate fits, :func:`core.selection.latent_selection.score_fold` — as one task,
+as tasks of their own), :meth:`FitEngine.fold_map` each fold's warm refit of one candidate, or
+all of a fold's nested candidate fits (:func:`core.selection.latent_selection.score_fold`), as
+one task,
 :meth:`FitEngine.start_map` each start (:func:`core.gp.fit_run.run_first_stage`). What every task
 shares (the :class:`~core.selection.nested_fits.RungPlan`: data and the fit; the
 :class:`~core.selection.latent_selection.FoldPlan`: data, folds, the fit and the models on all the
@@ -200,15 +201,20 @@ class FitEngine:
         self._stack, self._client = None, None
 
     def fold_map(self, plan: FoldPlan, tasks: Sequence[FoldTask]) -> Iterator[FoldResult]:
-        """A :data:`core.selection.latent_selection.FoldMap`: every fold as one task (and the starts
-        of its fits as tasks of their own when the fit is a :class:`FoldFit`)."""
+        """A :data:`core.selection.latent_selection.FoldMap`: every task as one Dask task — a
+        fold, or with warm folds a fold's candidate — (and the starts of its fits as tasks of
+        their own when the fit is a :class:`FoldFit`)."""
         stop_event = None
         if isinstance(plan.fit, FoldFit):
             stop_event = f"stop-{uuid.uuid4().hex[:8]}"
             fit = _on_workers(plan.fit, stop_event)
             refit = None if plan.refit is None else fit.refit
             plan = dataclasses.replace(plan, fit=fit, refit=refit)
-        return self._run(score_fold, plan, [(f"fold-{t.fold}", t) for t in tasks], stop_event)
+        names = [
+            f"fold-{t.fold}" if t.rows is None else f"fold-{t.fold}-{'-'.join(map(str, t.rows))}"
+            for t in tasks
+        ]
+        return self._run(score_fold, plan, list(zip(names, tasks, strict=True)), stop_event)
 
     def rung_map(self, plan: RungPlan, tasks: Sequence[RungTask]) -> Iterator[RungResult]:
         """A :data:`core.selection.nested_fits.RungMap`: every candidate's fit on all the

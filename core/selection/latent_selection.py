@@ -240,27 +240,38 @@ class FoldPlan:
 
 @dataclass(frozen=True)
 class FoldTask:
-    """One fold's work: its index and its own random generator (folds are independent)."""
+    """One fold's work: its index and its own random generator (folds are independent).
+
+    Attributes:
+        fold: The fold's index.
+        rng: The fold's generator.
+        rows: Warm folds only: the candidates (indices into ``FoldPlan.dims``) this task
+            refits and scores, so one fold's candidates can run as separate tasks; ``None``:
+            every candidate.
+    """
 
     fold: int
     rng: np.random.Generator
+    rows: tuple[int, ...] | None = None
 
 
 @dataclass(frozen=True)
 class FoldResult:
-    """Every candidate's outcome on one fold, in the order of ``FoldPlan.dims``.
+    """The outcome of a fold's candidates (:attr:`rows`, in the order of ``FoldPlan.dims``).
 
     Attributes:
         fold: The fold's index.
-        scores: Mean log-density per held-out touch (nats) of every candidate.
-        fit_log_likelihoods: Log-likelihood of every candidate's training fit.
-        carried_over: Whether every candidate's fit was carried over from ds - 1.
+        scores: Mean log-density per held-out touch (nats) of every candidate of ``rows``.
+        fit_log_likelihoods: Log-likelihood of each one's training fit.
+        carried_over: Whether each one's fit was carried over from ds - 1.
+        rows: The candidates (indices into ``FoldPlan.dims``); ``None``: all of them.
     """
 
     fold: int
     scores: tuple[float, ...]
     fit_log_likelihoods: tuple[float, ...]
     carried_over: tuple[bool, ...]
+    rows: tuple[int, ...] | None = None
 
 
 #: Runs ``score_fold(plan, task)`` for every task, yielding the results in any order (serially
@@ -269,11 +280,21 @@ FoldMap = Callable[[FoldPlan, Sequence[FoldTask]], Iterable[FoldResult]]
 
 
 def score_fold(plan: FoldPlan, task: FoldTask) -> FoldResult:
-    """Fit every candidate on the training part of one fold and score its held-out part.
+    """Fit every candidate (of ``task.rows``, warm folds) on the training part of one fold and
+    score its held-out part.
 
     A pure function of the plan and the task: where it runs does not change its result.
+
+    Raises:
+        InvalidInputError: ``task.rows`` without warm folds (nested candidates depend on each
+            other), or a row out of range.
     """
     data, k = plan.data, task.fold
+    rows = tuple(range(len(plan.dims))) if task.rows is None else task.rows
+    if task.rows is not None and not plan.ladder:
+        raise InvalidInputError("rows: only warm folds score a fold's candidates separately.")
+    if any(not 0 <= row < len(plan.dims) for row in rows):
+        raise InvalidInputError(f"rows: expected indices into {len(plan.dims)} candidates.")
     held = np.flatnonzero(plan.folds == k)
     if plan.criterion == "objects":
         train = objects_subset(data, np.flatnonzero(plan.folds != k))
@@ -283,8 +304,8 @@ def score_fold(plan: FoldPlan, task: FoldTask) -> FoldResult:
     if plan.ladder:
         assert plan.refit is not None
         models: Iterable[tuple[int, int, ManifoldModel, bool]] = (
-            (c, ds, plan.refit(train, rung.model), rung.carried_over)
-            for c, (ds, rung) in enumerate(zip(plan.dims, plan.ladder, strict=True))
+            (c, plan.dims[c], plan.refit(train, plan.ladder[c].model), plan.ladder[c].carried_over)
+            for c in rows
         )
     else:
         models = _fold_models(train, plan.dims, plan.fit, task.rng, plan.nested)
@@ -299,7 +320,7 @@ def score_fold(plan: FoldPlan, task: FoldTask) -> FoldResult:
         scores.append(float(values.mean()))
         fitted.append(float(model.log_likelihood))
         carried.append(bool(was_carried))
-    return FoldResult(k, tuple(scores), tuple(fitted), tuple(carried))
+    return FoldResult(k, tuple(scores), tuple(fitted), tuple(carried), task.rows)
 
 
 def serial_map(plan: FoldPlan, tasks: Sequence[FoldTask]) -> Iterator[FoldResult]:
@@ -335,8 +356,9 @@ def select_latent_dim(
         candidates: The ds to try; default :func:`candidate_dims` (of the smallest training
             set for ``"objects"``).
         n_folds: K ≥ 2; for ``"objects"`` lowered to L when there are fewer objects.
-        callback: Called with (ds, fold, score) for every candidate of a fold when the fold
-            is done (folds in the order they finish).
+        callback: Called with (ds, fold, score) for every candidate of a fold when it is
+            scored (in the order the tasks finish: a fold at a time, or with warm folds a fold
+            and candidate at a time).
         criterion: ``"touches"`` (within objects) or ``"objects"`` (leave-objects-out).
         nested: Fit every fold's ds = 1..max(candidates) nested
             (:func:`core.selection.nested_fits.nested_fits`: each from the one below, then each
@@ -391,18 +413,22 @@ def select_latent_dim(
     ladder: tuple[NestedFit, ...] = ()
     if refit is not None:
         ladder = ladder_fits(data, dims, fit, rng, rung_map, rung_callback)
+        # One task per fold and candidate (the refits are independent): the last tasks of a
+        # run are one refit each, not a fold's five, so no worker waits long for the others.
+        tasks = [dataclasses.replace(task, rows=(c,)) for task in tasks for c in range(len(dims))]
     plan = FoldPlan(data, folds, halves, dims, criterion, nested, fit, ladder, refit)
     scores = np.full((len(dims), n_folds), np.nan)
     fitted = np.full((len(dims), n_folds), np.nan)
     carried = np.zeros(len(dims), dtype=np.int64)
     for result in map(plan, tasks):
         k = result.fold
-        scores[:, k] = result.scores
-        fitted[:, k] = result.fit_log_likelihoods
-        carried += np.asarray(result.carried_over, dtype=np.int64)
+        rows = list(range(len(dims))) if result.rows is None else list(result.rows)
+        scores[rows, k] = result.scores
+        fitted[rows, k] = result.fit_log_likelihoods
+        carried[rows] += np.asarray(result.carried_over, dtype=np.int64)
         if callback is not None:
-            for c, ds in enumerate(dims):
-                callback(ds, k, float(scores[c, k]))
+            for c in rows:
+                callback(dims[c], k, float(scores[c, k]))
     missing = np.flatnonzero(np.isnan(scores).any(axis=0))
     if missing.size:
         raise InvalidInputError(

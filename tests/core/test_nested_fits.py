@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+from collections.abc import Sequence
 
 import numpy as np
 import pytest
@@ -15,7 +16,15 @@ from core.evaluation.worlds import random_experiment2_world, sample_dataset
 from core.gp.manifold import FitOptions, fit_manifold, refit_warm
 from core.gp.posterior import condition
 from core.recognition.object_posterior import touch_log_likelihoods
-from core.selection.latent_selection import fold_assignment, select_latent_dim
+from core.selection.latent_selection import (
+    FoldPlan,
+    FoldResult,
+    FoldTask,
+    fold_assignment,
+    score_fold,
+    select_latent_dim,
+    serial_map,
+)
 from core.selection.nested_fits import (
     appended_starts,
     embed_model,
@@ -258,6 +267,45 @@ def test_warm_folds_refit_the_fit_on_all_the_touches_to_each_fold() -> None:
         select_latent_dim(
             data, fit, np.random.default_rng(1), (1, 2), n_folds=3, refit=refit, criterion="objects"
         )
+
+
+def test_warm_folds_run_one_task_per_fold_and_candidate_with_the_whole_folds_scores() -> None:
+    data = small_world()
+
+    def fit(
+        train: TrainingData, ds: int, starts: Starts, rng: np.random.Generator
+    ) -> ManifoldModel:
+        return fit_manifold(train, ds, rng, OPTIONS, noise_model="independent")
+
+    def refit(train: TrainingData, model: ManifoldModel) -> ManifoldModel:
+        return refit_warm(train, model, OPTIONS)
+
+    seen: list[FoldTask] = []
+    plans: list[FoldPlan] = []
+
+    def recording_map(plan: FoldPlan, tasks: Sequence[FoldTask]) -> list[FoldResult]:
+        plans.append(plan)
+        seen.extend(tasks)
+        return list(serial_map(plan, tasks))[::-1]  # in any order
+
+    selection = select_latent_dim(
+        data, fit, np.random.default_rng(1), (1, 2), n_folds=3, refit=refit, map=recording_map
+    )
+    assert sorted((t.fold, t.rows) for t in seen) == [(k, (c,)) for k in range(3) for c in range(2)]
+    # The same generator for a fold's tasks; each fold its own.
+    assert len({id(t.rng) for t in seen}) == 3
+    [plan] = plans
+    for k in range(3):
+        whole = score_fold(plan, FoldTask(k, np.random.default_rng(0)))
+        assert whole.rows is None
+        for c, candidate in enumerate(selection.candidates):
+            assert candidate.fold_scores[k] == whole.scores[c]
+            assert candidate.fit_log_likelihoods[k] == whole.fit_log_likelihoods[c]
+    with pytest.raises(InvalidInputError, match="rows: expected indices"):
+        score_fold(plan, FoldTask(0, np.random.default_rng(0), (2,)))
+    cold = dataclasses.replace(plan, ladder=(), refit=None)
+    with pytest.raises(InvalidInputError, match="only warm folds"):
+        score_fold(cold, FoldTask(0, np.random.default_rng(0), (0,)))
 
 
 def test_a_warm_refit_starts_where_the_model_stands_and_keeps_its_transform() -> None:
