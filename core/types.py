@@ -6,6 +6,7 @@ observation dimension (features), ``ds`` latent dimension.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -117,10 +118,13 @@ class TrainingData:
         """dy."""
         return int(self.observations.shape[1])
 
-    @property
+    @functools.cached_property
     def observation_mean(self) -> FloatArray:
-        """Per-feature mean of the observations, the GP's constant mean. Shape (dy,)."""
-        return np.asarray(self.observations.mean(axis=0), dtype=np.float64)
+        """Per-feature mean of the observations, the GP's constant mean (computed once: the
+        observations are read-only; predictions read it per feature and object). Shape (dy,)."""
+        mean = np.asarray(self.observations.mean(axis=0), dtype=np.float64)
+        mean.flags.writeable = False
+        return mean
 
     def touches_per_object(self) -> IntArray:
         """N_l for each object. Shape (L,)."""

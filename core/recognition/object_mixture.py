@@ -23,6 +23,7 @@ mixture's covariance c·I + Σ_l p_l (s_l - s̄)(s_l - s̄)ᵀ.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,6 +31,7 @@ import numpy as np
 from core.errors import InvalidInputError
 from core.recognition.moments import (
     ActionStatistics,
+    BeliefTerms,
     PredictiveMoments,
     belief_terms,
     moments_from_terms,
@@ -93,17 +95,32 @@ def _kept_components(mixture: ObjectMixture) -> tuple[np.ndarray, FloatArray]:
     return kept, weights[kept] / weights[kept].sum()
 
 
+def component_terms(model: ManifoldModel, mixture: ObjectMixture) -> tuple[BeliefTerms, ...]:
+    """The belief-only terms of (M3) of every component, whatever its weight
+    (:func:`core.recognition.moments.belief_terms`). They depend on the components' means and
+    covariance only, which are the same at every step of a trial (the objects' latents), so a
+    caller that keeps them (:meth:`core.recognition.planning.Planner.mixture_terms`) pays the
+    O(L · dy² L² ds) once instead of at every plan and update."""
+    return tuple(belief_terms(model, GaussianBelief(mean, mixture.cov)) for mean in mixture.means)
+
+
 def mixture_moments(
-    model: ManifoldModel, mixture: ObjectMixture, stats: ActionStatistics
+    model: ManifoldModel,
+    mixture: ObjectMixture,
+    stats: ActionStatistics,
+    terms: Sequence[BeliefTerms] | None = None,
 ) -> PredictiveMoments:
     """m, S (with noise) and C = Cov(s, y) of every candidate under the mixture (see the module).
 
-    Cost: one (M3) per component above :data:`WEIGHT_FLOOR`.
+    Cost: one (M3) per component above :data:`WEIGHT_FLOOR` (its belief terms too, unless
+    ``terms`` are given).
 
     Args:
         model: The model the statistics were computed with.
         mixture: The belief; its ds must be the model's.
         stats: Action statistics of C candidates for this model.
+        terms: :func:`component_terms` of this mixture's components (for this model), or
+            ``None`` to compute those needed.
 
     Returns:
         Moments with mean (C, dy), cov (C, dy, dy) and cross_cov (C, ds, dy), the latter about
@@ -116,11 +133,19 @@ def mixture_moments(
         raise InvalidInputError(
             f"mixture: has ds={mixture.dim}, the model has ds={model.latent_dim}."
         )
+    if terms is not None and len(terms) != mixture.means.shape[0]:
+        raise InvalidInputError(
+            f"terms: expected one per component ({mixture.means.shape[0]}), received {len(terms)}."
+        )
     kept, weights = _kept_components(mixture)
     centre = weights @ mixture.means[kept]
     components = [
         moments_from_terms(
-            model, belief_terms(model, GaussianBelief(mixture.means[k], mixture.cov)), stats
+            model,
+            terms[k]
+            if terms is not None
+            else belief_terms(model, GaussianBelief(mixture.means[k], mixture.cov)),
+            stats,
         )
         for k in kept
     ]
@@ -141,8 +166,12 @@ def mixture_moments(
 
 
 def mixture_information(
-    model: ManifoldModel, mixture: ObjectMixture, stats: ActionStatistics
+    model: ManifoldModel,
+    mixture: ObjectMixture,
+    stats: ActionStatistics,
+    terms: Sequence[BeliefTerms] | None = None,
 ) -> FloatArray:
-    """U1 of every candidate under the mixture (the moment-matched joint's (M4)). Shape (C,)."""
-    moments = mixture_moments(model, mixture, stats)
+    """U1 of every candidate under the mixture (the moment-matched joint's (M4)); ``terms`` as
+    in :func:`mixture_moments`. Shape (C,)."""
+    moments = mixture_moments(model, mixture, stats, terms)
     return mutual_information(moments, mixture.moment_matched())

@@ -28,6 +28,7 @@ from core.errors import InvalidInputError
 from core.recognition.information_gradient import GradientCache, mutual_information_and_gradient
 from core.recognition.moments import (
     ActionStatistics,
+    BeliefTerms,
     action_statistics,
     belief_terms,
     moments_from_terms,
@@ -35,7 +36,7 @@ from core.recognition.moments import (
     predictive_moments,
 )
 from core.recognition.object_information import label_information_mc, object_predictives
-from core.recognition.object_mixture import ObjectMixture, mixture_information
+from core.recognition.object_mixture import ObjectMixture, component_terms, mixture_information
 from core.types import GaussianBelief, ManifoldModel
 from core.validation import FloatArray, as_float_array
 
@@ -237,6 +238,10 @@ def sobol_candidates(box: ActionBox, n_candidates: int, seed: int) -> FloatArray
     return np.asarray(box.lower + unit[:n_candidates] * (box.upper - box.lower), dtype=np.float64)
 
 
+#: Distinct mixtures (means and covariance) whose component terms a planner keeps.
+MIXTURE_TERMS_KEPT = 4
+
+
 class Planner:
     """Chooses actions for a model under a policy.
 
@@ -294,6 +299,7 @@ class Planner:
         self.refine_iterations = int(refine_iterations)
         self.candidate_seed = int(candidate_seed)
         self._statistics: ActionStatistics | None = None
+        self._mixture_terms: dict[bytes, tuple[BeliefTerms, ...]] = {}
         self._gradient_cache: GradientCache | None = None
         self._predictives: tuple[FloatArray, FloatArray] | None = None
         self._draws: FloatArray | None = None
@@ -310,13 +316,26 @@ class Planner:
             self._statistics = action_statistics(self.model, candidates)
         return self._statistics
 
+    def mixture_terms(self, mixture: ObjectMixture) -> tuple[BeliefTerms, ...]:
+        """The belief terms of every component of ``mixture``
+        (:func:`core.recognition.object_mixture.component_terms`), kept for the components'
+        means and covariance: a trial's mixtures differ only in their weights."""
+        key = mixture.means.tobytes() + mixture.cov.tobytes()
+        terms = self._mixture_terms.get(key)
+        if terms is None:
+            if len(self._mixture_terms) >= MIXTURE_TERMS_KEPT:
+                self._mixture_terms.clear()
+            terms = component_terms(self.model, mixture)
+            self._mixture_terms[key] = terms
+        return terms
+
     def mutual_information(
         self, belief: GaussianBelief | ObjectMixture, actions: FloatArray
     ) -> FloatArray:
         """U1 of arbitrary actions (C, dx) under ``belief``. Shape (C,)."""
         stats = action_statistics(self.model, actions)
         if isinstance(belief, ObjectMixture):
-            return mixture_information(self.model, belief, stats)
+            return mixture_information(self.model, belief, stats, self.mixture_terms(belief))
         return mutual_information(predictive_moments(self.model, belief, stats), belief)
 
     def plan(
@@ -393,7 +412,9 @@ class Planner:
         stats = self.candidate_statistics
         if isinstance(belief, ObjectMixture):
             # The candidates only: the analytic gradient of U1 is the single Gaussian's.
-            mixture_scores = mixture_information(self.model, belief, stats)
+            mixture_scores = mixture_information(
+                self.model, belief, stats, self.mixture_terms(belief)
+            )
             chosen = int(np.argmax(mixture_scores))
             return PlannedAction(
                 action=stats.actions[chosen].copy(),

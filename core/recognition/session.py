@@ -365,7 +365,8 @@ class RecognitionSession:
         stats = action_statistics(self.model, x[None, :])
         moments = predictive_moments(self.model, before, stats)
         if isinstance(planned_under, ObjectMixture):
-            information = float(mixture_information(self.model, planned_under, stats)[0])
+            terms = self.planner.mixture_terms(planned_under)
+            information = float(mixture_information(self.model, planned_under, stats, terms)[0])
         else:
             information = float(mutual_information(moments, before)[0])
         # The moments are in the model's space y' = M (y - c): map the raw observation there

@@ -15,6 +15,7 @@ from core.recognition.moments import action_statistics, mutual_information, pred
 from core.recognition.object_mixture import (
     WEIGHT_FLOOR,
     ObjectMixture,
+    component_terms,
     mixture_information,
     mixture_moments,
 )
@@ -110,6 +111,32 @@ def test_negligible_components_are_left_out(model: ManifoldModel) -> None:
         mixture_information(model, with_tiny, stats),
         mixture_information(model, without, stats),
         rtol=1e-8,
+    )
+
+
+def test_kept_component_terms_give_the_same_moments_and_are_reused(model: ManifoldModel) -> None:
+    stats = action_statistics(model, np.random.default_rng(3).normal(0.0, 0.8, (5, 2)))
+    mixture = objects_belief(model, np.array([0.4, 0.3, 0.2, 0.1]))
+    terms = component_terms(model, mixture)
+    direct, kept = (
+        mixture_moments(model, mixture, stats),
+        mixture_moments(model, mixture, stats, terms),
+    )
+    for field in ("mean", "cov", "cross_cov"):
+        np.testing.assert_array_equal(getattr(kept, field), getattr(direct, field))
+    with pytest.raises(InvalidInputError, match="terms: expected one per component"):
+        mixture_moments(model, mixture, stats, terms[:2])
+    # A planner keeps them for a trial's mixtures, which differ only in their weights ...
+    planner = Planner(model, ActivePolicy())
+    first = planner.mixture_terms(mixture)
+    again = planner.mixture_terms(objects_belief(model, np.array([0.1, 0.2, 0.3, 0.4])))
+    assert again is first
+    # ... and computes them afresh for other components.
+    moved = ObjectMixture(model.latents + 0.1, mixture.weights, mixture.cov)
+    assert planner.mixture_terms(moved) is not first
+    np.testing.assert_array_equal(
+        planner.mutual_information(mixture, stats.actions),
+        mixture_information(model, mixture, stats),
     )
 
 
