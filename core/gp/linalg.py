@@ -192,8 +192,6 @@ def inverse_from_cholesky(upper: FloatArray, overwrite: bool = False) -> FloatAr
         if info != 0:
             raise NotPositiveDefiniteError(f"dpotri: the factor is singular (info {info}).")
         return product
-    inverse_u = upper_triangular_inverse(upper)
-    if not inverse_u.flags.f_contiguous:  # pragma: no cover - both branches build F order
-        inverse_u = inverse_u.copy(order="F")
+    inverse_u = upper_triangular_inverse(upper)  # Fortran-ordered, as dlauum works in place
     lauum_upper(inverse_u)  # fails only on bad arguments, which _checked refuses first
     return inverse_u

@@ -45,7 +45,7 @@ from core.recognition.moments import (
     predictive_moments,
     update_belief,
 )
-from core.recognition.object_mixture import ObjectMixture, mixture_information
+from core.recognition.object_mixture import ObjectMixture
 from core.recognition.object_posterior import (
     TrialLikelihood,
     check_trial_likelihood,
@@ -365,8 +365,7 @@ class RecognitionSession:
         stats = action_statistics(self.model, x[None, :])
         moments = predictive_moments(self.model, before, stats)
         if isinstance(planned_under, ObjectMixture):
-            terms = self.planner.mixture_terms(planned_under)
-            information = float(mixture_information(self.model, planned_under, stats, terms)[0])
+            information = float(self.planner.mutual_information(planned_under, x[None, :])[0])
         else:
             information = float(mutual_information(moments, before)[0])
         # The moments are in the model's space y' = M (y - c): map the raw observation there
