@@ -296,9 +296,10 @@ def run(args: argparse.Namespace, workdir: Path) -> dict[str, dict[str, Any]]:
     table = ["--table", args.table] if args.table else ["--table-file", str(args.table_file)]
     train, heldout, model = workdir / "train.csv", workdir / "heldout.csv", workdir / "model.json"
     seed = str(args.seed)
+    placements = [] if args.placements is None else ["--placements", str(args.placements)]
     _run(
-        [exe, "collect", "--sim", *table, "--touches", str(args.touches), "--seed", seed,
-         "--out", str(train)],
+        [exe, "collect", "--sim", *table, "--touches", str(args.touches), *placements, "--seed",
+         seed, "--out", str(train)],
         train,
     )  # fmt: skip
     _run(
@@ -351,6 +352,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, default=6, help="T.")
     parser.add_argument("--touches", type=int, default=100, help="Training touches per object.")
     parser.add_argument("--heldout-touches", type=int, default=30, help="Held-out, per object.")
+    parser.add_argument(
+        "--placements",
+        type=int,
+        help="collect --placements of the training collection (default: collect's default).",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workdir", type=Path, help="Keep (and reuse) every file here.")
     parser.add_argument("--json", type=Path, help="Also write the verdicts here.")

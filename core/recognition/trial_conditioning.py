@@ -123,8 +123,8 @@ def trial_corrections(
         model, np.repeat(model.latents, t, axis=0), np.tile(x, (n_objects, 1))
     )
     residuals = y_model[None, :, :] - mean.reshape(n_objects, t, h.observation_dim)  # (L, T, dy)
-    among = object_cross_covariances(model, x, x)  # (L, dy, T, T)
-    towards = object_cross_covariances(model, x, others)  # (L, dy, T, C)
+    both = object_cross_covariances(model, x, np.vstack([x, others]))  # (L, dy, T, T + C)
+    among, towards = both[..., :t], both[..., t:]
     shift = np.empty((others.shape[0], n_objects, h.observation_dim))
     reduction = np.empty_like(shift)
     for obj in range(n_objects):
