@@ -5,8 +5,7 @@ single-threaded. The model is conditioned on an Experiment-2-like world (``core.
 with the true latents, normalised, and fixed hyperparameters, so the figure does not depend on
 fitting.
 
-Run: ``.venv/bin/python -m bench.plan_speed [--repeats 50] [--candidates 256] [--refine 2]
-[--trial-touches 5]``
+Run: ``.venv/bin/python -m bench.plan_speed [--repeats 50] [--candidates 256] [--refine 2]``
 """
 
 from __future__ import annotations
@@ -33,7 +32,6 @@ from core.recognition import (  # noqa: E402
     objects_belief,
     predictive_moments,
 )
-from core.recognition.trial_conditioning import TrialTouches  # noqa: E402
 from core.types import GaussianBelief, Hyperparameters, ManifoldModel  # noqa: E402
 
 
@@ -71,7 +69,6 @@ def main() -> None:
     parser.add_argument("--refine", type=int, default=1)
     parser.add_argument("--direct-actions", type=int, default=16)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--trial-touches", type=int, default=5, help="Touches the trial has made.")
     args = parser.parse_args()
 
     model = build_model(args.seed)
@@ -133,21 +130,6 @@ def main() -> None:
         cpu.append(time.process_time() - cpu_start)
     print(
         f"  under the objects (the default; {args.repeats} posteriors, candidates only): wall "
-        f"{_median_ms(wall)}; cpu median {np.median(cpu) * 1e3:6.2f} ms"
-    )
-
-    # Later in a trial: the same, given the trial's touches so far (trial_conditioning).
-    touched = mixture_planner.candidate_statistics.actions[: args.trial_touches]
-    seen = model.data.observations[: args.trial_touches]
-    trial = TrialTouches(touched, seen, 0.5 * model.hyperparameters.noise_variance)
-    wall, cpu = [], []
-    for posterior in posteriors:
-        wall_start, cpu_start = time.perf_counter(), time.process_time()
-        mixture_planner.plan(objects_belief(model, posterior), rng, trial=trial)
-        wall.append(time.perf_counter() - wall_start)
-        cpu.append(time.process_time() - cpu_start)
-    print(
-        f"  under the objects given {args.trial_touches} touches of the trial: wall "
         f"{_median_ms(wall)}; cpu median {np.median(cpu) * 1e3:6.2f} ms"
     )
 

@@ -392,9 +392,7 @@ class ReplayTouches:
         else:
             candidates = self.pool.actions[self.unused]
             belief = session.planning_belief()
-            scores = self.score(
-                session.planner, belief, session.probabilities, candidates, session.trial_touches()
-            )
+            scores = self.score(session.planner, belief, session.probabilities, candidates)
             chosen = int(np.argmax(scores))
         index = self.unused.pop(chosen)
         return Touch(action=self.pool.actions[index], observation=self.pool.observations[index])

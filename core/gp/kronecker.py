@@ -519,49 +519,38 @@ def predict_kronecker(
 
 
 def predictive_covariance_kronecker(
-    model: ManifoldModel,
-    latent: FloatArray,
-    actions: FloatArray,
-    others: FloatArray | None = None,
+    model: ManifoldModel, latent: FloatArray, actions: FloatArray
 ) -> FloatArray:
     """Full GP predictive covariance of f_a (noise not included) at (s, x_1..x_T), per feature,
-    through the eigendecompositions (no dense K⁻¹); with ``others`` the cross-covariance between
-    f_a(s, x_t) and f_a(s, x'_c).
+    through the eigendecompositions (no dense K⁻¹).
 
     With k^s = σ_f² k^s(s, S) (L,) shared by the T touches and K^x_* = k^x(X, X_design) (T, M):
-    V_a = σ_f² K^x(X, X') − R diag(w) R'ᵀ, R = K^x_* U_x (R' likewise for X'),
-    w_k = Σ_j (U_sᵀ k^s)_j² / D[j, k]; with X' = X its diagonal plus σ_n² is the variance of
-    :func:`predict_kronecker`.
+    V_a = σ_f² K^x(X, X) − R diag(w) Rᵀ, R = K^x_* U_x, w_k = Σ_j (U_sᵀ k^s)_j² / D[j, k]; its
+    diagonal plus σ_n² is the variance of :func:`predict_kronecker`.
 
     Args:
         model: A Kronecker-conditioned model.
         latent: s. Shape (ds,).
         actions: x_1..x_T. Shape (T, dx).
-        others: x'_1..x'_C, or ``None`` for X' = X (the result is then symmetric). Shape (C, dx).
 
     Returns:
-        V_a for every feature. Shape (dy, T, C) (C = T without ``others``).
+        V_a for every feature. Shape (dy, T, T).
     """
     factors = _factors(model)
     h = model.hyperparameters
     s = as_float_array(latent, "latent", (h.latent_dim,))
     x = as_float_array(actions, "actions", (None, h.action_dim))
-    x_other = x if others is None else as_float_array(others, "others", (None, h.action_dim))
     action_kernels = design_kernels(model, x)  # (dy, T, M)
-    other_kernels = action_kernels if others is None else design_kernels(model, x_other)
-    out = np.empty((h.observation_dim, x.shape[0], x_other.shape[0]))
+    out = np.empty((h.observation_dim, x.shape[0], x.shape[0]))
     for a in range(h.observation_dim):
         sq = np.sum(((s[None, :] - model.latents) / h.latent_lengthscales[a]) ** 2, axis=1)
         k_latent = h.signal_variance[a] * np.exp(-0.5 * sq)  # (L,)
         weights = (k_latent @ factors.latent_eigenvectors[a]) ** 2 @ (1.0 / factors.spectrum[a])
         rotated = action_kernels[a] @ factors.action_eigenvectors[a]  # (T, M)
-        rotated_other = (
-            rotated if others is None else other_kernels[a] @ factors.action_eigenvectors[a]
-        )
-        diff = (x[:, None, :] - x_other[None, :, :]) / h.action_lengthscales[a]
+        diff = (x[:, None, :] - x[None, :, :]) / h.action_lengthscales[a]
         prior = h.signal_variance[a] * np.exp(-0.5 * np.sum(diff**2, axis=2))
-        cov = prior - (rotated * weights) @ rotated_other.T
-        out[a] = 0.5 * (cov + cov.T) if others is None else cov
+        cov = prior - (rotated * weights) @ rotated.T
+        out[a] = 0.5 * (cov + cov.T)
     return out
 
 

@@ -19,12 +19,6 @@ components' moments (m_l, S_l, C_l each from (M3) at N(s_l, c·I)):
 
 and the moment-matched joint of (s, y) under the mixture gives U1 as in (M4), with Σ the
 mixture's covariance c·I + Σ_l p_l (s_l - s̄)(s_l - s̄)ᵀ.
-
-Within a trial each component's moments are those of the next touch given the trial's touches
-under that object (:mod:`core.recognition.trial_conditioning`): m_l is shifted by what the touches
-so far say about the shared offset and about f near s_l, and S_l loses the variance they explain
-(its diagonal, kept at or above the unshared noise). C_l is left as it is: the corrections are
-computed at the point s_l.
 """
 
 from __future__ import annotations
@@ -43,7 +37,6 @@ from core.recognition.moments import (
     moments_from_terms,
     mutual_information,
 )
-from core.recognition.trial_conditioning import TrialCorrections
 from core.types import GaussianBelief, ManifoldModel
 from core.validation import FloatArray, as_float_array
 
@@ -116,7 +109,6 @@ def mixture_moments(
     mixture: ObjectMixture,
     stats: ActionStatistics,
     terms: Sequence[BeliefTerms] | None = None,
-    corrections: TrialCorrections | None = None,
 ) -> PredictiveMoments:
     """m, S (with noise) and C = Cov(s, y) of every candidate under the mixture (see the module).
 
@@ -129,9 +121,6 @@ def mixture_moments(
         stats: Action statistics of C candidates for this model.
         terms: :func:`component_terms` of this mixture's components (for this model), or
             ``None`` to compute those needed.
-        corrections: What the trial's touches so far change in each object's predictive at
-            these candidates (:func:`core.recognition.trial_conditioning.trial_corrections`),
-            or ``None`` before the first touch.
 
     Returns:
         Moments with mean (C, dy), cov (C, dy, dy) and cross_cov (C, ds, dy), the latter about
@@ -160,11 +149,6 @@ def mixture_moments(
         )
         for k in kept
     ]
-    if corrections is not None:
-        components = [
-            _conditioned(component, corrections, k)
-            for k, component in zip(kept, components, strict=True)
-        ]
     mean = sum(w * c.mean for w, c in zip(weights, components, strict=True))
     cov = np.zeros_like(components[0].cov)
     cross = np.zeros_like(components[0].cross_cov)
@@ -181,37 +165,13 @@ def mixture_moments(
     )
 
 
-def _conditioned(
-    component: PredictiveMoments, corrections: TrialCorrections, index: int
-) -> PredictiveMoments:
-    """One component's moments given the trial's touches (see the module)."""
-    shift = corrections.shift[:, index]  # (C, dy)
-    if shift.shape != component.mean.shape:
-        raise InvalidInputError(
-            f"corrections: computed for (C, dy) = {shift.shape}, the candidates have "
-            f"{component.mean.shape}."
-        )
-    diagonal = np.diagonal(component.cov, axis1=1, axis2=2)  # (C, dy)
-    lowered = np.maximum(diagonal - corrections.reduction[:, index], corrections.within_variance)
-    cov = component.cov.copy()
-    rows = np.arange(diagonal.shape[1])
-    cov[:, rows, rows] = np.minimum(lowered, diagonal)
-    return PredictiveMoments(
-        mean=component.mean + shift,
-        cov=cov,
-        cross_cov=component.cross_cov,
-        actions=component.actions,
-    )
-
-
 def mixture_information(
     model: ManifoldModel,
     mixture: ObjectMixture,
     stats: ActionStatistics,
     terms: Sequence[BeliefTerms] | None = None,
-    corrections: TrialCorrections | None = None,
 ) -> FloatArray:
-    """U1 of every candidate under the mixture (the moment-matched joint's (M4)); ``terms`` and
-    ``corrections`` as in :func:`mixture_moments`. Shape (C,)."""
-    moments = mixture_moments(model, mixture, stats, terms, corrections)
+    """U1 of every candidate under the mixture (the moment-matched joint's (M4)); ``terms`` as
+    in :func:`mixture_moments`. Shape (C,)."""
+    moments = mixture_moments(model, mixture, stats, terms)
     return mutual_information(moments, mixture.moment_matched())

@@ -9,11 +9,6 @@ object* it is, under the current object probabilities (:mod:`core.recognition.ob
 The passive policy draws from the action prior and the fixed policy repeats one action; every policy
 reports the mutual information of its action under the belief it was given.
 
-Within a trial, the discriminative policy and the active policy under the objects' mixture score
-the next touch given the touches made so far (:mod:`core.recognition.trial_conditioning`): what
-those touches already showed under each object is not information the next one can give again.
-Under a Gaussian belief (the paper's planning) the trial's touches enter through the belief only.
-
 :data:`POLICIES` is the one registry of policies by name (CLI, API, evaluations, benchmarks): how a
 policy plans (its :class:`Policy`) and how it picks among recorded touches in a replay trial. A new
 policy is one entry there.
@@ -42,12 +37,6 @@ from core.recognition.moments import (
 )
 from core.recognition.object_information import label_information_mc, object_predictives
 from core.recognition.object_mixture import ObjectMixture, component_terms, mixture_information
-from core.recognition.trial_conditioning import (
-    TrialCorrections,
-    TrialTouches,
-    conditioned_predictives,
-    trial_corrections,
-)
 from core.types import GaussianBelief, ManifoldModel
 from core.validation import FloatArray, as_float_array
 
@@ -341,35 +330,19 @@ class Planner:
         return terms
 
     def mutual_information(
-        self,
-        belief: GaussianBelief | ObjectMixture,
-        actions: FloatArray,
-        trial: TrialTouches | None = None,
+        self, belief: GaussianBelief | ObjectMixture, actions: FloatArray
     ) -> FloatArray:
-        """U1 of arbitrary actions (C, dx) under ``belief``, given the trial's touches so far
-        (``None``: none, or a Gaussian belief, which they do not enter). Shape (C,)."""
+        """U1 of arbitrary actions (C, dx) under ``belief``. Shape (C,)."""
         stats = action_statistics(self.model, actions)
         if isinstance(belief, ObjectMixture):
-            return mixture_information(
-                self.model,
-                belief,
-                stats,
-                self.mixture_terms(belief),
-                self._corrections(trial, stats.actions),
-            )
+            return mixture_information(self.model, belief, stats, self.mixture_terms(belief))
         return mutual_information(predictive_moments(self.model, belief, stats), belief)
-
-    def _corrections(
-        self, trial: TrialTouches | None, actions: FloatArray
-    ) -> TrialCorrections | None:
-        return None if trial is None else trial_corrections(self.model, trial, actions)
 
     def plan(
         self,
         belief: GaussianBelief | ObjectMixture,
         rng: np.random.Generator,
         probabilities: FloatArray | None = None,
-        trial: TrialTouches | None = None,
     ) -> PlannedAction:
         """Choose the next action under ``belief``.
 
@@ -379,25 +352,21 @@ class Planner:
             rng: Source of randomness (passive draws).
             probabilities: The current object posterior p_l (discriminative policy; uniform when
                 ``None``). Shape (L,).
-            trial: The trial's touches so far; ``None`` before the first.
         """
         policy = self.policy
         if isinstance(policy, ActivePolicy):
-            return self._plan_active(belief, trial)
+            return self._plan_active(belief)
         if isinstance(policy, DiscriminativePolicy):
-            return self._plan_discriminative(belief, policy, probabilities, trial)
+            return self._plan_discriminative(belief, policy, probabilities)
         if isinstance(policy, PassivePolicy):
             action = self.box.clip(self.prior.sample(rng))
         else:
             action = np.array(policy.action, dtype=np.float64)
-        value = float(self.mutual_information(belief, action[None, :], trial)[0])
+        value = float(self.mutual_information(belief, action[None, :])[0])
         return PlannedAction(action=action, mutual_information=value, policy=policy.name)
 
-    def object_information(
-        self, probabilities: FloatArray | None = None, trial: TrialTouches | None = None
-    ) -> FloatArray:
-        """Estimated I(l; y | x, D) of every candidate under ``probabilities``, given the trial's
-        touches D so far (``None``: none). Shape (C,).
+    def object_information(self, probabilities: FloatArray | None = None) -> FloatArray:
+        """Estimated I(l; y | x) of every candidate under ``probabilities``. Shape (C,).
 
         Uses the candidate statistics and the objects' predictives (both computed once per
         planner) and the planner's fixed standard-normal draws (common random numbers).
@@ -419,9 +388,7 @@ class Planner:
             self._draws = draws_rng.standard_normal(
                 (n_draws, self.model.hyperparameters.observation_dim)
             )
-        mean, variance = conditioned_predictives(
-            self.model, trial, self.candidate_statistics.actions, *self._predictives
-        )
+        mean, variance = self._predictives
         return label_information_mc(p, mean, variance, self._draws)
 
     def _plan_discriminative(
@@ -429,12 +396,11 @@ class Planner:
         belief: GaussianBelief | ObjectMixture,
         policy: DiscriminativePolicy,
         probabilities: FloatArray | None,
-        trial: TrialTouches | None,
     ) -> PlannedAction:
-        scores = self.object_information(probabilities, trial)
+        scores = self.object_information(probabilities)
         best = int(np.argmax(scores))
         action = self.candidate_statistics.actions[best].copy()
-        value = float(self.mutual_information(belief, action[None, :], trial)[0])
+        value = float(self.mutual_information(belief, action[None, :])[0])
         return PlannedAction(
             action=action,
             mutual_information=value,
@@ -442,18 +408,12 @@ class Planner:
             object_information=float(scores[best]),
         )
 
-    def _plan_active(
-        self, belief: GaussianBelief | ObjectMixture, trial: TrialTouches | None
-    ) -> PlannedAction:
+    def _plan_active(self, belief: GaussianBelief | ObjectMixture) -> PlannedAction:
         stats = self.candidate_statistics
         if isinstance(belief, ObjectMixture):
             # The candidates only: the analytic gradient of U1 is the single Gaussian's.
             mixture_scores = mixture_information(
-                self.model,
-                belief,
-                stats,
-                self.mixture_terms(belief),
-                self._corrections(trial, stats.actions),
+                self.model, belief, stats, self.mixture_terms(belief)
             )
             chosen = int(np.argmax(mixture_scores))
             return PlannedAction(
@@ -498,11 +458,10 @@ class Planner:
 # --- the policy registry ----------------------------------------------------------------------
 
 #: How a policy scores the unused recorded actions (C, dx) of a replay trial, given the planner,
-#: the belief to plan under, the current object posterior (L,) and the trial's touches so far
-#: (``None`` before the first); the largest score is touched next. Shape (C,).
+#: the belief to plan under and the current object posterior (L,); the largest score is touched
+#: next. Shape (C,).
 ReplayScore = Callable[
-    [Planner, GaussianBelief | ObjectMixture, FloatArray, FloatArray, TrialTouches | None],
-    FloatArray,
+    [Planner, GaussianBelief | ObjectMixture, FloatArray, FloatArray], FloatArray
 ]
 
 
@@ -511,11 +470,9 @@ def information_score(
     belief: GaussianBelief | ObjectMixture,
     probabilities: FloatArray,
     actions: FloatArray,
-    trial: TrialTouches | None = None,
 ) -> FloatArray:
-    """U1 of each recorded action under the belief (docs/method.md (M4)) given the trial's
-    touches; posterior unused."""
-    return planner.mutual_information(belief, actions, trial)
+    """U1 of each recorded action under the belief (docs/method.md (M4)); posterior unused."""
+    return planner.mutual_information(belief, actions)
 
 
 def label_information_score(
@@ -523,10 +480,8 @@ def label_information_score(
     belief: GaussianBelief | ObjectMixture,
     probabilities: FloatArray,
     actions: FloatArray,
-    trial: TrialTouches | None = None,
 ) -> FloatArray:
-    """Estimated I(l; y | x, D) of each recorded action under the object posterior, given the
-    trial's touches D so far.
+    """Estimated I(l; y | x) of each recorded action under the object posterior.
 
     The discriminative policy's score (:mod:`core.recognition.object_information`), evaluated at the
     recorded actions instead of the planner's candidates, with fixed standard-normal draws
@@ -535,7 +490,6 @@ def label_information_score(
     policy = planner.policy
     n_draws = policy.n_draws if isinstance(policy, DiscriminativePolicy) else 128
     mean, variance = object_predictives(planner.model, action_statistics(planner.model, actions))
-    mean, variance = conditioned_predictives(planner.model, trial, actions, mean, variance)
     draws = np.random.default_rng(planner.candidate_seed).standard_normal(
         (n_draws, planner.model.hyperparameters.observation_dim)
     )

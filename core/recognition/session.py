@@ -51,10 +51,8 @@ from core.recognition.object_posterior import (
     check_trial_likelihood,
     normalise_log_probabilities,
     object_log_likelihoods,
-    shared_variance,
 )
 from core.recognition.planning import PlannedAction, Planner
-from core.recognition.trial_conditioning import TrialTouches
 from core.types import GaussianBelief, ManifoldModel
 from core.validation import FloatArray, as_float_array
 
@@ -337,30 +335,15 @@ class RecognitionSession:
             return mixture_belief(self.model, self.probabilities, self._belief.cov)
         return self._belief
 
-    def trial_touches(self) -> TrialTouches | None:
-        """The touches so far, as the planners condition on them
-        (:mod:`core.recognition.trial_conditioning`), with the offset variance the object
-        posterior has them share; ``None`` before the first touch, and with
-        ``trial_likelihood="independent"``, whose posterior takes the touches as independent."""
-        if not self._steps or self.settings.trial_likelihood != "joint":
-            return None
-        return TrialTouches(
-            actions=np.stack([s.action for s in self._steps]),
-            observations=np.stack([s.observation for s in self._steps]),
-            shared_variance=shared_variance(self.model, self.settings.shared_placement),
-        )
-
     def suggest(self, rng: np.random.Generator) -> PlannedAction:
-        """The planner's choice for the next touch (given the belief to plan under, the current
-        object probabilities, which the discriminative policy plans for, and the touches so far).
+        """The planner's choice for the next touch (given the Gaussian belief to plan under and
+        the current object probabilities, which the discriminative policy plans for).
 
         Raises:
             RecognitionFinishedError: The session has stopped.
         """
         self._check_running()
-        return self.planner.plan(
-            self.planning_belief(), rng, self.probabilities, self.trial_touches()
-        )
+        return self.planner.plan(self.planning_belief(), rng, self.probabilities)
 
     def observe(self, action: FloatArray, observation: FloatArray) -> RecognitionStep:
         """Update both beliefs with a touch and decide whether to stop.
@@ -382,9 +365,7 @@ class RecognitionSession:
         stats = action_statistics(self.model, x[None, :])
         moments = predictive_moments(self.model, before, stats)
         if isinstance(planned_under, ObjectMixture):
-            information = float(
-                self.planner.mutual_information(planned_under, x[None, :], self.trial_touches())[0]
-            )
+            information = float(self.planner.mutual_information(planned_under, x[None, :])[0])
         else:
             information = float(mutual_information(moments, before)[0])
         # The moments are in the model's space y' = M (y - c): map the raw observation there

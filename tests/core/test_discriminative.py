@@ -23,7 +23,6 @@ from core.recognition.planning import (
     make_policy,
 )
 from core.recognition.session import RecognitionSession, default_prior
-from core.recognition.trial_conditioning import TrialTouches
 from core.types import Hyperparameters, ManifoldModel, TrainingData
 from tests.core.test_moments import small_model
 
@@ -158,16 +157,14 @@ def test_discriminative_planner_picks_the_best_candidate_and_reuses_the_statisti
     np.testing.assert_array_equal(again.action, planned.action)
 
 
-def test_the_session_hands_the_object_probabilities_and_the_touches_to_the_planner() -> None:
+def test_the_session_hands_the_object_probabilities_to_the_planner() -> None:
     model = shared_design_model()
     seen: list[np.ndarray | None] = []
-    trials: list[TrialTouches | None] = []
 
     class Recording(Planner):
-        def plan(self, belief, rng, probabilities=None, trial=None):  # type: ignore[no-untyped-def]
+        def plan(self, belief, rng, probabilities=None):  # type: ignore[no-untyped-def]
             seen.append(None if probabilities is None else probabilities.copy())
-            trials.append(trial)
-            return super().plan(belief, rng, probabilities, trial)
+            return super().plan(belief, rng, probabilities)
 
     session = RecognitionSession(model, Recording(model, DiscriminativePolicy(), n_candidates=32))
     rng = np.random.default_rng(0)
@@ -180,10 +177,6 @@ def test_the_session_hands_the_object_probabilities_and_the_touches_to_the_plann
     assert seen[1] is not None
     np.testing.assert_allclose(seen[1], session.probabilities)
     assert int(np.argmax(seen[1])) == 2
-    assert trials[0] is None
-    assert trials[1] is not None
-    np.testing.assert_array_equal(trials[1].actions, first.action[None])
-    np.testing.assert_array_equal(trials[1].observations, y[None])
 
 
 def test_policies_are_made_in_one_place() -> None:

@@ -10,7 +10,6 @@ import pytest
 from core.errors import CoreError, InvalidInputError
 from core.evaluation.designs import collect, shared_design
 from core.evaluation.worlds import random_experiment2_world
-from core.gp.cross_covariance import object_cross_covariances
 from core.gp.fit_run import FitRun, evaluation_cost
 from core.gp.kronecker import (
     KroneckerLikelihood,
@@ -323,20 +322,6 @@ def test_spectral_predictive_covariance_equals_the_dense_one(case: Case) -> None
     assert model.posterior.gram_inverse.shape[0] == case.observation_dim  # materialise K⁻¹
     assert model.posterior.has_dense_inverse
     np.testing.assert_allclose(spectral, predictive_covariance(model, s, x), atol=1e-9)
-
-
-def test_spectral_cross_covariances_equal_the_dense_ones() -> None:
-    case = CASES[0]
-    data, latents, hyper = make_problem(case, seed=25)
-    model = condition(data, latents, hyper)
-    rng = np.random.default_rng(26)
-    x, others = rng.normal(size=(3, case.action_dim)), rng.normal(size=(5, case.action_dim))
-    spectral = object_cross_covariances(model, x, others)
-    assert not model.posterior.has_dense_inverse
-    assert model.posterior.gram_inverse.shape[0] == case.observation_dim  # materialise K⁻¹
-    np.testing.assert_allclose(object_cross_covariances(model, x, others), spectral, atol=1e-9)
-    direct = predictive_covariance(model, model.latents[1], np.vstack([x, others]))
-    np.testing.assert_allclose(spectral[1], direct[:, :3, 3:], atol=1e-9)
 
 
 def test_a_fit_on_a_shared_design_runs_through_kronecker_and_matches_the_dense_fit() -> None:

@@ -6,8 +6,6 @@ errors (batch means, as in test_moments.py).
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
@@ -29,7 +27,6 @@ from core.recognition.session import (
     default_prior,
     objects_belief,
 )
-from core.recognition.trial_conditioning import TrialTouches, trial_corrections
 from core.types import GaussianBelief, ManifoldModel
 from tests.core.test_moments import _batch_mean_estimates, small_model
 
@@ -194,14 +191,11 @@ def test_the_active_policy_plans_under_the_objects_by_default(model: ManifoldMod
         np.testing.assert_array_equal(belief.weights, session.probabilities)
         np.testing.assert_allclose(belief.cov, OBJECT_COMPONENT_VARIANCE * np.eye(2))
         stats = session.planner.candidate_statistics
-        trial = session.trial_touches()
-        corrections = None if trial is None else trial_corrections(model, trial, stats.actions)
-        scores = mixture_information(model, belief, stats, corrections=corrections)
+        scores = mixture_information(model, belief, stats)
         planned = session.suggest(rng)
         np.testing.assert_array_equal(planned.action, stats.actions[int(np.argmax(scores))])
         step = session.observe(planned.action, 2.0 + 0.3 * world.standard_normal(3))
         assert step.mutual_information == pytest.approx(float(scores.max()), rel=1e-12)
-        assert (trial is None) == (step.step == 1)
     # Before any touch the belief is the objects equally likely.
     np.testing.assert_allclose(objects_belief(model).weights, np.full(4, 0.25))
 
@@ -219,23 +213,3 @@ def test_the_papers_planning_is_under_the_gaussian(model: ManifoldModel) -> None
 def test_an_unknown_planning_belief_is_refused() -> None:
     with pytest.raises(InvalidInputError, match="plan_under"):
         RecognitionSettings(plan_under="mixture")  # type: ignore[arg-type]
-
-
-def test_a_touch_seen_under_a_shared_offset_is_worth_less_the_second_time(
-    model: ManifoldModel,
-) -> None:
-    """Conditioned on a trial whose touches share most of their noise, the mixture's U1 of the
-    action just touched falls, and it falls more than that of an action far from it."""
-    shared = 0.9 * model.hyperparameters.noise_variance
-    placed = dataclasses.replace(model, placement_variance=shared)
-    planner = Planner(placed, ActivePolicy(), n_candidates=64)
-    belief = objects_belief(placed)
-    stats = planner.candidate_statistics
-    before = mixture_information(placed, belief, stats)
-    touched = int(np.argmax(before))
-    far = int(np.argmax(np.linalg.norm(stats.actions - stats.actions[touched], axis=1)))
-    action = stats.actions[touched : touched + 1]
-    trial = TrialTouches(action, predict(placed, placed.latents[1:2], action)[0], shared)
-    after = planner.mutual_information(belief, stats.actions, trial)
-    assert after[touched] < 0.5 * before[touched]
-    assert after[touched] / before[touched] < after[far] / before[far]
