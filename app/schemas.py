@@ -738,6 +738,15 @@ class SureAndWrongPublic(BaseModel):
     share_wrong: float | None = Field(description="wrong / sure; null when none was sure.")
 
 
+class EceIfCalibrated(BaseModel):
+    """The ECE the same stated probabilities would show by sampling alone, were they
+    calibrated (each answer right with exactly its probability, independently): an observed
+    ECE is evidence of miscalibration only above ``p95``."""
+
+    mean: float = Field(description="Mean over the Monte Carlo draws.")
+    p95: float = Field(description="95th percentile over the draws.")
+
+
 class CalibrationAtTouch(BaseModel):
     """Calibration of a set of answers, without the reliability table (the measures are null
     for an empty set)."""
@@ -748,6 +757,11 @@ class CalibrationAtTouch(BaseModel):
     brier: float | None = Field(description="Multi-class Brier score of the object posterior.")
     log_loss: float | None = Field(description="Mean −log p(true object), nats.")
     sure_and_wrong: SureAndWrongPublic
+    ece_if_calibrated: EceIfCalibrated | None = Field(
+        default=None,
+        description="The ECE expected from sampling alone if the stated probabilities were "
+        "calibrated (null for no answers, and in reports written before it was added).",
+    )
 
 
 class CalibrationPublic(CalibrationAtTouch):

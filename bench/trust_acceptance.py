@@ -113,7 +113,7 @@ def calibration_criteria(document: Mapping[str, Any], world: str) -> list[Criter
         sure_parts.append(f"{policy} {wrong}/{sure}" + (f" ({100 * share:.1f} %)" if sure else ""))
         ece = scored["ece"]
         ece_ok &= ece is not None and ece <= MAX_ECE
-        ece_parts.append(f"{policy} {'—' if ece is None else f'{ece:.3f}'}")
+        ece_parts.append(f"{policy} {'—' if ece is None else f'{ece:.3f}'}{_null(scored)}")
     return [
         Criterion(
             f"{world}: of the answers with p ≥ {SURE:g}, ≥ {100 * (1 - MAX_SHARE_WRONG):.0f} % "
@@ -218,6 +218,13 @@ def assess(documents: Mapping[str, Mapping[str, Any]], cushions: bool) -> list[C
     return criteria
 
 
+def _null(scored: Mapping[str, Any]) -> str:
+    """ " (calibrated: mean, p95)": the ECE these answers would show by sampling alone were they
+    calibrated (core.evaluation.calibration.ece_if_calibrated), when the report has it."""
+    null = scored.get("ece_if_calibrated")
+    return "" if not null else f" (if calibrated {null['mean']:.3f}, p95 {null['p95']:.3f})"
+
+
 def touch_table(document: Mapping[str, Any]) -> list[str]:
     """Per policy and touch: accuracy % (95 % interval), ECE, wrong/sure at p ≥ 0.95, and the
     effective number of trials where trials share recorded touches (replay)."""
@@ -253,7 +260,7 @@ def touch_table(document: Mapping[str, Any]) -> list[str]:
         scored = summary["calibration"]["all_touches"]
         sure, wrong = _sure(scored)
         ece = "—" if scored["ece"] is None else f"{scored['ece']:.3f}"
-        lines.append(f"    all touches: ECE {ece}  sure & wrong {wrong}/{sure}")
+        lines.append(f"    all touches: ECE {ece}{_null(scored)}  sure & wrong {wrong}/{sure}")
     return lines
 
 

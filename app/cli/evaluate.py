@@ -118,6 +118,23 @@ def calibration_cells(summary: dict[str, Any]) -> tuple[str, str]:
     return ece, wrong
 
 
+def sampling_noise_line(document: dict[str, Any]) -> str:
+    """ "ECE from sampling alone, were the answers calibrated (mean, 95th percentile): active
+    0.041, 0.063; ..." for the policies whose report has it; "" for none."""
+    parts = []
+    for name, summary in document["policies"].items():
+        scored = (summary.get("calibration") or {}).get("all_touches") or {}
+        null = scored.get("ece_if_calibrated")
+        if null:
+            parts.append(f"{name} {null['mean']:.3f}, {null['p95']:.3f}")
+    if not parts:
+        return ""
+    return (
+        "ECE that sampling alone gives these answers were they calibrated (mean, 95th "
+        "percentile): " + "; ".join(parts)
+    )
+
+
 def summary_table(document: dict[str, Any]) -> Table:
     """Accuracy by touch, at T with its interval, calibration (ECE and "sure and wrong" over
     every trial and touch), touches to confidence, per object."""
@@ -296,6 +313,9 @@ def evaluate_command(
         sys.stdout.write(json.dumps(document) + "\n")
         return
     stdout.print(summary_table(document))
+    noise = sampling_noise_line(document)
+    if noise:
+        stdout.print(escape(noise))
     if document["comparison"]:
         stdout.print(escape(document["comparison"]))
     for note in document["notes"]:

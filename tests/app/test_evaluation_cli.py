@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from app.cli.evaluate import calibration_cells
+from app.cli.evaluate import calibration_cells, sampling_noise_line
 from app.cli.main import app
 from core.evaluation.worlds import random_experiment2_world, sample_dataset
 from tests.app.conftest import experiment1_csv, experiment1_document
@@ -86,6 +86,10 @@ def test_table_shows_each_policys_ece_and_sure_and_wrong(model_path, tmp_path):
         ece, _ = calibration_cells(summary)
         assert ece == f"{summary['calibration']['all_touches']['ece']:.3f}"
         assert ece in result.stdout
+    assert sampling_noise_line(document) in " ".join(result.stdout.split())
+    for name, summary in document["policies"].items():
+        null = summary["calibration"]["all_touches"]["ece_if_calibrated"]
+        assert f"{name} {null['mean']:.3f}, {null['p95']:.3f}" in sampling_noise_line(document)
 
 
 def test_calibration_cells_count_the_sure_answers_and_say_when_there_are_none():

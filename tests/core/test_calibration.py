@@ -12,6 +12,7 @@ from core.evaluation.calibration import (
     answer_confidence,
     brier_score,
     calibration,
+    ece_if_calibrated,
     expected_calibration_error,
     log_loss,
     reliability_table,
@@ -119,6 +120,8 @@ def test_calibration_collects_every_measure_and_is_json_ready() -> None:
     d = result.to_dict()
     assert d["sure_and_wrong"] == {"threshold": 0.95, "sure": 2, "wrong": 1, "share_wrong": 0.5}
     assert len(d["reliability"]) == 10
+    mean, p95 = ece_if_calibrated(np.array([0.7, 0.5, 0.95, 0.96]))
+    assert d["ece_if_calibrated"] == {"mean": mean, "p95": p95}
 
 
 def test_calibration_of_no_answers_has_no_measures() -> None:
@@ -128,6 +131,8 @@ def test_calibration_of_no_answers_has_no_measures() -> None:
     assert result.ece is None
     assert result.brier is None
     assert result.log_loss is None
+    assert result.ece_if_calibrated is None
+    assert result.to_dict()["ece_if_calibrated"] is None
 
 
 def test_sampled_from_its_own_probabilities_a_posterior_is_calibrated() -> None:
@@ -169,3 +174,51 @@ def test_bad_threshold_and_bins() -> None:
         reliability_table(np.array([0.5]), np.array([True]), n_bins=0)
     with pytest.raises(InvalidInputError, match=r"\[0, 1\]"):
         reliability_table(np.array([1.5]), np.array([True]))
+
+
+def test_ece_if_calibrated_by_hand() -> None:
+    """Certain answers have no sampling noise; n answers at p = ½ in one bin have
+    E|S − n/2| / n with S ~ Binomial(n, ½), computed exactly here."""
+    assert ece_if_calibrated(np.ones(7)) == (0.0, 0.0)
+    assert ece_if_calibrated(np.zeros(7)) == (0.0, 0.0)
+    n = 20
+    exact = sum(math.comb(n, k) * abs(k - n / 2) for k in range(n + 1)) / 2**n / n
+    mean, p95 = ece_if_calibrated(np.full(n, 0.5), draws=40000)
+    assert mean == pytest.approx(exact, abs=0.003)  # the draws' standard error is ~0.0004
+    assert exact < p95 <= 0.25
+    # Two bins add their noises: answers at 0.45 and 0.55 (bins 4 and 5) separately.
+    split, _ = ece_if_calibrated(np.repeat([0.45, 0.55], n // 2), draws=40000)
+    assert split > mean
+
+
+def test_ece_if_calibrated_is_deterministic_and_shrinks_with_more_answers() -> None:
+    rng = np.random.default_rng(1)
+    few = rng.uniform(0.3, 1.0, 240)
+    assert ece_if_calibrated(few) == ece_if_calibrated(few)
+    assert ece_if_calibrated(few, seed=1) != ece_if_calibrated(few)
+    many = np.tile(few, 25)
+    assert ece_if_calibrated(many)[0] < 0.4 * ece_if_calibrated(few)[0]
+    with pytest.raises(InvalidInputError, match="draws"):
+        ece_if_calibrated(few, draws=0)
+    with pytest.raises(InvalidInputError, match="confidence"):
+        ece_if_calibrated(np.array([1.5]))
+
+
+def test_a_calibrated_recogniser_lies_within_its_sampling_noise() -> None:
+    """Labels drawn from the stated posteriors: the observed ECE is of the size of the null's
+    mean, and an overconfident posterior of the same answers lies far above its 95th
+    percentile."""
+    rng = np.random.default_rng(2)
+    logits = rng.normal(scale=2.0, size=(240, 4))
+    p = np.exp(logits - logits.max(axis=1, keepdims=True))
+    p /= p.sum(axis=1, keepdims=True)
+    labels = np.array([rng.choice(4, p=row) for row in p])
+    result = calibration(p, labels, threshold=0.95)
+    assert result.ece is not None
+    assert result.ece_if_calibrated is not None
+    assert result.ece <= result.ece_if_calibrated[1]
+    overconfident = p**4 / np.sum(p**4, axis=1, keepdims=True)
+    sharp = calibration(overconfident, labels, threshold=0.95)
+    assert sharp.ece is not None
+    assert sharp.ece_if_calibrated is not None
+    assert sharp.ece > 2 * sharp.ece_if_calibrated[1]

@@ -208,6 +208,10 @@ def _expect_calibration(page: Any, summary: dict[str, Any]) -> None:
             assert int(cells[0]) == measures["answers"]
             assert float(cells[2]) == pytest.approx(measures["brier"], rel=5e-3, abs=1e-6)
             assert float(cells[3]) == pytest.approx(measures["log_loss"], rel=5e-3, abs=1e-6)
+            null = row.get_by_test_id("eval-ece-null").inner_text().split(", ")
+            expected = measures["ece_if_calibrated"]
+            assert float(null[0]) == pytest.approx(expected["mean"], rel=5e-3, abs=1e-6)
+            assert float(null[1]) == pytest.approx(expected["p95"], rel=5e-3, abs=1e-6)
         # After each touch: ECE and wrong/sure, as many cells as touches.
         by_touch = values["calibration"]["by_touch"]
         wrong_sure = page.locator(

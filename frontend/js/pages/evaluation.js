@@ -278,7 +278,15 @@ function sureAndWrong(sure) {
   return `${sure.wrong} of ${sure.sure}${share}`;
 }
 
-/** ECE, Brier, log-loss and sure-and-wrong per policy, over every (trial, touch) and at T. */
+/** "0.041, 0.063": the ECE the same stated probabilities would show by sampling alone were
+ * they calibrated (an observed ECE below the 95th percentile is within that noise); "—" for a
+ * report without it. */
+function eceIfCalibrated(scored) {
+  return scored ? `${num(scored.mean, 3)}, ${num(scored.p95, 3)}` : "—";
+}
+
+/** ECE, Brier, log-loss and sure-and-wrong per policy, over every (trial, touch) and at T, with
+ * the ECE expected from sampling alone. */
 function drawCalibration() {
   const entries = policies();
   if (!entries.length) {
@@ -290,7 +298,15 @@ function drawCalibration() {
     return;
   }
   const threshold = entries.map(([, s]) => s.calibration).find(Boolean).all_touches.sure_and_wrong.threshold;
-  const head = ["policy", "answers", "ECE", "Brier", "log-loss (nats)", `sure (p ≥ ${threshold}) and wrong`];
+  const head = [
+    "policy",
+    "answers",
+    "ECE",
+    "Brier",
+    "log-loss (nats)",
+    `sure (p ≥ ${threshold}) and wrong`,
+    "ECE if calibrated: mean, 95th percentile",
+  ];
   const rows = [];
   for (const [policy, s] of entries) {
     if (!s.calibration) continue;
@@ -305,6 +321,7 @@ function drawCalibration() {
           el("td", {}, num(scored.brier, 3)),
           el("td", {}, num(scored.log_loss, 3)),
           el("td", { "data-testid": "eval-sure-wrong" }, sureAndWrong(scored.sure_and_wrong)),
+          el("td", { "data-testid": "eval-ece-null" }, eceIfCalibrated(scored.ece_if_calibrated)),
         ),
       );
     }
