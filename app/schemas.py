@@ -605,7 +605,7 @@ class CollectionCreate(BaseModel):
     table's own spread on the mock rig (its ``action_std``), 1.0 on a real rig; the run's
     ``params`` record the spread used. ``placements`` (P per object, each touched about
     ``samples_per_object`` / P times in a row; every stored sample records its placement, and a
-    fit estimates the placement effect from them): left out, a fresh placement for every touch
+    fit estimates the placement effect from them): left out, two touches per placement
     (:func:`app.services.collections.default_placements`); the run's ``params`` record the
     placements used.
     """
@@ -624,9 +624,10 @@ class CollectionCreate(BaseModel):
             "Placements per object P: each object is placed P times and touched about "
             "samples_per_object / P times in a row at each placement, and every sample records "
             "its placement, so that a fit estimates how much one placement shifts a trial's "
-            "touches alike (the model's placement_effect). Null: a fresh placement for every "
-            "touch (P = samples_per_object). At least one per stage of the design (the "
-            "adaptive design touches in up to 3 stages, each with placements of its own)."
+            "touches alike (the model's placement_effect). Null: two touches per placement "
+            "(P = samples_per_object / 2); P = samples_per_object places every touch anew. "
+            "At least one per stage of the design (the adaptive design touches in up to 3 "
+            "stages, each with placements of its own)."
         ),
     )
 

@@ -16,11 +16,11 @@ so an interrupted run resumes and anyone can rerun it):
         --out eval-replay-n<n>-T6-s<S>.json
 
 (``--table-file F`` in place of ``--table T``; the first collection takes ``collect``'s default
-design, the adaptive one, with its default placements; the held-out collection is a random
-design with a fresh placement for every touch, as recorded data are, and never seen by the
-fit; n = ⌈trials / objects⌉ trials per target.) The trials run in the evaluation engine behind
-``activetouch evaluate`` (Dask ``LocalCluster`` of ``--workers``); this module only reads the
-reports.
+design, the adaptive one, with its default placements, or ``--placements P``; the held-out
+collection is a random design with a fresh placement for every touch, as recorded data are, and
+never seen by the fit; n = ⌈trials / objects⌉ trials per target.) The trials run in the
+evaluation engine behind ``activetouch evaluate`` (Dask ``LocalCluster`` of ``--workers``); this
+module only reads the reports.
 
 It prints, per world, policy and touch: accuracy with its 95 % interval, ECE and the answers
 given with p ≥ 0.95 that were wrong; then one PASS/FAIL line per criterion of the acceptance

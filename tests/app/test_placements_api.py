@@ -48,13 +48,13 @@ def placements_of(data: TrainingData, obj: int) -> list[int]:
 
 
 def test_a_collection_records_placements_in_every_stage(client: TestClient) -> None:
-    # The default: adaptive, 6 touches in stages of 3, 2, 1, a fresh placement for each touch.
-    run, data = collected(client, samples_per_object=6, action_scale=0.5)
+    # The default: adaptive, 8 touches in stages of 4, 2, 2, a placement for every two touches.
+    run, data = collected(client, samples_per_object=8, action_scale=0.5)
     assert run["params"]["action_design"] == "adaptive"
-    assert run["params"]["placements"] == 6
+    assert run["params"]["placements"] == 4
     for obj in range(len(CUPS)):
-        assert placements_of(data, obj) == list(range(6))
-    np.testing.assert_array_equal(data.object_index, [0, 1, 2] * 6)
+        assert placements_of(data, obj) == [0, 0, 1, 1, 2, 2, 3, 3]
+    np.testing.assert_array_equal(data.object_index, [0, 0, 1, 1, 2, 2] * 4)
     # Runs: 3 placements, one per stage: the table turns only between placements.
     run, data = collected(client, samples_per_object=6, action_scale=0.5, placements=3)
     assert run["params"]["placements"] == 3
