@@ -305,7 +305,7 @@ function drawCalibration() {
     "Brier",
     "log-loss (nats)",
     `sure (p ≥ ${threshold}) and wrong`,
-    "ECE if calibrated: mean, 95th percentile",
+    "ECE if calibrated",
   ];
   const rows = [];
   for (const [policy, s] of entries) {
