@@ -67,10 +67,13 @@ def test_every_page_renders_with_the_estop(page: Any, demo: Demo) -> None:
     expect(page.get_by_test_id("hyper-table").locator("tbody tr")).to_have_count(
         len(model["hyperparameters"])
     )
-    # The demo's collection placed every touch anew: no run to estimate a placement effect from.
-    assert model["placement_effect"] is None
+    # The demo's collection touched every placement twice (the default): the fit measured the
+    # placement effect and holds it in its own likelihood, and the page says so.
+    effect = model["placement_effect"]
+    assert effect is not None
+    assert effect["in_training_covariance"] is True
     expect(page.get_by_test_id("model-detail")).to_contain_text(
-        "none (no placements recorded: touches scored as independent)"
+        "in the fit's likelihood and in scoring trials"
     )
     expect(page.get_by_test_id("model-detail")).to_contain_text("one per feature")
     # Every choice of the fit form shows its whole label (padding and the arrow beside it).
