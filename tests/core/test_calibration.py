@@ -135,13 +135,19 @@ def test_calibration_of_no_answers_has_no_measures() -> None:
     assert result.to_dict()["ece_if_calibrated"] is None
 
 
-def test_sampled_from_its_own_probabilities_a_posterior_is_calibrated() -> None:
-    # Labels drawn from the stated posterior: the ECE must shrink to binning error.
-    rng = np.random.default_rng(0)
-    logits = rng.normal(scale=2.0, size=(20000, 4))
+def _labels_from_own_posterior(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """n random posteriors over 4 objects (softmax of N(0, 2²) logits) and a label drawn from
+    each: answers whose stated probabilities are calibrated by construction."""
+    rng = np.random.default_rng(seed)
+    logits = rng.normal(scale=2.0, size=(n, 4))
     p = np.exp(logits - logits.max(axis=1, keepdims=True))
     p /= p.sum(axis=1, keepdims=True)
-    labels = np.array([rng.choice(4, p=row) for row in p])
+    return p, np.array([rng.choice(4, p=row) for row in p])
+
+
+def test_sampled_from_its_own_probabilities_a_posterior_is_calibrated() -> None:
+    # Labels drawn from the stated posterior: the ECE must shrink to binning error.
+    p, labels = _labels_from_own_posterior(20000, seed=0)
     result = calibration(p, labels, threshold=0.95)
     assert result.ece is not None
     assert result.ece < 0.02
@@ -208,11 +214,7 @@ def test_a_calibrated_recogniser_lies_within_its_sampling_noise() -> None:
     """Labels drawn from the stated posteriors: the observed ECE is of the size of the null's
     mean, and an overconfident posterior of the same answers lies far above its 95th
     percentile."""
-    rng = np.random.default_rng(2)
-    logits = rng.normal(scale=2.0, size=(240, 4))
-    p = np.exp(logits - logits.max(axis=1, keepdims=True))
-    p /= p.sum(axis=1, keepdims=True)
-    labels = np.array([rng.choice(4, p=row) for row in p])
+    p, labels = _labels_from_own_posterior(240, seed=2)
     result = calibration(p, labels, threshold=0.95)
     assert result.ece is not None
     assert result.ece_if_calibrated is not None
