@@ -49,6 +49,7 @@ import scipy.linalg.blas
 import scipy.linalg.lapack
 
 from core.errors import InvalidInputError
+from core.gp.factor_inverse import spd_inverse
 from core.gp.linalg import cholesky_with_jitter, inverse_from_cholesky
 from core.gp.parameters import ParameterLayout
 from core.gp.placement_groups import checked_placement_variance, shared_groups
@@ -252,6 +253,20 @@ class ManifoldLikelihood:
         factor, jitter = cholesky_with_jitter(gram, what=f"Gram matrix of feature {feature}")
         return np.asarray(factor.T, dtype=np.float64), float(jitter)
 
+    def _factor_and_inverse(
+        self, gram_free: FloatArray, noise: float, feature: int
+    ) -> tuple[FloatArray, FloatArray, float]:
+        """U of K_a = UᵀU (upper triangle of a Fortran-ordered array), K_a⁻¹ (upper triangle of
+        another, strictly lower triangle zero) and the jitter added (0 unless the plain
+        factorisation failed): both at once by :func:`core.gp.factor_inverse.spd_inverse`,
+        the jitter ladder of :meth:`_factor` only on failure."""
+        upper = self._noisy(gram_free, noise, feature).T
+        info, inverse = spd_inverse(upper)
+        if info == 0:
+            return upper, inverse, 0.0
+        upper, jitter = self._factor(gram_free, noise, feature)
+        return upper, inverse_from_cholesky(upper), jitter
+
     def _per_feature(self, work: Callable[[int], _T]) -> list[_T]:
         """``work(a)`` for every feature a, in feature order; on the pool when ``threads`` > 1.
         The first error of any feature is raised (after every feature has ended)."""
@@ -307,7 +322,7 @@ class ManifoldLikelihood:
         def feature(a: int) -> tuple[float, float, float]:
             """Feature a's term of -log p, its ∂/∂log σ_n² and the jitter; gram_free[a]
             becomes X_a."""
-            upper, jitter = self._factor(gram_free[a], float(noise[a]), a)
+            upper, inverse, jitter = self._factor_and_inverse(gram_free[a], float(noise[a]), a)
             y = self._centred[a]
             beta, info = scipy.linalg.lapack.dpotrs(upper, y, lower=0)
             if info:  # pragma: no cover - the factor came from a successful Cholesky
@@ -317,7 +332,6 @@ class ManifoldLikelihood:
             term = 0.5 * float(y @ beta) + 0.5 * log_det + 0.5 * n * _LOG_2PI
             # Upper triangle (Fortran) of W = K⁻¹ - ββᵀ: ∂(-log p)/∂K = ½ W. Its C-ordered
             # transpose holds W in the lower triangle and zeros above.
-            inverse = inverse_from_cholesky(upper, overwrite=True)  # the factor is done
             inverse = scipy.linalg.blas.dsyr(-1.0, beta, lower=0, a=inverse, overwrite_a=1)
             half = inverse.T
             g_sn_a = 0.5 * noise[a] * float(half.ravel()[self._diag].sum())

@@ -193,5 +193,5 @@ def inverse_from_cholesky(upper: FloatArray, overwrite: bool = False) -> FloatAr
             raise NotPositiveDefiniteError(f"dpotri: the factor is singular (info {info}).")
         return product
     inverse_u = upper_triangular_inverse(upper)  # Fortran-ordered, as dlauum works in place
-    lauum_upper(inverse_u)  # fails only on bad arguments, which _checked refuses first
+    lauum_upper(inverse_u)  # fails only on bad arguments, which checked_square refuses first
     return inverse_u

@@ -1,4 +1,4 @@
-"""LAPACK's O(n³) triangular routines called without holding the GIL.
+"""LAPACK's O(n³) triangular routines (and the BLAS-3 ones under them) called without the GIL.
 
 SciPy's f2py wrappers (``scipy.linalg.lapack.dpotrf`` and the rest) keep the GIL for the whole
 call, so the feature threads of one likelihood evaluation (:mod:`core.gp.likelihood`,
@@ -27,7 +27,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-from scipy.linalg import cython_lapack
+from scipy.linalg import cython_blas, cython_lapack
 
 from core.errors import InvalidInputError
 from core.validation import FloatArray
@@ -45,9 +45,11 @@ _UPLO_DIAG_N_A_LDA_INFO = ctypes.CFUNCTYPE(
 
 
 @functools.cache
-def _routine(name: str, prototype: Any) -> Callable[..., None]:
-    """The ctypes function of ``cython_lapack``'s exported pointer ``name``."""
-    capsule = cython_lapack.__pyx_capi__[name]
+def exported_routine(name: str, prototype: Any, library: str = "lapack") -> Callable[..., None]:
+    """The ctypes function of ``cython_lapack``'s (or, with ``library="blas"``,
+    ``cython_blas``'s) exported pointer ``name``."""
+    module = cython_blas if library == "blas" else cython_lapack
+    capsule = module.__pyx_capi__[name]
     get_name = ctypes.pythonapi.PyCapsule_GetName
     get_name.restype = ctypes.c_char_p
     get_name.argtypes = [ctypes.py_object]
@@ -58,7 +60,7 @@ def _routine(name: str, prototype: Any) -> Callable[..., None]:
     return prototype(address)  # type: ignore[no-any-return]
 
 
-def _checked(matrix: FloatArray, what: str) -> int:
+def checked_square(matrix: FloatArray, what: str) -> int:
     """The order n of ``matrix``, which must be an (n, n) writable Fortran-ordered float64
     array (what LAPACK may overwrite in place)."""
     if not isinstance(matrix, np.ndarray) or matrix.dtype != np.float64:
@@ -73,10 +75,10 @@ def _checked(matrix: FloatArray, what: str) -> int:
 
 
 def _call_uplo(name: str, matrix: FloatArray) -> int:
-    n = ctypes.c_int(_checked(matrix, name))
+    n = ctypes.c_int(checked_square(matrix, name))
     info = ctypes.c_int(0)
     if n.value:
-        routine = _routine(name, _UPLO_N_A_LDA_INFO)
+        routine = exported_routine(name, _UPLO_N_A_LDA_INFO)
         routine(b"U", ctypes.byref(n), matrix.ctypes.data, ctypes.byref(n), ctypes.byref(info))
     return int(info.value)
 
@@ -128,10 +130,10 @@ def trtri_upper(matrix: FloatArray) -> int:
     Returns:
         LAPACK's info: 0 on success, k > 0 when U's k-th diagonal entry is zero.
     """
-    n = ctypes.c_int(_checked(matrix, "dtrtri"))
+    n = ctypes.c_int(checked_square(matrix, "dtrtri"))
     info = ctypes.c_int(0)
     if n.value:
-        routine = _routine("dtrtri", _UPLO_DIAG_N_A_LDA_INFO)
+        routine = exported_routine("dtrtri", _UPLO_DIAG_N_A_LDA_INFO)
         routine(
             b"U", b"N", ctypes.byref(n), matrix.ctypes.data, ctypes.byref(n), ctypes.byref(info)
         )
