@@ -56,6 +56,8 @@ _POTRF = ctypes.CFUNCTYPE(None, _CHAR, _INT_P, _ADDRESS, _INT_P, _INT_P)
 _TRTRI = ctypes.CFUNCTYPE(None, _CHAR, _CHAR, _INT_P, _ADDRESS, _INT_P, _INT_P)
 #: dlauum(uplo, n, a, lda, info)
 _LAUUM = _POTRF
+#: dlacpy(uplo, m, n, a, lda, b, ldb)
+_LACPY = ctypes.CFUNCTYPE(None, _CHAR, _INT_P, _INT_P, _ADDRESS, _INT_P, _ADDRESS, _INT_P)
 
 
 def factor_and_triangular_inverse(matrix: FloatArray, inverse: FloatArray) -> int:
@@ -123,14 +125,14 @@ class _Halving:
         self.lda = ctypes.c_int(self.n)
         self.a = int(matrix.ctypes.data)
         self.v = int(inverse.ctypes.data)
-        self.matrix = matrix
-        self.inverse = inverse
+        self.arrays = (matrix, inverse)  # alive while their addresses are used
         self.one = ctypes.c_double(1.0)
         self.minus_one = ctypes.c_double(-1.0)
         self.trmm = exported_routine("dtrmm", _TRMM, "blas")
         self.syrk = exported_routine("dsyrk", _SYRK, "blas")
         self.potrf = exported_routine("dpotrf", _POTRF)
         self.trtri = exported_routine("dtrtri", _TRTRI)
+        self.lacpy = exported_routine("dlacpy", _LACPY)
 
     def _at(self, base: int, row: int, column: int) -> int:
         """Address of entry (row, column) of a Fortran (n, n) array at ``base``."""
@@ -147,8 +149,8 @@ class _Halving:
             self.potrf(b"U", by(size), self._at(self.a, first, first), by(lda), by(status))
             if status.value:
                 return first + int(status.value)
-            block = np.s_[first : first + order, first : first + order]
-            self.inverse[block] = np.triu(self.matrix[block])
+            leaf, copy = self._at(self.a, first, first), self._at(self.v, first, first)
+            self.lacpy(b"U", by(size), by(size), leaf, by(lda), copy, by(lda))  # U's triangle
             self.trtri(b"U", b"N", by(size), self._at(self.v, first, first), by(lda), by(status))
             return 0  # a successful factor has a positive diagonal, so dtrtri succeeds
         half = order // 32 * 16  # aligned blocks, 0 < half < order
@@ -188,8 +190,8 @@ class _Halving:
         if info:
             return info
         # V₁₂ = −V₁₁ U₁₂ V₂₂
-        stop = first + order
-        self.inverse[first:second, second:stop] = self.matrix[first:second, second:stop]
+        block, copy = self._at(self.a, first, second), self._at(self.v, first, second)
+        self.lacpy(b"A", by(rows), by(columns), block, by(lda), copy, by(lda))  # U₁₂
         self.trmm(
             b"R",
             b"U",
