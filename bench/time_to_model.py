@@ -46,7 +46,7 @@ from app.services.fit_tasks import FitEngine, FoldFit
 from bench.fit_n800 import _COUNTS, full_equivalents, instrument
 from core.evaluation.worlds import random_experiment2_world, sample_dataset
 from core.gp import FitOptions, iter_fit
-from core.selection import LatentSelection, select_latent_dim, serial_map, serial_rung_map
+from core.selection import LatentSelection, select_latent_dim, serial_map, serial_warm_map
 from core.types import ManifoldModel, TrainingData
 
 TRUE_DIM = 3
@@ -102,7 +102,7 @@ def time_to_model(
                 n_folds=folds,
                 map=serial_map if engine is None else engine.fold_map,
                 refit=None if cold else fit.refit,
-                rung_map=serial_rung_map if engine is None else engine.rung_map,
+                warm_map=serial_warm_map if engine is None else engine.warm_map,
                 rung_callback=rung_done,
             )
             counts["folds"] = _equivalents(data)

@@ -157,7 +157,7 @@ def select_latent_dim_with_progress(
         candidate_dims,
         select_latent_dim,
         serial_map,
-        serial_rung_map,
+        serial_warm_map,
     )
 
     fewest = int(data.touches_per_object().min())
@@ -207,7 +207,7 @@ def select_latent_dim_with_progress(
             callback=on_fold,
             map=serial_map if engine is None else engine.fold_map,
             refit=fold_fit.refit,
-            rung_map=serial_rung_map if engine is None else engine.rung_map,
+            warm_map=serial_warm_map if engine is None else engine.warm_map,
             rung_callback=on_rung,
         )
 

@@ -2,27 +2,31 @@
 distributed, the engine evaluations run on.
 
 :func:`core.selection.latent_selection.select_latent_dim` hands its independent fits on all the
-touches (one per candidate ds, :data:`core.selection.nested_fits.RungMap`) and its independent
-folds to maps (:data:`core.selection.latent_selection.FoldMap`), and a fit the first stage of its
+touches (one per candidate ds) and its warm refits to a map
+(:data:`core.selection.latent_selection.WarmMap`), its independent folds without warm refits to
+another (:data:`core.selection.latent_selection.FoldMap`), and a fit the first stage of its
 independent starts (:data:`core.gp.fit_run.StartMap`: hyperparameters with the latents frozen,
 then the screening run). :class:`FitEngine` supplies all three on one client — a ``LocalCluster``
 of single-threaded processes started for it, or an existing scheduler
-(:func:`app.evaluation.cluster.open_client`): :meth:`FitEngine.rung_map` runs each candidate's fit
-on all the touches as one task (:func:`core.selection.nested_fits.fit_rung`, the starts of the fit
-as tasks of their own), :meth:`FitEngine.fold_map` each fold's warm refit of one candidate, or
-all of a fold's nested candidate fits (:func:`core.selection.latent_selection.score_fold`), as
-one task,
+(:func:`app.evaluation.cluster.open_client`): :meth:`FitEngine.warm_map` runs each candidate's
+fit on all the touches as one task (:func:`core.selection.nested_fits.fit_rung`, the starts of
+the fit as tasks of their own) and each fold's refit of one candidate as one task that waits
+only for the fits it needs (:func:`core.selection.latent_selection.score_warm_fold`: those of
+ds up to its candidate's), so refits of small candidates fill the workers while the large ones
+are still fitted; :meth:`FitEngine.fold_map` runs all of a fold's nested candidate fits
+(:func:`core.selection.latent_selection.score_fold`) as one task, and
 :meth:`FitEngine.start_map` each start (:func:`core.gp.fit_run.run_first_stage`). What every task
 shares (the :class:`~core.selection.nested_fits.RungPlan`: data and the fit; the
-:class:`~core.selection.latent_selection.FoldPlan`: data, folds, the fit and the models on all the
-touches; the :class:`~core.gp.fit_run.StartPlan`: the screening problem and the options) is
-scattered to every worker once (``broadcast=True``); a task carries only its ds or fold's index
-and generator, or its start's vector. Fits and folds have their own generators and starts none,
-so the result is the serial run's whatever worker ran which task. Without warm folds a fold's
-candidates depend on each other (ds = k starts from ds = k - 1), so the fold is the unit of work
-there. The starts of every fit in a task run as tasks of their own (:func:`worker_start_map`),
-so the last fits of a run spread over every worker; the polish of a fit's best starts runs
-after its starts, where the fit runs.
+:class:`~core.selection.latent_selection.FoldPlan`: data, folds and the fit; the
+:class:`~core.gp.fit_run.StartPlan`: the screening problem and the options) is scattered to
+every worker once (``broadcast=True``); a task carries only its ds or fold's index and
+generator, or its start's vector, and a warm refit the futures of the fits it needs (Dask
+moves each fitted model to a worker at most once). Fits and folds have their own generators and
+starts none, so the result is the serial run's whatever worker ran which task. Without warm
+folds a fold's candidates depend on each other (ds = k starts from ds = k - 1), so the fold is
+the unit of work there. The starts of every fit in a task run as tasks of their own
+(:func:`worker_start_map`), so the last fits of a run spread over every worker; the polish of a
+fit's best starts runs after its starts, where the fit runs.
 
 Stopping: the ``stop`` callable is polled every :data:`POLL_S` while tasks run; when it raises
 (or the caller is interrupted), the pending tasks are cancelled and a local cluster is closed,
@@ -62,6 +66,7 @@ from core.selection import (
     RungTask,
     fit_rung,
     score_fold,
+    score_warm_fold,
 )
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray
@@ -83,7 +88,7 @@ class FoldFit:
         noise_model: Noise model of the fold fits.
         starts_as_tasks: Run each fit's starts as tasks of their own on the cluster of the
             fold's task (:func:`worker_start_map`); set by :meth:`FitEngine.fold_map` and
-            :meth:`FitEngine.rung_map`.
+            :meth:`FitEngine.warm_map`.
         stop_event: Name of the Dask ``Event`` set when the run stops: a fold already running
             then submits no more starts and ends (with ``starts_as_tasks``).
     """
@@ -216,16 +221,56 @@ class FitEngine:
         ]
         return self._run(score_fold, plan, list(zip(names, tasks, strict=True)), stop_event)
 
-    def rung_map(self, plan: RungPlan, tasks: Sequence[RungTask]) -> Iterator[RungResult]:
-        """A :data:`core.selection.nested_fits.RungMap`: every candidate's fit on all the
-        touches as one task (and its starts as tasks of their own when the fit is a
-        :class:`FoldFit`)."""
-        stop_event = None
-        if isinstance(plan.fit, FoldFit):
-            stop_event = f"stop-{uuid.uuid4().hex[:8]}"
-            plan = dataclasses.replace(plan, fit=_on_workers(plan.fit, stop_event))
-        tasks_ = [(f"rung-{t.latent_dim}", t) for t in tasks]
-        return self._run(fit_rung, plan, tasks_, stop_event)
+    def warm_map(
+        self,
+        rung_plan: RungPlan,
+        rungs: Sequence[RungTask],
+        fold_plan: FoldPlan,
+        folds: Sequence[FoldTask],
+    ) -> Iterator[RungResult | FoldResult]:
+        """A :data:`core.selection.latent_selection.WarmMap`: every candidate's fit on all the
+        touches as one task (its starts as tasks of their own), and every fold's refit of a
+        candidate as one task that depends on the fits of ds up to its candidate's
+        (:func:`core.selection.latent_selection.score_warm_fold`), so Dask starts it as soon
+        as those are done, while the larger candidates are still being fitted."""
+        stop_event = f"stop-{uuid.uuid4().hex[:8]}"
+        if isinstance(rung_plan.fit, FoldFit):
+            rung_plan = dataclasses.replace(rung_plan, fit=_on_workers(rung_plan.fit, stop_event))
+        if isinstance(fold_plan.fit, FoldFit):
+            fit = _on_workers(fold_plan.fit, stop_event)
+            refit = None if fold_plan.refit is None else fit.refit
+            fold_plan = dataclasses.replace(fold_plan, fit=fit, refit=refit)
+        dims = list(fold_plan.dims)
+
+        def submit(client: Any, prefix: str) -> set[Any]:
+            rung_remote, fold_remote = client.scatter(
+                [rung_plan, fold_plan], broadcast=True, hash=False
+            )
+            fitted = {
+                task.latent_dim: client.submit(
+                    fit_rung, rung_remote, task, pure=False, key=f"rung-{task.latent_dim}-{prefix}"
+                )
+                for task in rungs
+            }
+            refits = set()
+            for task in folds:
+                if task.rows is None or len(task.rows) != 1:
+                    raise ValueError("warm_map: a warm fold task scores exactly one candidate.")
+                (c,) = task.rows
+                needed = [fitted[ds] for ds in dims[: c + 1]]
+                refits.add(
+                    client.submit(
+                        _score_warm_fold,
+                        fold_remote,
+                        task,
+                        *needed,
+                        pure=False,
+                        key=f"fold-{task.fold}-{c}-{prefix}",
+                    )
+                )
+            return set(fitted.values()) | refits
+
+        return self._collect(submit, stop_event)
 
     def start_map(self, plan: StartPlan, tasks: Sequence[StartTask]) -> Iterator[StartResult]:
         """A :data:`core.gp.fit_run.StartMap`: every start's first stage as one task, on one
@@ -241,19 +286,29 @@ class FitEngine:
         stop_event: str | None = None,
     ) -> Iterator[Any]:
         """``function(shared, task)`` of every task as Dask tasks, ``shared`` scattered once;
-        the results in the order they finish. Stopped early, the pending tasks are cancelled
-        and the Dask ``Event`` ``stop_event`` (if any) is set for the running ones."""
+        the results in the order they finish (:meth:`_collect`)."""
+
+        def submit(client: Any, prefix: str) -> set[Any]:
+            [remote] = client.scatter([shared], broadcast=True, hash=False)
+            return {
+                client.submit(function, remote, task, pure=False, key=f"{name}-{prefix}")
+                for name, task in tasks
+            }
+
+        return self._collect(submit, stop_event)
+
+    def _collect(
+        self, submit: Callable[[Any, str], set[Any]], stop_event: str | None = None
+    ) -> Iterator[Any]:
+        """The results of the futures ``submit(client, key prefix)`` returns, in the order they
+        finish. Stopped early, the pending futures are cancelled and the Dask ``Event``
+        ``stop_event`` (if any) is set for the running ones."""
         if self._client is None:
             raise RuntimeError("FitEngine: use it in a `with` block.")
         client = self._client
         pending: set[Any] = set()
         try:
-            [remote] = client.scatter([shared], broadcast=True, hash=False)
-            prefix = uuid.uuid4().hex[:8]
-            pending = {
-                client.submit(function, remote, task, pure=False, key=f"{name}-{prefix}")
-                for name, task in tasks
-            }
+            pending = submit(client, uuid.uuid4().hex[:8])
             while pending:
                 done = {future for future in pending if future.done()}
                 if not done:
@@ -270,6 +325,12 @@ class FitEngine:
 
                     Event(stop_event, client=client).set()
                 client.cancel(list(pending))
+
+
+def _score_warm_fold(plan: FoldPlan, task: FoldTask, *rungs: RungResult) -> FoldResult:
+    """:func:`core.selection.latent_selection.score_warm_fold` with the rungs as positional
+    arguments (Dask passes the results of the futures it depends on that way)."""
+    return score_warm_fold(plan, task, rungs)
 
 
 def _on_workers(fit: FoldFit, stop_event: str) -> FoldFit:

@@ -470,7 +470,7 @@ def _select_latent_dim(
             callback=on_fold,
             map=engine.fold_map,
             refit=fold_fit.refit,
-            rung_map=engine.rung_map,
+            warm_map=engine.warm_map,
             rung_callback=on_rung,
         )
 

@@ -16,19 +16,20 @@ from core.selection.latent_selection import (
     FoldResult,
     FoldTask,
     LatentSelection,
+    WarmMap,
     WarmRefit,
     candidate_dims,
     score_fold,
+    score_warm_fold,
     select_latent_dim,
     serial_map,
+    serial_warm_map,
 )
 from core.selection.nested_fits import (
-    RungMap,
     RungPlan,
     RungResult,
     RungTask,
     fit_rung,
-    serial_rung_map,
 )
 
 __all__ = [
@@ -41,15 +42,16 @@ __all__ = [
     "FoldResult",
     "FoldTask",
     "LatentSelection",
-    "RungMap",
     "RungPlan",
     "RungResult",
     "RungTask",
+    "WarmMap",
     "WarmRefit",
     "candidate_dims",
     "fit_rung",
     "score_fold",
+    "score_warm_fold",
     "select_latent_dim",
     "serial_map",
-    "serial_rung_map",
+    "serial_warm_map",
 ]

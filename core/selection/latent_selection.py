@@ -36,13 +36,14 @@ starts from the ds = k - 1 optimum too, so the training log-likelihood is non-de
 
 **Warm folds** (``refit``, ``"touches"`` only; what ``activetouch fit --latent-dim auto`` and the
 server use): every candidate is fitted once on *all* the touches
-(:func:`core.selection.nested_fits.ladder_fits`: one multi-start fit per ds, independent of
-each other, then carried over upward so the log-likelihood is non-decreasing in ds), and each
-fold's model at that ds is that fit refitted to the fold's training touches from where it
-stands (one joint run, e.g. :func:`core.gp.manifold.refit_warm`). Touch folds keep every
-object, so the latents carry over; the refit costs a few dozen evaluations instead of a
-multi-start fit per fold and candidate, and the full-data fit at the chosen ds is the final
-model (:attr:`LatentSelection.models`). What it gives up: the folds are no longer independent
+(:func:`core.selection.nested_fits.fit_rung`: one multi-start fit per ds, independent of
+each other, then carried over upward by :func:`core.selection.nested_fits.kept_ladder` so
+the log-likelihood is non-decreasing in ds), and each fold's model at that ds is that fit
+refitted to the fold's training touches from where it stands (one joint run, e.g.
+:func:`core.gp.manifold.refit_warm`). Touch folds keep every object, so the latents carry
+over; the refit costs a few dozen evaluations instead of a multi-start fit per fold and
+candidate, and the full-data fit at the chosen ds is the final model
+(:attr:`LatentSelection.models`). What it gives up: the folds are no longer independent
 fits. Their optimisation starts where the held-out touches helped to put it (the basin of the
 full-data optimum and the observation transform of all the touches); the refit then moves to
 the training touches' own optimum nearby, so the held-out touches do not enter the fold's
@@ -50,7 +51,11 @@ likelihood, only its starting point. The measurements are in docs/fitting.md.
 
 The folds are independent (each gets its own generator, spawned from the one passed in):
 :func:`score_fold` is one fold's work, a pure function, and ``map`` runs them — one after
-another by default, or elsewhere (the app runs them as Dask tasks) with the same result.
+another by default, or elsewhere (the app runs them as Dask tasks) with the same result. With
+warm folds the fits on all the touches and the refits are one :data:`WarmMap`: a refit of
+candidate c needs only the fits of ds ≤ dims[c] (:func:`score_warm_fold`), so a map may start
+it while larger candidates are still being fitted (the app's Dask engine does: no worker waits
+for the slowest fit on all the touches while refits could run).
 
 Pure maths: the fit is a function argument, randomness comes in as a generator.
 """
@@ -74,11 +79,14 @@ from core.selection.held_out_objects import (
 )
 from core.selection.nested_fits import (
     NestedFit,
-    RungMap,
+    RungPlan,
+    RungResult,
+    RungTask,
     StartedFit,
-    ladder_fits,
+    fit_rung,
+    kept_ladder,
     nested_fits,
-    serial_rung_map,
+    rung_tasks,
 )
 from core.types import ManifoldModel, TrainingData
 from core.validation import FloatArray, IntArray
@@ -223,7 +231,8 @@ class FoldPlan:
             (:mod:`core.selection.nested_fits`).
         fit: The fit (:data:`core.selection.nested_fits.StartedFit`).
         ladder: Warm folds: every candidate's fit on all the touches, in the order of
-            ``dims`` (:func:`core.selection.nested_fits.ladder_fits`); empty otherwise.
+            ``dims`` (:func:`core.selection.nested_fits.kept_ladder`); empty otherwise (and
+            in the plan a :data:`WarmMap` is given, whose tasks bring their rungs).
         refit: Warm folds: refits a ladder model to a fold's training touches.
     """
 
@@ -329,6 +338,59 @@ def serial_map(plan: FoldPlan, tasks: Sequence[FoldTask]) -> Iterator[FoldResult
         yield score_fold(plan, task)
 
 
+def score_warm_fold(plan: FoldPlan, task: FoldTask, rungs: Sequence[RungResult]) -> FoldResult:
+    """One warm fold's candidate (``task.rows`` = (c,)) from the fits on all the touches of
+    ds ≤ dims[c] (``rungs``, in any order): the model kept at dims[c]
+    (:func:`core.selection.nested_fits.kept_ladder`) refitted to the fold's training touches
+    and scored (:func:`score_fold`). A pure function of its arguments.
+
+    Raises:
+        InvalidInputError: ``task.rows`` is not one candidate, or ``rungs`` are not the fits
+            of ds = dims[0] … dims[c].
+    """
+    if task.rows is None or len(task.rows) != 1:
+        raise InvalidInputError("rows: a warm fold task scores exactly one candidate.")
+    (c,) = task.rows
+    ordered = sorted(rungs, key=lambda r: r.latent_dim)
+    if [r.latent_dim for r in ordered] != list(plan.dims[: c + 1]):
+        raise InvalidInputError(
+            f"rungs: expected the fits of ds = {list(plan.dims[: c + 1])}, received "
+            f"{[r.latent_dim for r in ordered]}."
+        )
+    ladder = kept_ladder([r.model for r in ordered])
+    return score_fold(dataclasses.replace(plan, ladder=ladder), task)
+
+
+#: Runs a warm selection's fits on all the touches (``fit_rung(rung_plan, task)`` of every rung
+#: task) and its refits (``score_warm_fold(fold_plan, task, rungs)`` of every fold task, with
+#: the rung results of ds ≤ its candidate's), yielding every result as it comes, in any order
+#: (:func:`serial_warm_map`; the app's runs them as Dask tasks, a refit as soon as its rungs are
+#: done). ``fold_plan.ladder`` is empty: the rungs come with the tasks.
+WarmMap = Callable[
+    [RungPlan, Sequence[RungTask], FoldPlan, Sequence[FoldTask]],
+    Iterable[RungResult | FoldResult],
+]
+
+
+def serial_warm_map(
+    rung_plan: RungPlan,
+    rungs: Sequence[RungTask],
+    fold_plan: FoldPlan,
+    folds: Sequence[FoldTask],
+) -> Iterator[RungResult | FoldResult]:
+    """Every fit on all the touches, then every refit, one after another in this process."""
+    fitted: list[RungResult] = []
+    for task in rungs:
+        result = fit_rung(rung_plan, task)
+        fitted.append(result)
+        yield result
+    by_dim = sorted(fitted, key=lambda r: r.latent_dim)
+    ladder = kept_ladder([r.model for r in by_dim])
+    plan = dataclasses.replace(fold_plan, ladder=ladder)
+    for fold_task in folds:
+        yield score_fold(plan, fold_task)
+
+
 def select_latent_dim(
     data: TrainingData,
     fit: StartedFit,
@@ -340,7 +402,7 @@ def select_latent_dim(
     nested: bool = True,
     map: FoldMap = serial_map,
     refit: WarmRefit | None = None,
-    rung_map: RungMap = serial_rung_map,
+    warm_map: WarmMap = serial_warm_map,
     rung_callback: Callable[[int, float], None] | None = None,
 ) -> LatentSelection:
     """Choose ds by cross-validation (module docstring).
@@ -369,9 +431,9 @@ def select_latent_dim(
         refit: Warm folds (module docstring; ``"touches"`` only): every candidate is fitted
             once on all the touches with ``fit`` and each fold's model is that one refitted by
             ``refit`` to the fold's training touches; ``nested`` is then not used.
-        rung_map: Runs the warm folds' fits on all the touches
-            (:data:`core.selection.nested_fits.RungMap`; independent, so where they run does
-            not change the result).
+        warm_map: Runs the warm folds' fits on all the touches and their refits
+            (:data:`WarmMap`; pure functions, so where and in what order they run does not
+            change the result).
         rung_callback: Called with (ds, log-likelihood) as each fit on all the touches ends
             (warm folds).
 
@@ -410,17 +472,25 @@ def select_latent_dim(
         )
     dims = tuple(sorted(int(d) for d in dims))
     tasks = [FoldTask(k, fold_rng) for k, fold_rng in enumerate(rng.spawn(n_folds))]
-    ladder: tuple[NestedFit, ...] = ()
-    if refit is not None:
-        ladder = ladder_fits(data, dims, fit, rng, rung_map, rung_callback)
-        # One task per fold and candidate (the refits are independent): the last tasks of a
-        # run are one refit each, not a fold's five, so no worker waits long for the others.
-        tasks = [dataclasses.replace(task, rows=(c,)) for task in tasks for c in range(len(dims))]
-    plan = FoldPlan(data, folds, halves, dims, criterion, nested, fit, ladder, refit)
+    plan = FoldPlan(data, folds, halves, dims, criterion, nested, fit, (), refit)
     scores = np.full((len(dims), n_folds), np.nan)
     fitted = np.full((len(dims), n_folds), np.nan)
     carried = np.zeros(len(dims), dtype=np.int64)
-    for result in map(plan, tasks):
+    results: Iterable[RungResult | FoldResult]
+    rung_models: dict[int, ManifoldModel] = {}
+    if refit is not None:
+        # One task per fold and candidate (the refits are independent): the last tasks of a
+        # run are one refit each, not a fold's five, so no worker waits long for the others.
+        tasks = [dataclasses.replace(task, rows=(c,)) for task in tasks for c in range(len(dims))]
+        results = warm_map(RungPlan(data, fit), rung_tasks(dims, rng), plan, tasks)
+    else:
+        results = map(plan, tasks)
+    for result in results:
+        if isinstance(result, RungResult):
+            rung_models[result.latent_dim] = result.model
+            if rung_callback is not None:
+                rung_callback(result.latent_dim, float(result.model.log_likelihood))
+            continue
         k = result.fold
         rows = list(range(len(dims))) if result.rows is None else list(result.rows)
         scores[rows, k] = result.scores
@@ -434,6 +504,14 @@ def select_latent_dim(
         raise InvalidInputError(
             f"map: no result for fold(s) {', '.join(str(int(k)) for k in missing)}."
         )
+    ladder: tuple[NestedFit, ...] = ()
+    if refit is not None:
+        missing_dims = [ds for ds in dims if ds not in rung_models]
+        if missing_dims:
+            raise InvalidInputError(
+                f"warm_map: no fit for ds = {', '.join(str(d) for d in missing_dims)}."
+            )
+        ladder = kept_ladder([rung_models[ds] for ds in dims])
     selection = _summarise(dims, scores, criterion)
     return dataclasses.replace(
         selection,

@@ -12,9 +12,10 @@ ds = k - 1 optimum, that optimum itself, embedded in ds = k with a constant new 
 log-likelihood is non-decreasing in ds by construction. A downward sweep then refits each
 smaller ds from the projection of the one above (:func:`nested_fits`).
 
-:func:`ladder_fits` is the cheap variant for all the data of a cross-validation with warm folds
-(:mod:`core.selection.latent_selection`): every ds fitted on its own, so the fits can run at once
-(:data:`RungMap`), then only the carrying over, upward — no fit starts from another.
+The ladder is the cheap variant for all the data of a cross-validation with warm folds
+(:mod:`core.selection.latent_selection`): every ds fitted on its own (:func:`rung_tasks`,
+:func:`fit_rung`), so the fits can run at once, then only the carrying over, upward
+(:func:`kept_ladder`) — no fit starts from another.
 
 Pure maths: the fit is a function argument, randomness comes in as a generator.
 """
@@ -22,7 +23,7 @@ Pure maths: the fit is a function argument, randomness comes in as a generator.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -231,75 +232,47 @@ class RungResult:
     model: ManifoldModel
 
 
-#: Runs ``fit_rung(plan, task)`` for every task, yielding the results in any order (serially by
-#: default, :func:`serial_rung_map`; the app supplies one that runs them as Dask tasks).
-RungMap = Callable[[RungPlan, Sequence[RungTask]], Iterable[RungResult]]
-
-
 def fit_rung(plan: RungPlan, task: RungTask) -> RungResult:
     """Fit the plan's touches at the task's ds, with no extra starts. A pure function of the
     plan and the task: where it runs does not change its result."""
     return RungResult(task.latent_dim, plan.fit(plan.data, task.latent_dim, (), task.rng))
 
 
-def serial_rung_map(plan: RungPlan, tasks: Sequence[RungTask]) -> Iterator[RungResult]:
-    """The fits one after another, in this process."""
-    for task in tasks:
-        yield fit_rung(plan, task)
-
-
-def ladder_fits(
-    data: TrainingData,
-    dims: Sequence[int],
-    fit: StartedFit,
-    rng: np.random.Generator,
-    map: RungMap = serial_rung_map,
-    callback: Callable[[int, float], None] | None = None,
-) -> tuple[NestedFit, ...]:
-    """Fit every ds of ``dims`` on its own, then carry the optima over upward.
-
-    Each ds is one fit with the fit's usual starts and its own generator (spawned from
-    ``rng`` in the order of ``dims``), so ``map`` may run them at once, anywhere, with the same
-    result. Then, in increasing ds, a fit that ended below the model kept at the ds beneath is
-    replaced by that model embedded (:func:`embed_model`, once per missing dimension): the
-    log-likelihoods are non-decreasing in ds, as with :func:`nested_fits`, but no fit starts
-    from another (no appended or projected starts), so where a larger ds's own starts miss
-    the lower optimum's neighbourhood it is carried over rather than refitted from it.
+def kept_ladder(models: Sequence[ManifoldModel]) -> tuple[NestedFit, ...]:
+    """The models kept at each ds of a ladder, from its fits in increasing ds: a fit that ended
+    below the model kept at the ds beneath is replaced by that model embedded
+    (:func:`embed_model`, once per missing dimension). The log-likelihoods are then
+    non-decreasing in ds, as with :func:`nested_fits`, but no fit starts from another (no
+    appended or projected starts), so where a larger ds's own starts miss the lower optimum's
+    neighbourhood it is carried over rather than refitted from it.
 
     Args:
-        data: Training touches.
-        dims: The ds to fit, distinct integers ≥ 1.
-        fit: Fits ``data`` at a ds (called with no extra starts and the rung's generator).
-        rng: Random generator (one generator spawned per ds).
-        map: Runs the fits (:data:`RungMap`).
-        callback: Called with (ds, log-likelihood of its fit) as each fit ends.
+        models: Each ds's own fit, in increasing ds (any prefix of a ladder).
 
     Returns:
-        One :class:`NestedFit` per ds of ``sorted(dims)``; their models' log-likelihoods are
-        non-decreasing.
+        One :class:`NestedFit` per model; their models' log-likelihoods are non-decreasing.
+    """
+    rungs: list[NestedFit] = []
+    for model in models:
+        below = rungs[-1].model if rungs else None
+        if below is not None:
+            while below.latent_dim < model.latent_dim - 1:
+                below = embed_model(below)
+        rungs.append(_kept(model, below))
+    return tuple(rungs)
+
+
+def rung_tasks(dims: Sequence[int], rng: np.random.Generator) -> list[RungTask]:
+    """One :class:`RungTask` per ds of ``sorted(dims)``, each with its own generator spawned
+    from ``rng`` in that order: the fits are independent, so they may run at once, anywhere,
+    with the same result (:func:`fit_rung`).
 
     Raises:
-        InvalidInputError: Bad ``dims``, or ``map`` left a ds out.
+        InvalidInputError: ``dims`` are not distinct integers ≥ 1.
     """
     order = sorted(int(d) for d in dims)
     if not order or order[0] < 1 or len(set(order)) != len(order):
         raise InvalidInputError(f"dims: expected distinct integers ≥ 1, received {list(dims)}.")
-    tasks = [
+    return [
         RungTask(ds, task_rng) for ds, task_rng in zip(order, rng.spawn(len(order)), strict=True)
     ]
-    fitted: dict[int, ManifoldModel] = {}
-    for result in map(RungPlan(data, fit), tasks):
-        fitted[result.latent_dim] = result.model
-        if callback is not None:
-            callback(result.latent_dim, float(result.model.log_likelihood))
-    missing = [ds for ds in order if ds not in fitted]
-    if missing:
-        raise InvalidInputError(f"map: no fit for ds = {', '.join(str(d) for d in missing)}.")
-    rungs: list[NestedFit] = []
-    for ds in order:
-        below = rungs[-1].model if rungs else None
-        if below is not None:
-            while below.latent_dim < ds - 1:
-                below = embed_model(below)
-        rungs.append(_kept(fitted[ds], below))
-    return tuple(rungs)

@@ -11,7 +11,7 @@ import pytest
 from app.services.fit_tasks import FitEngine, FoldFit
 from core.evaluation.worlds import random_experiment2_world, sample_dataset
 from core.gp.manifold import FitOptions, fit_manifold
-from core.selection.latent_selection import select_latent_dim
+from core.selection.latent_selection import select_latent_dim, serial_warm_map
 from core.types import TrainingData
 
 FIT = FoldFit(FitOptions(restarts=1, max_iterations=150), "independent")
@@ -64,7 +64,7 @@ def test_warm_folds_on_a_cluster_give_the_serial_choice_scores_and_models(
             n_folds=3,
             refit=FIT.refit,
             rung_callback=lambda *a: rungs.append(a),
-            **({} if engine is None else {"map": engine.fold_map, "rung_map": engine.rung_map}),
+            warm_map=serial_warm_map if engine is None else engine.warm_map,
         )
         return choice, rungs
 

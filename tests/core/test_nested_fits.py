@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 import pytest
@@ -22,15 +22,23 @@ from core.selection.latent_selection import (
     FoldTask,
     fold_assignment,
     score_fold,
+    score_warm_fold,
     select_latent_dim,
-    serial_map,
+    serial_warm_map,
 )
 from core.selection.nested_fits import (
+    NestedFit,
+    RungPlan,
+    RungResult,
+    RungTask,
+    StartedFit,
     appended_starts,
     embed_model,
-    ladder_fits,
+    fit_rung,
+    kept_ladder,
     nested_fits,
     projected_start,
+    rung_tasks,
 )
 from core.types import Hyperparameters, ManifoldModel, TrainingData
 
@@ -160,6 +168,21 @@ def test_projected_start_keeps_the_leading_directions() -> None:
     assert float(np.sum(start**2)) == pytest.approx(best, rel=1e-4)
 
 
+def _ladder(
+    data: TrainingData,
+    dims: tuple[int, ...],
+    fit: StartedFit,
+    rng: np.random.Generator,
+    seen: list[tuple[int, float]] | None = None,
+) -> tuple[NestedFit, ...]:
+    """The ladder as a warm selection fits it: one task per ds, each fitted on its own, then
+    the optima kept upward."""
+    results = [fit_rung(RungPlan(data, fit), task) for task in rung_tasks(dims, rng)]
+    if seen is not None:
+        seen.extend((r.latent_dim, float(r.model.log_likelihood)) for r in results)
+    return kept_ladder([r.model for r in results])
+
+
 def test_ladder_fits_every_ds_on_its_own_and_carries_lower_optima_over() -> None:
     data = small_world()
     calls: list[tuple[int, Starts, int]] = []
@@ -173,9 +196,7 @@ def test_ladder_fits_every_ds_on_its_own_and_carries_lower_optima_over() -> None
         return fit_manifold(train, ds, rng, OPTIONS)
 
     seen: list[tuple[int, float]] = []
-    rungs = ladder_fits(
-        data, (3, 1, 2), fit, np.random.default_rng(0), callback=lambda *a: seen.append(a)
-    )
+    rungs = _ladder(data, (3, 1, 2), fit, np.random.default_rng(0), seen)
     assert [ds for ds, _, _ in calls] == [1, 2, 3]  # in increasing ds
     assert all(starts == () for _, starts, _ in calls)  # no fit starts from another
     assert len({draw for _, _, draw in calls}) == 3  # each its own generator
@@ -187,10 +208,10 @@ def test_ladder_fits_every_ds_on_its_own_and_carries_lower_optima_over() -> None
     values = [r.model.log_likelihood for r in rungs]
     assert all(b >= a - 1e-8 * abs(a) for a, b in itertools.pairwise(values))
     # The same generator gives the same fits, whatever runs them.
-    again = ladder_fits(data, (1, 2, 3), fit, np.random.default_rng(0))
+    again = _ladder(data, (1, 2, 3), fit, np.random.default_rng(0))
     assert [r.model.log_likelihood for r in again] == values
     with pytest.raises(InvalidInputError, match="dims"):
-        ladder_fits(data, (0, 1), fit, np.random.default_rng(0))
+        _ladder(data, (0, 1), fit, np.random.default_rng(0))
 
 
 def test_a_gap_in_the_candidates_is_embedded_once_per_missing_dimension() -> None:
@@ -208,7 +229,7 @@ def test_a_gap_in_the_candidates_is_embedded_once_per_missing_dimension() -> Non
             return one
         return condition(train, np.random.default_rng(1).standard_normal((6, 3)), bad)
 
-    rungs = ladder_fits(data, (1, 3), fit, np.random.default_rng(0))
+    rungs = _ladder(data, (1, 3), fit, np.random.default_rng(0))
     assert rungs[1].carried_over
     assert rungs[1].model.latent_dim == 3
     np.testing.assert_array_equal(rungs[1].model.latents[:, 1:], 0.0)
@@ -282,30 +303,92 @@ def test_warm_folds_run_one_task_per_fold_and_candidate_with_the_whole_folds_sco
 
     seen: list[FoldTask] = []
     plans: list[FoldPlan] = []
+    rung_results: list[RungResult] = []
 
-    def recording_map(plan: FoldPlan, tasks: Sequence[FoldTask]) -> list[FoldResult]:
+    def recording_map(
+        rung_plan: RungPlan,
+        rungs: Sequence[RungTask],
+        plan: FoldPlan,
+        tasks: Sequence[FoldTask],
+    ) -> list[RungResult | FoldResult]:
         plans.append(plan)
         seen.extend(tasks)
-        return list(serial_map(plan, tasks))[::-1]  # in any order
+        results = list(serial_warm_map(rung_plan, rungs, plan, tasks))
+        rung_results.extend(r for r in results if isinstance(r, RungResult))
+        return results[::-1]  # in any order
 
     selection = select_latent_dim(
-        data, fit, np.random.default_rng(1), (1, 2), n_folds=3, refit=refit, map=recording_map
+        data, fit, np.random.default_rng(1), (1, 2), n_folds=3, refit=refit, warm_map=recording_map
     )
     assert sorted((t.fold, t.rows) for t in seen) == [(k, (c,)) for k in range(3) for c in range(2)]
     # The same generator for a fold's tasks; each fold its own.
     assert len({id(t.rng) for t in seen}) == 3
     [plan] = plans
+    assert plan.ladder == ()  # the rungs come with the tasks
+    ordered = sorted(rung_results, key=lambda r: r.latent_dim)
+    plan = dataclasses.replace(plan, ladder=kept_ladder([r.model for r in ordered]))
     for k in range(3):
         whole = score_fold(plan, FoldTask(k, np.random.default_rng(0)))
         assert whole.rows is None
         for c, candidate in enumerate(selection.candidates):
             assert candidate.fold_scores[k] == whole.scores[c]
             assert candidate.fit_log_likelihoods[k] == whole.fit_log_likelihoods[c]
+            # A refit needs only the fits of ds up to its candidate's.
+            alone = score_warm_fold(
+                plans[0], FoldTask(k, np.random.default_rng(0), (c,)), ordered[: c + 1][::-1]
+            )
+            assert alone.scores == (whole.scores[c],)
     with pytest.raises(InvalidInputError, match="rows: expected indices"):
         score_fold(plan, FoldTask(0, np.random.default_rng(0), (2,)))
     cold = dataclasses.replace(plan, ladder=(), refit=None)
     with pytest.raises(InvalidInputError, match="only warm folds"):
         score_fold(cold, FoldTask(0, np.random.default_rng(0), (0,)))
+    with pytest.raises(InvalidInputError, match="rungs: expected the fits of ds = \\[1, 2\\]"):
+        score_warm_fold(plans[0], FoldTask(0, np.random.default_rng(0), (1,)), ordered[1:])
+    with pytest.raises(InvalidInputError, match="exactly one candidate"):
+        score_warm_fold(plans[0], FoldTask(0, np.random.default_rng(0)), ordered)
+
+
+def test_a_warm_map_that_refits_before_every_fit_is_done_gives_the_same_selection() -> None:
+    """Refits of a small candidate may run while larger ones are still fitted (as the app's
+    Dask engine runs them): the selection is the serial one."""
+    data = small_world()
+
+    def fit(
+        train: TrainingData, ds: int, starts: Starts, rng: np.random.Generator
+    ) -> ManifoldModel:
+        return fit_manifold(train, ds, rng, OPTIONS, noise_model="independent")
+
+    def refit(train: TrainingData, model: ManifoldModel) -> ManifoldModel:
+        return refit_warm(train, model, OPTIONS)
+
+    order: list[str] = []
+
+    def pipelined(
+        rung_plan: RungPlan,
+        rungs: Sequence[RungTask],
+        plan: FoldPlan,
+        tasks: Sequence[FoldTask],
+    ) -> Iterator[RungResult | FoldResult]:
+        done: list[RungResult] = []
+        for rung in rungs:  # increasing ds
+            done.append(fit_rung(rung_plan, rung))
+            order.append(f"fit {rung.latent_dim}")
+            yield done[-1]
+            c = len(done) - 1
+            for task in tasks:
+                if task.rows == (c,):
+                    order.append(f"refit {c}")
+                    yield score_warm_fold(plan, task, done)
+
+    serial = select_latent_dim(data, fit, np.random.default_rng(2), (1, 2), n_folds=3, refit=refit)
+    piped = select_latent_dim(
+        data, fit, np.random.default_rng(2), (1, 2), n_folds=3, refit=refit, warm_map=pipelined
+    )
+    assert order.index("refit 0") < order.index("fit 2")
+    assert piped == serial
+    for ours, theirs in zip(piped.models, serial.models, strict=True):
+        np.testing.assert_array_equal(ours.latents, theirs.latents)
 
 
 def test_a_warm_refit_starts_where_the_model_stands_and_keeps_its_transform() -> None:
