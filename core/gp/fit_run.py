@@ -204,8 +204,13 @@ class FitProblem:
         if self._features is None:
             data = self.likelihood.data
             latent_dim = self.likelihood.layout.latent_dim
+            whole = self.likelihood
             self._features = [
-                make_likelihood(feature_data(data, a), latent_dim, self.structure, self.n_inducing)
+                whole.for_feature(a)
+                if isinstance(whole, ManifoldLikelihood)
+                else make_likelihood(
+                    feature_data(data, a), latent_dim, self.structure, self.n_inducing
+                )
                 for a in range(data.observation_dim)
             ]
         return self._features

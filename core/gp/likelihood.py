@@ -38,6 +38,7 @@ gradient are bit-identical to one thread's.
 from __future__ import annotations
 
 import concurrent.futures
+import copy
 import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -159,6 +160,7 @@ class ManifoldLikelihood:
         # Centred actions: squared distances are shift invariant and lose less precision.
         actions = data.actions[order] - data.actions.mean(axis=0)
         self._actions = np.ascontiguousarray(actions)
+        self._order = order
         self._centred = np.ascontiguousarray((data.observations[order] - data.observation_mean).T)
         self._counts = data.touches_per_object()
         self._starts = np.concatenate([[0], np.cumsum(self._counts)[:-1]]).astype(np.intp)
@@ -170,6 +172,35 @@ class ManifoldLikelihood:
         self._diag = np.arange(n) * (n + 1)
         self.max_jitter = 0.0
         self.evaluations = 0
+
+    def for_feature(self, feature: int) -> ManifoldLikelihood:
+        """The likelihood of feature ``feature`` alone (dy = 1: its touches as
+        ``TrainingData`` with that one column), sharing this one's action and object caches
+        instead of building them again (the squared action differences are dx · N² numbers);
+        its values are bit for bit those of a likelihood built from the one-feature data."""
+        dy = self.layout.observation_dim
+        if isinstance(feature, bool) or not 0 <= int(feature) < dy:
+            raise InvalidInputError(f"feature: expected 0 … {dy - 1}, received {feature!r}.")
+        a = int(feature)
+        one = copy.copy(self)
+        one.data = TrainingData(
+            object_names=self.data.object_names,
+            object_index=self.data.object_index,
+            actions=self.data.actions,
+            observations=self.data.observations[:, a : a + 1],
+            placement_index=self.data.placement_index,
+        )
+        one.layout = ParameterLayout.for_data(one.data, self.layout.latent_dim)
+        # Centred on the one column's own mean, as a likelihood of the one-feature data is
+        # (the mean of a column alone may differ from its entry of all columns' in the last bit).
+        one._centred = np.ascontiguousarray(
+            (one.data.observations[self._order] - one.data.observation_mean).T
+        )
+        if self.placement_variance is not None:
+            one.placement_variance = self.placement_variance[a : a + 1]
+        one.max_jitter = 0.0
+        one.evaluations = 0
+        return one
 
     def noise_free_gram(self, vector: FloatArray) -> FloatArray:
         """K_f,a = σ_f,a² K^s_a[obj, obj] ∘ K^x_a for every feature, docs/method.md eq. (M1).

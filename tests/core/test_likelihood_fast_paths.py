@@ -15,6 +15,7 @@ import scipy.linalg
 import core.gp.linalg
 from bench.direct_likelihood import direct_value_and_gradient
 from core.errors import InvalidInputError, NotPositiveDefiniteError
+from core.gp.hyperparameter_fit import feature_data
 from core.gp.likelihood import ManifoldLikelihood
 from core.gp.linalg import inverse_from_cholesky, upper_triangular_inverse, weighted_gram_difference
 from core.gp.parameters import ParameterLayout, initial_hyperparameters
@@ -217,3 +218,31 @@ def test_a_bad_thread_count_is_refused(threads: object) -> None:
     data, _ = _problem(3, [4, 7, 5], 2, 2, 2, seed=5)
     with pytest.raises(InvalidInputError, match="threads"):
         ManifoldLikelihood(data, 2, threads=threads)  # type: ignore[arg-type]
+
+
+def test_one_feature_of_a_likelihood_is_the_one_feature_likelihood_bit_for_bit() -> None:
+    """``for_feature`` shares the action caches but gives a one-feature likelihood's numbers."""
+    data, _ = _problem(4, [9, 6, 11, 7], 3, 4, 2, seed=8)
+    placements = np.arange(data.n_touches) // 3
+    data = TrainingData(
+        data.object_names, data.object_index, data.actions, data.observations, placements
+    )
+    shared = np.array([0.05, 0.1, 0.0, 0.2])
+    whole = ManifoldLikelihood(data, 2, placement_variance=shared)
+    rng = np.random.default_rng(3)
+    for a in range(4):
+        alone_data = feature_data(data, a)
+        alone = ManifoldLikelihood(alone_data, 2, placement_variance=shared[a : a + 1])
+        derived = whole.for_feature(a)
+        vector = alone.layout.pack(
+            rng.standard_normal((4, 2)), initial_hyperparameters(alone_data, 2, 1.5)
+        )
+        assert derived.value(vector) == alone.value(vector)
+        value, gradient = derived.value_and_gradient(vector)
+        expected_value, expected_gradient = alone.value_and_gradient(vector)
+        assert value == expected_value
+        np.testing.assert_array_equal(gradient, expected_gradient)
+        assert derived.evaluations == 2
+        assert whole.evaluations == 0
+    with pytest.raises(InvalidInputError, match="feature"):
+        whole.for_feature(4)
