@@ -90,14 +90,13 @@ from core.gp.hyperparameter_fit import (
     FAILED_VALUE,
     SeparableProgress,
     SeparableResult,
-    feature_data,
     iter_fit_jointly,
     iter_fit_separately,
     minimize_free,
 )
 from core.gp.initialisation import data_driven_starts, normalise_spread, random_latents
 from core.gp.kronecker import find_shared_design
-from core.gp.likelihood import ManifoldLikelihood, check_threads
+from core.gp.likelihood import ManifoldLikelihood, check_threads, feature_data
 from core.gp.optimiser_stream import run_to_end, stream_optimiser
 from core.gp.parameters import ParameterLayout, initial_hyperparameters, parameter_bounds
 from core.gp.posterior import (

@@ -32,7 +32,6 @@ import scipy.optimize
 from core.errors import NotPositiveDefiniteError
 from core.gp.likelihood import feature_pool
 from core.gp.parameters import ParameterLayout
-from core.types import TrainingData
 from core.validation import FloatArray
 
 #: A value returned to the optimiser where the Gram matrix stays singular even with jitter.
@@ -146,17 +145,6 @@ def minimize_free(
             f"{stall_iterations}·|f|) over {stall_iterations} iterations"
         )
     return result
-
-
-def feature_data(data: TrainingData, feature: int) -> TrainingData:
-    """The touches with only feature ``feature`` observed (dy = 1)."""
-    return TrainingData(
-        object_names=data.object_names,
-        object_index=data.object_index,
-        actions=data.actions,
-        observations=data.observations[:, feature : feature + 1],
-        placement_index=data.placement_index,
-    )
 
 
 def feature_indices(layout: ParameterLayout, feature: int) -> FloatArray:

@@ -183,13 +183,7 @@ class ManifoldLikelihood:
             raise InvalidInputError(f"feature: expected 0 … {dy - 1}, received {feature!r}.")
         a = int(feature)
         one = copy.copy(self)
-        one.data = TrainingData(
-            object_names=self.data.object_names,
-            object_index=self.data.object_index,
-            actions=self.data.actions,
-            observations=self.data.observations[:, a : a + 1],
-            placement_index=self.data.placement_index,
-        )
+        one.data = feature_data(self.data, a)
         one.layout = ParameterLayout.for_data(one.data, self.layout.latent_dim)
         # Centred on the one column's own mean, as a likelihood of the one-feature data is
         # (the mean of a column alone may differ from its entry of all columns' in the last bit).
@@ -425,6 +419,17 @@ class ManifoldLikelihood:
             latents * (row_sums.T @ inv_ls2) - np.einsum("ald,ad->ld", blocks @ latents, inv_ls2)
         )
         return g_latents, g_sf, g_ls, g_lx
+
+
+def feature_data(data: TrainingData, feature: int) -> TrainingData:
+    """The touches with only feature ``feature`` observed (dy = 1)."""
+    return TrainingData(
+        object_names=data.object_names,
+        object_index=data.object_index,
+        actions=data.actions,
+        observations=data.observations[:, feature : feature + 1],
+        placement_index=data.placement_index,
+    )
 
 
 def _training_placement_variance(

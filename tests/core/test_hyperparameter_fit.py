@@ -12,12 +12,12 @@ from core.errors import InvalidInputError
 from core.evaluation.designs import collect, shared_design
 from core.evaluation.worlds import random_experiment2_world, sample_dataset
 from core.gp.hyperparameter_fit import (
-    feature_data,
     feature_indices,
     iter_fit_separately,
     minimize_free,
 )
 from core.gp.initialisation import normalise_spread
+from core.gp.likelihood import feature_data
 from core.gp.manifold import FitOptions, fit_hyperparameters
 from core.gp.parameters import ParameterLayout, initial_hyperparameters, parameter_bounds
 from core.gp.posterior import make_likelihood

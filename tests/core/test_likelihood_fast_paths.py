@@ -15,8 +15,7 @@ import scipy.linalg
 import core.gp.linalg
 from bench.direct_likelihood import direct_value_and_gradient
 from core.errors import InvalidInputError, NotPositiveDefiniteError
-from core.gp.hyperparameter_fit import feature_data
-from core.gp.likelihood import ManifoldLikelihood
+from core.gp.likelihood import ManifoldLikelihood, feature_data
 from core.gp.linalg import inverse_from_cholesky, upper_triangular_inverse, weighted_gram_difference
 from core.gp.parameters import ParameterLayout, initial_hyperparameters
 from core.types import TrainingData

@@ -290,16 +290,20 @@ def test_warm_folds_refit_the_fit_on_all_the_touches_to_each_fold() -> None:
         )
 
 
+def _independent_fit(
+    train: TrainingData, ds: int, starts: Starts, rng: np.random.Generator
+) -> ManifoldModel:
+    """A fold's fit at ds with the independent noise model (no extra starts used)."""
+    return fit_manifold(train, ds, rng, OPTIONS, noise_model="independent")
+
+
+def _warm_refit(train: TrainingData, model: ManifoldModel) -> ManifoldModel:
+    """A warm refit with the tests' options."""
+    return refit_warm(train, model, OPTIONS)
+
+
 def test_warm_folds_run_one_task_per_fold_and_candidate_with_the_whole_folds_scores() -> None:
     data = small_world()
-
-    def fit(
-        train: TrainingData, ds: int, starts: Starts, rng: np.random.Generator
-    ) -> ManifoldModel:
-        return fit_manifold(train, ds, rng, OPTIONS, noise_model="independent")
-
-    def refit(train: TrainingData, model: ManifoldModel) -> ManifoldModel:
-        return refit_warm(train, model, OPTIONS)
 
     seen: list[FoldTask] = []
     plans: list[FoldPlan] = []
@@ -318,7 +322,13 @@ def test_warm_folds_run_one_task_per_fold_and_candidate_with_the_whole_folds_sco
         return results[::-1]  # in any order
 
     selection = select_latent_dim(
-        data, fit, np.random.default_rng(1), (1, 2), n_folds=3, refit=refit, warm_map=recording_map
+        data,
+        _independent_fit,
+        np.random.default_rng(1),
+        (1, 2),
+        n_folds=3,
+        refit=_warm_refit,
+        warm_map=recording_map,
     )
     assert sorted((t.fold, t.rows) for t in seen) == [(k, (c,)) for k in range(3) for c in range(2)]
     # The same generator for a fold's tasks; each fold its own.
@@ -354,14 +364,6 @@ def test_a_warm_map_that_refits_before_every_fit_is_done_gives_the_same_selectio
     Dask engine runs them): the selection is the serial one."""
     data = small_world()
 
-    def fit(
-        train: TrainingData, ds: int, starts: Starts, rng: np.random.Generator
-    ) -> ManifoldModel:
-        return fit_manifold(train, ds, rng, OPTIONS, noise_model="independent")
-
-    def refit(train: TrainingData, model: ManifoldModel) -> ManifoldModel:
-        return refit_warm(train, model, OPTIONS)
-
     order: list[str] = []
 
     def pipelined(
@@ -381,9 +383,11 @@ def test_a_warm_map_that_refits_before_every_fit_is_done_gives_the_same_selectio
                     order.append(f"refit {c}")
                     yield score_warm_fold(plan, task, done)
 
-    serial = select_latent_dim(data, fit, np.random.default_rng(2), (1, 2), n_folds=3, refit=refit)
+    rng, dims = np.random.default_rng(2), (1, 2)
+    serial = select_latent_dim(data, _independent_fit, rng, dims, n_folds=3, refit=_warm_refit)
+    rng = np.random.default_rng(2)
     piped = select_latent_dim(
-        data, fit, np.random.default_rng(2), (1, 2), n_folds=3, refit=refit, warm_map=pipelined
+        data, _independent_fit, rng, dims, n_folds=3, refit=_warm_refit, warm_map=pipelined
     )
     assert order.index("refit 0") < order.index("fit 2")
     assert piped == serial
