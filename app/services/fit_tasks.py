@@ -146,12 +146,13 @@ def worker_start_map(
         event = None if stop_event is None else Event(stop_event, client=client)
         prefix = uuid.uuid4().hex[:8]
         [remote] = client.scatter([plan], hash=False)
-        pending = {
+        futures = [
             client.submit(
                 run_first_stage, remote, task, pure=False, key=f"start-{task.index}-{prefix}"
             )
             for task in tasks
-        }
+        ]
+        pending = set(futures)
         try:
             while pending:
                 done = {future for future in pending if future.done()}
@@ -165,6 +166,10 @@ def worker_start_map(
         finally:
             if pending:
                 client.cancel(list(pending))
+            # The worker keeps a stopped fold's error with its traceback, and so this frame:
+            # release the plan and the starts here, not when the frame goes.
+            for future in (remote, *futures):
+                future.release()
 
 
 class FitEngine:
