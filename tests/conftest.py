@@ -19,7 +19,7 @@ for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import pytest  # noqa: E402
 
-pytest_plugins = ["tests.dask_fixtures"]
+pytest_plugins = ["tests.dask_fixtures", "pytester"]
 
 SETTLE_S = 5.0
 """Rest before each touch of the simulated rigs that tests drive through a server (the default is
