@@ -60,7 +60,8 @@ def lapack_way(matrix: np.ndarray) -> np.ndarray:
 
 def halving_way(matrix: np.ndarray) -> np.ndarray:
     """A⁻¹'s upper triangle by :func:`core.gp.factor_inverse.spd_inverse`."""
-    info, inverse = spd_inverse(matrix.copy(order="F"))
+    inverse = matrix.copy(order="F")
+    info, _ = spd_inverse(inverse)
     if info != 0:
         raise RuntimeError("the benchmark matrix is not positive definite")
     return inverse

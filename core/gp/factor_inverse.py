@@ -1,4 +1,5 @@
-"""The Cholesky factor and the inverse of a symmetric positive definite matrix, at the GEMM rate.
+"""The inverse and log determinant of a symmetric positive definite matrix, at the GEMM rate,
+in place.
 
 The exact gradient of the manifold likelihood needs every entry of K⁻¹ (docs/method.md (M2)), so
 each feature of every evaluation pays for a Cholesky factor A = UᵀU and the inverse from it. The
@@ -10,14 +11,16 @@ triangular product (``dtrmm``) or a symmetric rank-k update (``dsyrk``), both at
 
     A = [[A₁₁, A₁₂], [A₁₂ᵀ, A₂₂]],   U = [[U₁₁, U₁₂], [0, U₂₂]],   V = U⁻¹ = [[V₁₁, V₁₂], [0, V₂₂]]
 
-    U₁₁, V₁₁ from A₁₁ (recursively)
-    U₁₂ = V₁₁ᵀ A₁₂                     (instead of the solve U₁₁ᵀ U₁₂ = A₁₂)
-    U₂₂, V₂₂ from A₂₂ − U₁₂ᵀ U₁₂      (recursively)
-    V₁₂ = −V₁₁ U₁₂ V₂₂
+    V₁₁ from A₁₁ (recursively, in its place)
+    U₁₂ = V₁₁ᵀ A₁₂                     (instead of the solve U₁₁ᵀ U₁₂ = A₁₂; in A₁₂'s place)
+    V₂₂ from A₂₂ − U₁₂ᵀ U₁₂           (recursively, in A₂₂'s place)
+    V₁₂ = −V₁₁ U₁₂ V₂₂                 (in U₁₂'s place)
 
-and A⁻¹ = V Vᵀ (``dlauum``). Blocks of at most :data:`LEAF_ORDER` go to LAPACK's ``dpotrf`` and
-``dtrtri``. The flops are LAPACK's (n³/3 each for the factor, V and V Vᵀ); only the order of the
-operations differs, so the results agree with LAPACK's to round-off
+and A⁻¹ = V Vᵀ (``dlauum``, in place). Only V's blocks are needed above a block, never U's, so
+the whole computation runs in A's own array: no second array and no copies. Blocks of at most
+:data:`LEAF_ORDER` go to LAPACK's ``dpotrf`` and ``dtrtri``; U's diagonal is kept from the leaves
+for log det A. The flops are LAPACK's (n³/3 each for the factor, V and V Vᵀ); only the order of
+the operations differs, so the results agree with LAPACK's to round-off
 (tests/core/test_factor_inverse.py), not bit for bit. Every call goes through SciPy's exported
 pointers without the GIL (:mod:`core.gp.unlocked_lapack`), so feature threads run at once.
 """
@@ -28,7 +31,6 @@ import ctypes
 
 import numpy as np
 
-from core.errors import InvalidInputError
 from core.gp.unlocked_lapack import checked_square, exported_routine
 from core.validation import FloatArray
 
@@ -56,102 +58,101 @@ _POTRF = ctypes.CFUNCTYPE(None, _CHAR, _INT_P, _ADDRESS, _INT_P, _INT_P)
 _TRTRI = ctypes.CFUNCTYPE(None, _CHAR, _CHAR, _INT_P, _ADDRESS, _INT_P, _INT_P)
 #: dlauum(uplo, n, a, lda, info)
 _LAUUM = _POTRF
-#: dlacpy(uplo, m, n, a, lda, b, ldb)
-_LACPY = ctypes.CFUNCTYPE(None, _CHAR, _INT_P, _INT_P, _ADDRESS, _INT_P, _ADDRESS, _INT_P)
+#: dlaset(uplo, m, n, alpha, beta, a, lda)
+_LASET = ctypes.CFUNCTYPE(None, _CHAR, _INT_P, _INT_P, _DOUBLE_P, _DOUBLE_P, _ADDRESS, _INT_P)
 
 
-def factor_and_triangular_inverse(matrix: FloatArray, inverse: FloatArray) -> int:
-    """U (A = UᵀU) in place of A's upper triangle, and V = U⁻¹ into ``inverse``'s.
+def triangular_inverse_of_factor(matrix: FloatArray) -> tuple[int, FloatArray]:
+    """V = U⁻¹ (A = UᵀU) in place of A's upper triangle, and U's diagonal.
 
     Args:
-        matrix: A, symmetric positive definite; only its upper triangle is read, and only the
-            upper triangle is overwritten (with U). Fortran-ordered float64, shape (n, n).
-        inverse: Receives V in its upper triangle; its strictly lower triangle is not written
-            (pass zeros to get V itself). Fortran-ordered float64, shape (n, n).
+        matrix: A, symmetric positive definite; only its upper triangle is read and
+            overwritten (with V), the strictly lower triangle is left as it was.
+            Fortran-ordered float64, shape (n, n).
 
     Returns:
-        0 on success; k > 0 when the leading minor of order k is not positive definite (as
-        LAPACK's ``dpotrf`` reports it). Both arrays then hold partial results.
+        0 on success, or k > 0 when the leading minor of order k is not positive definite (as
+        LAPACK's ``dpotrf`` reports it; the array then holds partial results); and U's
+        diagonal, shape (n,) (its entries past a failing leaf are 0).
 
     Raises:
-        InvalidInputError: A wrong dtype, shape or memory order, or the two are one array.
+        InvalidInputError: A wrong dtype, shape or memory order.
     """
     n = checked_square(matrix, "matrix")
-    if checked_square(inverse, "inverse") != n:
-        raise InvalidInputError(f"inverse: expected shape {(n, n)}, received {inverse.shape}.")
-    if np.shares_memory(matrix, inverse):
-        raise InvalidInputError("inverse: must not share memory with matrix.")
-    if n == 0:
-        return 0
-    return _Halving(matrix, inverse).run(0, n)
+    halving = _Halving(matrix)
+    info = halving.run(0, n) if n else 0
+    return info, halving.diagonal
 
 
-def spd_inverse(matrix: FloatArray) -> tuple[int, FloatArray]:
-    """A⁻¹ of a symmetric positive definite A, with U (A = UᵀU) left in place of A's upper
-    triangle (for solves and log det A).
+def spd_inverse(matrix: FloatArray) -> tuple[int, float]:
+    """A⁻¹ of a symmetric positive definite A in place of A, and log det A.
 
     Args:
-        matrix: A (its upper triangle is read and overwritten with U; the strictly lower
-            triangle is left as it was). Fortran-ordered float64, shape (n, n).
+        matrix: A (only its upper triangle is read). Fortran-ordered float64, shape (n, n).
+            Overwritten: on success its upper triangle holds A⁻¹ and its strictly lower
+            triangle is zero (so its C-ordered transpose has A⁻¹ in the lower triangle).
 
     Returns:
         LAPACK's info (0, or the order of the first leading minor that is not positive
-        definite), and a Fortran-ordered (n, n) array whose upper triangle holds A⁻¹ and whose
-        strictly lower triangle is zero (its C-ordered transpose has A⁻¹ in the lower
-        triangle), valid when info is 0.
+        definite; the array then holds partial results), and log det A = 2 Σ log U_ii (NaN
+        unless info is 0).
     """
-    n = checked_square(matrix, "matrix")
-    inverse = np.zeros((n, n), order="F")
-    info = factor_and_triangular_inverse(matrix, inverse)
-    if info == 0 and n:
+    info, diagonal = triangular_inverse_of_factor(matrix)
+    if info:
+        return info, float("nan")
+    n = matrix.shape[0]
+    if n:
         size = ctypes.c_int(n)
         status = ctypes.c_int(0)
+        zero = ctypes.c_double(0.0)
+        by = ctypes.byref
         exported_routine("dlauum", _LAUUM)(
-            b"U",
-            ctypes.byref(size),
-            inverse.ctypes.data,
-            ctypes.byref(size),
-            ctypes.byref(status),
+            b"U", by(size), matrix.ctypes.data, by(size), by(status)
         )  # fails only on bad arguments, checked above
-    return info, inverse
+        if n > 1:
+            rest = ctypes.c_int(n - 1)
+            exported_routine("dlaset", _LASET)(
+                b"L", by(rest), by(rest), by(zero), by(zero), matrix.ctypes.data + 8, by(size)
+            )
+    return 0, 2.0 * float(np.sum(np.log(diagonal)))
 
 
 class _Halving:
-    """The recursion of :func:`factor_and_triangular_inverse` on blocks of two same-order
-    Fortran arrays (addresses by offset, so no block is ever copied)."""
+    """The recursion of :func:`triangular_inverse_of_factor` on blocks of one Fortran array
+    (addresses by offset, so no block is ever copied)."""
 
-    def __init__(self, matrix: FloatArray, inverse: FloatArray) -> None:
+    def __init__(self, matrix: FloatArray) -> None:
         self.n = int(matrix.shape[0])
         self.lda = ctypes.c_int(self.n)
         self.a = int(matrix.ctypes.data)
-        self.v = int(inverse.ctypes.data)
-        self.arrays = (matrix, inverse)  # alive while their addresses are used
+        self.matrix = matrix  # alive while its address is used
+        self.diagonal = np.zeros(self.n)
         self.one = ctypes.c_double(1.0)
         self.minus_one = ctypes.c_double(-1.0)
         self.trmm = exported_routine("dtrmm", _TRMM, "blas")
         self.syrk = exported_routine("dsyrk", _SYRK, "blas")
         self.potrf = exported_routine("dpotrf", _POTRF)
         self.trtri = exported_routine("dtrtri", _TRTRI)
-        self.lacpy = exported_routine("dlacpy", _LACPY)
 
-    def _at(self, base: int, row: int, column: int) -> int:
-        """Address of entry (row, column) of a Fortran (n, n) array at ``base``."""
-        return base + 8 * (row + column * self.n)
+    def _at(self, row: int, column: int) -> int:
+        """Address of entry (row, column) of the (n, n) Fortran array."""
+        return self.a + 8 * (row + column * self.n)
 
     def run(self, first: int, order: int) -> int:
-        """Factor and invert the diagonal block [first, first + order); info as LAPACK's,
+        """V of the diagonal block [first, first + order) in its place; info as LAPACK's,
         counted from the whole matrix's first row."""
         by = ctypes.byref
         lda = self.lda
+        block = self._at(first, first)
         if order <= LEAF_ORDER:
             size = ctypes.c_int(order)
             status = ctypes.c_int(0)
-            self.potrf(b"U", by(size), self._at(self.a, first, first), by(lda), by(status))
+            self.potrf(b"U", by(size), block, by(lda), by(status))
             if status.value:
                 return first + int(status.value)
-            leaf, copy = self._at(self.a, first, first), self._at(self.v, first, first)
-            self.lacpy(b"U", by(size), by(size), leaf, by(lda), copy, by(lda))  # U's triangle
-            self.trtri(b"U", b"N", by(size), self._at(self.v, first, first), by(lda), by(status))
+            stop = first + order
+            self.diagonal[first:stop] = self.matrix.diagonal()[first:stop]
+            self.trtri(b"U", b"N", by(size), block, by(lda), by(status))
             return 0  # a successful factor has a positive diagonal, so dtrtri succeeds
         half = order // 32 * 16  # aligned blocks, 0 < half < order
         second = first + half
@@ -159,6 +160,7 @@ class _Halving:
         if info:
             return info
         rows, columns = ctypes.c_int(half), ctypes.c_int(order - half)
+        off_diagonal, trailing = self._at(first, second), self._at(second, second)
         # U₁₂ = V₁₁ᵀ A₁₂, in place of A₁₂
         self.trmm(
             b"L",
@@ -168,9 +170,9 @@ class _Halving:
             by(rows),
             by(columns),
             by(self.one),
-            self._at(self.v, first, first),
+            block,
             by(lda),
-            self._at(self.a, first, second),
+            off_diagonal,
             by(lda),
         )
         # A₂₂ − U₁₂ᵀ U₁₂, in place of A₂₂ (upper triangle)
@@ -180,18 +182,16 @@ class _Halving:
             by(columns),
             by(rows),
             by(self.minus_one),
-            self._at(self.a, first, second),
+            off_diagonal,
             by(lda),
             by(self.one),
-            self._at(self.a, second, second),
+            trailing,
             by(lda),
         )
         info = self.run(second, order - half)
         if info:
             return info
-        # V₁₂ = −V₁₁ U₁₂ V₂₂
-        block, copy = self._at(self.a, first, second), self._at(self.v, first, second)
-        self.lacpy(b"A", by(rows), by(columns), block, by(lda), copy, by(lda))  # U₁₂
+        # V₁₂ = −V₁₁ (U₁₂ V₂₂), in place of U₁₂
         self.trmm(
             b"R",
             b"U",
@@ -200,9 +200,9 @@ class _Halving:
             by(rows),
             by(columns),
             by(self.one),
-            self._at(self.v, second, second),
+            trailing,
             by(lda),
-            self._at(self.v, first, second),
+            off_diagonal,
             by(lda),
         )
         self.trmm(
@@ -213,9 +213,9 @@ class _Halving:
             by(rows),
             by(columns),
             by(self.minus_one),
-            self._at(self.v, first, first),
+            block,
             by(lda),
-            self._at(self.v, first, second),
+            off_diagonal,
             by(lda),
         )
         return 0

@@ -281,19 +281,26 @@ class ManifoldLikelihood:
         factor, jitter = cholesky_with_jitter(gram, what=f"Gram matrix of feature {feature}")
         return np.asarray(factor.T, dtype=np.float64), float(jitter)
 
-    def _factor_and_inverse(
+    def _inverse(
         self, gram_free: FloatArray, noise: float, feature: int
-    ) -> tuple[FloatArray, FloatArray, float]:
-        """U of K_a = UᵀU (upper triangle of a Fortran-ordered array), K_a⁻¹ (upper triangle of
-        another, strictly lower triangle zero) and the jitter added (0 unless the plain
-        factorisation failed): both at once by :func:`core.gp.factor_inverse.spd_inverse`,
-        the jitter ladder of :meth:`_factor` only on failure."""
-        upper = self._noisy(gram_free, noise, feature).T
-        info, inverse = spd_inverse(upper)
+    ) -> tuple[FloatArray, FloatArray, float, float]:
+        """K_a⁻¹ (upper triangle of a Fortran-ordered array, strictly lower triangle zero),
+        β = K_a⁻¹ y_a, log det K_a and the jitter added (0 unless the plain factorisation
+        failed). K_a⁻¹ in place of a copy of K_a by :func:`core.gp.factor_inverse.spd_inverse`
+        and β from it; on failure the jitter ladder of :meth:`_factor`, and β by solves with
+        its factor (the matrix is then nearly singular, where solves lose less)."""
+        y = self._centred[feature]
+        inverse = self._noisy(gram_free, noise, feature).T
+        info, log_det = spd_inverse(inverse)
         if info == 0:
-            return upper, inverse, 0.0
+            beta = scipy.linalg.blas.dsymv(1.0, inverse, y, lower=0)
+            return inverse, beta, log_det, 0.0
         upper, jitter = self._factor(gram_free, noise, feature)
-        return upper, inverse_from_cholesky(upper), jitter
+        beta, info = scipy.linalg.lapack.dpotrs(upper, y, lower=0)
+        if info:  # pragma: no cover - the factor came from a successful Cholesky
+            raise InvalidInputError(f"dpotrs failed on feature {feature}.")
+        log_det = 2.0 * float(np.sum(np.log(upper.ravel(order="F")[self._diag])))
+        return inverse_from_cholesky(upper), beta, log_det, jitter
 
     def _per_feature(self, work: Callable[[int], _T], count: int | None = None) -> list[_T]:
         """``work(a)`` for every feature a (or every a < ``count``), in feature order; on the
@@ -332,9 +339,9 @@ class ManifoldLikelihood:
     def value_and_gradient(self, vector: FloatArray) -> tuple[float, FloatArray]:
         """-log p and its gradient with respect to the packed vector (same layout).
 
-        Only one triangle of W = K⁻¹ - ββᵀ is formed (K⁻¹ from the factor by
-        :func:`core.gp.linalg.inverse_from_cholesky`, then a rank-1 ``dsyr`` update): with X its
-        lower triangle times K_f, M = X + Xᵀ - diag(X), so Σ M = 2 Σ X - tr X,
+        Only one triangle of W = K⁻¹ - ββᵀ is formed (K⁻¹ in place of a copy of K by
+        :func:`core.gp.factor_inverse.spd_inverse`, β = K⁻¹ y, then a rank-1 ``dsyr`` update):
+        with X its lower triangle times K_f, M = X + Xᵀ - diag(X), so Σ M = 2 Σ X - tr X,
         ½ Σ M ∘ Δ = Σ X ∘ Δ for the zero-diagonal squared action differences Δ, and the block
         sums are Pᵀ X P + (Pᵀ X P)ᵀ minus the diagonal's.
         """
@@ -351,13 +358,9 @@ class ManifoldLikelihood:
         def feature(a: int) -> tuple[float, float, float]:
             """Feature a's term of -log p, its ∂/∂log σ_n² and the jitter; gram_free[a]
             becomes X_a."""
-            upper, inverse, jitter = self._factor_and_inverse(gram_free[a], float(noise[a]), a)
+            inverse, beta, log_det, jitter = self._inverse(gram_free[a], float(noise[a]), a)
             y = self._centred[a]
-            beta, info = scipy.linalg.lapack.dpotrs(upper, y, lower=0)
-            if info:  # pragma: no cover - the factor came from a successful Cholesky
-                raise InvalidInputError(f"dpotrs failed on feature {a}.")
             # docs/method.md eq. (M2)
-            log_det = 2.0 * float(np.sum(np.log(upper.ravel(order="F")[self._diag])))
             term = 0.5 * float(y @ beta) + 0.5 * log_det + 0.5 * n * _LOG_2PI
             # Upper triangle (Fortran) of W = K⁻¹ - ββᵀ: ∂(-log p)/∂K = ½ W. Its C-ordered
             # transpose holds W in the lower triangle and zeros above.

@@ -195,7 +195,7 @@ def test_a_feature_that_fails_on_a_thread_raises_its_error(monkeypatch: pytest.M
             raise NotPositiveDefiniteError(f"Gram matrix of feature {feature}")
         return factor(self, gram, noise, feature)
 
-    both = ManifoldLikelihood._factor_and_inverse
+    both = ManifoldLikelihood._inverse
 
     def failing_both(
         self: ManifoldLikelihood, gram: np.ndarray, noise: float, feature: int
@@ -205,7 +205,7 @@ def test_a_feature_that_fails_on_a_thread_raises_its_error(monkeypatch: pytest.M
         return both(self, gram, noise, feature)
 
     monkeypatch.setattr(ManifoldLikelihood, "_factor", failing)
-    monkeypatch.setattr(ManifoldLikelihood, "_factor_and_inverse", failing_both)
+    monkeypatch.setattr(ManifoldLikelihood, "_inverse", failing_both)
     with pytest.raises(NotPositiveDefiniteError, match="feature 1"):
         likelihood.value_and_gradient(vector)
     with pytest.raises(NotPositiveDefiniteError, match="feature 1"):
