@@ -281,6 +281,10 @@ class ManifoldLikelihood:
         factor, jitter = cholesky_with_jitter(gram, what=f"Gram matrix of feature {feature}")
         return np.asarray(factor.T, dtype=np.float64), float(jitter)
 
+    def _log_det(self, upper: FloatArray) -> float:
+        """log det K = 2 Σ log U_ii of an upper Cholesky factor (Fortran-ordered)."""
+        return 2.0 * float(np.sum(np.log(upper.ravel(order="F")[self._diag])))
+
     def _inverse(
         self, gram_free: FloatArray, noise: float, feature: int
     ) -> tuple[FloatArray, FloatArray, float, float]:
@@ -299,7 +303,7 @@ class ManifoldLikelihood:
         beta, info = scipy.linalg.lapack.dpotrs(upper, y, lower=0)
         if info:  # pragma: no cover - the factor came from a successful Cholesky
             raise InvalidInputError(f"dpotrs failed on feature {feature}.")
-        log_det = 2.0 * float(np.sum(np.log(upper.ravel(order="F")[self._diag])))
+        log_det = self._log_det(upper)
         return inverse_from_cholesky(upper), beta, log_det, jitter
 
     def _per_feature(self, work: Callable[[int], _T], count: int | None = None) -> list[_T]:
@@ -326,7 +330,7 @@ class ManifoldLikelihood:
             alpha, info = scipy.linalg.lapack.dtrtrs(upper, self._centred[a], lower=0, trans=1)
             if info:  # pragma: no cover - the factor came from a successful Cholesky
                 raise InvalidInputError(f"dtrtrs failed on feature {a}.")
-            log_det = 2.0 * float(np.sum(np.log(upper.ravel(order="F")[self._diag])))
+            log_det = self._log_det(upper)
             # docs/method.md eq. (M2)
             return 0.5 * float(alpha @ alpha) + 0.5 * log_det + 0.5 * n * _LOG_2PI, jitter
 

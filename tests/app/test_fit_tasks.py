@@ -81,7 +81,6 @@ def test_warm_folds_on_a_cluster_give_the_serial_choice_scores_and_models(
 
 
 def test_a_stop_cancels_the_pending_folds(dask_cluster: Any) -> None:
-
     class StoppedError(Exception):
         pass
 
@@ -153,7 +152,6 @@ def test_the_starts_of_a_fit_on_a_cluster_give_the_serial_model(
 
 
 def test_a_stop_cancels_the_pending_starts(dask_cluster: Any) -> None:
-
     class StoppedError(Exception):
         pass
 
