@@ -444,6 +444,10 @@ class ManifoldModel:
             (made within a minute or two) whatever the placement, per model-space feature
             (:mod:`core.gp.drift_effect`); a part of σ_n,a², like σ_b² under (C2). ``None``:
             not estimated (the training touches' times were not recorded). Shape (dy,).
+        shift_variance: σ_δ,k², the variance of a placement's shift of the action, per action
+            dimension (:mod:`core.gp.input_shift`): under object l the touches of one placement
+            share J_l(x_t) diag(σ_δ²) J_l(x_u)ᵀ through the slope of the mean. ``None``: not
+            estimated. Shape (dx,).
     """
 
     data: TrainingData
@@ -460,6 +464,7 @@ class ManifoldModel:
     latent_covariance: FloatArray | None = None
     tempering: float | None = None
     drift_variance: FloatArray | None = None
+    shift_variance: FloatArray | None = None
 
     @property
     def raw_data(self) -> TrainingData:

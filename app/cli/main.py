@@ -339,7 +339,7 @@ def fit(
     from app.config import available_cores
     from app.documents.model import latent_selection_dict, model_to_document
     from core.errors import CoreError
-    from core.gp import FitOptions, with_drift_effect, with_placement_effect
+    from core.gp import FitOptions, with_drift_effect, with_input_shift, with_placement_effect
     from core.recognition import fit_tempering, with_latent_uncertainty
 
     requested_dim = _parse_latent_dim(latent_dim)
@@ -388,6 +388,7 @@ def fit(
             )
         model, placement = with_placement_effect(model, options)
         model, drift = with_drift_effect(model)
+        model, shift = with_input_shift(model)
         laplace = None
         if latent_uncertainty:
             model, laplace = with_latent_uncertainty(model)
@@ -439,6 +440,12 @@ def fit(
         stdout.print(
             f"drift effect from {drift.pairs:d} pairs of touches within {drift.window_s:.0f} s: "
             f"σ_d² / σ_n² = {escape(np.array2string(drift_share, precision=2))} per feature"
+        )
+    if shift is not None:
+        stdout.print(
+            f"input shift from {shift.touches:d} touches: σ_δ = "
+            f"{escape(np.array2string(np.sqrt(shift.variance), precision=3))} per action "
+            f"dimension (+{shift.log_likelihood_gain:.1f} nats leave-one-out)"
         )
     if laplace is not None:
         spread = np.sqrt(np.trace(laplace.covariance, axis1=1, axis2=2))

@@ -38,7 +38,12 @@ from app.documents.noise_model import noise_model_field, read_noise_model_field
 from app.documents.posterior import condition_as_recorded, posterior_field
 from app.documents.training_csv import MAX_NAME_CHARACTERS
 from core.errors import InvalidInputError
-from core.gp import KERNELS, check_drift_variance, check_placement_variance
+from core.gp import (
+    KERNELS,
+    check_drift_variance,
+    check_placement_variance,
+    check_shift_variance,
+)
 from core.recognition import check_exponent, check_latent_covariance
 from core.selection import LatentSelection
 from core.types import FitDiagnostics, Hyperparameters, ManifoldModel, TrainingData
@@ -147,9 +152,10 @@ def model_to_document(
 
 
 def calibration_fields(model: ManifoldModel) -> dict[str, Any]:
-    """The optional calibration fields of ``model`` (``placement_effect``,
-    ``latent_uncertainty``, ``tempering``), each when the model has it: a model document's, and
-    a server's model row keeps the same in its posterior record (:func:`read_calibrations`)."""
+    """The optional calibration fields of ``model`` (``placement_effect``, ``drift_effect``,
+    ``input_shift``, ``latent_uncertainty``, ``tempering``), each when the model has it: a model
+    document's, and a server's model row keeps the same in its posterior record
+    (:func:`read_calibrations`)."""
     fields: dict[str, Any] = {}
     if model.placement_variance is not None:
         fields["placement_effect"] = placement_effect_field(
@@ -162,6 +168,15 @@ def calibration_fields(model: ManifoldModel) -> dict[str, Any]:
             "estimator": (
                 "leave-one-out residuals of touches of different objects made close in time, "
                 "method of moments (docs/calibration.md, the drift effect)"
+            ),
+        }
+    if model.shift_variance is not None:
+        fields["input_shift"] = {
+            "variance": [float(v) for v in model.shift_variance],
+            "space": "action",
+            "estimator": (
+                "maximum likelihood on the training touches' leave-one-out residuals through the "
+                "slope of the mean (docs/calibration.md, the input shift)"
             ),
         }
     if model.latent_covariance is not None:
@@ -402,6 +417,7 @@ _CALIBRATIONS: tuple[tuple[str, str, str, Callable[[ManifoldModel, Any], Any]], 
     ),
     # After the placement effect: σ_b² + σ_d² must stay below σ_n².
     ("drift_effect", "variance", "drift_variance", check_drift_variance),
+    ("input_shift", "variance", "shift_variance", check_shift_variance),
 )
 
 

@@ -49,6 +49,7 @@ from core.gp import (
     iter_fit,
     refit_warm,
     with_drift_effect,
+    with_input_shift,
     with_placement_effect,
 )
 from core.selection import (
@@ -383,6 +384,7 @@ def run_fit(
     job.checkpoint()
     fitted, _ = with_placement_effect(fitted, options)
     fitted, _ = with_drift_effect(fitted)
+    fitted, _ = with_input_shift(fitted)
     if pipeline is not None:
         fitted = dataclasses.replace(fitted, features=pipeline)
     return fitted, selection, time.perf_counter() - started

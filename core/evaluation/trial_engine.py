@@ -33,6 +33,7 @@ import numpy as np
 
 from core.errors import InvalidInputError, TouchRefused
 from core.evaluation.records import RefusedTrial, TrialOutcome, TrialRecord, trial_generators
+from core.gp.input_shift import mean_jacobian
 from core.gp.posterior import predict_model_space
 from core.recognition.object_posterior import TrialLikelihood
 from core.recognition.planning import EVALUATION_POLICIES, Planner, ReplayScore, policy_entry
@@ -248,8 +249,10 @@ class ModelTrial:
     (C1); σ_b² the model's ``placement_variance``). With ``shared_placement`` the trial places its
     object once (the offset is drawn at the first touch and kept), otherwise anew before every
     touch. A model with a drift variance σ_d² also draws one drift offset d ~ N(0, σ_d²) at the
-    first touch and keeps it for the trial (:mod:`core.gp.drift_effect`). A model with neither
-    draws exactly as ``WorldTouches(ModelSamples(model), target)``.
+    first touch and keeps it for the trial (:mod:`core.gp.drift_effect`). A model with a shift
+    variance σ_δ² draws one shift of the action δ ~ N(0, diag(σ_δ²)) per placement and adds
+    J(x_t) δ, the slope of the mean times the shift (:mod:`core.gp.input_shift`). A model with
+    none of them draws exactly as ``WorldTouches(ModelSamples(model), target)``.
 
     Raises:
         InvalidInputError: ``target`` is not an object of the model.
@@ -262,6 +265,7 @@ class ModelTrial:
         self.shared_placement = shared_placement
         self.offset: FloatArray | None = None
         self.drift: FloatArray | None = None
+        self.shift: FloatArray | None = None
 
     def touch(self, action: FloatArray, rng: np.random.Generator) -> Touch:
         """A draw at ``action`` (dx,) for the target."""
@@ -272,12 +276,25 @@ class ModelTrial:
         drift = model.drift_variance
         if drift is not None and self.drift is None:  # once per trial, whatever the placement
             self.drift = np.sqrt(drift) * rng.standard_normal(drift.shape)
-        if self.drift is None:
-            observation = self.samples.observe(self.index, action[None, :], rng, self.offset)[0]
+        shift = model.shift_variance
+        if shift is not None and (self.shift is None or not self.shared_placement):
+            self.shift = np.sqrt(shift) * rng.standard_normal(shift.shape)
+        parts = [
+            (part, part_variance)
+            for part, part_variance in ((self.offset, variance), (self.drift, drift))
+            if part is not None and part_variance is not None
+        ]
+        if self.shift is not None:
+            # The action shifted by δ, linearised through the slope of the mean: J δ on top of
+            # the draw's own variance (core.gp.input_shift).
+            latent = model.latents[self.index][None, :]
+            slope = mean_jacobian(model, latent, action[None, :])[0]  # (dy, dx)
+            parts.append((slope @ self.shift, np.zeros(slope.shape[0])))
+        if not parts:
+            observation = self.samples.observe(self.index, action[None, :], rng)[0]
         else:
-            assert drift is not None
-            offset = self.drift if self.offset is None else self.offset + self.drift
-            offset_variance = drift if variance is None else variance + drift
+            offset = np.sum([part for part, _ in parts], axis=0)
+            offset_variance = np.sum([part_variance for _, part_variance in parts], axis=0)
             observation = self.samples.observe(
                 self.index, action[None, :], rng, offset, offset_variance
             )[0]

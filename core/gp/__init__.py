@@ -6,7 +6,8 @@ likelihood (``likelihood``; with tied kernels ``tied_likelihood``) and the poste
 conditions (``posterior``). Its fit: options and
 progress (``fit_options``), the optimisation (``fit_run``, ``hyperparameter_fit``,
 ``optimiser_stream``), starting latents (``initialisation``), the entry points (``manifold``), the
-noise model (``noise_model``) and the placement effect (``placement_effect``).
+noise model (``noise_model``), the placement effect (``placement_effect``), the drift effect
+(``drift_effect``) and a placement's shift of the action (``input_shift``).
 
 Callers outside ``core`` use the names below; tests and benchmarks may reach the modules.
 """
@@ -21,6 +22,7 @@ from core.gp.fit_run import (
     fit_structure,
     run_first_stage,
 )
+from core.gp.input_shift import check_shift_variance, estimate_shift_variance, with_input_shift
 from core.gp.manifold import (
     FitCancelledError,
     fit_hyperparameters,
@@ -65,11 +67,13 @@ __all__ = [
     "attach_transform",
     "check_drift_variance",
     "check_placement_variance",
+    "check_shift_variance",
     "choose_noise_model",
     "condition",
     "condition_sparse",
     "estimate_drift_variance",
     "estimate_placement_variance",
+    "estimate_shift_variance",
     "fit_hyperparameters",
     "fit_manifold",
     "fit_structure",
@@ -82,5 +86,6 @@ __all__ = [
     "run_first_stage",
     "transform_data",
     "with_drift_effect",
+    "with_input_shift",
     "with_placement_effect",
 ]

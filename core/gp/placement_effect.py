@@ -37,6 +37,7 @@ import scipy.linalg
 
 from core.errors import InvalidInputError
 from core.gp.fit_options import FitOptions
+from core.gp.input_shift import shift_covariance
 from core.gp.kernels import squared_exponential
 from core.gp.kronecker import predictive_covariance_kronecker
 from core.gp.linalg import cholesky_with_jitter
@@ -280,7 +281,12 @@ def predictive_covariance(
 
 
 def trial_log_likelihoods(
-    model: ManifoldModel, actions: FloatArray, observations: FloatArray, variance: FloatArray
+    model: ManifoldModel,
+    actions: FloatArray,
+    observations: FloatArray,
+    variance: FloatArray,
+    shift_variance: FloatArray | None = None,
+    shared_placement: bool = True,
 ) -> FloatArray:
     """log p(y_1..y_T | l) of one trial's touches under every object, with a placement effect.
 
@@ -295,6 +301,11 @@ def trial_log_likelihoods(
         actions: The trial's actions. Shape (T, dx).
         observations: Their raw observations. Shape (T, dy).
         variance: σ_b,a² in model space (:func:`check_placement_variance`). Shape (dy,).
+        shift_variance: σ_δ², a placement's shift of the action (:mod:`core.gp.input_shift`):
+            its covariance J_l diag(σ_δ²) J_lᵀ couples the touches and the features, so the
+            trial is then one joint Gaussian over all of them. ``None``: none. Shape (dx,).
+        shared_placement: Whether the touches met one placement (the shift is then shared;
+            otherwise each touch has its own).
 
     Returns:
         Log-likelihood of the trial under each object. Shape (L,).
@@ -315,6 +326,19 @@ def trial_log_likelihoods(
         latent = model.latents[obj]
         mean, _ = predict_model_space(model, np.tile(latent, (t, 1)), x)
         cov_f = predictive_covariance(model, latent, x)
+        if shift_variance is not None:
+            blocks = [
+                cov_f[a] + sigma_b[a] * ones + within[a] * np.eye(t)
+                for a in range(h.observation_dim)
+            ]
+            cov = scipy.linalg.block_diag(*blocks) + shift_covariance(
+                model, latent, x, shift_variance, shared_placement
+            )
+            out[obj] = _gaussian_log_density(
+                (y_model - mean).T.reshape(-1), cov, "trial covariance with the input shift"
+            )
+            out[obj] += t * jacobian
+            continue
         total = 0.0
         for a in range(h.observation_dim):
             cov = cov_f[a] + sigma_b[a] * ones + within[a] * np.eye(t)
@@ -326,3 +350,14 @@ def trial_log_likelihoods(
             total -= 0.5 * t * np.log(2.0 * np.pi)
         out[obj] = total + t * jacobian
     return out
+
+
+def _gaussian_log_density(residual: FloatArray, cov: FloatArray, what: str) -> float:
+    """log N(residual; 0, cov) through a (jittered if need be) Cholesky factor."""
+    factor, _ = cholesky_with_jitter(cov, what=what)
+    z = scipy.linalg.solve_triangular(factor, residual, lower=True, check_finite=False)
+    return float(
+        -0.5 * float(z @ z)
+        - float(np.sum(np.log(np.diag(factor))))
+        - 0.5 * residual.size * np.log(2.0 * np.pi)
+    )

@@ -31,6 +31,7 @@ import numpy as np
 import scipy.linalg
 
 from core.errors import InvalidInputError
+from core.gp.input_shift import shift_covariance
 from core.gp.kernels import squared_exponential
 from core.gp.likelihood import negative_log_likelihood_and_gradient
 from core.gp.linalg import cholesky_with_jitter
@@ -224,6 +225,8 @@ def trial_log_likelihoods(
     observations: FloatArray,
     placement_variance: FloatArray,
     latent_covariance: FloatArray,
+    shift_variance: FloatArray | None = None,
+    shared_placement: bool = True,
 ) -> FloatArray:
     """log p(y_1..y_T | l) of one trial's touches with s_l ~ N(s_l*, Σ_l) (docs/method.md (L3)).
 
@@ -238,6 +241,9 @@ def trial_log_likelihoods(
         observations: Their raw observations. Shape (T, dy).
         placement_variance: σ_b,a², model space (zeros for none). Shape (dy,).
         latent_covariance: Σ_l. Shape (L, ds, ds).
+        shift_variance: σ_δ², a placement's shift of the action (:mod:`core.gp.input_shift`),
+            its covariance taken at s_l*. ``None``: none. Shape (dx,).
+        shared_placement: Whether the touches met one placement (the shift is then shared).
 
     Returns:
         Log-likelihood of the trial under each object. Shape (L,).
@@ -258,6 +264,10 @@ def trial_log_likelihoods(
     out = np.empty(n_objects)
     for obj in range(n_objects):
         mean, cov = _moments(model, model.latents[obj], covariances[obj], x, *action_terms)
+        if shift_variance is not None:
+            cov = cov + shift_covariance(
+                model, model.latents[obj], x, shift_variance, shared_placement
+            )
         factor, _ = cholesky_with_jitter(cov + noise, what="trial covariance")
         residual = scipy.linalg.solve_triangular(
             factor, target - mean.T.reshape(-1), lower=True, check_finite=False

@@ -63,6 +63,11 @@ def object_log_likelihoods(
     taking it as known (docs/method.md (L2)–(L3)): the moments above become the Gaussian-input
     moments over all touches and features at once, in either setting.
 
+    A model with ``shift_variance`` σ_δ² (:mod:`core.gp.input_shift`) adds, under object l, the
+    covariance J_l(x_t) diag(σ_δ²) J_l(x_u)ᵀ of a placement's shift of the action, J_l the slope
+    of the predictive mean at s_l: between every pair of touches when they met one placement
+    (``shared_placement``), within each touch otherwise. ``"joint"`` only.
+
     A model with ``tempering`` = β (:mod:`core.recognition.tempering`, a last resort fitted on the
     training touches) returns β times the value: the posterior becomes p(D_t | l)^β, normalised.
 
@@ -127,7 +132,15 @@ def _untempered_log_likelihoods(
     if model.latent_covariance is not None:
         # docs/method.md (L3): every s_l integrated over its Laplace posterior.
         if trial_likelihood == "joint":
-            return latent_trial_log_likelihoods(model, x, y, variance, model.latent_covariance)
+            return latent_trial_log_likelihoods(
+                model,
+                x,
+                y,
+                variance,
+                model.latent_covariance,
+                model.shift_variance,
+                shared_placement,
+            )
         zero = np.zeros(model.hyperparameters.observation_dim)
         return np.asarray(
             sum(
@@ -139,7 +152,7 @@ def _untempered_log_likelihoods(
             dtype=np.float64,
         )
     if trial_likelihood == "joint":
-        return trial_log_likelihoods(model, x, y, variance)
+        return trial_log_likelihoods(model, x, y, variance, model.shift_variance, shared_placement)
     # Queries ordered (touch, object): every touch under every learned latent.
     latents = np.tile(model.latents, (x.shape[0], 1))
     queries = np.repeat(x, n_objects, axis=0)
