@@ -42,6 +42,7 @@ __all__ = [
     "ShiftEstimate",
     "check_shift_variance",
     "estimate_shift_variance",
+    "fit_shift_variance",
     "mean_jacobian",
     "shift_covariance",
     "with_input_shift",
@@ -170,36 +171,38 @@ def _negative_log_likelihood(
     return value, 0.5 * variance * (trace - quad)
 
 
-def estimate_shift_variance(model: ManifoldModel) -> ShiftEstimate | None:
-    """σ_δ² by maximum likelihood on the training touches' leave-one-out residuals.
+def fit_shift_variance(
+    residuals: FloatArray, variances: FloatArray, jacobians: FloatArray, action_variance: FloatArray
+) -> tuple[FloatArray, float]:
+    """σ_δ² maximising Σ_i log N(e_i; 0, diag(v_i) + J_i diag(σ_δ²) J_iᵀ).
 
-    Each training touch met its own placement (a collection turns the table between touches), so
-    its residual carries its own shift: e_i ~ N(0, diag(v_i) + J_i diag(σ_δ²) J_iᵀ), with e_i and
-    v_i the exact leave-one-out residual and variance (:func:`core.gp.noise_model
-    .gram_inverse_diagonal`) and J_i the mean's slope at the touch (the full posterior's: one
-    touch among hundreds hardly changes it). Bounded to [10⁻⁸, 4] times the training actions'
-    variance per dimension (:data:`_LOWER_FRACTION`, :data:`_UPPER_FRACTION`); L-BFGS-B from
-    three starts.
+    Bounded to [10⁻⁸, 4] times ``action_variance`` per dimension (:data:`_LOWER_FRACTION`,
+    :data:`_UPPER_FRACTION`); L-BFGS-B with the analytic gradient from three starts.
+
+    Args:
+        residuals: e_i. Shape (N, dy).
+        variances: v_i, > 0. Shape (N, dy).
+        jacobians: J_i. Shape (N, dy, dx).
+        action_variance: The actions' variance per dimension, > 0. Shape (dx,).
 
     Returns:
-        The estimate, or ``None`` for a posterior without exact leave-one-out (sparse).
+        ``(σ_δ², gain)``: shape (dx,), and the log-likelihood's rise over σ_δ² at its lower bound
+        in nats (the lower bound and 0 when nothing rises).
     """
-    diagonal = gram_inverse_diagonal(model)  # (dy, N)
-    if diagonal is None:
-        return None
-    residuals = (model.posterior.beta / diagonal).T  # (N, dy)
-    variances = (1.0 / diagonal).T
-    data = model.data
-    jac = mean_jacobian(model, model.latents[data.object_index], data.actions)
-    spread = np.maximum(data.actions.var(axis=0), np.finfo(float).tiny)
+    e = as_float_array(residuals, "residuals", (None, None))
+    v = as_float_array(variances, "variances", e.shape)
+    jac = as_float_array(jacobians, "jacobians", (e.shape[0], e.shape[1], None))
+    spread = as_float_array(action_variance, "action_variance", (jac.shape[2],))
+    if np.any(v <= 0.0) or np.any(spread <= 0.0):
+        raise InvalidInputError("fit_shift_variance: variances must be > 0.")
     lower, upper = np.log(_LOWER_FRACTION * spread), np.log(_UPPER_FRACTION * spread)
-    baseline, _ = _negative_log_likelihood(lower, residuals, variances, jac)
+    baseline, _ = _negative_log_likelihood(lower, e, v, jac)
     best: scipy.optimize.OptimizeResult | None = None
     for fraction in (1e-4, 1e-2, 0.25):
         result = scipy.optimize.minimize(
             _negative_log_likelihood,
             np.log(fraction * spread),
-            args=(residuals, variances, jac),
+            args=(e, v, jac),
             jac=True,
             method="L-BFGS-B",
             bounds=list(zip(lower, upper, strict=True)),
@@ -207,15 +210,34 @@ def estimate_shift_variance(model: ManifoldModel) -> ShiftEstimate | None:
         if best is None or result.fun < best.fun:
             best = result
     assert best is not None
-    variance = np.exp(best.x)
     gain = baseline - float(best.fun)
     if gain <= 0.0:
-        variance, gain = np.exp(lower), 0.0
-    return ShiftEstimate(
-        variance=np.asarray(variance, dtype=np.float64),
-        log_likelihood_gain=float(gain),
-        touches=int(residuals.shape[0]),
+        return np.exp(lower), 0.0
+    return np.asarray(np.exp(best.x), dtype=np.float64), float(gain)
+
+
+def estimate_shift_variance(model: ManifoldModel) -> ShiftEstimate | None:
+    """σ_δ² by maximum likelihood on the training touches' leave-one-out residuals.
+
+    Each training touch met its own placement (a collection turns the table between touches), so
+    its residual carries its own shift: e_i ~ N(0, diag(v_i) + J_i diag(σ_δ²) J_iᵀ), with e_i and
+    v_i the exact leave-one-out residual and variance (:func:`core.gp.noise_model
+    .gram_inverse_diagonal`) and J_i the mean's slope at the touch (the full posterior's: one
+    touch among hundreds hardly changes it); :func:`fit_shift_variance`.
+
+    Returns:
+        The estimate, or ``None`` for a posterior without exact leave-one-out (sparse).
+    """
+    diagonal = gram_inverse_diagonal(model)  # (dy, N)
+    if diagonal is None:
+        return None
+    data = model.data
+    jac = mean_jacobian(model, model.latents[data.object_index], data.actions)
+    spread = np.maximum(data.actions.var(axis=0), np.finfo(float).tiny)
+    variance, gain = fit_shift_variance(
+        (model.posterior.beta / diagonal).T, (1.0 / diagonal).T, jac, spread
     )
+    return ShiftEstimate(variance=variance, log_likelihood_gain=gain, touches=int(jac.shape[0]))
 
 
 def with_input_shift(model: ManifoldModel) -> tuple[ManifoldModel, ShiftEstimate | None]:

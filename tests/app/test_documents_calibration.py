@@ -1,5 +1,5 @@
-"""The model document keeps the latent covariance and the tempering exponent, and refuses bad ones
-naming the field."""
+"""The model document keeps the latent covariance, the tempering exponent and the input shift,
+and refuses bad ones naming the field."""
 
 from __future__ import annotations
 
@@ -23,15 +23,19 @@ runner = CliRunner()
 def test_latent_covariance_and_tempering_round_trip() -> None:
     model = experiment1_at_true_latents(seed=0, touches_per_object=6)
     covariance = np.array([[[0.01]], [[0.02]], [[0.03]], [[0.04]]])
-    richer = dataclasses.replace(model, latent_covariance=covariance, tempering=0.6)
+    richer = dataclasses.replace(
+        model, latent_covariance=covariance, tempering=0.6, shift_variance=np.array([0.04])
+    )
     document = json.loads(json.dumps(model_to_document(richer)))
     loaded = model_from_document(document)
     np.testing.assert_array_equal(loaded.latent_covariance, covariance)
     assert loaded.tempering == 0.6
-    # A document without the fields: latents taken as known, no tempering.
+    np.testing.assert_array_equal(loaded.shift_variance, [0.04])
+    # A document without the fields: latents taken as known, no tempering, no shift.
     plain = model_from_document(model_to_document(model))
     assert plain.latent_covariance is None
     assert plain.tempering is None
+    assert plain.shift_variance is None
 
 
 @pytest.mark.parametrize(
@@ -46,6 +50,8 @@ def test_latent_covariance_and_tempering_round_trip() -> None:
         ("latent_uncertainty", {}, "missing field 'covariance'"),
         ("tempering", {"exponent": 1.5}, "tempering"),
         ("tempering", {"exponent": "high"}, "tempering"),
+        ("input_shift", {"variance": [-0.1]}, "shift_variance"),
+        ("input_shift", {"variance": [0.1, 0.2]}, "shift_variance"),
     ],
 )
 def test_bad_fields_are_refused(field: str, value: object, fragment: str) -> None:
@@ -68,6 +74,9 @@ def test_fit_computes_them_only_when_asked(tmp_path: Path) -> None:
     document = json.loads(plain.read_text())
     assert "latent_uncertainty" not in document
     assert "tempering" not in document
+    # The input shift is estimated by every fit (one action dimension here).
+    assert len(document["input_shift"]["variance"]) == 1
+    assert "input shift from 40 touches" in " ".join(result.output.split())
     options = ["--latent-uncertainty", "--tempering", "--out", str(rich)]
     result = runner.invoke(app, [*common, *options])
     assert result.exit_code == 0, result.output
@@ -88,7 +97,9 @@ def test_the_server_keeps_them_through_an_import_and_a_restart(tmp_path: Path) -
 
     model = experiment1_at_true_latents(seed=0, touches_per_object=6)
     covariance = np.array([[[0.01]], [[0.02]], [[0.03]], [[0.04]]])
-    richer = dataclasses.replace(model, latent_covariance=covariance, tempering=0.6)
+    richer = dataclasses.replace(
+        model, latent_covariance=covariance, tempering=0.6, shift_variance=np.array([0.04])
+    )
     document = json.loads(json.dumps(model_to_document(richer)))
     settings = make_settings(tmp_path)
     with TestClient(create_app(settings)) as client:
@@ -103,3 +114,4 @@ def test_the_server_keeps_them_through_an_import_and_a_restart(tmp_path: Path) -
     rebuilt = model_from_document(again)
     np.testing.assert_array_equal(rebuilt.latent_covariance, covariance)
     assert rebuilt.tempering == 0.6
+    np.testing.assert_array_equal(rebuilt.shift_variance, [0.04])

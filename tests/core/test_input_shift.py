@@ -1,0 +1,236 @@
+"""A placement's shift of the action (core.gp.input_shift): the slope, the covariance it adds, its
+estimate from leave-one-out residuals, the trial likelihood and the model's own samples."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import scipy.stats
+
+from core.errors import InvalidInputError
+from core.evaluation.trial_engine import ModelTrial
+from core.evaluation.worlds import EXPERIMENT1_THETAS, experiment1_h
+from core.gp.input_shift import (
+    _negative_log_likelihood,
+    check_shift_variance,
+    estimate_shift_variance,
+    fit_shift_variance,
+    mean_jacobian,
+    shift_covariance,
+)
+from core.gp.placement_effect import predictive_covariance
+from core.gp.posterior import condition, predict_model_space
+from core.recognition.object_posterior import object_log_likelihoods
+from core.types import Hyperparameters, ManifoldModel, TrainingData
+
+
+def two_action_model(seed: int = 0) -> ManifoldModel:
+    """Three objects, 2-D actions, two features: a small dense model with unequal length-scales."""
+    rng = np.random.default_rng(seed)
+    n = 60
+    obj = np.repeat(np.arange(3), n // 3)
+    actions = rng.normal(size=(n, 2))
+    latents = np.array([[-1.0], [0.2], [1.1]])
+    observations = np.column_stack(
+        [
+            np.sin(1.3 * actions[:, 0] + latents[obj, 0]) + 0.5 * actions[:, 1],
+            np.tanh(2.0 * actions[:, 1] * latents[obj, 0]),
+        ]
+    ) + 0.05 * rng.normal(size=(n, 2))
+    data = TrainingData(("a", "b", "c"), obj, actions, observations)
+    hyper = Hyperparameters(
+        signal_variance=np.array([0.8, 0.5]),
+        noise_variance=np.array([0.01, 0.02]),
+        latent_lengthscales=np.array([[1.2], [0.9]]),
+        action_lengthscales=np.array([[0.9, 1.7], [1.4, 0.6]]),
+    )
+    return condition(data, latents, hyper)
+
+
+def test_the_slope_matches_finite_differences_of_the_mean() -> None:
+    model = two_action_model()
+    rng = np.random.default_rng(1)
+    latents = rng.normal(size=(7, 1))
+    actions = rng.normal(size=(7, 2))
+    jac = mean_jacobian(model, latents, actions)
+    assert jac.shape == (7, 2, 2)
+    step = 1e-5
+    for k in range(2):
+        shift = np.zeros(2)
+        shift[k] = step
+        up, _ = predict_model_space(model, latents, actions + shift)
+        down, _ = predict_model_space(model, latents, actions - shift)
+        np.testing.assert_allclose(jac[:, :, k], (up - down) / (2 * step), rtol=1e-6, atol=1e-8)
+
+
+def test_the_covariance_is_the_slope_times_the_shift_shared_or_per_touch() -> None:
+    model = two_action_model()
+    latent = np.array([0.3])
+    actions = np.array([[0.1, -0.4], [1.2, 0.3], [-0.7, 0.9]])
+    variance = np.array([0.04, 0.09])
+    jac = mean_jacobian(model, np.tile(latent, (3, 1)), actions)
+    cov = shift_covariance(model, latent, actions, variance)
+    for a in range(2):
+        for b in range(2):
+            for t in range(3):
+                for u in range(3):
+                    expected = jac[t, a] @ np.diag(variance) @ jac[u, b]
+                    assert cov[a * 3 + t, b * 3 + u] == pytest.approx(expected, abs=1e-14)
+    own = shift_covariance(model, latent, actions, variance, shared=False)
+    touch = np.tile(np.arange(3), 2)
+    same = touch[:, None] == touch[None, :]
+    np.testing.assert_array_equal(own[same], cov[same])
+    assert np.all(own[~same] == 0.0)
+
+
+def test_the_trial_likelihood_is_the_direct_gaussian_with_the_shift() -> None:
+    model = two_action_model()
+    shifted = dataclasses.replace(
+        model, shift_variance=np.array([0.05, 0.2]), placement_variance=np.array([0.004, 0.01])
+    )
+    rng = np.random.default_rng(3)
+    actions = rng.normal(size=(4, 2))
+    observations = rng.normal(size=(4, 2))
+    for shared in (True, False):
+        got = object_log_likelihoods(shifted, actions, observations, shared_placement=shared)
+        for obj in range(3):
+            latent = model.latents[obj]
+            mean, _ = predict_model_space(model, np.tile(latent, (4, 1)), actions)
+            cov_f = predictive_covariance(model, latent, actions)
+            sigma_b = shifted.placement_variance if shared else np.zeros(2)
+            assert sigma_b is not None
+            noise = model.hyperparameters.noise_variance - sigma_b
+            cov = scipy.linalg.block_diag(
+                *[cov_f[a] + sigma_b[a] + noise[a] * np.eye(4) for a in range(2)]
+            )
+            cov += shift_covariance(model, latent, actions, np.array([0.05, 0.2]), shared)
+            expected = scipy.stats.multivariate_normal(mean.T.reshape(-1), cov).logpdf(
+                observations.T.reshape(-1)
+            )
+            assert got[obj] == pytest.approx(expected, rel=1e-10)
+    # No shift at all: the likelihood without the field, to rounding.
+    zero = dataclasses.replace(model, shift_variance=np.zeros(2))
+    np.testing.assert_allclose(
+        object_log_likelihoods(zero, actions, observations),
+        object_log_likelihoods(model, actions, observations),
+        rtol=1e-12,
+    )
+
+
+def test_the_objective_gradient_matches_finite_differences() -> None:
+    rng = np.random.default_rng(4)
+    residuals = rng.normal(size=(30, 3))
+    variances = rng.uniform(0.5, 2.0, size=(30, 3))
+    jac = rng.normal(size=(30, 3, 2))
+    log_variance = np.array([-0.7, 0.4])
+    _, gradient = _negative_log_likelihood(log_variance, residuals, variances, jac)
+    step = 1e-6
+    for k in range(2):
+        e = np.zeros(2)
+        e[k] = step
+        up, _ = _negative_log_likelihood(log_variance + e, residuals, variances, jac)
+        down, _ = _negative_log_likelihood(log_variance - e, residuals, variances, jac)
+        assert gradient[k] == pytest.approx((up - down) / (2 * step), rel=1e-6)
+
+
+def test_the_fit_recovers_a_known_shift_and_finds_none_where_there_is_none() -> None:
+    rng = np.random.default_rng(5)
+    n, dy, dx = 4000, 3, 2
+    jac = rng.normal(size=(n, dy, dx))
+    variances = rng.uniform(0.2, 1.0, size=(n, dy))
+    true = np.array([0.3, 0.05])
+    cov = np.einsum("nak,k,nbk->nab", jac, true, jac) + np.einsum(
+        "na,ab->nab", variances, np.eye(dy)
+    )
+    residuals = np.einsum("nab,nb->na", np.linalg.cholesky(cov), rng.normal(size=(n, dy)))
+    estimate, gain = fit_shift_variance(residuals, variances, jac, np.ones(dx))
+    np.testing.assert_allclose(estimate, true, rtol=0.15)
+    assert gain > 100.0
+    plain = np.sqrt(variances) * rng.normal(size=(n, dy))
+    estimate, gain = fit_shift_variance(plain, variances, jac, np.ones(dx))
+    assert np.all(estimate < 0.01)
+    assert gain < 5.0
+    with pytest.raises(InvalidInputError, match="variances"):
+        fit_shift_variance(residuals, -variances, jac, np.ones(dx))
+
+
+def experiment1_with_shift(shift_std: float, seed: int) -> ManifoldModel:
+    """Experiment 1 (paper eq. (6)), 100 touches per object, each touch's action landing off by
+    a shift of std ``shift_std``; conditioned at the true latents and the clean world's
+    hyperparameters."""
+    rng = np.random.default_rng(seed)
+    theta = np.asarray(EXPERIMENT1_THETAS)
+    obj = np.repeat(np.arange(4), 100)
+    actions = rng.normal(size=(400, 1))
+    landed = actions + shift_std * rng.normal(size=(400, 1))
+    observations = np.vstack(
+        [experiment1_h(float(theta[o]), landed[i : i + 1]) for i, o in enumerate(obj)]
+    )
+    observations += 0.1 * rng.normal(size=observations.shape)
+    data = TrainingData(("o1", "o2", "o3", "o4"), obj, actions, observations)
+    centred = (theta - theta.mean())[:, None]
+    hyper = Hyperparameters(
+        signal_variance=np.array([0.18, 0.2, 0.27]),
+        noise_variance=np.full(3, 0.01),
+        latent_lengthscales=np.array([[1.9], [100.0], [8.0]]),
+        action_lengthscales=np.array([[0.84], [0.88], [0.92]]),
+    )
+    return condition(data, centred / np.sqrt(np.mean(centred**2)), hyper)
+
+
+def test_the_estimate_sees_the_shift_in_leave_one_out_residuals() -> None:
+    shifted = estimate_shift_variance(experiment1_with_shift(0.25, 0))
+    clean = estimate_shift_variance(experiment1_with_shift(0.0, 0))
+    assert shifted is not None
+    assert clean is not None
+    assert shifted.touches == 400
+    # The fitted GP takes up part of the shift as noise; the rest is seen through the slope.
+    assert 0.25**2 / 4 < shifted.variance[0] < 2 * 0.25**2
+    assert shifted.log_likelihood_gain > 20.0
+    assert clean.variance[0] < shifted.variance[0] / 10
+    assert clean.log_likelihood_gain < 10.0
+
+
+def test_the_model_world_draws_the_shift_once_per_placement() -> None:
+    """Across many model-world trials the two touches' model-space draws covary by J₁ Σ J₂ᵀ (the
+    model has no placement or drift variance, so nothing else is shared)."""
+    shift = np.array([1.0, 0.6])
+    model = dataclasses.replace(two_action_model(), shift_variance=shift)
+    actions = np.array([[0.4, -0.2], [-0.5, 0.8]])
+    rng = np.random.default_rng(6)
+    draws = np.empty((2000, 2, 2))
+    for i in range(draws.shape[0]):
+        trial = ModelTrial(model, "b")
+        draws[i] = [trial.touch(a, rng).observation for a in actions]
+    jac = mean_jacobian(model, np.tile(model.latents[1], (2, 1)), actions)
+    expected = jac[0] @ np.diag(shift) @ jac[1].T  # (dy, dy)
+    centred = draws - draws.mean(axis=0)
+    got = np.einsum("na,nb->ab", centred[:, 0], centred[:, 1]) / draws.shape[0]
+    _, variance = predict_model_space(model, np.tile(model.latents[1], (2, 1)), actions)
+    scale = np.sqrt(np.outer(variance[0], variance[1]) + np.abs(expected))
+    np.testing.assert_allclose(got, expected, atol=5 * scale.max() / np.sqrt(draws.shape[0]))
+    assert np.abs(expected).max() > 10 * scale.max() / np.sqrt(draws.shape[0])
+    # Placed anew before every touch: nothing shared.
+    fresh = np.empty_like(draws)
+    for i in range(fresh.shape[0]):
+        trial = ModelTrial(model, "b", shared_placement=False)
+        fresh[i] = [trial.touch(a, rng).observation for a in actions]
+    centred = fresh - fresh.mean(axis=0)
+    got = np.einsum("na,nb->ab", centred[:, 0], centred[:, 1]) / fresh.shape[0]
+    np.testing.assert_allclose(got, 0.0, atol=5 * scale.max() / np.sqrt(fresh.shape[0]))
+    # One touch's variance gains J Σ Jᵀ's diagonal.
+    own = np.einsum("ak,k,ak->a", jac[0], shift, jac[0])
+    np.testing.assert_allclose(
+        draws[:, 0].var(axis=0), variance[0] + own, rtol=5 * np.sqrt(2 / draws.shape[0])
+    )
+
+
+def test_a_shift_variance_must_be_dx_values_at_least_zero() -> None:
+    model = two_action_model()
+    np.testing.assert_array_equal(check_shift_variance(model, [0.0, 0.5]), [0.0, 0.5])
+    with pytest.raises(InvalidInputError, match="shift_variance"):
+        check_shift_variance(model, [0.1, -0.5])
+    with pytest.raises(InvalidInputError, match="shift_variance"):
+        check_shift_variance(model, [0.1])
