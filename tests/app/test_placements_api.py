@@ -4,6 +4,7 @@ placement effect from them."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -14,7 +15,7 @@ from app.documents.model import model_from_document
 from app.documents.training_csv import read_training_csv, write_training_csv
 from app.main import create_app
 from core.evaluation.reference_model import experiment1_at_true_latents
-from core.gp import estimate_placement_variance
+from core.gp import estimate_placement_variance, estimate_shift_variance
 from core.types import TrainingData
 from tests.app.conftest import TestClient, experiment1_csv, make_settings
 from tests.app.test_raw_touches import raw_file
@@ -200,9 +201,14 @@ def test_a_server_fit_estimates_the_placement_effect(tmp_path: Path) -> None:
     expected = estimate_placement_variance(fitted, fitted.raw_data.placement_index).variance
     np.testing.assert_allclose(document["placement_effect"]["variance"], expected, rtol=0.05)
     np.testing.assert_array_equal(effect["variance"], document["placement_effect"]["variance"])
+    # The input shift too, estimated after the placement effect under the model that scores.
+    shift = estimate_shift_variance(dataclasses.replace(fitted, shift_variance=None))
+    assert shift is not None
+    np.testing.assert_allclose(document["input_shift"]["variance"], shift.variance, rtol=1e-6)
     with TestClient(create_app(settings)) as client:  # a new server rebuilds the model from its row
         again = client.get(f"{API}/models/{model['id']}/export").json()
         assert again["placement_effect"] == document["placement_effect"]
+        assert again["input_shift"] == document["input_shift"]
         assert again["training_data"]["placements"] == document["training_data"]["placements"]
         # An imported document keeps its placement effect too.
         imported = client.post(f"{API}/models/import", json=document)
