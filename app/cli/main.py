@@ -443,9 +443,9 @@ def fit(
         )
     if shift is not None:
         stdout.print(
-            f"input shift from {shift.touches:d} touches: σ_δ = "
+            f"input shift from {shift.groups:d} placements: σ_δ = "
             f"{escape(np.array2string(np.sqrt(shift.variance), precision=3))} per action "
-            f"dimension (+{shift.log_likelihood_gain:.1f} nats leave-one-out)"
+            "dimension"
         )
     if laplace is not None:
         spread = np.sqrt(np.trace(laplace.covariance, axis1=1, axis2=2))

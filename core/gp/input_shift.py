@@ -15,12 +15,14 @@ between every pair of touches t, u and every pair of features (docs/method.md, "
 shift"). The shift is object-dependent through the slope: two objects that differ only beyond
 a threshold depth are told apart less surely by a press near that threshold.
 
-σ_δ² is estimated from the training touches, each met at its own placement: their
-leave-one-out residuals e_i (dy,) with variances v_i are modelled as
-N(0, diag(v_i) + J_i diag(σ_δ²) J_iᵀ), and σ_δ² maximises that likelihood
-(:func:`estimate_shift_variance`). The residuals of steep touches being larger than those of flat
-ones is what identifies it; where the data show no such pattern the estimate goes to its lower
-bound and the shift changes nothing.
+σ_δ² is estimated from the training touches that share a placement (a collection places each
+object once for every two touches): leave the whole placement out, and the residuals of two of
+its touches i, j covary, beyond what the fitted model (its σ_b² included) predicts, by
+J_i diag(σ_δ²) J_jᵀ. Those cross-products are linear in σ_δ², so a non-negative least-squares
+fit over every pair gives the estimate (:func:`shared_shift_variance`). Only the part of the
+touches' errors that a placement shares identifies it: noise that grows with the slope but is
+drawn afresh at every touch cancels in the cross-products. Without recorded placements there is
+no estimate and the shift changes nothing.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ import scipy.optimize
 
 from core.errors import InvalidInputError
 from core.gp.kernels import squared_exponential
-from core.gp.noise_model import gram_inverse_diagonal
+from core.gp.placement_groups import shared_groups
 from core.gp.posterior import support_points
 from core.types import ManifoldModel
 from core.validation import FloatArray, as_float_array
@@ -42,16 +44,14 @@ __all__ = [
     "ShiftEstimate",
     "check_shift_variance",
     "estimate_shift_variance",
-    "fit_shift_variance",
     "mean_jacobian",
+    "shared_shift_variance",
     "shift_covariance",
     "with_input_shift",
 ]
 
-#: Bounds of σ_δ,k² relative to the training actions' variance along k: from "none" to twice
-#: the design's spread (the estimate also takes up noise that grows with the slope, which need
-#: not be a placement's alone).
-_LOWER_FRACTION, _UPPER_FRACTION = 1e-8, 4.0
+#: Largest σ_δ,k² relative to the training actions' variance along k: twice the design's spread.
+_UPPER_FRACTION = 4.0
 
 #: Queries per block of :func:`mean_jacobian`.
 _QUERY_CHUNK = 512
@@ -59,19 +59,19 @@ _QUERY_CHUNK = 512
 
 @dataclass(frozen=True)
 class ShiftEstimate:
-    """σ_δ² estimated from the training touches (:func:`estimate_shift_variance`).
+    """σ_δ² estimated from the training touches that share placements
+    (:func:`estimate_shift_variance`).
 
     Attributes:
         variance: σ_δ,k², the variance of the shift along each action dimension, in squared
             action units. Shape (dx,).
-        log_likelihood_gain: How much the leave-one-out residuals' log-likelihood rose over
-            σ_δ² = 0, in nats (≥ 0).
-        touches: Training touches the estimate used.
+        groups: Placements with at least two training touches.
+        pairs: Ordered pairs of touches of one placement (each gives dy² cross-products).
     """
 
     variance: FloatArray
-    log_likelihood_gain: float
-    touches: int
+    groups: int
+    pairs: int
 
 
 def mean_jacobian(model: ManifoldModel, latents: FloatArray, actions: FloatArray) -> FloatArray:
@@ -153,91 +153,83 @@ def check_shift_variance(model: ManifoldModel, variance: object) -> FloatArray:
     return value
 
 
-def _negative_log_likelihood(
-    log_variance: FloatArray, residuals: FloatArray, variances: FloatArray, jac: FloatArray
-) -> tuple[float, FloatArray]:
-    """½ Σ_i [log det C_i + e_iᵀ C_i⁻¹ e_i] with C_i = diag(v_i) + J_i diag(σ²) J_iᵀ, and its
-    gradient in log σ² (constants left out)."""
-    variance = np.exp(log_variance)
-    cov = np.einsum("nak,k,nbk->nab", jac, variance, jac)
-    cov[:, np.arange(variances.shape[1]), np.arange(variances.shape[1])] += variances
-    factor = np.linalg.cholesky(cov)
-    log_det = 2.0 * np.sum(np.log(np.diagonal(factor, axis1=1, axis2=2)))
-    solve_e = np.linalg.solve(cov, residuals[..., None])[..., 0]  # (N, dy)
-    solve_j = np.linalg.solve(cov, jac)  # (N, dy, dx)
-    value = 0.5 * (log_det + float(np.sum(residuals * solve_e)))
-    trace = np.einsum("nak,nak->k", jac, solve_j)
-    quad = np.sum(np.einsum("nak,na->nk", jac, solve_e) ** 2, axis=0)
-    return value, 0.5 * variance * (trace - quad)
+def shared_shift_variance(
+    residuals: list[FloatArray],
+    covariances: list[FloatArray],
+    jacobians: list[FloatArray],
+    action_variance: FloatArray,
+) -> tuple[FloatArray, int]:
+    """σ_δ² ≥ 0 from the leave-placement-out residuals of placements with ≥ 2 touches.
 
-
-def fit_shift_variance(
-    residuals: FloatArray, variances: FloatArray, jacobians: FloatArray, action_variance: FloatArray
-) -> tuple[FloatArray, float]:
-    """σ_δ² maximising Σ_i log N(e_i; 0, diag(v_i) + J_i diag(σ_δ²) J_iᵀ).
-
-    Bounded to [10⁻⁸, 4] times ``action_variance`` per dimension (:data:`_LOWER_FRACTION`,
-    :data:`_UPPER_FRACTION`); L-BFGS-B with the analytic gradient from three starts.
+    For touches i ≠ j of one placement and features a, b: E[r_ia r_jb] = [a = b] A_a,ij +
+    Σ_k σ_δ,k² J_ia,k J_jb,k. The excess cross-products are fitted by non-negative least squares
+    (Lawson–Hanson), then capped at 4 × ``action_variance`` (a shift beyond twice the design's
+    spread is not a placement's).
 
     Args:
-        residuals: e_i. Shape (N, dy).
-        variances: v_i, > 0. Shape (N, dy).
-        jacobians: J_i. Shape (N, dy, dx).
-        action_variance: The actions' variance per dimension, > 0. Shape (dx,).
+        residuals: Per placement, r_G. Shape (n_G, dy) each.
+        covariances: Per placement, the model's leave-placement-out covariance A_G per feature.
+            Shape (dy, n_G, n_G) each.
+        jacobians: Per placement, the slopes J of its touches. Shape (n_G, dy, dx) each.
+        action_variance: The training actions' variance per dimension. Shape (dx,).
 
     Returns:
-        ``(σ_δ², gain)``: shape (dx,), and the log-likelihood's rise over σ_δ² at its lower bound
-        in nats (the lower bound and 0 when nothing rises).
+        ``(σ_δ², pairs)``: shape (dx,), and the number of ordered pairs used.
     """
-    e = as_float_array(residuals, "residuals", (None, None))
-    v = as_float_array(variances, "variances", e.shape)
-    jac = as_float_array(jacobians, "jacobians", (e.shape[0], e.shape[1], None))
-    spread = as_float_array(action_variance, "action_variance", (jac.shape[2],))
-    if np.any(v <= 0.0) or np.any(spread <= 0.0):
-        raise InvalidInputError("fit_shift_variance: variances must be > 0.")
-    lower, upper = np.log(_LOWER_FRACTION * spread), np.log(_UPPER_FRACTION * spread)
-    baseline, _ = _negative_log_likelihood(lower, e, v, jac)
-    best: scipy.optimize.OptimizeResult | None = None
-    for fraction in (1e-4, 1e-2, 0.25):
-        result = scipy.optimize.minimize(
-            _negative_log_likelihood,
-            np.log(fraction * spread),
-            args=(e, v, jac),
-            jac=True,
-            method="L-BFGS-B",
-            bounds=list(zip(lower, upper, strict=True)),
-        )
-        if best is None or result.fun < best.fun:
-            best = result
-    assert best is not None
-    gain = baseline - float(best.fun)
-    if gain <= 0.0:
-        return np.exp(lower), 0.0
-    return np.asarray(np.exp(best.x), dtype=np.float64), float(gain)
+    spread = as_float_array(action_variance, "action_variance", (None,))
+    design: list[FloatArray] = []
+    target: list[FloatArray] = []
+    for r, cov, jac in zip(residuals, covariances, jacobians, strict=True):
+        n = r.shape[0]
+        first, second = np.nonzero(~np.eye(n, dtype=bool))  # ordered pairs i ≠ j
+        # (pairs, dy, dy) products r_ia r_jb and the model's part, (pairs, dy, dy, dx) slopes.
+        products = r[first][:, :, None] * r[second][:, None, :]
+        expected = np.zeros_like(products)
+        diagonal = np.arange(r.shape[1])
+        expected[:, diagonal, diagonal] = cov[:, first, second].T
+        slopes = jac[first][:, :, None, :] * jac[second][:, None, :, :]
+        design.append(slopes.reshape(-1, jac.shape[2]))
+        target.append((products - expected).reshape(-1))
+    if not design:
+        return np.zeros_like(spread), 0
+    matrix, vector = np.concatenate(design), np.concatenate(target)
+    variance, _ = scipy.optimize.nnls(matrix, vector)
+    pairs = sum(r.shape[0] * (r.shape[0] - 1) for r in residuals)
+    return np.minimum(variance, _UPPER_FRACTION * spread), int(pairs)
 
 
 def estimate_shift_variance(model: ManifoldModel) -> ShiftEstimate | None:
-    """σ_δ² by maximum likelihood on the training touches' leave-one-out residuals.
+    """σ_δ² from the training touches that share a placement (:func:`shared_shift_variance`).
 
-    Each training touch met its own placement (a collection turns the table between touches), so
-    its residual carries its own shift: e_i ~ N(0, diag(v_i) + J_i diag(σ_δ²) J_iᵀ), with e_i and
-    v_i the exact leave-one-out residual and variance (:func:`core.gp.noise_model
-    .gram_inverse_diagonal`) and J_i the mean's slope at the touch (the full posterior's: one
-    touch among hundreds hardly changes it); :func:`fit_shift_variance`.
+    Leaving placement G out of the GP conditioned on all the touches gives its residuals
+    r_G,a = A_G,a β_G,a with covariance A_G,a = ((K_a⁻¹)_GG)⁻¹ (the block leave-out identities,
+    as the placement effect's estimator uses them), K_a the model's own noisy Gram matrix (its
+    σ_b² included when the fit has it, so only what a constant offset does not describe is
+    left); J at each touch is the slope of the full posterior's mean at the object's latent.
 
     Returns:
-        The estimate, or ``None`` for a posterior without exact leave-one-out (sparse).
+        The estimate; ``None`` when the touches record no placement with two touches, or for a
+        sparse posterior (no K⁻¹ over the touches).
     """
-    diagonal = gram_inverse_diagonal(model)  # (dy, N)
-    if diagonal is None:
+    if model.posterior.inducing is not None:
         return None
     data = model.data
-    jac = mean_jacobian(model, model.latents[data.object_index], data.actions)
+    groups = shared_groups(data.object_index, model.raw_data.placement_index)
+    if not groups:
+        return None
+    inverse = model.posterior.gram_inverse  # (dy, N, N)
+    beta = model.posterior.beta  # (dy, N)
+    residuals: list[FloatArray] = []
+    covariances: list[FloatArray] = []
+    jacobians: list[FloatArray] = []
+    for g in groups:
+        cov = np.asarray(np.linalg.inv(inverse[:, g[:, None], g[None, :]]), dtype=np.float64)
+        residuals.append(np.einsum("aij,aj->ia", cov, beta[:, g]))
+        covariances.append(cov)
+        jacobians.append(mean_jacobian(model, model.latents[data.object_index[g]], data.actions[g]))
     spread = np.maximum(data.actions.var(axis=0), np.finfo(float).tiny)
-    variance, gain = fit_shift_variance(
-        (model.posterior.beta / diagonal).T, (1.0 / diagonal).T, jac, spread
-    )
-    return ShiftEstimate(variance=variance, log_likelihood_gain=gain, touches=int(jac.shape[0]))
+    variance, pairs = shared_shift_variance(residuals, covariances, jacobians, spread)
+    return ShiftEstimate(variance=variance, groups=len(groups), pairs=pairs)
 
 
 def with_input_shift(model: ManifoldModel) -> tuple[ManifoldModel, ShiftEstimate | None]:
@@ -250,7 +242,8 @@ def with_input_shift(model: ManifoldModel) -> tuple[ManifoldModel, ShiftEstimate
     drift effects, so the residuals are taken under the model that scores.
 
     Returns:
-        The model and the estimate; the model unchanged and ``None`` for a sparse posterior.
+        The model and the estimate; the model unchanged and ``None`` without placements of two
+        touches or for a sparse posterior.
     """
     estimate = estimate_shift_variance(model)
     if estimate is None:

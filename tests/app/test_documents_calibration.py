@@ -74,9 +74,9 @@ def test_fit_computes_them_only_when_asked(tmp_path: Path) -> None:
     document = json.loads(plain.read_text())
     assert "latent_uncertainty" not in document
     assert "tempering" not in document
-    # The input shift is estimated by every fit (one action dimension here).
-    assert len(document["input_shift"]["variance"]) == 1
-    assert "input shift from 40 touches" in " ".join(result.output.split())
+    # The input shift needs touches that share a placement; these record none.
+    assert "input_shift" not in document
+    assert "input shift" not in result.output
     options = ["--latent-uncertainty", "--tempering", "--out", str(rich)]
     result = runner.invoke(app, [*common, *options])
     assert result.exit_code == 0, result.output

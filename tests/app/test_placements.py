@@ -219,7 +219,9 @@ def test_fit_estimates_the_placement_effect_into_the_document(tmp_path: Path) ->
     )
     assert result.exit_code == 0, result.output
     assert "placement effect from 16 placements" in " ".join(result.output.split())
+    assert "input shift from 16 placements" in " ".join(result.output.split())
     document = json.loads(out.read_text())
+    assert len(document["input_shift"]["variance"]) == 1  # one action dimension
     assert document["training_data"]["placements"] == placement.tolist()
     variance = np.asarray(document["placement_effect"]["variance"])
     assert variance.shape == (3,)

@@ -1,5 +1,6 @@
 """A placement's shift of the action (core.gp.input_shift): the slope, the covariance it adds, its
-estimate from leave-one-out residuals, the trial likelihood and the model's own samples."""
+estimate from the touches that share a placement, the trial likelihood and the model's own
+samples."""
 
 from __future__ import annotations
 
@@ -13,11 +14,10 @@ from core.errors import InvalidInputError
 from core.evaluation.trial_engine import ModelTrial
 from core.evaluation.worlds import EXPERIMENT1_THETAS, experiment1_h
 from core.gp.input_shift import (
-    _negative_log_likelihood,
     check_shift_variance,
     estimate_shift_variance,
-    fit_shift_variance,
     mean_jacobian,
+    shared_shift_variance,
     shift_covariance,
 )
 from core.gp.placement_effect import predictive_covariance
@@ -119,78 +119,75 @@ def test_the_trial_likelihood_is_the_direct_gaussian_with_the_shift() -> None:
     )
 
 
-def test_the_objective_gradient_matches_finite_differences() -> None:
-    rng = np.random.default_rng(4)
-    residuals = rng.normal(size=(30, 3))
-    variances = rng.uniform(0.5, 2.0, size=(30, 3))
-    jac = rng.normal(size=(30, 3, 2))
-    log_variance = np.array([-0.7, 0.4])
-    _, gradient = _negative_log_likelihood(log_variance, residuals, variances, jac)
-    step = 1e-6
-    for k in range(2):
-        e = np.zeros(2)
-        e[k] = step
-        up, _ = _negative_log_likelihood(log_variance + e, residuals, variances, jac)
-        down, _ = _negative_log_likelihood(log_variance - e, residuals, variances, jac)
-        assert gradient[k] == pytest.approx((up - down) / (2 * step), rel=1e-6)
-
-
-def test_the_fit_recovers_a_known_shift_and_finds_none_where_there_is_none() -> None:
+def test_pairs_recover_a_known_shared_shift() -> None:
+    """Residuals of placements of three touches drawn with the model's covariance plus a shared
+    J Σ Jᵀ: the cross-products give Σ back, and nothing when there is no shared shift."""
     rng = np.random.default_rng(5)
-    n, dy, dx = 4000, 3, 2
-    jac = rng.normal(size=(n, dy, dx))
-    variances = rng.uniform(0.2, 1.0, size=(n, dy))
-    true = np.array([0.3, 0.05])
-    cov = np.einsum("nak,k,nbk->nab", jac, true, jac) + np.einsum(
-        "na,ab->nab", variances, np.eye(dy)
-    )
-    residuals = np.einsum("nab,nb->na", np.linalg.cholesky(cov), rng.normal(size=(n, dy)))
-    estimate, gain = fit_shift_variance(residuals, variances, jac, np.ones(dx))
+    dy, dx, true = 3, 2, np.array([0.3, 0.05])
+    residuals, plain, covariances, jacobians = [], [], [], []
+    for _ in range(1500):
+        jac = rng.normal(size=(3, dy, dx))
+        base = rng.uniform(0.2, 1.0, size=(dy, 1, 1)) * (np.eye(3) + 0.3)  # (dy, 3, 3)
+        full = scipy.linalg.block_diag(*base)  # feature-major (a·3 + t)
+        rows = np.transpose(jac, (1, 0, 2)).reshape(dy * 3, dx)
+        draw = rng.multivariate_normal(np.zeros(dy * 3), full + (rows * true) @ rows.T)
+        residuals.append(draw.reshape(dy, 3).T)
+        plain.append(rng.multivariate_normal(np.zeros(dy * 3), full).reshape(dy, 3).T)
+        covariances.append(base)
+        jacobians.append(jac)
+    estimate, pairs = shared_shift_variance(residuals, covariances, jacobians, np.ones(dx))
+    assert pairs == 1500 * 6
     np.testing.assert_allclose(estimate, true, rtol=0.15)
-    assert gain > 100.0
-    plain = np.sqrt(variances) * rng.normal(size=(n, dy))
-    estimate, gain = fit_shift_variance(plain, variances, jac, np.ones(dx))
-    assert np.all(estimate < 0.01)
-    assert gain < 5.0
-    with pytest.raises(InvalidInputError, match="variances"):
-        fit_shift_variance(residuals, -variances, jac, np.ones(dx))
+    estimate, _ = shared_shift_variance(plain, covariances, jacobians, np.ones(dx))
+    assert np.all(estimate < 0.02)
+    # Capped at twice the design's spread.
+    capped, _ = shared_shift_variance(residuals, covariances, jacobians, np.full(dx, 0.01))
+    np.testing.assert_allclose(capped, [0.04, 0.04])
 
 
-def experiment1_with_shift(shift_std: float, seed: int) -> ManifoldModel:
-    """Experiment 1 (paper eq. (6)), 100 touches per object, each touch's action landing off by
-    a shift of std ``shift_std``; conditioned at the true latents and the clean world's
-    hyperparameters."""
+def experiment1_with_shift(shift_std: float, shared: bool, seed: int) -> ManifoldModel:
+    """Experiment 1 (paper eq. (6)), 100 touches per object placed in pairs, each press landing
+    off by a shift of std ``shift_std``: one shift per placement (``shared``) or one per touch.
+    Conditioned at the true latents and hyperparameters near the fitted ones."""
     rng = np.random.default_rng(seed)
     theta = np.asarray(EXPERIMENT1_THETAS)
     obj = np.repeat(np.arange(4), 100)
+    placement = np.tile(np.arange(100) // 2, 4)
     actions = rng.normal(size=(400, 1))
-    landed = actions + shift_std * rng.normal(size=(400, 1))
+    shift = rng.normal(size=(400, 1)) if not shared else rng.normal(size=(4, 50, 1))[obj, placement]
+    landed = actions + shift_std * shift
     observations = np.vstack(
         [experiment1_h(float(theta[o]), landed[i : i + 1]) for i, o in enumerate(obj)]
     )
     observations += 0.1 * rng.normal(size=observations.shape)
-    data = TrainingData(("o1", "o2", "o3", "o4"), obj, actions, observations)
+    data = TrainingData(
+        ("o1", "o2", "o3", "o4"), obj, actions, observations, placement_index=placement
+    )
     centred = (theta - theta.mean())[:, None]
     hyper = Hyperparameters(
         signal_variance=np.array([0.18, 0.2, 0.27]),
-        noise_variance=np.full(3, 0.01),
+        noise_variance=np.full(3, 0.01 + 0.02 * shift_std),
         latent_lengthscales=np.array([[1.9], [100.0], [8.0]]),
         action_lengthscales=np.array([[0.84], [0.88], [0.92]]),
     )
     return condition(data, centred / np.sqrt(np.mean(centred**2)), hyper)
 
 
-def test_the_estimate_sees_the_shift_in_leave_one_out_residuals() -> None:
-    shifted = estimate_shift_variance(experiment1_with_shift(0.25, 0))
-    clean = estimate_shift_variance(experiment1_with_shift(0.0, 0))
-    assert shifted is not None
-    assert clean is not None
-    assert shifted.touches == 400
-    # The fitted GP takes up part of the shift as noise; the rest is seen through the slope.
-    assert 0.25**2 / 4 < shifted.variance[0] < 2 * 0.25**2
-    assert shifted.log_likelihood_gain > 20.0
-    assert clean.variance[0] < shifted.variance[0] / 10
-    assert clean.log_likelihood_gain < 10.0
+def test_the_estimate_sees_a_shift_the_placement_shares_and_not_one_each_touch_draws() -> None:
+    shared = estimate_shift_variance(experiment1_with_shift(0.25, True, 0))
+    own = estimate_shift_variance(experiment1_with_shift(0.25, False, 0))
+    assert shared is not None
+    assert own is not None
+    assert shared.groups == 200
+    assert shared.pairs == 400
+    assert 0.25**2 / 3 < shared.variance[0] < 3 * 0.25**2
+    assert own.variance[0] < shared.variance[0] / 5
+    # No placements recorded: no estimate.
+    model = experiment1_with_shift(0.25, True, 0)
+    unplaced = dataclasses.replace(
+        model, data=dataclasses.replace(model.data, placement_index=None)
+    )
+    assert estimate_shift_variance(unplaced) is None
 
 
 def test_the_model_world_draws_the_shift_once_per_placement() -> None:
