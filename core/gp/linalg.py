@@ -73,6 +73,23 @@ def log_det_from_cholesky(factor: FloatArray) -> float:
 _SMALL_GRAM = 32
 
 
+def gaussian_log_density(residual: FloatArray, cov: FloatArray, what: str) -> float:
+    """log N(residual; 0, cov) through a Cholesky factor, jittered if need be
+    (:func:`cholesky_with_jitter`; ``what`` names the matrix in its error).
+
+    Args:
+        residual: Shape (n,).
+        cov: Symmetric positive (semi-)definite. Shape (n, n).
+    """
+    factor, _ = cholesky_with_jitter(cov, what=what)
+    z = scipy.linalg.solve_triangular(factor, residual, lower=True, check_finite=False)
+    return float(
+        -0.5 * float(z @ z)
+        - float(np.sum(np.log(np.diag(factor))))
+        - 0.5 * residual.size * np.log(2.0 * np.pi)
+    )
+
+
 def _signed_roots(matrix: FloatArray, weights: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Columns of ``matrix · diag(√|w|)`` split by the sign of w (zero weights dropped)."""
     root = matrix * np.sqrt(np.abs(weights))

@@ -40,7 +40,7 @@ from core.gp.fit_options import FitOptions
 from core.gp.input_shift import shift_covariance
 from core.gp.kernels import squared_exponential
 from core.gp.kronecker import predictive_covariance_kronecker
-from core.gp.linalg import cholesky_with_jitter
+from core.gp.linalg import cholesky_with_jitter, gaussian_log_density
 from core.gp.manifold import refit_warm
 from core.gp.noise_model import attach_transform
 from core.gp.placement_groups import checked_placement_variance, placement_groups, shared_groups
@@ -334,30 +334,17 @@ def trial_log_likelihoods(
             cov = scipy.linalg.block_diag(*blocks) + shift_covariance(
                 model, latent, x, shift_variance, shared_placement
             )
-            out[obj] = _gaussian_log_density(
+            out[obj] = gaussian_log_density(
                 (y_model - mean).T.reshape(-1), cov, "trial covariance with the input shift"
             )
             out[obj] += t * jacobian
             continue
-        total = 0.0
-        for a in range(h.observation_dim):
-            cov = cov_f[a] + sigma_b[a] * ones + within[a] * np.eye(t)
-            factor, _ = cholesky_with_jitter(cov, what=f"trial covariance of feature {a}")
-            residual = scipy.linalg.solve_triangular(
-                factor, y_model[:, a] - mean[:, a], lower=True, check_finite=False
+        out[obj] = t * jacobian + sum(
+            gaussian_log_density(
+                y_model[:, a] - mean[:, a],
+                cov_f[a] + sigma_b[a] * ones + within[a] * np.eye(t),
+                f"trial covariance of feature {a}",
             )
-            total += -0.5 * float(residual @ residual) - float(np.sum(np.log(np.diag(factor))))
-            total -= 0.5 * t * np.log(2.0 * np.pi)
-        out[obj] = total + t * jacobian
+            for a in range(h.observation_dim)
+        )
     return out
-
-
-def _gaussian_log_density(residual: FloatArray, cov: FloatArray, what: str) -> float:
-    """log N(residual; 0, cov) through a (jittered if need be) Cholesky factor."""
-    factor, _ = cholesky_with_jitter(cov, what=what)
-    z = scipy.linalg.solve_triangular(factor, residual, lower=True, check_finite=False)
-    return float(
-        -0.5 * float(z @ z)
-        - float(np.sum(np.log(np.diag(factor))))
-        - 0.5 * residual.size * np.log(2.0 * np.pi)
-    )

@@ -28,13 +28,12 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
 from core.errors import InvalidInputError
 from core.gp.input_shift import shift_covariance
 from core.gp.kernels import squared_exponential
 from core.gp.likelihood import negative_log_likelihood_and_gradient
-from core.gp.linalg import cholesky_with_jitter
+from core.gp.linalg import gaussian_log_density
 from core.recognition.moments import action_kernels, belief_terms, object_indicator
 from core.types import GaussianBelief, ManifoldModel
 from core.validation import FloatArray, as_float_array
@@ -268,14 +267,7 @@ def trial_log_likelihoods(
             cov = cov + shift_covariance(
                 model, model.latents[obj], x, shift_variance, shared_placement
             )
-        factor, _ = cholesky_with_jitter(cov + noise, what="trial covariance")
-        residual = scipy.linalg.solve_triangular(
-            factor, target - mean.T.reshape(-1), lower=True, check_finite=False
-        )
-        out[obj] = (
-            -0.5 * float(residual @ residual)
-            - float(np.sum(np.log(np.diag(factor))))
-            - 0.5 * target.size * np.log(2.0 * np.pi)
-            + t * jacobian
-        )
+        residual = target - mean.T.reshape(-1)
+        out[obj] = gaussian_log_density(residual, cov + noise, "trial covariance")
+        out[obj] += t * jacobian
     return out
