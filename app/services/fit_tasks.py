@@ -9,8 +9,8 @@ independent starts (:data:`core.gp.fit_run.StartMap`: hyperparameters with the l
 then the screening run). :class:`FitEngine` supplies all three on one client — a ``LocalCluster``
 of single-threaded processes started for it, or an existing scheduler
 (:func:`app.evaluation.cluster.open_client`): :meth:`FitEngine.warm_map` runs each candidate's
-fit on all the touches as one task (:func:`core.selection.nested_fits.fit_rung`, the starts of
-the fit as tasks of their own) and each fold's refit of one candidate as one task that waits
+fit on all the touches as one task (:func:`core.selection.nested_fits.fit_rung`, its starts
+one after another in the task) and each fold's refit of one candidate as one task that waits
 only for the fits it needs (:func:`core.selection.latent_selection.score_warm_fold`: those of
 ds up to its candidate's), so refits of small candidates fill the workers while the large ones
 are still fitted; :meth:`FitEngine.fold_map` runs all of a fold's nested candidate fits
@@ -24,9 +24,13 @@ generator, or its start's vector, and a warm refit the futures of the fits it ne
 moves each fitted model to a worker at most once). Fits and folds have their own generators and
 starts none, so the result is the serial run's whatever worker ran which task. Without warm
 folds a fold's candidates depend on each other (ds = k starts from ds = k - 1), so the fold is
-the unit of work there. The starts of every fit in a task run as tasks of their own
-(:func:`worker_start_map`), so the last fits of a run spread over every worker; the polish of a
-fit's best starts runs after its starts, where the fit runs.
+the unit of work there. The starts of every fit in a fold's task run as tasks of their own
+(:func:`worker_start_map`), so the last folds of a run spread over every worker; the polish of a
+fit's best starts runs after its starts, where the fit runs. The candidates' fits of
+:meth:`FitEngine.warm_map` do not do that: there the 25 refits fill the workers, and a fit whose
+task leaves its worker's thread pool while its starts run comes back to polish on the worker it
+began on, beside the other fits that began there (three polishes shared one core while the
+other core idled for 30 s; docs/fitting.md, "Fits on workers").
 
 Stopping: the ``stop`` callable is polled every :data:`POLL_S` while tasks run; when it raises
 (or the caller is interrupted), the pending tasks are cancelled and a local cluster is closed,
@@ -73,6 +77,11 @@ from core.validation import FloatArray
 
 #: Seconds between two looks at the folds' futures (and at ``stop``) while none has finished.
 POLL_S = 0.1
+
+#: Dask priority of a candidate's fit on all the touches: above every refit, whose priority
+#: is its candidate's index (the larger candidates' refits, which are ready last and take
+#: longest, first).
+RUNG_PRIORITY = 1000
 
 #: The same inside a fold's task, for its fits' starts (and the run's stop event).
 WORKER_POLL_S = 0.5
@@ -234,13 +243,16 @@ class FitEngine:
         folds: Sequence[FoldTask],
     ) -> Iterator[RungResult | FoldResult]:
         """A :data:`core.selection.latent_selection.WarmMap`: every candidate's fit on all the
-        touches as one task (its starts as tasks of their own), and every fold's refit of a
+        touches as one task (its starts in the task), and every fold's refit of a
         candidate as one task that depends on the fits of ds up to its candidate's
         (:func:`core.selection.latent_selection.score_warm_fold`), so Dask starts it as soon
         as those are done, while the larger candidates are still being fitted."""
         stop_event = f"stop-{uuid.uuid4().hex[:8]}"
         if isinstance(rung_plan.fit, FoldFit):
-            rung_plan = dataclasses.replace(rung_plan, fit=_on_workers(rung_plan.fit, stop_event))
+            whole = _on_workers(rung_plan.fit, stop_event)
+            rung_plan = dataclasses.replace(
+                rung_plan, fit=dataclasses.replace(whole, starts_as_tasks=False)
+            )
         if isinstance(fold_plan.fit, FoldFit):
             fit = _on_workers(fold_plan.fit, stop_event)
             refit = None if fold_plan.refit is None else fit.refit
@@ -253,7 +265,12 @@ class FitEngine:
             )
             fitted = {
                 task.latent_dim: client.submit(
-                    fit_rung, rung_remote, task, pure=False, key=f"rung-{task.latent_dim}-{prefix}"
+                    fit_rung,
+                    rung_remote,
+                    task,
+                    pure=False,
+                    key=f"rung-{task.latent_dim}-{prefix}",
+                    priority=RUNG_PRIORITY,
                 )
                 for task in rungs
             }
@@ -271,6 +288,7 @@ class FitEngine:
                         *needed,
                         pure=False,
                         key=f"fold-{task.fold}-{c}-{prefix}",
+                        priority=c,
                     )
                 )
             return set(fitted.values()) | refits

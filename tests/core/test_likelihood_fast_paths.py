@@ -18,7 +18,7 @@ from core.errors import InvalidInputError, NotPositiveDefiniteError
 from core.gp.likelihood import ManifoldLikelihood, feature_data
 from core.gp.linalg import inverse_from_cholesky, upper_triangular_inverse, weighted_gram_difference
 from core.gp.parameters import ParameterLayout, initial_hyperparameters
-from core.types import TrainingData
+from core.types import Hyperparameters, TrainingData
 
 #: Relative agreement of two exact evaluations (values are O(10²), gradients O(10²)).
 TOLERANCE = 1e-9
@@ -97,6 +97,34 @@ def test_noise_free_gram_matches_the_product_kernel() -> None:
         )
         expected = hyper.signal_variance[a] * np.exp(-0.5 * sq_s) * np.exp(-0.5 * sq_x)
         np.testing.assert_allclose(gram[a], expected, rtol=1e-13, atol=1e-15)
+
+
+def test_far_apart_objects_give_zeros_not_subnormal_numbers() -> None:
+    """Objects many latent length-scales apart: their kernel entries (down to 10⁻³²⁴, subnormal
+    numbers the processor computes with slowly) become exact zeros below 10⁻⁵⁰ σ_f², and the
+    value and gradient still agree with the direct formula, which keeps every entry."""
+    data, vector = _problem(4, [30, 25, 35, 20], 1, 2, 1, seed=11)
+    layout = ParameterLayout.for_data(data, 1)
+    _, hyper = layout.unpack(vector)
+    spread = np.array([[0.0], [20.0], [40.0], [60.0]])
+    short = Hyperparameters(
+        hyper.signal_variance,
+        hyper.noise_variance,
+        np.full_like(hyper.latent_lengthscales, 1.6),
+        hyper.action_lengthscales,
+    )
+    vector = layout.pack(spread, short)
+    likelihood = ManifoldLikelihood(data, 1)
+    gram = likelihood.noise_free_gram(vector)
+    tiny = np.finfo(np.float64).tiny
+    floor = hyper.signal_variance[:, None, None] * 10.0**-50
+    assert np.any(gram == 0.0)  # the far blocks (exp(-20²/(2·1.6²)) ≈ 10⁻⁶⁸ and below)
+    assert not np.any((gram != 0.0) & (np.abs(gram) < floor))
+    assert not np.any((gram != 0.0) & (np.abs(gram) < tiny))
+    value_ref, grad_ref = direct_value_and_gradient(data, spread, short)
+    value, grad = likelihood.value_and_gradient(vector)
+    assert value == pytest.approx(value_ref, rel=TOLERANCE)
+    assert _relative(grad, grad_ref) <= TOLERANCE
 
 
 def _spd(n: int, seed: int) -> np.ndarray:
