@@ -175,8 +175,9 @@ def calibration_fields(model: ManifoldModel) -> dict[str, Any]:
             "variance": [float(v) for v in model.shift_variance],
             "space": "action",
             "estimator": (
-                "maximum likelihood on the training touches' leave-one-out residuals through the "
-                "slope of the mean (docs/calibration.md, the input shift)"
+                "non-negative least squares on the cross-products of leave-one-placement-out "
+                "residuals of touches sharing a placement, through the slope of the mean "
+                "(docs/calibration.md, the input shift)"
             ),
         }
     if model.latent_covariance is not None:
