@@ -27,10 +27,9 @@ folds a fold's candidates depend on each other (ds = k starts from ds = k - 1), 
 the unit of work there. The starts of every fit in a fold's task run as tasks of their own
 (:func:`worker_start_map`), so the last folds of a run spread over every worker; the polish of a
 fit's best starts runs after its starts, where the fit runs. The candidates' fits of
-:meth:`FitEngine.warm_map` do not do that: there the 25 refits fill the workers, and a fit whose
-task leaves its worker's thread pool while its starts run comes back to polish on the worker it
-began on, beside the other fits that began there (three polishes shared one core while the
-other core idled for 30 s; docs/fitting.md, "Fits on workers").
+:meth:`FitEngine.warm_map` do not do that: there the refits fill the workers, and a fit whose
+task left its worker's thread pool while its starts ran would come back to polish on the worker
+it began on, beside the other fits that began there (docs/fitting.md, "Fits on workers").
 
 Stopping: the ``stop`` callable is polled every :data:`POLL_S` while tasks run; when it raises
 (or the caller is interrupted), the pending tasks are cancelled and a local cluster is closed,
@@ -249,10 +248,8 @@ class FitEngine:
         as those are done, while the larger candidates are still being fitted."""
         stop_event = f"stop-{uuid.uuid4().hex[:8]}"
         if isinstance(rung_plan.fit, FoldFit):
-            whole = _on_workers(rung_plan.fit, stop_event)
-            rung_plan = dataclasses.replace(
-                rung_plan, fit=dataclasses.replace(whole, starts_as_tasks=False)
-            )
+            whole = _on_workers(rung_plan.fit, stop_event, starts_as_tasks=False)
+            rung_plan = dataclasses.replace(rung_plan, fit=whole)
         if isinstance(fold_plan.fit, FoldFit):
             fit = _on_workers(fold_plan.fit, stop_event)
             refit = None if fold_plan.refit is None else fit.refit
@@ -356,8 +353,11 @@ def _score_warm_fold(plan: FoldPlan, task: FoldTask, *rungs: RungResult) -> Fold
     return score_warm_fold(plan, task, rungs)
 
 
-def _on_workers(fit: FoldFit, stop_event: str) -> FoldFit:
+def _on_workers(fit: FoldFit, stop_event: str, starts_as_tasks: bool = True) -> FoldFit:
     """The fit as a worker runs it: on one thread (a worker is one thread of the cluster), its
-    starts as tasks of their own, ending when ``stop_event`` is set."""
+    starts as tasks of their own (unless ``starts_as_tasks`` is false: then one after another
+    in the fit's task), ending when ``stop_event`` is set."""
     options = dataclasses.replace(fit.options, threads=1)
-    return dataclasses.replace(fit, options=options, starts_as_tasks=True, stop_event=stop_event)
+    return dataclasses.replace(
+        fit, options=options, starts_as_tasks=starts_as_tasks, stop_event=stop_event
+    )
