@@ -137,10 +137,6 @@ class ManifoldLikelihood:
             ``None``: independent noise. Shape (dy,).
     """
 
-    #: Above this many entries (dx · N²) the per-dimension squared action differences are not
-    #: cached and are recomputed at every evaluation.
-    CACHE_LIMIT = 16_000_000
-
     def __init__(
         self,
         data: TrainingData,
@@ -169,14 +165,11 @@ class ManifoldLikelihood:
         actions = data.actions[order] - data.actions.mean(axis=0)
         self._actions = np.ascontiguousarray(actions)
         self._order = order
+        self._touch_object = data.object_index[order]
         self._centred = np.ascontiguousarray((data.observations[order] - data.observation_mean).T)
         self._counts = data.touches_per_object()
         self._starts = np.concatenate([[0], np.cumsum(self._counts)[:-1]]).astype(np.intp)
-        n, dx = actions.shape
-        self._sq_actions: FloatArray | None = None
-        if dx * n * n <= self.CACHE_LIMIT:
-            diff = actions.T[:, :, None] - actions.T[:, None, :]  # (dx, N, N)
-            self._sq_actions = np.ascontiguousarray((diff**2).reshape(dx, n * n))
+        n = actions.shape[0]
         self._diag = np.arange(n) * (n + 1)
         self.max_jitter = 0.0
         self.evaluations = 0
@@ -207,10 +200,8 @@ class ManifoldLikelihood:
     def noise_free_gram(self, vector: FloatArray) -> FloatArray:
         """K_f,a = σ_f,a² K^s_a[obj, obj] ∘ K^x_a for every feature, docs/method.md eq. (M1).
 
-        Rows and columns are in the internal (object-sorted) order. Built as one exponential
-        per entry: exp(log σ_f² - ½ Σ_d (s_d - s_d')²/ℓ^s_d² - ½ Σ_d (x_d - x_d')²/ℓ^x_d²), the
-        action part by one GEMM over the cached squared differences, the latent part (constant
-        on object blocks) added block row by block row. Shape (dy, N, N).
+        Rows and columns are in the internal (object-sorted) order (:meth:`gram_rows`).
+        Shape (dy, N, N).
         """
         latents, log_sf, _, log_ls, log_lx = self.layout.split(vector)
         return self.gram_rows(latents, log_sf, log_ls, log_lx)
@@ -222,6 +213,16 @@ class ManifoldLikelihood:
         matrix of each feature, or the one unit-variance K of tied kernels), in the internal
         order.
 
+        Each touch i gets its scaled coordinates z_i = [x_i / ℓ^x_r, s_obj(i) / ℓ^s_r] (actions
+        and latents centred: differences are shift invariant), and the exponent
+        log σ_f² - ½ |z_i - z_j|² = (log σ_f² - ½|z_i|²) + z_i·z_j - ½|z_j|² is one GEMM of
+        the augmented rows [z_i, log σ_f² - ½|z_i|², 1] and [z_j, 1, -½|z_j|²]: a single
+        pass that writes the N × N matrix, then the exponentials. Cheaper than adding
+        cached per-dimension squared differences and the latent blocks (several passes over
+        N² numbers: docs/fitting.md, "The Gram matrix in one GEMM"). The expanded form loses
+        ~ε|z|² absolutely, so the diagonal is set exactly and no exponent is let above
+        log σ_f².
+
         Args:
             latents: S. Shape (L, ds).
             log_sf: log σ_f² per row. Shape (R,).
@@ -231,39 +232,38 @@ class ManifoldLikelihood:
         Returns:
             Shape (R, N, N).
         """
-        dy = log_sf.shape[0]
-        n = self.data.n_touches
-        inv_lx2 = np.exp(-2.0 * log_lx)  # (dy, dx)
-        if self._sq_actions is not None:
-            exponent = ((-0.5 * inv_lx2) @ self._sq_actions).reshape(dy, n, n)
-        else:
-            x_scaled = self._actions[None, :, :] * np.sqrt(inv_lx2)[:, None, :]
-            half_norms = -0.5 * np.sum(x_scaled**2, axis=2)  # (dy, N)
-            exponent = np.empty((dy, n, n))
-            for a in range(dy):
-                # -½ |x - x'|² = x·x' - ½|x|² - ½|x'|², never above 0
-                np.matmul(x_scaled[a], x_scaled[a].T, out=exponent[a])
-                exponent[a] += half_norms[a][:, None]
-                exponent[a] += half_norms[a][None, :]
-            np.minimum(exponent, 0.0, out=exponent)
-        diff = latents[:, None, :] - latents[None, :, :]  # (L, L, ds)
-        latent_part = np.einsum("lmd,ad->alm", diff**2, -0.5 * np.exp(-2.0 * log_ls))
-        latent_part += log_sf[:, None, None]  # log(σ_f² K^s), (dy, L, L)
-        rows = np.repeat(latent_part, self._counts, axis=2)  # (dy, L, N)
-        for obj, (first, count) in enumerate(zip(self._starts, self._counts, strict=True)):
-            if count:
-                exponent[:, first : first + count, :] += rows[:, obj, None, :]
+        rows = log_sf.shape[0]
+        n, dx = self._actions.shape
+        ds = latents.shape[1]
+        centred_latents = (latents - latents.mean(axis=0))[self._touch_object]  # (N, ds)
+        exponent = np.empty((rows, n, n))
+        left = np.empty((n, dx + ds + 2))
+        right = np.empty((n, dx + ds + 2))
+        left[:, -1] = 1.0
+        right[:, -2] = 1.0
+        for r in range(rows):
+            z = left[:, : dx + ds]
+            np.multiply(self._actions, np.exp(-log_lx[r]), out=z[:, :dx])
+            np.multiply(centred_latents, np.exp(-log_ls[r]), out=z[:, dx:])
+            half = -0.5 * np.einsum("nd,nd->n", z, z)
+            right[:, : dx + ds] = z
+            right[:, -1] = half
+            left[:, -2] = half + log_sf[r]
+            np.matmul(left, right.T, out=exponent[r])
         cutoff = log_sf + LOG_KERNEL_FLOOR
 
         def exponentials(a: int) -> None:
+            matrix = exponent[a]
+            np.minimum(matrix, log_sf[a], out=matrix)
+            matrix.ravel()[self._diag] = log_sf[a]
             # Entries below the floor become exact zeros (exp(-inf)), not subnormal numbers.
-            np.copyto(exponent[a], -np.inf, where=exponent[a] < cutoff[a])
-            np.exp(exponent[a], out=exponent[a])
+            np.copyto(matrix, -np.inf, where=matrix < cutoff[a])
+            np.exp(matrix, out=matrix)
 
         # The exponentials (a fifth of an evaluation at N = 800) on the feature threads, a
         # feature's matrix each: entrywise, so the same numbers on any number of threads.
-        self._per_feature(exponentials, exponent.shape[0])
-        return np.asarray(exponent, dtype=np.float64)
+        self._per_feature(exponentials, rows)
+        return exponent
 
     def _noisy(self, gram_free: FloatArray, noise: float, feature: int) -> FloatArray:
         """K_a: a copy of K_f,a plus σ_n² I, and with a placement variance σ_b² Z Zᵀ (on the
@@ -417,19 +417,15 @@ class ManifoldLikelihood:
         rows, n = products.shape[0], products.shape[1]
         halves = products.reshape(rows, n * n)
         diagonals = halves[:, self._diag]  # (R, N)
-        lower_blocks = np.add.reduceat(
-            np.add.reduceat(products, self._starts, axis=2), self._starts, axis=1
-        )  # Pᵀ X P, (R, L, L)
+        partial = np.add.reduceat(products, self._starts, axis=2)  # X P, (R, N, L)
+        lower_blocks = np.add.reduceat(partial, self._starts, axis=1)  # Pᵀ X P, (R, L, L)
         g_sf = np.sum(lower_blocks, axis=(1, 2)) - 0.5 * np.sum(diagonals, axis=1)
-        if self._sq_actions is not None:
-            # Σ X ∘ Δ_d for all features in one GEMM (the cached differences read once).
-            g_lx = (self._sq_actions @ halves.T).T * inv_lx2
-        else:
-            x = self._actions
-            squares = x**2
-            g_lx = (np.sum(products, axis=2) + np.sum(products, axis=1)) @ squares
-            g_lx -= 2.0 * np.einsum("and,nd->ad", products @ x, x)
-            g_lx *= inv_lx2
+        # Σ_ij X_ij (x_id - x_jd)² = Σ_i (r_i + c_i) x_id² - 2 x_dᵀ X x_d, r and c the row and
+        # column sums of X (zero diagonal of Δ: X's diagonal adds nothing).
+        x = self._actions
+        g_lx = (np.sum(partial, axis=2) + np.sum(products, axis=1)) @ x**2
+        g_lx -= 2.0 * np.einsum("and,nd->ad", products @ x, x)
+        g_lx *= inv_lx2
         blocks = lower_blocks + np.swapaxes(lower_blocks, 1, 2)  # B = Pᵀ M P
         diagonal_blocks = np.add.reduceat(diagonals, self._starts, axis=1)  # (R, L)
         blocks -= diagonal_blocks[:, :, None] * np.eye(self.layout.n_objects)

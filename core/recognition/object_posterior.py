@@ -227,11 +227,17 @@ def _log_densities(
 
 
 def normalise_log_probabilities(log_weights: FloatArray) -> FloatArray:
-    """exp(w - logsumexp(w)): probabilities from unnormalised log-weights. Shape (L,)."""
+    """Probabilities from unnormalised log-weights: exp(w - max w), divided by its sum.
+
+    Not exp(w - logsumexp(w)): at |w| ~ 10⁷ (a trial whose touches lie far outside every
+    object's predictive) logsumexp is only exact to its last bit, ~2·10⁻⁹, and the
+    probabilities would no longer sum to 1. Shape (L,).
+    """
     log_weights = np.asarray(log_weights, dtype=np.float64)
     if not np.all(np.isfinite(log_weights)):
         raise InvalidInputError(f"log_weights: must be finite, received {log_weights}.")
-    return np.asarray(np.exp(log_weights - scipy.special.logsumexp(log_weights)), dtype=np.float64)
+    weights = np.exp(log_weights - log_weights.max())
+    return np.asarray(weights / weights.sum(), dtype=np.float64)
 
 
 def object_posterior(

@@ -262,16 +262,39 @@ def test_wrong_latent_shape_is_named() -> None:
 
 
 @pytest.mark.parametrize("case", CASES[:2], ids=lambda c: c.name)
-def test_uncached_action_distances_give_the_same_result(
-    case: Case, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """Large problems recompute the action distances by the expanded form at every call."""
+def test_gram_in_expanded_form_is_exact_where_it_matters(case: Case) -> None:
+    """The Gram matrix comes from log σ_f² - ½|z_i|² + z_i·z_j - ½|z_j|² (one GEMM), which
+    loses ~ε|z|² where differences do not. Far from the origin (every action and latent shifted
+    by 10³) and at short length-scales it still matches the kernel from the differences to
+    10⁻¹², its diagonal is σ_f² exactly and no entry exceeds it, because actions and latents are
+    centred first and the exponent is capped at log σ_f²."""
     data, vector = random_points(case)[0]
-    cached = ManifoldLikelihood(data, case.latent_dim)
-    monkeypatch.setattr(ManifoldLikelihood, "CACHE_LIMIT", 0)
-    uncached = ManifoldLikelihood(data, case.latent_dim)
-    value, grad = cached.value_and_gradient(vector)
-    value2, grad2 = uncached.value_and_gradient(vector)
-    assert value2 == pytest.approx(value, rel=1e-12)
-    np.testing.assert_allclose(grad2, grad, rtol=1e-8, atol=1e-10)
-    assert uncached.value(vector) == pytest.approx(value, rel=1e-12)
+    far = TrainingData(
+        actions=data.actions + 1e3,
+        observations=data.observations,
+        object_index=data.object_index,
+        object_names=data.object_names,
+    )
+    likelihood = ManifoldLikelihood(far, case.latent_dim)
+    latents, hyper = likelihood.layout.unpack(vector)
+    short = Hyperparameters(
+        hyper.signal_variance,
+        hyper.noise_variance,
+        0.05 * hyper.latent_lengthscales,
+        0.05 * hyper.action_lengthscales,
+    )
+    vector = likelihood.layout.pack(latents + 1e3, short)
+    gram = likelihood.noise_free_gram(vector)
+    order = np.argsort(far.object_index, kind="stable")
+    s, x = (latents + 1e3)[far.object_index[order]], far.actions[order]
+    for a in range(case.observation_dim):
+        exponent = -0.5 * (
+            np.sum(((s[:, None] - s[None]) / short.latent_lengthscales[a]) ** 2, axis=2)
+            + np.sum(((x[:, None] - x[None]) / short.action_lengthscales[a]) ** 2, axis=2)
+        )
+        expected = short.signal_variance[a] * np.exp(exponent)
+        # (entries below 10⁻⁵⁰ σ_f² are exact zeros: LOG_KERNEL_FLOOR)
+        floor = 1e-50 * short.signal_variance[a]
+        np.testing.assert_allclose(gram[a], expected, rtol=1e-12, atol=floor)
+        assert np.all(np.diag(gram[a]) == short.signal_variance[a])
+        assert np.all(gram[a] <= short.signal_variance[a])

@@ -57,19 +57,14 @@ def _relative(value: np.ndarray, reference: np.ndarray) -> float:
         (5, [30, 2, 20, 10, 21], 1, 1, 1),  # an object with two touches, N = 83
     ],
 )
-@pytest.mark.parametrize("cached", [True, False])
 def test_value_and_gradient_match_the_direct_formula(
     n_objects: int,
     counts: list[int],
     dx: int,
     dy: int,
     ds: int,
-    cached: bool,
-    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     data, vector = _problem(n_objects, counts, dx, dy, ds, seed=sum(counts))
-    if not cached:
-        monkeypatch.setattr(ManifoldLikelihood, "CACHE_LIMIT", 0)
     likelihood = ManifoldLikelihood(data, ds)
     latents, hyper = likelihood.layout.unpack(vector)
     value_ref, grad_ref = direct_value_and_gradient(data, latents, hyper)

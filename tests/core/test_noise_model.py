@@ -231,15 +231,18 @@ def test_wildly_different_scales_give_the_same_fit() -> None:
     scaled = TrainingData(
         data.object_names, data.object_index, data.actions, data.observations * scales + 7.0
     )
-    options = FitOptions(restarts=0)
+    # Run to L-BFGS-B's own convergence: the stall rules stop wherever the path slows, and two
+    # paths that differ by round-off slow at points ~0.01 nats apart.
+    options = FitOptions(restarts=0, stall_nats=0.0, stall_relative=0.0, joint_stall_nats=0.0)
     a = fit_manifold(data, 1, np.random.default_rng(0), options, noise_model="independent")
     b = fit_manifold(scaled, 1, np.random.default_rng(0), options, noise_model="independent")
-    # Standardised, both see the same numbers up to round-off (the optimiser's stopping point
-    # moves by ~1e-6).
-    np.testing.assert_allclose(a.latents, b.latents, atol=1e-4)
+    # Standardised, both see the same numbers up to round-off and reach the same optimum; its
+    # valley is flat along the latents (points 0.01 apart within 10⁻⁵ nats), so they agree to
+    # a few hundredths, against a spread of 2.3.
+    np.testing.assert_allclose(a.latents, b.latents, atol=0.03)
     # Raw-unit likelihoods differ by the scales' Jacobian.
     shift = -data.n_touches * np.log(scales).sum()
-    assert b.log_likelihood == pytest.approx(a.log_likelihood + shift, abs=1e-3)
+    assert b.log_likelihood == pytest.approx(a.log_likelihood + shift, abs=1e-4)
 
 
 def test_correlated_fit_recovers_the_noise_correlation() -> None:

@@ -16,7 +16,8 @@ from core.evaluation.trial_engine import PlannedTouches, WorldTouches, iter_tria
 from core.evaluation.worlds import EXPERIMENT1_THETAS, Experiment1World, sample_experiment1
 from core.gp.posterior import condition, predict
 from core.recognition.moments import action_statistics, predictive_moments, update_belief
-from core.recognition.object_posterior import object_posterior
+from core.recognition.object_mixture import ObjectMixture
+from core.recognition.object_posterior import normalise_log_probabilities, object_posterior
 from core.recognition.planning import ActivePolicy, FixedPolicy, PassivePolicy, Planner
 from core.recognition.session import (
     OBJECT_COMPONENT_VARIANCE,
@@ -256,3 +257,18 @@ def test_bad_input_is_rejected_with_the_argument_named(
         RecognitionSession(other, active, None, None)
     with pytest.raises(InvalidInputError, match="observations"):
         object_posterior(model, np.zeros((2, 1)), np.zeros((3, 3)))
+
+
+@pytest.mark.parametrize("scale", [1.0, 1e4, 1e7, 1e12])
+def test_probabilities_sum_to_one_at_any_magnitude_of_the_log_weights(scale: float) -> None:
+    """A trial far outside every object's predictive has log-likelihoods of -10⁷ and below;
+    its probabilities must still sum to 1 (an object mixture refuses more than 10⁻⁹ off) and
+    keep the ratios exp(w_i - w_j)."""
+    rng = np.random.default_rng(int(np.log10(scale)))
+    offsets = np.array([0.0, -0.5, -3.0, -40.0, -800.0])
+    log_weights = -scale * (1.0 + rng.random()) + offsets
+    p = normalise_log_probabilities(log_weights)
+    assert abs(p.sum() - 1.0) <= 4 * np.finfo(float).eps
+    assert p[1] / p[0] == pytest.approx(np.exp(-0.5), rel=1e-6 if scale > 1e10 else 1e-9)
+    assert p[4] == 0.0
+    ObjectMixture(np.zeros((5, 1)), p, np.eye(1))
