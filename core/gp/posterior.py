@@ -303,15 +303,11 @@ def _condition_dense(
         else:
             factor, jitter[a] = cholesky_with_jitter(gram, what=f"Gram matrix of feature {a}")
             beta[a] = scipy.linalg.cho_solve((factor, True), centred[:, a], check_finite=False)
-            gram_inverse[a] = scipy.linalg.cho_solve(
-                (factor, True), np.eye(n), check_finite=False
-            )
+            gram_inverse[a] = scipy.linalg.cho_solve((factor, True), np.eye(n), check_finite=False)
             log_det = log_det_from_cholesky(factor)
         # docs/method.md eq. (M2)
         log_likelihood += (
-            -0.5 * float(centred[:, a] @ beta[a])
-            - 0.5 * log_det
-            - 0.5 * n * np.log(2.0 * np.pi)
+            -0.5 * float(centred[:, a] @ beta[a]) - 0.5 * log_det - 0.5 * n * np.log(2.0 * np.pi)
         )
     latents.flags.writeable = False
     for array in (beta, gram_inverse, jitter):
