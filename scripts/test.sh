@@ -7,7 +7,7 @@ scripts/install_browser.sh
 export PATH="$PWD/.venv/bin:$PATH"
 # One BLAS thread per process: the problems are small and the machines have 2 shared cores.
 export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1
-echo "== ruff"; ruff check . && ruff format --check .
+echo "== ruff"; ruff check .; ruff format --check .
 echo "== mypy"; mypy core hardware app bench
 echo "== import-linter"; lint-imports
 echo "== pytest"

@@ -21,7 +21,6 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-import scipy.special
 
 from core.errors import InvalidInputError
 from core.gp.placement_effect import trial_log_likelihoods
