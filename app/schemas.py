@@ -605,7 +605,8 @@ class CollectionCreate(BaseModel):
     table's own spread on the mock rig (its ``action_std``), 1.0 on a real rig; the run's
     ``params`` record the spread used. ``placements`` (P per object, each touched about
     ``samples_per_object`` / P times in a row; every stored sample records its placement, and a
-    fit estimates the placement effect from them): left out, two touches per placement
+    fit estimates the placement effect from them): left out, three placements for every four
+    touches, half the touches in pairs and half placed anew
     (:func:`app.services.collections.default_placements`); the run's ``params`` record the
     placements used.
     """
@@ -624,8 +625,10 @@ class CollectionCreate(BaseModel):
             "Placements per object P: each object is placed P times and touched about "
             "samples_per_object / P times in a row at each placement, and every sample records "
             "its placement, so that a fit estimates how much one placement shifts a trial's "
-            "touches alike (the model's placement_effect). Null: two touches per placement "
-            "(P = samples_per_object / 2); P = samples_per_object places every touch anew. "
+            "touches alike (the model's placement_effect). Null: three placements for every four "
+            "touches (P = samples_per_object - samples_per_object // 4, at least one pair: half "
+            "the touches in pairs, half placed anew); P = samples_per_object places every touch "
+            "anew. "
             "At least one per stage of the design (the adaptive design touches in up to 3 "
             "stages, each with placements of its own)."
         ),

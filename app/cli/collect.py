@@ -23,12 +23,13 @@ than 3 touches), said in a note and in the summary's ``design_note``
 (:func:`app.services.collections.default_design`).
 
 Every touch records its placement in the CSV's ``placement`` column. ``--placements P`` places
-each object P times and touches it N/P times in a row at each; by default P = N/2, two touches per
-placement (:func:`app.services.collections.default_placements`): a recognition trial places its
+each object P times and touches it N/P times in a row at each; by default P = N - N//4, three
+placements for every four touches: half the touches in pairs, half placed anew
+(:func:`app.services.collections.default_placements`): a recognition trial places its
 object once and touches it several times, and the fit estimates from such runs how much one
 placement (and the drift of its minutes) shifts a trial's touches alike (docs/calibration.md,
-"Fix 1" and "Pairs by default"). ``--placements N`` places every touch anew. The adaptive design's
-stages each get placements of their own
+"Fix 1" and "Three placements for every four touches"). ``--placements N`` places every touch
+anew. The adaptive design's stages each get placements of their own
 (:func:`app.services.collections.stage_placements`).
 
 Every touch also records when it was made in the CSV's ``time_s`` column: seconds from the start
@@ -332,8 +333,9 @@ def collect_command(
             "--placements",
             help="Place each object P times and touch it touches/P times in a row per "
             "placement (recorded in a 'placement' column; fit estimates from such runs how much "
-            "one placement shifts a trial's touches alike). Default: P = --touches / 2, two "
-            "touches per placement; P = --touches places every touch anew.",
+            "one placement shifts a trial's touches alike). Default: P = --touches - --touches // "
+            "4 (three placements for every four touches: half the touches in pairs, half "
+            "placed anew); P = --touches places every touch anew.",
         ),
     ] = None,
     as_json: AsJson = False,

@@ -15,8 +15,8 @@ between every pair of touches t, u and every pair of features (docs/method.md, "
 shift"). The shift is object-dependent through the slope: two objects that differ only beyond
 a threshold depth are told apart less surely by a press near that threshold.
 
-σ_δ² is estimated from the training touches that share a placement (a collection places each
-object once for every two touches): leave the whole placement out, and the residuals of two of
+σ_δ² is estimated from the training touches that share a placement (by default a collection
+touches half its touches in pairs): leave the whole placement out, and the residuals of two of
 its touches i, j covary, beyond what the fitted model (its σ_b² included) predicts, by
 J_i diag(σ_δ²) J_jᵀ. Those cross-products are linear in σ_δ², so a non-negative least-squares
 fit over every pair gives the estimate (:func:`shared_shift_variance`). Only the part of the

@@ -64,7 +64,7 @@ def test_collect_with_placements_touches_each_placement_in_a_row(tmp_path: Path)
     np.testing.assert_array_equal(data.placement_index, [0, 0, 0, 0, 1, 1, 1, 1])
 
 
-def test_the_default_collection_touches_every_placement_twice_and_records_it(
+def test_the_default_collection_has_three_placements_for_every_four_touches_and_records_them(
     tmp_path: Path,
 ) -> None:
     out = tmp_path / "adaptive.csv"
@@ -75,17 +75,20 @@ def test_the_default_collection_touches_every_placement_twice_and_records_it(
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     summary = json.loads(result.stdout)
-    # Adaptive: 4 random touches, then rounds of 2 and 2; a placement for every two touches,
-    # numbered on through the stages.
+    # Adaptive: 4 random touches, then rounds of 2 and 2; 8 - 8 // 4 = 6 placements, split
+    # 3, 2, 1 over the stages (a pair and two singles, two singles, a pair), numbered on
+    # through the stages.
     assert summary["design"] == "adaptive"
-    assert summary["placements"] == 4
+    assert summary["placements"] == 6
     data = read_training_csv(out.read_text())
     assert data.placement_index is not None
     for obj in range(2):
         placement = data.placement_index[data.object_index == obj]
-        np.testing.assert_array_equal(placement, [0, 0, 1, 1, 2, 2, 3, 3])
-    # The table turns between placements only: each object is touched twice in a row.
-    np.testing.assert_array_equal(data.object_index, [0, 0, 1, 1] * 4)
+        np.testing.assert_array_equal(placement, [0, 0, 1, 2, 3, 4, 5, 5])
+    # The table turns between placements only: a pair's touches follow each other.
+    np.testing.assert_array_equal(
+        data.object_index, [0, 0, 1, 1, 0, 1, 0, 1, 0, 1, 0, 1, 0, 0, 1, 1]
+    )
 
 
 def test_runs_of_placements_in_every_stage_of_the_adaptive_design(tmp_path: Path) -> None:
@@ -110,10 +113,12 @@ def test_runs_of_placements_in_every_stage_of_the_adaptive_design(tmp_path: Path
 def test_placements_are_split_over_the_stages() -> None:
     assert stage_sizes("adaptive", 100) == [50, 25, 25]
     assert stage_sizes("random", 100) == [100]
-    assert default_placements([50, 25, 25]) == 50  # a placement for every two touches
-    assert default_placements([3]) == 2
-    assert default_placements([3, 2, 1]) == 3  # at least one per stage
-    assert default_placements([1, 1, 1]) == 3
+    assert default_placements([50, 25, 25]) == 75  # three placements for every four touches
+    assert default_placements([4, 2, 2]) == 6
+    assert default_placements([3]) == 2  # at least one pair
+    assert default_placements([2]) == 1
+    assert default_placements([1]) == 1
+    assert default_placements([1, 1, 1]) == 3  # at least one per stage
     assert stage_placements(20, [50, 25, 25]) == [10, 5, 5]
     assert stage_placements(3, [50, 25, 25]) == [1, 1, 1]
     assert stage_placements(100, [50, 25, 25]) == [50, 25, 25]

@@ -49,13 +49,17 @@ def placements_of(data: TrainingData, obj: int) -> list[int]:
 
 
 def test_a_collection_records_placements_in_every_stage(client: TestClient) -> None:
-    # The default: adaptive, 8 touches in stages of 4, 2, 2, a placement for every two touches.
+    # The default: adaptive, 8 touches in stages of 4, 2, 2, three placements for every four
+    # touches (a pair and two singles, two singles, a pair).
     run, data = collected(client, samples_per_object=8, action_scale=0.5)
     assert run["params"]["action_design"] == "adaptive"
-    assert run["params"]["placements"] == 4
+    assert run["params"]["placements"] == 6
+    runs = [0, 0, 1, 2, 3, 4, 5, 5]
     for obj in range(len(CUPS)):
-        assert placements_of(data, obj) == [0, 0, 1, 1, 2, 2, 3, 3]
-    np.testing.assert_array_equal(data.object_index, [0, 0, 1, 1, 2, 2] * 4)
+        assert placements_of(data, obj) == runs
+    # The table turns between placements only: a pair's touches follow each other.
+    order = [obj for p in range(6) for obj in range(len(CUPS)) for _ in range(runs.count(p))]
+    np.testing.assert_array_equal(data.object_index, order)
     # Runs: 3 placements, one per stage: the table turns only between placements.
     run, data = collected(client, samples_per_object=6, action_scale=0.5, placements=3)
     assert run["params"]["placements"] == 3

@@ -250,7 +250,7 @@ def test_collection_through_the_ui(page: Any, demo: Demo) -> None:
     placements = page.get_by_test_id("collection-placements")
     expect(placements).to_have_value("")
     expect(page.get_by_test_id("collection-placements-help")).to_contain_text(
-        "Empty: the default, two touches per placement"
+        "Empty: the default, three placements for every four touches"
     )
     placements.fill("2")
     before = len(demo.get("/datasets")["data"])
