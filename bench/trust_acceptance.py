@@ -18,7 +18,12 @@ so an interrupted run resumes and anyone can rerun it):
 (``--table-file F`` in place of ``--table T``; the first collection takes ``collect``'s default
 design, the adaptive one, with its default placements, or ``--placements P``; the held-out
 collection is a random design with a fresh placement for every touch, as recorded data are, and
-never seen by the fit; n = ⌈trials / objects⌉ trials per target.) The trials run in the
+never seen by the fit; n = ⌈trials / objects⌉ trials per target.) With ``--heldout-sessions K``
+(> 1) K held-out sessions are collected the same way (seeds S+1 … S+K, a fresh simulated rig
+each: ``heldout.csv``, then ``heldout-2.csv`` …), replayed one by one, and the replay's criteria
+judged on their trials pooled (:func:`pooled_report`); each session's own figures are printed
+too. One session's thermal offset is one draw shared by all its replayed trials
+(docs/calibration.md, "Replay on four held-out sessions of the cushions"). The trials run in the
 evaluation engine behind ``activetouch evaluate`` (Dask ``LocalCluster`` of ``--workers``); this
 module only reads the reports.
 
@@ -31,8 +36,8 @@ rig within 10 points at T for every policy. ``paper exp1`` and ``bench/correlate
 separate benches and are named as not run here.
 
 Run: ``python -m bench.trust_acceptance (--table cushions | --table-file F) [--trials 200]
-[--workers 2] [--steps 6] [--touches 100] [--heldout-touches 30] [--seed 0] [--workdir DIR]
-[--json OUT]``. Exit code 1 when a criterion fails.
+[--workers 2] [--steps 6] [--touches 100] [--heldout-touches 30] [--heldout-sessions 1] [--seed 0]
+[--workdir DIR] [--json OUT]``. Exit code 1 when a criterion fails.
 """
 
 from __future__ import annotations
@@ -47,6 +52,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from core.evaluation.records import TrialRecord
+from core.evaluation.summary import summarise
 
 #: The policies compared, the planners first.
 POLICIES = ("active", "discriminative", "passive")
@@ -218,6 +226,63 @@ def assess(documents: Mapping[str, Mapping[str, Any]], cushions: bool) -> list[C
     return criteria
 
 
+def pooled_report(sessions: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """One replay report of the trials of several held-out sessions together.
+
+    The policies' summaries are :func:`core.evaluation.summary.summarise` of every session's
+    trials at once, as ``activetouch evaluate`` summarises one session's: accuracy by touch, its
+    intervals (on the effective number of trials: different sessions share no recorded touch),
+    and the calibration over every answer.
+
+    Args:
+        sessions: ``activetouch-evaluation/2`` replay reports of one model, with the same
+            objects, T and confidence threshold, and their ``trials``.
+
+    Returns:
+        A report with the fields :func:`assess` and :func:`touch_table` read; its
+        ``trials_per_target``, ``seconds`` and ``sessions`` are summed over the sessions.
+
+    Raises:
+        ValueError: No session, or sessions that differ in objects, T or threshold.
+    """
+    if not sessions:
+        raise ValueError("sessions: need at least one replay report to pool.")
+    first = sessions[0]
+    for key in ("objects", "steps", "confidence"):
+        values = [s[key] for s in sessions]
+        if any(v != values[0] for v in values):
+            raise ValueError(f"sessions: the reports differ in {key!r}: {values}.")
+    records = [TrialRecord.from_dict(t) for s in sessions for t in s["trials"] if "answers" in t]
+    return {
+        "world": f"{first['world']} ({len(sessions)} sessions pooled)",
+        "trials_per_target": sum(int(s["trials_per_target"]) for s in sessions),
+        "steps": first["steps"],
+        "seconds": sum(float(s["seconds"]) for s in sessions),
+        "workers": first["workers"],
+        "sessions": len(sessions),
+        "policies": summarise(records, first["objects"], first["steps"], first["confidence"]),
+    }
+
+
+def session_lines(sessions: Sequence[Mapping[str, Any]]) -> list[str]:
+    """Per held-out session and policy: accuracy at touch 1 and T, ECE and sure and wrong."""
+    lines = []
+    for k, document in enumerate(sessions, 1):
+        parts = []
+        for policy in POLICIES:
+            summary = _policy(document, policy)
+            curve = summary["accuracy_by_touch"]
+            scored = summary["calibration"]["all_touches"]
+            sure, wrong = _sure(scored)
+            ece = "—" if scored["ece"] is None else f"{scored['ece']:.3f}"
+            parts.append(
+                f"{policy} {100 * curve[0]:.0f} → {100 * curve[-1]:.1f} %, ECE {ece}, "
+                f"{wrong}/{sure}"
+            )
+        lines.append(f"  session {k}: " + "; ".join(parts))
+    return lines
+
+
 def _null(scored: Mapping[str, Any]) -> str:
     """ " (calibrated: mean, p95)": the ECE these answers would show by sampling alone were they
     calibrated (core.evaluation.calibration.ece_if_calibrated), when the report has it."""
@@ -309,12 +374,15 @@ def run(args: argparse.Namespace, workdir: Path) -> dict[str, dict[str, Any]]:
          seed, "--out", str(train)],
         train,
     )  # fmt: skip
-    _run(
-        [exe, "collect", "--sim", *table, "--touches", str(args.heldout_touches), "--design",
-         "random", "--placements", str(args.heldout_touches), "--seed", str(args.seed + 1),
-         "--out", str(heldout)],
-        heldout,
-    )  # fmt: skip
+    sessions = getattr(args, "heldout_sessions", 1)
+    heldouts = [heldout, *(workdir / f"heldout-{k}.csv" for k in range(2, sessions + 1))]
+    for k, path in enumerate(heldouts, 1):
+        _run(
+            [exe, "collect", "--sim", *table, "--touches", str(args.heldout_touches), "--design",
+             "random", "--placements", str(args.heldout_touches), "--seed",
+             str(args.seed + k), "--out", str(path)],
+            path,
+        )  # fmt: skip
     _run([exe, "fit", str(train), "--out", str(model)], model)
     objects = len(json.loads(model.read_text())["objects"])
     per_target = max(1, math.ceil(args.trials / objects))
@@ -329,6 +397,21 @@ def run(args: argparse.Namespace, workdir: Path) -> dict[str, dict[str, Any]]:
             out,
         )  # fmt: skip
         documents[world] = json.loads(out.read_text())
+    if sessions > 1:
+        replays = [documents["replay"]]
+        for k, path in enumerate(heldouts[1:], 2):
+            out = workdir / f"eval-replay-{k}-n{per_target}-T{args.steps}-s{seed}.json"
+            _run(
+                [exe, "evaluate", "--model", str(model), "--world", "replay", "--data",
+                 str(path), "--policies", ",".join(POLICIES), "--trials", str(per_target),
+                 "--steps", str(args.steps), "--workers", str(args.workers), "--seed", seed,
+                 "--out", str(out)],
+                out,
+            )  # fmt: skip
+            replays.append(json.loads(out.read_text()))
+        print("\nreplay, each held-out session (accuracy touch 1 → T, ECE, wrong/sure):")
+        print("\n".join(session_lines(replays)))
+        documents["replay"] = pooled_report(replays)
     return documents
 
 
@@ -360,6 +443,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--touches", type=int, default=100, help="Training touches per object.")
     parser.add_argument("--heldout-touches", type=int, default=30, help="Held-out, per object.")
     parser.add_argument(
+        "--heldout-sessions",
+        type=int,
+        default=1,
+        help="Held-out sessions replayed, their trials pooled for the replay's criteria.",
+    )
+    parser.add_argument(
         "--placements",
         type=int,
         help="collect --placements of the training collection (default: collect's default).",
@@ -368,8 +457,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--workdir", type=Path, help="Keep (and reuse) every file here.")
     parser.add_argument("--json", type=Path, help="Also write the verdicts here.")
     args = parser.parse_args(argv)
-    if args.trials < 1 or args.steps < 1 or args.workers < 1:
-        parser.error("--trials, --steps and --workers must be ≥ 1")
+    if min(args.trials, args.steps, args.workers, args.heldout_sessions) < 1:
+        parser.error("--trials, --steps, --workers and --heldout-sessions must be ≥ 1")
     with tempfile.TemporaryDirectory() as temporary:
         workdir = args.workdir if args.workdir is not None else Path(temporary)
         workdir.mkdir(parents=True, exist_ok=True)

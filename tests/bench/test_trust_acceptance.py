@@ -8,7 +8,9 @@ from typing import Any
 
 import pytest
 
-from bench.trust_acceptance import POLICIES, assess, touch_table
+from bench.trust_acceptance import POLICIES, assess, pooled_report, session_lines, touch_table
+from core.evaluation.records import TrialRecord
+from core.evaluation.summary import summarise
 
 
 def policy(
@@ -121,3 +123,78 @@ def test_the_touch_table_shows_every_policy_and_touch() -> None:
     lines = touch_table(report("rig", **GOOD))
     assert sum(line.strip().startswith("touch ") for line in lines) == 6 * len(POLICIES)
     assert "    touch 1:  70.0 % ( 65.0– 75.0)  ECE 0.020  sure & wrong 2/100" in lines
+
+
+OBJECTS = ["cup", "mug"]
+
+
+def trial(policy: str, target: str, trial: int, sure_of: list[str], p: float) -> dict[str, Any]:
+    """A two-touch replay trial whose answer after each touch is ``sure_of[t]`` with
+    probability ``p`` (the other object gets 1 - p)."""
+    probabilities = [[p, 1 - p] if a == "cup" else [1 - p, p] for a in sure_of]
+    return TrialRecord(
+        policy=policy,
+        target=target,
+        trial=trial,
+        seed=(0, trial),
+        answers=tuple(sure_of),
+        probabilities=tuple(tuple(row) for row in probabilities),
+        actions=((0.1 * trial, float(len(policy))), (0.2 * trial, 1.0)),
+        mutual_information=(0.1, 0.1),
+        touches=2,
+        stop_reason="max_steps",
+        correct=sure_of[-1] == target,
+    ).to_dict()
+
+
+def session(trials: list[dict[str, Any]], seconds: float = 2.0) -> dict[str, Any]:
+    """A replay report as activetouch evaluate writes it: its trials and their summary."""
+    records = [TrialRecord.from_dict(t) for t in trials]
+    return {
+        "policies": summarise(records, OBJECTS, 2, 0.95),
+        "world": "replay",
+        "objects": OBJECTS,
+        "steps": 2,
+        "confidence": 0.95,
+        "trials_per_target": 1,
+        "seconds": seconds,
+        "workers": 2,
+        "trials": trials,
+    }
+
+
+def test_sessions_pool_into_one_replay_report() -> None:
+    # Session 1: every policy right on the cup at p = 0.99 after both touches. Session 2: every
+    # policy wrong on the mug (sure of the cup, p = 0.99, then 0.6).
+    first = session([trial(pol, "cup", 0, ["cup", "cup"], 0.99) for pol in POLICIES])
+    second = session(
+        [trial(pol, "mug", 1, ["cup", "cup"], 0.99) for pol in POLICIES], seconds=3.0
+    )
+    pooled = pooled_report([first, second])
+    assert pooled["sessions"] == 2 and pooled["trials_per_target"] == 2
+    assert pooled["seconds"] == 5.0 and pooled["steps"] == 2
+    for policy in POLICIES:
+        summary = pooled["policies"][policy]
+        assert summary["trials"] == 2
+        assert summary["accuracy_by_touch"] == [0.5, 0.5]
+        scored = summary["calibration"]["all_touches"]
+        # Four answers at p = 0.99, two right: sure and wrong 2 of 4; ECE |0.5 - 0.99|.
+        assert (scored["sure_and_wrong"]["sure"], scored["sure_and_wrong"]["wrong"]) == (4, 2)
+        assert scored["ece"] == pytest.approx(0.49)
+    # The pooled report is judged and printed like one session's.
+    lines = touch_table(pooled)
+    assert lines[0].startswith("world replay (2 sessions pooled): 2 trials per target")
+    assert assess({"rig": pooled, "model": pooled, "replay": pooled}, cushions=False)
+    assert session_lines([first, second])[1].startswith(
+        "  session 2: active 0 → 0.0 %, ECE 0.990, 2/2"
+    )
+
+
+def test_sessions_of_different_models_do_not_pool() -> None:
+    first = session([trial("active", "cup", 0, ["cup", "cup"], 0.9)])
+    other = session([trial("active", "cup", 0, ["cup", "cup"], 0.9)])
+    other["objects"] = ["cup", "bowl"]
+    with pytest.raises(ValueError, match="differ in 'objects'"):
+        pooled_report([first, other])
+    with pytest.raises(ValueError, match="at least one"):
+        pooled_report([])
