@@ -167,12 +167,10 @@ def test_sessions_pool_into_one_replay_report() -> None:
     # Session 1: every policy right on the cup at p = 0.99 after both touches. Session 2: every
     # policy wrong on the mug (sure of the cup, p = 0.99, then 0.6).
     first = session([trial(pol, "cup", 0, ["cup", "cup"], 0.99) for pol in POLICIES])
-    second = session(
-        [trial(pol, "mug", 1, ["cup", "cup"], 0.99) for pol in POLICIES], seconds=3.0
-    )
+    second = session([trial(pol, "mug", 1, ["cup", "cup"], 0.99) for pol in POLICIES], seconds=3.0)
     pooled = pooled_report([first, second])
-    assert pooled["sessions"] == 2 and pooled["trials_per_target"] == 2
-    assert pooled["seconds"] == 5.0 and pooled["steps"] == 2
+    assert (pooled["sessions"], pooled["trials_per_target"]) == (2, 2)
+    assert (pooled["seconds"], pooled["steps"]) == (5.0, 2)
     for policy in POLICIES:
         summary = pooled["policies"][policy]
         assert summary["trials"] == 2
