@@ -252,7 +252,9 @@ def pooled_report(sessions: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         values = [s[key] for s in sessions]
         if any(v != values[0] for v in values):
             raise ValueError(f"sessions: the reports differ in {key!r}: {values}.")
-    records = [TrialRecord.from_dict(t) for s in sessions for t in s["trials"] if "answers" in t]
+    records = [TrialRecord.from_dict(t) for s in sessions for t in s["trials"]]
+    if not records:
+        raise ValueError("sessions: the reports hold no trials (written without them).")
     return {
         "world": f"{first['world']} ({len(sessions)} sessions pooled)",
         "trials_per_target": sum(int(s["trials_per_target"]) for s in sessions),
@@ -274,13 +276,18 @@ def session_lines(sessions: Sequence[Mapping[str, Any]]) -> list[str]:
             curve = summary["accuracy_by_touch"]
             scored = summary["calibration"]["all_touches"]
             sure, wrong = _sure(scored)
-            ece = "—" if scored["ece"] is None else f"{scored['ece']:.3f}"
+            ece = _ece_text(scored)
             parts.append(
                 f"{policy} {100 * curve[0]:.0f} → {100 * curve[-1]:.1f} %, ECE {ece}, "
                 f"{wrong}/{sure}"
             )
         lines.append(f"  session {k}: " + "; ".join(parts))
     return lines
+
+
+def _ece_text(scored: Mapping[str, Any]) -> str:
+    """A calibration summary's ECE to three decimals, "—" when it has none (no answers)."""
+    return "—" if scored["ece"] is None else f"{scored['ece']:.3f}"
 
 
 def _null(scored: Mapping[str, Any]) -> str:
@@ -316,7 +323,7 @@ def touch_table(document: Mapping[str, Any]) -> list[str]:
             1,
         ):
             sure, wrong = _sure(scored)
-            ece = "—" if scored["ece"] is None else f"{scored['ece']:.3f}"
+            ece = _ece_text(scored)
             shared = f"  n_eff {size:.1f}" if size < summary["trials"] else ""
             lines.append(
                 f"    touch {touch}: {100 * accuracy:5.1f} % ({100 * low:5.1f}–{100 * high:5.1f})"
@@ -324,7 +331,7 @@ def touch_table(document: Mapping[str, Any]) -> list[str]:
             )
         scored = summary["calibration"]["all_touches"]
         sure, wrong = _sure(scored)
-        ece = "—" if scored["ece"] is None else f"{scored['ece']:.3f}"
+        ece = _ece_text(scored)
         lines.append(f"    all touches: ECE {ece}{_null(scored)}  sure & wrong {wrong}/{sure}")
     return lines
 
@@ -374,7 +381,7 @@ def run(args: argparse.Namespace, workdir: Path) -> dict[str, dict[str, Any]]:
          seed, "--out", str(train)],
         train,
     )  # fmt: skip
-    sessions = getattr(args, "heldout_sessions", 1)
+    sessions = args.heldout_sessions
     heldouts = [heldout, *(workdir / f"heldout-{k}.csv" for k in range(2, sessions + 1))]
     for k, path in enumerate(heldouts, 1):
         _run(

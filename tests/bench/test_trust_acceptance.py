@@ -165,7 +165,7 @@ def session(trials: list[dict[str, Any]], seconds: float = 2.0) -> dict[str, Any
 
 def test_sessions_pool_into_one_replay_report() -> None:
     # Session 1: every policy right on the cup at p = 0.99 after both touches. Session 2: every
-    # policy wrong on the mug (sure of the cup, p = 0.99, then 0.6).
+    # policy wrong on the mug (sure of the cup at p = 0.99 after both touches).
     first = session([trial(pol, "cup", 0, ["cup", "cup"], 0.99) for pol in POLICIES])
     second = session([trial(pol, "mug", 1, ["cup", "cup"], 0.99) for pol in POLICIES], seconds=3.0)
     pooled = pooled_report([first, second])
@@ -196,3 +196,6 @@ def test_sessions_of_different_models_do_not_pool() -> None:
         pooled_report([first, other])
     with pytest.raises(ValueError, match="at least one"):
         pooled_report([])
+    without_trials = {**first, "trials": []}
+    with pytest.raises(ValueError, match="hold no trials"):
+        pooled_report([without_trials])
