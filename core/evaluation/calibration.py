@@ -18,6 +18,7 @@ All functions are pure and take arrays:
 
 from __future__ import annotations
 
+from collections.abc import Hashable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -177,6 +178,7 @@ def ece_if_calibrated(
     n_bins: int = DEFAULT_BINS,
     draws: int = NULL_DRAWS,
     seed: int = 0,
+    groups: Sequence[Hashable] | None = None,
 ) -> tuple[float, float]:
     """The ECE these stated probabilities would show by sampling alone, were they calibrated.
 
@@ -185,16 +187,24 @@ def ece_if_calibrated(
     :func:`expected_calibration_error`; the bins' mean confidences are the stated ones). A
     calibrated recogniser scored on n answers shows an ECE of about the draws' mean, not 0: at
     240 answers (40 trials of six touches) about 0.04, at 1,200 about 0.02. An observed ECE is
-    evidence of miscalibration only where it lies above the draws' 95th percentile. A trial's
-    answers are correlated (one posterior, touch after touch), which widens the real spread:
-    these figures are a lower bound on the noise. The draws are seeded, so the figures are a
-    deterministic function of the confidences.
+    evidence of miscalibration only where it lies above the draws' 95th percentile.
+
+    Answers that rest on the same evidence (``groups``: replay trials that took the same
+    recorded touches of the same target have one posterior and one answer) are one event, not
+    several: one draw decides them all, so k copies of an answer weigh like one in the spread
+    (docs/method.md, "Evaluation protocols"). The answers of one trial at successive touches are
+    correlated too (one posterior, touch after touch), which no grouping describes: the figures
+    stay a lower bound on the noise. The draws are seeded, so the figures are a deterministic
+    function of the confidences and the groups.
 
     Args:
         confidence: Probability each answer was given. Shape (n,), in [0, 1].
         n_bins: Bins of width 1 / n_bins.
         draws: Monte Carlo draws.
         seed: Seed of the draws.
+        groups: Evidence of each answer, any hashable labels; equal labels share one draw.
+            Shape (n,). ``None``: every answer is its own (the same draws as all-distinct
+            labels).
 
     Returns:
         (mean, 95th percentile) of the ECE over the draws; ``(nan, nan)`` for no answers.
@@ -204,9 +214,11 @@ def ece_if_calibrated(
         raise InvalidInputError(f"n_bins and draws: must be ≥ 1, received {n_bins} and {draws}.")
     if c.size == 0:
         return float("nan"), float("nan")
+    event = _event_index(groups, c.size)
     members = np.zeros((c.size, n_bins))
     members[np.arange(c.size), _bin_index(c, n_bins)] = 1.0
-    outcomes = np.random.default_rng(seed).random((draws, c.size)) < c  # (draws, n)
+    uniforms = np.random.default_rng(seed).random((draws, int(event.max()) + 1))
+    outcomes = uniforms[:, event] < c  # (draws, n): one uniform per event
     excess = (outcomes - c) @ members  # Σ_{i ∈ b} (right_i − p_i), (draws, bins)
     values = np.abs(excess).sum(axis=1) / c.size
     return float(values.mean()), float(np.percentile(values, 95))
@@ -325,6 +337,7 @@ def calibration(
     threshold: float,
     answers: npt.ArrayLike | None = None,
     n_bins: int = DEFAULT_BINS,
+    groups: Sequence[Hashable] | None = None,
 ) -> Calibration:
     """All the measures at once.
 
@@ -334,6 +347,8 @@ def calibration(
         threshold: Confidence threshold for "sure and wrong" (the stop rule's, typically).
         answers: Object index answered; by default the most probable. Shape (n,).
         n_bins: Bins of the reliability table.
+        groups: The evidence each answer rests on (:func:`ece_if_calibrated`); ``None``: each
+            answer its own.
     """
     confidence, correct = answer_confidence(probabilities, labels, answers)
     n = int(confidence.shape[0])
@@ -349,7 +364,7 @@ def calibration(
         brier=finite(brier_score(probabilities, labels)),
         log_loss=finite(log_loss(probabilities, labels)),
         sure_and_wrong=sure_and_wrong(confidence, correct, threshold),
-        ece_if_calibrated=ece_if_calibrated(confidence, n_bins) if n else None,
+        ece_if_calibrated=ece_if_calibrated(confidence, n_bins, groups=groups) if n else None,
     )
 
 
@@ -366,6 +381,19 @@ def _confidence_and_correct(
     if not np.all(np.isfinite(c)) or np.any((c < 0.0) | (c > 1.0)):
         raise InvalidInputError("confidence: every entry must lie in [0, 1].")
     return c, ok.astype(bool)
+
+
+def _event_index(groups: Sequence[Hashable] | None, n: int) -> IntArray:
+    """Each answer's event, numbered by first appearance (so n distinct labels give 0..n-1)."""
+    if groups is None:
+        return np.arange(n, dtype=np.int64)
+    labels = list(groups)
+    if len(labels) != n:
+        raise InvalidInputError(
+            f"groups: expected {n} labels, one per answer, received {len(labels)}."
+        )
+    first: dict[Hashable, int] = {}
+    return np.array([first.setdefault(label, len(first)) for label in labels], dtype=np.int64)
 
 
 def _bin_index(confidence: FloatArray, n_bins: int) -> IntArray:

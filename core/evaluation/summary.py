@@ -282,19 +282,33 @@ def calibration_summary(
     labels = np.repeat(targets[:, None], steps, axis=1)
     n, t, n_objects = probabilities.shape
 
-    def scored(p: np.ndarray, y: np.ndarray, a: np.ndarray) -> dict[str, Any]:
-        return calibration(p, y, threshold, answers=a, n_bins=n_bins).to_dict()
+    # (n, T) evidence of each answer: replay trials that took the same recorded touches are one
+    # event in the ECE's sampling spread (core.evaluation.calibration.ece_if_calibrated).
+    evidence = [[evidence_key(r, touch) for touch in range(1, steps + 1)] for r in records]
+
+    def scored(p: np.ndarray, y: np.ndarray, a: np.ndarray, groups: list[Any]) -> dict[str, Any]:
+        return calibration(p, y, threshold, answers=a, n_bins=n_bins, groups=groups).to_dict()
 
     by_touch = []
     for touch in range(t):
-        entry = scored(probabilities[:, touch], labels[:, touch], answers[:, touch])
+        entry = scored(
+            probabilities[:, touch],
+            labels[:, touch],
+            answers[:, touch],
+            [keys[touch] for keys in evidence],
+        )
         entry.pop("reliability")
         by_touch.append(entry)
     return {
         "all_touches": scored(
-            probabilities.reshape(n * t, n_objects), labels.reshape(-1), answers.reshape(-1)
+            probabilities.reshape(n * t, n_objects),
+            labels.reshape(-1),
+            answers.reshape(-1),
+            [key for keys in evidence for key in keys],
         ),
-        "final": scored(probabilities[:, -1], labels[:, -1], answers[:, -1]),
+        "final": scored(
+            probabilities[:, -1], labels[:, -1], answers[:, -1], [keys[-1] for keys in evidence]
+        ),
         "by_touch": by_touch,
     }
 

@@ -210,6 +210,29 @@ def test_ece_if_calibrated_is_deterministic_and_shrinks_with_more_answers() -> N
         ece_if_calibrated(np.array([1.5]))
 
 
+def test_answers_on_the_same_evidence_are_one_event_in_the_null() -> None:
+    """Two answers at p = ½ in one bin: drawn apart, the bin's excess is ±1 with probability ¼
+    each and 0 with ½ (ECE ½ or 0, mean ¼); as one event both are right or both wrong, every
+    draw's ECE is exactly ½. k copies of a set of answers weigh like one copy, draw for draw."""
+    half = np.full(2, 0.5)
+    assert ece_if_calibrated(half, groups=["a", "a"]) == (0.5, 0.5)
+    apart, _ = ece_if_calibrated(half, draws=40000)
+    assert apart == pytest.approx(0.25, abs=0.01)
+    # Distinct labels in any order are the ungrouped draws.
+    few = np.random.default_rng(3).uniform(0.3, 1.0, 60)
+    assert ece_if_calibrated(few, groups=[f"t{i}" for i in range(60)]) == ece_if_calibrated(few)
+    copies = np.tile(few, 4)
+    labels = [i % 60 for i in range(240)]
+    assert ece_if_calibrated(copies, groups=labels) == pytest.approx(
+        ece_if_calibrated(few), rel=1e-12
+    )
+    assert ece_if_calibrated(copies)[1] < ece_if_calibrated(few)[1]
+    with pytest.raises(InvalidInputError, match="groups"):
+        ece_if_calibrated(few, groups=[0, 1])
+    result = calibration(np.array([[0.5, 0.5], [0.5, 0.5]]), [0, 0], 0.95, groups=["a", "a"])
+    assert result.ece_if_calibrated == (0.5, 0.5)
+
+
 def test_a_calibrated_recogniser_lies_within_its_sampling_noise() -> None:
     """Labels drawn from the stated posteriors: the observed ECE is of the size of the null's
     mean, and an overconfident posterior of the same answers lies far above its 95th

@@ -5,9 +5,11 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
+from core.evaluation.calibration import ece_if_calibrated
 from core.evaluation.records import TrialRecord, trial_seed
 from core.evaluation.summary import (
     calibration_summary,
@@ -293,3 +295,29 @@ def test_trials_sharing_recorded_touches_count_once_in_the_interval():
     summary = summarise(fresh, NAMES, steps=2, confidence=0.95)["active"]
     assert summary["effective_trials"] == [4.0, 4.0]
     assert summary["accuracy_interval"][0] == pytest.approx(list(wilson_interval(1, 4)))
+
+
+def test_trials_sharing_recorded_touches_are_one_event_in_the_ece_null():
+    """The ECE a calibrated recogniser would show draws one outcome per evidence: the three
+    replay trials that took the same first touch share it, the fourth has its own; the second
+    touches all differ. A trial stopped early carries one answer forward: one event too."""
+    records = [_replayed((0.3,), 0.7, "B", t) for t in range(3)]
+    records.append(_replayed((0.8,), 0.8, "A", 3))
+    scored = summarise(records, NAMES, steps=2, confidence=0.95)["active"]["calibration"]
+    first = [0.7, 0.7, 0.7, 0.8]
+    grouped = ece_if_calibrated(np.array(first), groups=[0, 0, 0, 1])
+    assert grouped != ece_if_calibrated(np.array(first))
+    assert scored["by_touch"][0]["ece_if_calibrated"] == {"mean": grouped[0], "p95": grouped[1]}
+    second = [0.9 + 0.001 * t for t in range(4)]
+    apart = ece_if_calibrated(np.array(second))
+    assert scored["by_touch"][1]["ece_if_calibrated"] == {"mean": apart[0], "p95": apart[1]}
+    every = ece_if_calibrated(
+        np.array([0.7, 0.9, 0.7, 0.901, 0.7, 0.902, 0.8, 0.903]), groups=[0, 1, 0, 2, 0, 3, 4, 5]
+    )
+    assert scored["all_touches"]["ece_if_calibrated"] == {"mean": every[0], "p95": every[1]}
+    stopped = summarise([record("A", ("B",), (0.96,))], NAMES, steps=3, confidence=0.95)
+    carried = ece_if_calibrated(np.full(3, 0.96), groups=[0, 0, 0])
+    assert stopped["active"]["calibration"]["all_touches"]["ece_if_calibrated"] == {
+        "mean": carried[0],
+        "p95": carried[1],
+    }
