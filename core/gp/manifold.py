@@ -260,7 +260,8 @@ def fit_hyperparameters(
     Args:
         data: Training touches.
         latents: Fixed object latents. Shape (L, ds).
-        options: Fit settings (the L-BFGS-B ones, ``structure`` and ``kernels``).
+        options: Fit settings (the L-BFGS-B ones, ``structure``, ``kernels`` and ``threads``:
+            the features' problems on that many threads, the same result as on one).
 
     Returns:
         The model; ``diagnostics`` describe the single start.
@@ -277,7 +278,9 @@ def fit_hyperparameters(
     lower, upper = parameter_bounds(data, layout, max(options.latent_bound, 1.0))
     hyper = initial_hyperparameters(data, layout.latent_dim, options.initial_latent_lengthscale)
     vector = np.clip(layout.pack(normalised, hyper), lower, upper)
-    problem = FitProblem(likelihood, lower, upper, structure, options.n_inducing)
+    problem = FitProblem(likelihood, lower, upper, structure, options.n_inducing).with_threads(
+        options.threads
+    )
     result = run_to_end(problem.fit_separately(vector, layout, options, options.max_iterations))
     final = result.vector
     s, h = layout.unpack(final)

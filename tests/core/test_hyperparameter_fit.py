@@ -168,3 +168,28 @@ def test_stall_stop_ends_a_creeping_run_successfully() -> None:
 def test_bad_stall_and_start_options_are_named(field: str, value: object, message: str) -> None:
     with pytest.raises(InvalidInputError, match=message):
         FitOptions(**{field: value})  # type: ignore[arg-type]
+
+
+def test_fit_hyperparameters_runs_the_features_on_the_threads_it_is_given(monkeypatch) -> None:
+    """``FitOptions.threads`` reaches the features' problems (it was silently one thread), and
+    the model is the one thread's, bit for bit."""
+    import core.gp.fit_run as fit_run
+
+    world = random_experiment2_world(np.random.default_rng(0), n_objects=3)
+    data = sample_dataset(world, np.random.default_rng(1), touches_per_object=20)
+    one = fit_hyperparameters(data, world.latents, FitOptions(max_iterations=30))
+    seen: list[int] = []
+    real = fit_run.iter_fit_separately
+
+    def spy(*args, threads=1, **kwargs):  # type: ignore[no-untyped-def]
+        seen.append(threads)
+        return real(*args, threads=threads, **kwargs)
+
+    monkeypatch.setattr(fit_run, "iter_fit_separately", spy)
+    two = fit_hyperparameters(data, world.latents, FitOptions(max_iterations=30, threads=2))
+    assert seen == [2]
+    assert two.log_likelihood == one.log_likelihood
+    for name in ("signal_variance", "noise_variance", "latent_lengthscales", "action_lengthscales"):
+        np.testing.assert_array_equal(
+            getattr(two.hyperparameters, name), getattr(one.hyperparameters, name)
+        )
