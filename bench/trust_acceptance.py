@@ -5,8 +5,8 @@ Runs the commands a new user would (each printed; an output already in ``--workd
 so an interrupted run resumes and anyone can rerun it):
 
     activetouch collect --sim --table T --touches 100 --seed S --out train.csv
-    activetouch collect --sim --table T --touches 30 --design random --placements 30 --seed S+1 \\
-        --out heldout.csv
+    activetouch collect --sim --table T --touches 100 --design random --placements 100 \\
+        --seed S+1 --out heldout.csv      (and heldout-2.csv … heldout-4.csv, seeds S+2 … S+4)
     activetouch fit train.csv --out model.json
     activetouch evaluate --model model.json --world rig --table T \\
         --policies active,discriminative,passive --trials n --steps 6 --workers W --seed S \\
@@ -16,14 +16,16 @@ so an interrupted run resumes and anyone can rerun it):
         --out eval-replay-n<n>-T6-s<S>.json
 
 (``--table-file F`` in place of ``--table T``; the first collection takes ``collect``'s default
-design, the adaptive one, with its default placements, or ``--placements P``; the held-out
-collection is a random design with a fresh placement for every touch, as recorded data are, and
-never seen by the fit; n = ⌈trials / objects⌉ trials per target.) With ``--heldout-sessions K``
-(> 1) K held-out sessions are collected the same way (seeds S+1 … S+K, a fresh simulated rig
-each: ``heldout.csv``, then ``heldout-2.csv`` …), replayed one by one, and the replay's criteria
-judged on their trials pooled (:func:`pooled_report`); each session's own figures are printed
-too. One session's thermal offset is one draw shared by all its replayed trials
-(docs/calibration.md, "Replay on four held-out sessions of the cushions"). The trials run in the
+design, the adaptive one, with its default placements, or ``--placements P``; each held-out
+collection is a random design with a fresh placement for every touch, as recorded data are,
+never seen by the fit and as large as the training collection; n = ⌈trials / objects⌉ trials
+per target.) ``--heldout-sessions K`` (4 by default) held-out sessions are collected the same
+way (seeds S+1 … S+K, a fresh simulated rig each), replayed one by one, and the replay's
+criteria judged on their trials pooled (:func:`pooled_report`); each session's own figures are
+printed too. One session's thermal offset is one draw shared by all its replayed trials
+(docs/calibration.md, "Replay on four held-out sessions of the cushions"), and a small session
+offers the planners few of the touches that discriminate ("How noisy a replay's ECE is"):
+hence four sessions of the training collection's size. The trials run in the
 evaluation engine behind ``activetouch evaluate`` (Dask ``LocalCluster`` of ``--workers``); this
 module only reads the reports.
 
@@ -36,7 +38,7 @@ rig within 10 points at T for every policy. ``paper exp1`` and ``bench/correlate
 separate benches and are named as not run here.
 
 Run: ``python -m bench.trust_acceptance (--table cushions | --table-file F) [--trials 200]
-[--workers 2] [--steps 6] [--touches 100] [--heldout-touches 30] [--heldout-sessions 1] [--seed 0]
+[--workers 2] [--steps 6] [--touches 100] [--heldout-touches 100] [--heldout-sessions 4] [--seed 0]
 [--workdir DIR] [--json OUT]``. Exit code 1 when a criterion fails.
 """
 
@@ -448,11 +450,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--workers", type=int, default=2, help="evaluate --workers.")
     parser.add_argument("--steps", type=int, default=6, help="T.")
     parser.add_argument("--touches", type=int, default=100, help="Training touches per object.")
-    parser.add_argument("--heldout-touches", type=int, default=30, help="Held-out, per object.")
+    parser.add_argument(
+        "--heldout-touches", type=int, default=100, help="Held-out touches per object and session."
+    )
     parser.add_argument(
         "--heldout-sessions",
         type=int,
-        default=1,
+        default=4,
         help="Held-out sessions replayed, their trials pooled for the replay's criteria.",
     )
     parser.add_argument(
