@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import copy
+import functools
 import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -69,6 +70,22 @@ _T = TypeVar("_T")
 #: as long as at ds = 5 (docs/fitting.md, "Subnormal numbers"). The change to K is 10⁻⁵⁰
 #: relative, 34 orders of magnitude below the rounding of its factorisation.
 LOG_KERNEL_FLOOR = -50.0 * float(np.log(10.0))
+
+#: Rows per block of :func:`lower_blocks`: each block costs a few ufunc calls (~µs each) and
+#: exponentiates ½ · block · N entries above the diagonal that nobody reads (8 % more than the
+#: triangle at N = 800).
+LOWER_BLOCK_ROWS = 64
+
+
+@functools.lru_cache(maxsize=16)
+def lower_blocks(n: int) -> tuple[tuple[int, int, int], ...]:
+    """Row blocks (first, stop, width) whose [first:stop, :width] parts cover the lower
+    triangle and the diagonal of an n × n matrix (width = stop)."""
+    return tuple(
+        (first, min(first + LOWER_BLOCK_ROWS, n), min(first + LOWER_BLOCK_ROWS, n))
+        for first in range(0, n, LOWER_BLOCK_ROWS)
+    )
+
 
 #: One pool of feature threads per thread count, shared by every likelihood of the process.
 _POOLS: dict[int, ThreadPoolExecutor] = {}
@@ -203,11 +220,21 @@ class ManifoldLikelihood:
         Rows and columns are in the internal (object-sorted) order (:meth:`gram_rows`).
         Shape (dy, N, N).
         """
+        return self._gram(vector, lower_only=False)
+
+    def _gram(self, vector: FloatArray, lower_only: bool = True) -> FloatArray:
+        """:meth:`noise_free_gram`, by default only its lower triangle (what an evaluation
+        reads: :meth:`gram_rows`)."""
         latents, log_sf, _, log_ls, log_lx = self.layout.split(vector)
-        return self.gram_rows(latents, log_sf, log_ls, log_lx)
+        return self.gram_rows(latents, log_sf, log_ls, log_lx, lower_only=lower_only)
 
     def gram_rows(
-        self, latents: FloatArray, log_sf: FloatArray, log_ls: FloatArray, log_lx: FloatArray
+        self,
+        latents: FloatArray,
+        log_sf: FloatArray,
+        log_ls: FloatArray,
+        log_lx: FloatArray,
+        lower_only: bool = False,
     ) -> FloatArray:
         """σ_f,r² K^s_r[obj, obj] ∘ K^x_r for every row r of length-scales (the noise-free Gram
         matrix of each feature, or the one unit-variance K of tied kernels), in the internal
@@ -223,11 +250,20 @@ class ManifoldLikelihood:
         ~ε|z|² absolutely, so the diagonal is set exactly and no exponent is let above
         log σ_f².
 
+        With ``lower_only`` the exponentials are taken on the lower triangle alone (in row
+        blocks of :data:`LOWER_BLOCK_ROWS`, so a little above it too): every evaluation reads
+        only that triangle (the factor, the inverse and the gradient's products), and on a
+        processor without a vector exponential for float64 (AVX2: NumPy's is AVX-512 only)
+        the exponentials are a fifth of an evaluation (docs/fitting.md, "Half the
+        exponentials"). Entries above the diagonal are then unspecified, finite for finite
+        inputs.
+
         Args:
             latents: S. Shape (L, ds).
             log_sf: log σ_f² per row. Shape (R,).
             log_ls: log ℓ^s per row. Shape (R, ds).
             log_lx: log ℓ^x per row. Shape (R, dx).
+            lower_only: Only the lower triangle (and the diagonal) is the kernel.
 
         Returns:
             Shape (R, N, N).
@@ -251,14 +287,17 @@ class ManifoldLikelihood:
             left[:, -2] = half + log_sf[r]
             np.matmul(left, right.T, out=exponent[r])
         cutoff = log_sf + LOG_KERNEL_FLOOR
+        parts = lower_blocks(n) if lower_only else ((0, n, n),)
 
         def exponentials(a: int) -> None:
             matrix = exponent[a]
-            np.minimum(matrix, log_sf[a], out=matrix)
             matrix.ravel()[self._diag] = log_sf[a]
-            # Entries below the floor become exact zeros (exp(-inf)), not subnormal numbers.
-            np.copyto(matrix, -np.inf, where=matrix < cutoff[a])
-            np.exp(matrix, out=matrix)
+            for first, stop, width in parts:
+                part = matrix[first:stop, :width]
+                np.minimum(part, log_sf[a], out=part)
+                # Entries below the floor become exact zeros (exp(-inf)), not subnormal numbers.
+                np.copyto(part, -np.inf, where=part < cutoff[a])
+                np.exp(part, out=part)
 
         # The exponentials (a fifth of an evaluation at N = 800) on the feature threads, a
         # feature's matrix each: entrywise, so the same numbers on any number of threads.
@@ -284,7 +323,8 @@ class ManifoldLikelihood:
     ) -> tuple[FloatArray, float]:
         """Upper Cholesky factor U of K_a = UᵀU (:meth:`_noisy`), Fortran-ordered with a zero
         strictly lower triangle (what LAPACK reads without copying), and the jitter added
-        (0 unless the plain factorisation failed)."""
+        (0 unless the plain factorisation failed). Reads only the lower triangle of
+        ``gram_free`` (C order), both on the fast path and on the jitter ladder."""
         gram = self._noisy(gram_free, noise, feature)
         # Fast path: plain LAPACK in place on the symmetric matrix (its transpose is itself, so
         # the C-ordered copy is read as Fortran). Jitter ladder only on failure.
@@ -336,7 +376,7 @@ class ManifoldLikelihood:
         """-log p at a packed vector (no gradient: one Cholesky factor per feature)."""
         self.evaluations += 1
         _, _, log_sn, _, _ = self.layout.split(vector)
-        gram_free = self.noise_free_gram(vector)
+        gram_free = self._gram(vector)
         n = self.data.n_touches
 
         def feature(a: int) -> tuple[float, float]:
@@ -370,7 +410,7 @@ class ManifoldLikelihood:
         noise = np.exp(log_sn)
         inv_ls2 = np.exp(-2.0 * log_ls)  # (dy, ds)
         inv_lx2 = np.exp(-2.0 * log_lx)  # (dy, dx)
-        gram_free = self.noise_free_gram(vector)
+        gram_free = self._gram(vector)
         n = self.data.n_touches
         dy = layout.observation_dim
 

@@ -15,7 +15,7 @@ import scipy.linalg
 import core.gp.linalg
 from bench.direct_likelihood import direct_value_and_gradient
 from core.errors import InvalidInputError, NotPositiveDefiniteError
-from core.gp.likelihood import ManifoldLikelihood, feature_data
+from core.gp.likelihood import LOWER_BLOCK_ROWS, ManifoldLikelihood, feature_data
 from core.gp.linalg import inverse_from_cholesky, upper_triangular_inverse, weighted_gram_difference
 from core.gp.parameters import ParameterLayout, initial_hyperparameters
 from core.types import Hyperparameters, TrainingData
@@ -268,3 +268,74 @@ def test_one_feature_of_a_likelihood_is_the_one_feature_likelihood_bit_for_bit()
         assert whole.evaluations == 0
     with pytest.raises(InvalidInputError, match="feature"):
         whole.for_feature(4)
+
+
+def test_the_lower_only_gram_is_the_kernel_on_and_below_the_diagonal() -> None:
+    """Evaluations exponentiate only the lower triangle (in row blocks): it equals the full
+    Gram matrix's there to the bit, and above the blocks it is not the kernel."""
+    data, vector = _problem(4, [40, 25, 50, 35], 3, 2, 2, seed=21)  # N = 150: three blocks
+    likelihood = ManifoldLikelihood(data, 2)
+    latents, log_sf, _, log_ls, log_lx = likelihood.layout.split(vector)
+    full = likelihood.gram_rows(latents, log_sf, log_ls, log_lx)
+    lower = likelihood.gram_rows(latents, log_sf, log_ls, log_lx, lower_only=True)
+    n = data.n_touches
+    below = np.tril(np.ones((n, n), dtype=bool))
+    assert np.array_equal(lower[:, below], full[:, below])
+    assert np.all(np.isfinite(lower))
+    far = np.triu(np.ones((n, n), dtype=bool), k=LOWER_BLOCK_ROWS)  # above every block
+    assert np.any(far) and not np.any(np.isclose(lower[:, far], full[:, far]))
+
+
+@pytest.mark.parametrize("placements", [False, True])
+def test_evaluations_on_the_lower_triangle_give_the_full_grams_numbers(
+    monkeypatch: pytest.MonkeyPatch, placements: bool
+) -> None:
+    """Value and gradient (and the jitter ladder's, on duplicate touches) from the lower
+    triangle alone are bit for bit those from the whole Gram matrix."""
+    data, vector = _problem(4, [40, 25, 50, 35], 3, 2, 2, seed=22)
+    # Duplicate touches with a vanishing noise: K singular, so the jitter ladder runs.
+    actions = data.actions.copy()
+    actions[1::2] = actions[::2][: actions[1::2].shape[0]]
+    index = data.object_index.copy()
+    index[1::2] = index[::2][: index[1::2].shape[0]]
+    duplicated = TrainingData(data.object_names, index, actions, data.observations)
+    layout = ParameterLayout.for_data(duplicated, 2)
+    latents, hyper = layout.unpack(vector)
+    tiny_noise = layout.pack(
+        latents,
+        Hyperparameters(
+            hyper.signal_variance,
+            np.full_like(hyper.noise_variance, 1e-30),
+            hyper.latent_lengthscales,
+            hyper.action_lengthscales,
+        ),
+    )
+    for touches, at in ((data, vector), (duplicated, tiny_noise)):
+        if placements:
+            groups = np.arange(touches.n_touches) // 4
+            touches = TrainingData(
+                touches.object_names,
+                touches.object_index,
+                touches.actions,
+                touches.observations,
+                groups,
+            )
+        shared = np.array([0.05, 0.1]) if placements else None
+        lower = ManifoldLikelihood(touches, 2, placement_variance=shared)
+        value, gradient = lower.value_and_gradient(at)
+        plain = lower.value(at)
+        with monkeypatch.context() as patch:
+            full_gram = ManifoldLikelihood._gram
+            patch.setattr(
+                ManifoldLikelihood,
+                "_gram",
+                lambda self, v, lower_only=True: full_gram(self, v, lower_only=False),
+            )
+            full = ManifoldLikelihood(touches, 2, placement_variance=shared)
+            expected_value, expected_gradient = full.value_and_gradient(at)
+            assert full.value(at) == plain
+        assert value == expected_value
+        np.testing.assert_array_equal(gradient, expected_gradient)
+        assert lower.max_jitter == full.max_jitter
+        if at is tiny_noise:
+            assert lower.max_jitter > 0.0
