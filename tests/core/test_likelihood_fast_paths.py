@@ -283,7 +283,18 @@ def test_the_lower_only_gram_is_the_kernel_on_and_below_the_diagonal() -> None:
     assert np.array_equal(lower[:, below], full[:, below])
     assert np.all(np.isfinite(lower))
     far = np.triu(np.ones((n, n), dtype=bool), k=LOWER_BLOCK_ROWS)  # above every block
-    assert np.any(far) and not np.any(np.isclose(lower[:, far], full[:, far]))
+    assert np.any(far)
+    assert not np.any(np.isclose(lower[:, far], full[:, far]))
+
+
+_LOWER_GRAM = ManifoldLikelihood._gram
+
+
+def _whole_gram(
+    self: ManifoldLikelihood, vector: np.ndarray, lower_only: bool = True
+) -> np.ndarray:
+    """The evaluations' Gram matrices made whole (what they were before the lower triangle)."""
+    return _LOWER_GRAM(self, vector, lower_only=False)
 
 
 @pytest.mark.parametrize("placements", [False, True])
@@ -325,12 +336,7 @@ def test_evaluations_on_the_lower_triangle_give_the_full_grams_numbers(
         value, gradient = lower.value_and_gradient(at)
         plain = lower.value(at)
         with monkeypatch.context() as patch:
-            full_gram = ManifoldLikelihood._gram
-            patch.setattr(
-                ManifoldLikelihood,
-                "_gram",
-                lambda self, v, lower_only=True: full_gram(self, v, lower_only=False),
-            )
+            patch.setattr(ManifoldLikelihood, "_gram", _whole_gram)
             full = ManifoldLikelihood(touches, 2, placement_variance=shared)
             expected_value, expected_gradient = full.value_and_gradient(at)
             assert full.value(at) == plain
