@@ -35,6 +35,9 @@ class TrainingData:
         touch_times_s: When each touch was made, in seconds on one clock (any origin), or
             ``None`` when not recorded. The slow drift of the sensor and the room is shared by
             touches made close together (:mod:`core.gp.drift_effect`). Shape (N,), finite.
+        min_touches_per_object: The fewest touches an object may have: 2 for objects to learn
+            (their latent needs more than one touch), 1 for the pseudo-objects of
+            :mod:`core.gp.placement_latent` (one per placement, which may be touched once).
     """
 
     object_names: tuple[str, ...]
@@ -43,6 +46,7 @@ class TrainingData:
     observations: FloatArray
     placement_index: IntArray | None = None
     touch_times_s: FloatArray | None = None
+    min_touches_per_object: int = field(default=2, compare=False)
 
     def __post_init__(self) -> None:
         names = tuple(str(n) for n in self.object_names)
@@ -74,9 +78,10 @@ class TrainingData:
             )
         counts = np.bincount(index, minlength=len(names))
         for name, count in zip(names, counts, strict=True):
-            if count < 2:
+            if count < self.min_touches_per_object:
                 raise InvalidInputError(
-                    f"object {name!r} has {count} touch(es); every object needs at least 2."
+                    f"object {name!r} has {count} touch(es); every object needs at least "
+                    f"{self.min_touches_per_object}."
                 )
         object.__setattr__(self, "object_names", names)
         store_read_only(

@@ -487,6 +487,7 @@ def feature_data(data: TrainingData, feature: int) -> TrainingData:
         actions=data.actions,
         observations=data.observations[:, feature : feature + 1],
         placement_index=data.placement_index,
+        min_touches_per_object=data.min_touches_per_object,
     )
 
 

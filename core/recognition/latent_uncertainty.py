@@ -34,7 +34,8 @@ from core.gp.input_shift import shift_covariance
 from core.gp.kernels import squared_exponential
 from core.gp.likelihood import negative_log_likelihood_and_gradient
 from core.gp.linalg import gaussian_log_density
-from core.recognition.moments import action_kernels, belief_terms, object_indicator
+from core.gp.posterior import support_points
+from core.recognition.moments import BeliefTerms, action_kernels, belief_terms, object_indicator
 from core.types import GaussianBelief, ManifoldModel
 from core.validation import FloatArray, as_float_array
 
@@ -174,48 +175,60 @@ def trial_moments(
     s = as_float_array(latent, "latent", (ds,))
     cov_s = as_float_array(covariance, "covariance", (ds, ds))
     x = as_float_array(actions, "actions", (None, h.action_dim))
-    return _moments(model, s, cov_s, x, *_action_terms(model, x))
+    return trial_moments_from_terms(model, s, cov_s, x, *trial_action_terms(model, x))
 
 
-def _moments(
+def trial_moments_from_terms(
     model: ManifoldModel,
     latent: FloatArray,
     covariance: FloatArray,
     x: FloatArray,
     responses: FloatArray,
-    traces: FloatArray,
+    kernels: FloatArray,
 ) -> tuple[FloatArray, FloatArray]:
-    """:func:`trial_moments` from precomputed action terms (:func:`_action_terms`)."""
+    """:func:`trial_moments` from precomputed action terms (:func:`trial_action_terms`)."""
+    terms = belief_terms(model, GaussianBelief(mean=latent, cov=covariance))
+    return trial_moments_given(model, terms, x, responses, kernels)
+
+
+def trial_moments_given(
+    model: ManifoldModel,
+    terms: BeliefTerms,
+    x: FloatArray,
+    responses: FloatArray,
+    kernels: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`trial_moments` from the belief's terms (:func:`core.recognition.moments.belief_terms`,
+    which depend on the belief only, so one belief's serve every trial) and the action terms.
+
+    The trace term is Σ_ll' G_aa[l, l'] T_a(x_t, x_t')[l, l'] = e_a(x_t)ᵀ (K_a⁻¹ ∘ G_aa[obj, obj])
+    e_a(x_t'), G_aa expanded to the support points' objects: O(N²) per feature, whatever L.
+    """
     h = model.hyperparameters
     dy, t = h.observation_dim, x.shape[0]
-    terms = belief_terms(model, GaussianBelief(mean=latent, cov=covariance))
     centred = np.einsum("al,atl->ta", terms.weights, responses)  # c_aᵀ u_a(x_t)
-    # u_a(x_t)ᵀ G_ab u_b(x_t') for every (a, t, b, t')
-    cov = np.einsum("atl,ablm,bum->atbu", responses, terms.pair_weights, responses)
+    # u_a(x_t)ᵀ G_ab u_b(x_t') for every (a, b, t, t'), then ordered (a, t, b, t')
+    pairs = np.matmul(np.matmul(responses[:, None], terms.pair_weights), responses.swapaxes(1, 2))
+    cov = np.ascontiguousarray(pairs.transpose(0, 2, 1, 3))
     cov -= centred.T[:, :, None, None] * centred.T[None, None, :, :]
+    objects, _ = support_points(model)
+    gram_inverse = model.posterior.gram_inverse  # (dy, N, N)
     for a in range(dy):
         prior = h.signal_variance[a] * squared_exponential(x, x, h.action_lengthscales[a])
-        trace = np.einsum("lm,tlum->tu", terms.pair_weights[a, a], traces[a])
+        weighted = gram_inverse[a] * terms.pair_weights[a, a][np.ix_(objects, objects)]
+        trace = kernels[a] @ weighted @ kernels[a].T
         cov[a, :, a, :] += prior - trace
     flat = cov.reshape(dy * t, dy * t)
     return centred + model.data.observation_mean, 0.5 * (flat + flat.T)
 
 
-def _action_terms(model: ManifoldModel, actions: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """u_a(x_t)[l] (dy, T, L) and the cross-action traces T_a(x_t, x_t')[l, l'] (dy, T, L, T, L)."""
+def trial_action_terms(model: ManifoldModel, actions: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """u_a(x_t)[l] (dy, T, L) and the action kernels e_ai(x_t) (dy, T, N)."""
     kernels = action_kernels(model, actions)  # (dy, T, N)
     indicator = object_indicator(model)  # (N, L)
     beta = model.posterior.beta  # (dy, N)
-    gram_inverse = model.posterior.gram_inverse  # (dy, N, N)
-    dy, t, n = kernels.shape
-    n_objects = indicator.shape[1]
     responses = np.einsum("atn,an,nl->atl", kernels, beta, indicator)
-    traces = np.empty((dy, t, n_objects, t, n_objects))
-    for a in range(dy):
-        masked = kernels[a][:, None, :] * indicator.T[None, :, :]  # (T, L, N)
-        rows = masked.reshape(t * n_objects, n)
-        traces[a] = (rows @ gram_inverse[a] @ rows.T).reshape(t, n_objects, t, n_objects)
-    return responses, traces
+    return responses, kernels
 
 
 def trial_log_likelihoods(
@@ -259,10 +272,12 @@ def trial_log_likelihoods(
     noise = np.kron(np.diag(h.noise_variance - sigma_b), np.eye(t))
     noise += np.kron(np.diag(sigma_b), np.ones((t, t)))
     jacobian = 0.0 if model.transform is None else model.transform.log_jacobian
-    action_terms = _action_terms(model, x)
+    action_terms = trial_action_terms(model, x)
     out = np.empty(n_objects)
     for obj in range(n_objects):
-        mean, cov = _moments(model, model.latents[obj], covariances[obj], x, *action_terms)
+        mean, cov = trial_moments_from_terms(
+            model, model.latents[obj], covariances[obj], x, *action_terms
+        )
         if shift_variance is not None:
             cov = cov + shift_covariance(
                 model, model.latents[obj], x, shift_variance, shared_placement
