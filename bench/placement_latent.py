@@ -1,5 +1,5 @@
 """Rescore an evaluation's rig trials with a latent per placement (docs/calibration.md, "A latent
-per placement").
+per placement, measured").
 
 Each trial of an ``activetouch evaluate --world rig`` report is touched again on its own simulated
 rig (the recorded actions, the trial's seed: the same observations), then scored after every

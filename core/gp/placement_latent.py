@@ -1,5 +1,6 @@
 """A latent coordinate per placement in the GP's input (docs/calibration.md, "A latent per
-placement").
+placement, measured"). An experiment the product does not use: on the cushions it scores the
+rig's trials worse than the model without it (the fitted u_p take up noise).
 
 A placement changes how an object answers every touch (on the simulated rig: the contact
 angle, which moves the whole flexion trajectory), and that change is mostly not a direction of

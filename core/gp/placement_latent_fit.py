@@ -1,5 +1,5 @@
 """Fitting a latent coordinate per placement, warm from a fitted manifold
-(:mod:`core.gp.placement_latent`; docs/calibration.md, "A latent per placement").
+(:mod:`core.gp.placement_latent`; docs/calibration.md, "A latent per placement, measured").
 
 The objects' arrangement found without the placements carries over: the fit starts from the
 fitted latents S and hyperparameters, adds one latent length-scale ℓ^u per feature (long: the
