@@ -101,6 +101,13 @@ def placements_of(data: TrainingData) -> Placements:
     return Placements(data=touches, placement_object=owner)
 
 
+def pseudo_latents(
+    latents: FloatArray, placement_object: IntArray, offsets: FloatArray
+) -> FloatArray:
+    """[s_l(p), u_p] of every placement p, l(p) = ``placement_object[p]``. Shape (P, ds + 1)."""
+    return np.column_stack([latents[placement_object], offsets])
+
+
 @dataclass(frozen=True)
 class PlacementLayout:
     """The packed vector: S (L·ds), v (P; u standardised from v), then the pseudo-objects'
@@ -154,23 +161,27 @@ class PlacementLayout:
 
     def pseudo_latents(self, latents: FloatArray, offsets: FloatArray) -> FloatArray:
         """[s_l(p), u_p] of every placement. Shape (P, ds + 1)."""
-        return np.column_stack([latents[self.placement_object], offsets])
+        return pseudo_latents(latents, self.placement_object, offsets)
+
+    @property
+    def placement_counts(self) -> IntArray:
+        """P_l, the placements of each object. Shape (L,)."""
+        return np.bincount(self.placement_object, minlength=self.n_objects)
+
+    def _object_sums(self, values: FloatArray) -> FloatArray:
+        """Σ of ``values`` (given per placement) over each object's placements. Shape (L,)."""
+        sums = np.bincount(self.placement_object, weights=values, minlength=self.n_objects)
+        return np.asarray(sums, dtype=np.float64)
 
     def _object_means(self, values: FloatArray) -> FloatArray:
         """Mean of ``values`` over each object's placements, given per placement. Shape (P,)."""
-        owner = self.placement_object
-        counts = np.bincount(owner, minlength=self.n_objects)
-        return np.asarray(
-            (np.bincount(owner, weights=values, minlength=self.n_objects) / counts)[owner],
-            dtype=np.float64,
-        )
+        means = self._object_sums(values) / self.placement_counts
+        return np.asarray(means[self.placement_object], dtype=np.float64)
 
     def log_spreads(self, free: FloatArray) -> FloatArray:
         """log σ_l of each object's v. Shape (L,)."""
         centred = free - self._object_means(free)
-        owner = self.placement_object
-        counts = np.bincount(owner, minlength=self.n_objects)
-        variance = np.bincount(owner, weights=centred**2, minlength=self.n_objects) / counts
+        variance = self._object_sums(centred**2) / self.placement_counts
         return np.asarray(0.5 * np.log(variance), dtype=np.float64)
 
     def standardised(self, free: FloatArray) -> FloatArray:
@@ -262,8 +273,6 @@ class PlacementLatentLikelihood:
         log_spread = self.layout.log_spreads(free)
         _, g_free, _ = self.layout.split(reduced)
         # ∂/∂v_p of ½ (log σ_l)², l the object of p: log σ_l · u_p / (P_l σ_l).
-        owner = self.layout.placement_object
-        counts = np.bincount(owner, minlength=self.layout.n_objects)
-        scale = log_spread / (counts * np.exp(log_spread))
-        g_free += scale[owner] * self.layout.standardised(free)
+        scale = log_spread / (self.layout.placement_counts * np.exp(log_spread))
+        g_free += scale[self.layout.placement_object] * self.layout.standardised(free)
         return value + 0.5 * float(log_spread @ log_spread), reduced

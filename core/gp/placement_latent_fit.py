@@ -18,7 +18,7 @@ import scipy.optimize
 from core.errors import InvalidInputError
 from core.gp.parameters import parameter_bounds
 from core.gp.placement_groups import checked_placement_variance
-from core.gp.placement_latent import PlacementLatentLikelihood, Placements
+from core.gp.placement_latent import PlacementLatentLikelihood, Placements, pseudo_latents
 from core.types import Hyperparameters, TrainingData
 from core.validation import FloatArray, as_float_array
 
@@ -60,8 +60,7 @@ class PlacementLatentFit:
     @property
     def pseudo_latents(self) -> FloatArray:
         """[s_l(p), u_p] of every placement. Shape (P, ds + 1)."""
-        owner = self.placements.placement_object
-        return np.column_stack([self.latents[owner], self.offsets])
+        return pseudo_latents(self.latents, self.placements.placement_object, self.offsets)
 
 
 def fit_placement_latents(

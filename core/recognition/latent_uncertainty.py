@@ -222,6 +222,23 @@ def trial_moments_given(
     return centred + model.data.observation_mean, 0.5 * (flat + flat.T)
 
 
+def trial_noise(noise_variance: FloatArray, shared_variance: FloatArray, steps: int) -> FloatArray:
+    """The noise of T touches, feature-major: per feature σ_s,a² 11ᵀ + (σ_n,a² − σ_s,a²) I, σ_s²
+    the part of each touch's noise variance the touches share (docs/calibration.md (C3)).
+
+    Args:
+        noise_variance: σ_n,a², each touch's whole noise variance. Shape (dy,).
+        shared_variance: σ_s,a² ≤ σ_n,a². Shape (dy,).
+        steps: T.
+
+    Returns:
+        Shape (dy·T, dy·T).
+    """
+    noise = np.kron(np.diag(noise_variance - shared_variance), np.eye(steps))
+    noise += np.kron(np.diag(shared_variance), np.ones((steps, steps)))
+    return np.asarray(noise, dtype=np.float64)
+
+
 def trial_action_terms(model: ManifoldModel, actions: FloatArray) -> tuple[FloatArray, FloatArray]:
     """u_a(x_t)[l] (dy, T, L) and the action kernels e_ai(x_t) (dy, T, N)."""
     kernels = action_kernels(model, actions)  # (dy, T, N)
@@ -269,8 +286,7 @@ def trial_log_likelihoods(
     if t == 0:
         return np.zeros(n_objects)
     target = model.to_model_space(y).T.reshape(-1)  # feature-major
-    noise = np.kron(np.diag(h.noise_variance - sigma_b), np.eye(t))
-    noise += np.kron(np.diag(sigma_b), np.ones((t, t)))
+    noise = trial_noise(h.noise_variance, sigma_b, t)
     jacobian = 0.0 if model.transform is None else model.transform.log_jacobian
     action_terms = trial_action_terms(model, x)
     out = np.empty(n_objects)

@@ -21,7 +21,11 @@ from core.errors import InvalidInputError
 from core.gp.linalg import gaussian_log_density
 from core.gp.placement_latent_fit import PlacementLatentFit
 from core.gp.posterior import condition
-from core.recognition.latent_uncertainty import trial_action_terms, trial_moments_given
+from core.recognition.latent_uncertainty import (
+    trial_action_terms,
+    trial_moments_given,
+    trial_noise,
+)
 from core.recognition.moments import BeliefTerms, belief_terms
 from core.types import GaussianBelief, ManifoldModel
 from core.validation import FloatArray, as_float_array
@@ -147,9 +151,7 @@ def trial_log_likelihoods(
     if t == 0:
         return np.zeros(model.n_objects)
     target = conditioned.to_model_space(y).T.reshape(-1)  # feature-major
-    shared = model.shared_variance
-    noise = np.kron(np.diag(h.noise_variance - shared), np.eye(t))
-    noise += np.kron(np.diag(shared), np.ones((t, t)))
+    noise = trial_noise(h.noise_variance, model.shared_variance, t)
     transform = conditioned.transform
     jacobian = 0.0 if transform is None else transform.log_jacobian
     terms = trial_action_terms(conditioned, x)
