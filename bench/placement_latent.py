@@ -109,14 +109,50 @@ def score(
     return out
 
 
-def main(argv: list[str] | None = None) -> dict[str, Any]:
-    """Run the rescoring; returns what it printed, as data."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def rescoring_parser(description: str) -> argparse.ArgumentParser:
+    """The arguments every rescoring of a report's rig trials takes."""
+    parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--model", required=True)
     parser.add_argument("--report", required=True)
     parser.add_argument("--table", required=True)
     parser.add_argument("--policy", default="passive")
     parser.add_argument("--workers", type=int, default=2)
+    return parser
+
+
+@dataclasses.dataclass(frozen=True)
+class Rescoring:
+    """A report's complete trials of one policy, with the model and what scoring them needs."""
+
+    model: ManifoldModel
+    trials: list[dict[str, Any]]
+    observed: list[np.ndarray]
+    labels: np.ndarray
+    steps: int
+    threshold: float
+
+
+def load_rescoring(args: argparse.Namespace) -> Rescoring:
+    """The model, the report's complete trials of ``args.policy`` and their observations."""
+    model: ManifoldModel = load_model(Path(args.model))
+    report = json.loads(Path(args.report).read_text())
+    steps = int(report["steps"])
+    trials = [
+        t for t in report["trials"] if t["policy"] == args.policy and len(t["actions"]) == steps
+    ]
+    names = list(model.object_names)
+    labels = np.array([names.index(t["target"]) for t in trials])
+    started = time.perf_counter()
+    observed = observations(args, trials)
+    print(
+        f"{len(trials)} {args.policy} trials' observations in {time.perf_counter() - started:.1f} s"
+    )
+    return Rescoring(model, trials, observed, labels, steps, float(report["confidence"]))
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    """Run the rescoring; returns what it printed, as data."""
+    parser = rescoring_parser(__doc__.splitlines()[0])
     parser.add_argument("--iterations", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
@@ -127,19 +163,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     )
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
-    model: ManifoldModel = load_model(Path(args.model))
-    report = json.loads(Path(args.report).read_text())
-    trials = [t for t in report["trials"] if t["policy"] == args.policy]
-    steps = int(report["steps"])
-    trials = [t for t in trials if len(t["actions"]) == steps]
+    run = load_rescoring(args)
+    model, trials, observed, labels = run.model, run.trials, run.observed, run.labels
+    steps, threshold = run.steps, run.threshold
     names = list(model.object_names)
-    labels = np.array([names.index(t["target"]) for t in trials])
-    threshold = float(report["confidence"])
-    started = time.perf_counter()
-    observed = observations(args, trials)
-    print(
-        f"{len(trials)} {args.policy} trials' observations in {time.perf_counter() - started:.1f} s"
-    )
     results: dict[str, Any] = {}
     as_is = score(
         trials, observed, lambda x, y: object_log_likelihoods(model, x, y), len(names), steps

@@ -32,7 +32,8 @@ import scipy.linalg
 from app.cli.main import load_model
 from app.evaluation.cluster import local_cluster
 from app.evaluation.context import rig_table
-from bench.placement_latent import observations, score, summarise
+from bench.placement_latent import load_rescoring, rescoring_parser, score, summarise
+from bench.sim_tables import QUIET
 from core.gp.input_shift import shift_covariance
 from core.gp.linalg import gaussian_log_density
 from core.gp.placement_effect import predictive_covariance
@@ -53,21 +54,12 @@ def angle_responses(
     ``offset_deg``, on a rig with every noise term zero (deterministic)."""
     from app.evaluation.rig_trial import RigTrial
     from app.rig.actions import TouchActions
-    from hardware.sim.noise import NO_DRIFT, NoiseModel
 
-    quiet = NoiseModel(
-        channel_std=(0.0,) * 5,
-        contact_std=(0.0,) * 5,
-        drift=NO_DRIFT,
-        placement_std_deg=0.0,
-        slip_std_deg=0.0,
-        object_temperature_std_c=0.0,
-    )
     base = next(item for item in rig_table(table).slots if item.name == name)
     moved = dataclasses.replace(base, contact_angle_deg=base.contact_angle_deg + offset_deg)
     model = load_model(Path(model_path))
     rig = RigTrial(
-        TouchActions.from_teaching(), (moved,), name, 1, noise=quiet, features=model.features
+        TouchActions.from_teaching(), (moved,), name, 1, noise=QUIET, features=model.features
     )
     try:
         rng = np.random.default_rng(0)  # unused by the rig
@@ -160,27 +152,16 @@ def measure_slopes(
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Run the rescoring; returns what it printed, as data."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--model", required=True)
-    parser.add_argument("--report", required=True)
-    parser.add_argument("--table", required=True)
-    parser.add_argument("--policy", default="passive")
-    parser.add_argument("--workers", type=int, default=2)
+    parser = rescoring_parser(__doc__.splitlines()[0])
     parser.add_argument("--step-deg", type=float, default=0.25)
     args = parser.parse_args(argv)
-    model = load_model(Path(args.model))
-    report = json.loads(Path(args.report).read_text())
-    steps = int(report["steps"])
-    trials = [
-        t for t in report["trials"] if t["policy"] == args.policy and len(t["actions"]) == steps
-    ]
+    run = load_rescoring(args)
+    model, trials, observed, labels = run.model, run.trials, run.observed, run.labels
+    steps, threshold = run.steps, run.threshold
     names = list(model.object_names)
-    labels = np.array([names.index(t["target"]) for t in trials])
-    threshold = float(report["confidence"])
     started = time.perf_counter()
-    observed = observations(args, trials)
     responses = measure_slopes(args, trials, names)
-    print(f"{len(trials)} trials' observations and slopes in {time.perf_counter() - started:.1f} s")
+    print(f"slopes of {len(trials)} trials in {time.perf_counter() - started:.1f} s")
     slopes = [
         [
             (
