@@ -39,7 +39,7 @@ separate benches and are named as not run here.
 
 Run: ``python -m bench.trust_acceptance (--table cushions | --table-file F) [--trials 200]
 [--workers 2] [--steps 6] [--touches 100] [--heldout-touches 100] [--heldout-sessions 4] [--seed 0]
-[--workdir DIR] [--json OUT]``. Exit code 1 when a criterion fails.
+[--press-depth] [--workdir DIR] [--json OUT]``. Exit code 1 when a criterion fails.
 """
 
 from __future__ import annotations
@@ -378,9 +378,10 @@ def run(args: argparse.Namespace, workdir: Path) -> dict[str, dict[str, Any]]:
     train, heldout, model = workdir / "train.csv", workdir / "heldout.csv", workdir / "model.json"
     seed = str(args.seed)
     placements = [] if args.placements is None else ["--placements", str(args.placements)]
+    press = ["--press-depth"] if args.press_depth else []
     _run(
-        [exe, "collect", "--sim", *table, "--touches", str(args.touches), *placements, "--seed",
-         seed, "--out", str(train)],
+        [exe, "collect", "--sim", *table, "--touches", str(args.touches), *placements, *press,
+         "--seed", seed, "--out", str(train)],
         train,
     )  # fmt: skip
     sessions = args.heldout_sessions
@@ -388,7 +389,7 @@ def run(args: argparse.Namespace, workdir: Path) -> dict[str, dict[str, Any]]:
     for k, path in enumerate(heldouts, 1):
         _run(
             [exe, "collect", "--sim", *table, "--touches", str(args.heldout_touches), "--design",
-             "random", "--placements", str(args.heldout_touches), "--seed",
+             "random", "--placements", str(args.heldout_touches), *press, "--seed",
              str(args.seed + k), "--out", str(path)],
             path,
         )  # fmt: skip
@@ -463,6 +464,11 @@ def main(argv: list[str] | None = None) -> None:
         "--placements",
         type=int,
         help="collect --placements of the training collection (default: collect's default).",
+    )
+    parser.add_argument(
+        "--press-depth",
+        action="store_true",
+        help="collect --press-depth (training and held-out): actions with the press depth.",
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workdir", type=Path, help="Keep (and reuse) every file here.")

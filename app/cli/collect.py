@@ -338,6 +338,15 @@ def collect_command(
             "placed anew); P = --touches places every touch anew.",
         ),
     ] = None,
+    press_depth: Annotated[
+        bool,
+        typer.Option(
+            "--press-depth",
+            help="Add the press-depth component as a 7th action dimension (x_7 flexes the "
+            "finger x_7 · 0.25° deeper while pressing, drawn like the others): the fit then "
+            "learns how a placement's tilt moves the touches (docs/calibration.md).",
+        ),
+    ] = False,
     as_json: AsJson = False,
 ) -> None:
     """Collect a training set on the rig: touch each object, write the training CSV."""
@@ -359,7 +368,7 @@ def collect_command(
     for path, option in ((out, "--out"), (raw, "--raw")):
         if path is not None and path.exists() and not force:
             raise fail(f"{option} {path} exists; use --force to replace it.", 2)
-    actions = touch_actions(duration_s)
+    actions = touch_actions(duration_s, press_depth)
     with connected_rig(options, "activetouch collect") as (handle, lease):
         slots = resolve_slots(parsed, handle)
         next_round = None

@@ -208,14 +208,17 @@ def _touch_document(record: TouchRecord, action: np.ndarray) -> dict[str, Any]:
     }
 
 
-def touch_actions(duration_s: float) -> TouchActions:
-    """The rig's action → trajectory map for touches of ``duration_s`` (bad values exit 2)."""
+def touch_actions(duration_s: float, press_depth: bool = False) -> TouchActions:
+    """The rig's action → trajectory map for touches of ``duration_s``, with the press-depth
+    component as the action's last dimension if ``press_depth`` (bad values exit 2)."""
     from app.rig.actions import TouchActions
     from core.errors import CoreError
     from hardware.rig import RigConfig
 
     try:
-        return TouchActions.from_teaching(dt_s=RigConfig().control_period_s, duration_s=duration_s)
+        return TouchActions.from_teaching(
+            dt_s=RigConfig().control_period_s, duration_s=duration_s, press_depth=press_depth
+        )
     except CoreError as exc:
         raise fail(str(exc), 2) from None
 
@@ -228,7 +231,11 @@ def touch(
         int | None, typer.Option("--slot", help="Turn this slot under the finger first.")
     ] = None,
     action: Annotated[
-        str, typer.Option(help="Action x: 6 comma-separated numbers (0 = the teaching touch).")
+        str,
+        typer.Option(
+            help="Action x: 6 comma-separated numbers (0 = the teaching touch), or 7 with the "
+            "press depth last."
+        ),
     ] = "0,0,0,0,0,0",
     duration_s: Annotated[
         float, typer.Option("--duration", min=1.0, help="Touch duration in seconds.")
@@ -236,7 +243,8 @@ def touch(
     as_json: AsJson = False,
 ) -> None:
     """Execute one touch (action → DMP → trajectory) and print its observation y."""
-    actions = touch_actions(duration_s)
+    press_depth = len(action.split(",")) == 7
+    actions = touch_actions(duration_s, press_depth)
     x = _parse_action(action, actions.action_dim)
 
     def operation(lease: RigLease, handle: RigHandle) -> dict[str, Any]:

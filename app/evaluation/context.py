@@ -144,7 +144,7 @@ class TrialContext:
         if actions is None:
             from app.rig.actions import TouchActions
 
-            actions = TouchActions.from_teaching()
+            actions = TouchActions.for_action_dim(self.model.hyperparameters.action_dim)
             self._local.rig_actions = actions
         return actions
 

@@ -504,7 +504,7 @@ class CollectionService:
         holder = self._rig.holder
         if holder is not None:
             raise ConflictError(f"The rig is in use by {holder}.", held_by=holder)
-        dx, dy = self._rig.action_dim, self._rig.observation_dim
+        dx, dy = self._rig.actions(body.press_depth).action_dim, self._rig.observation_dim
         dataset = crud.create_dataset(
             session,
             name=body.name or "rig collection",
@@ -579,7 +579,13 @@ class CollectionService:
                     session.commit()
                 self._announce(run)
                 touches = iter_stages(
-                    lease, self._rig.actions(), slots, design, stages, rounds, body.seed or 0
+                    lease,
+                    self._rig.actions(body.press_depth),
+                    slots,
+                    design,
+                    stages,
+                    rounds,
+                    body.seed or 0,
                 )
                 for touch in touches:
                     self._store(run_id, touch)
@@ -612,7 +618,8 @@ class CollectionService:
         the teaching action x = 0, M times on every object.
         """
         rng = np.random.default_rng(body.seed)
-        dx, n_objects, per_object = self._rig.action_dim, len(body.objects), body.samples_per_object
+        dx = self._rig.actions(body.press_depth).action_dim
+        n_objects, per_object = len(body.objects), body.samples_per_object
         if body.action_design == "adaptive":  # its first, random half; then self._rounds
             per_object = stage_sizes("adaptive", per_object)[0]
         scale = self._rig.design_std if body.action_scale is None else body.action_scale

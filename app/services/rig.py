@@ -30,6 +30,7 @@ from app.services.events import EventBus
 from app.services.jobs import JobRunner
 from app.services.touch import Touch
 from core.features.pipeline import FeaturePipeline
+from core.types import ManifoldModel
 from core.validation import FloatArray
 from hardware.errors import HardwareError, RigBusy
 from hardware.records import TouchRecord
@@ -122,7 +123,7 @@ class RigService:
         self.simulated_table: Table = settings.simulated_table()
         self._lock = threading.Lock()
         self._handle: RigHandle | None = None
-        self._actions: TouchActions | None = None
+        self._actions: dict[bool, TouchActions] = {}
 
     # --- construction -------------------------------------------------------------------------
 
@@ -162,12 +163,23 @@ class RigService:
             ports=RigPorts(s.turntable_port, s.finger_port, s.tactile_port), rig_config=config
         )
 
-    def actions(self) -> TouchActions:
-        """Action → trajectory map of the rig (DMPs of the teaching trajectory)."""
+    def actions(self, press_depth: bool = False) -> TouchActions:
+        """Action → trajectory map of the rig (DMPs of the teaching trajectory), with the
+        press-depth component as the last dimension if ``press_depth``."""
         with self._lock:
-            if self._actions is None:
-                self._actions = TouchActions.from_teaching()
-            return self._actions
+            if press_depth not in self._actions:
+                self._actions[press_depth] = TouchActions.from_teaching(press_depth=press_depth)
+            return self._actions[press_depth]
+
+    def actions_for(self, model: ManifoldModel) -> TouchActions:
+        """The action map a model was trained on: with the press depth if its dx has it."""
+        return self.actions(model.hyperparameters.action_dim == self.action_dim + 1)
+
+    def rig_action_dim(self, model: ManifoldModel) -> int:
+        """dx of the rig's actions for ``model``: the model's if the rig can make it (with or
+        without the press depth), else the plain DMP actions' (for the error message)."""
+        dx = model.hyperparameters.action_dim
+        return dx if dx in (self.action_dim, self.action_dim + 1) else self.action_dim
 
     @property
     def sim_table(self) -> tuple[str, ...]:
@@ -185,7 +197,7 @@ class RigService:
 
     @property
     def action_dim(self) -> int:
-        """dx of rig actions."""
+        """dx of rig actions without the press depth."""
         return self.actions().action_dim
 
     @property

@@ -70,7 +70,7 @@ class WorldFactory:
         """The rig's touches must make the model's y: dy frame channels (the channel means),
         or, for a model with a feature pipeline, the raw channels the pipeline reads."""
         h = model.hyperparameters
-        dx, dy = self._rig.action_dim, self._rig.observation_dim
+        dx, dy = self._rig.rig_action_dim(model), self._rig.observation_dim
         if model.features is not None and h.action_dim == dx:
             made = raw_channel_names(self._rig.channel_names)
             needed = [p.name for p in model.features.channels]
@@ -152,13 +152,19 @@ class WorldFactory:
                 handle.close()
                 raise
             return RigTouchSource(
-                lease, self._rig.actions(), slot, release=handle.close, features=model.features
+                lease,
+                self._rig.actions_for(model),
+                slot,
+                release=handle.close,
+                features=model.features,
             )
         assert target_slot is not None
         if lease is None:
             raise ValueError("a rig trial drives the rig through the lease it was created with.")
         self._rig.ensure_connected(lease)
-        return RigTouchSource(lease, self._rig.actions(), target_slot, features=model.features)
+        return RigTouchSource(
+            lease, self._rig.actions_for(model), target_slot, features=model.features
+        )
 
     def halt(self) -> None:
         """Stop the rig at once (abort of a rig trial)."""

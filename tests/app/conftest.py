@@ -87,9 +87,15 @@ RIG_OBJECTS = ("paper_cup", "ceramic_mug", "foam_sponge")
 
 
 def fitted_on_the_rig(
-    table: str, objects: tuple[str, ...], touches: int, latent_dim: int, seed: int
+    table: str,
+    objects: tuple[str, ...],
+    touches: int,
+    latent_dim: int,
+    seed: int,
+    press_depth: bool = False,
 ) -> ManifoldModel:
-    """A model fitted on ``touches`` random touches of each of ``objects`` on a simulated table."""
+    """A model fitted on ``touches`` random touches of each of ``objects`` on a simulated table
+    (with the press-depth action component if ``press_depth``)."""
     from app.evaluation.context import rig_tables
     from app.rig.actions import TouchActions
     from app.rig.build import SimulationMode, open_rig
@@ -101,9 +107,10 @@ def fitted_on_the_rig(
     try:
         lease = handle.rig.acquire("test")
         lease.connect()
-        design = np.random.default_rng(seed).standard_normal((touches, 6))
+        actions = TouchActions.from_teaching(press_depth=press_depth)
+        design = np.random.default_rng(seed).standard_normal((touches, actions.action_dim))
         slots = {name: slots_of.index(name) for name in objects}
-        collected = list(iter_collect(lease, TouchActions.from_teaching(), slots, design))
+        collected = list(iter_collect(lease, actions, slots, design))
         lease.release()
     finally:
         handle.close()

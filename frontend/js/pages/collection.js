@@ -164,6 +164,7 @@ async function startCollection(form) {
     objects,
     samples_per_object: Number($("col-samples").value),
     action_design: $("col-design").value,
+    press_depth: $("col-press-depth").checked,
   };
   if ($("col-scale").value !== "") body.action_scale = Number($("col-scale").value);
   if ($("col-seed").value !== "") body.seed = Number($("col-seed").value);
