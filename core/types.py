@@ -453,6 +453,10 @@ class ManifoldModel:
             dimension (:mod:`core.gp.input_shift`): under object l the touches of one placement
             share J_l(x_t) diag(σ_δ²) J_l(x_u)ᵀ through the slope of the mean. ``None``: not
             estimated. Shape (dx,).
+        shift_creep_variance: σ_c,k², the variance the shift gains at each touch of a placement
+            after its first (:mod:`core.gp.input_shift`): touches t, u of one placement share
+            J_l(x_t) diag(σ_δ² + σ_c² min(t, u)) J_l(x_u)ᵀ. ``None``: no creep (not estimated,
+            or no runs of three touches to estimate it from). Shape (dx,).
     """
 
     data: TrainingData
@@ -470,6 +474,7 @@ class ManifoldModel:
     tempering: float | None = None
     drift_variance: FloatArray | None = None
     shift_variance: FloatArray | None = None
+    shift_creep_variance: FloatArray | None = None
 
     @property
     def raw_data(self) -> TrainingData:

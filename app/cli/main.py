@@ -447,6 +447,11 @@ def fit(
             f"{escape(np.array2string(np.sqrt(shift.variance), precision=3))} per action "
             "dimension"
         )
+        if shift.runs:
+            stdout.print(
+                f"its creep from {shift.runs:d} placements of three touches or more: σ_c = "
+                f"{escape(np.array2string(np.sqrt(shift.creep), precision=3))} per touch"
+            )
     if laplace is not None:
         spread = np.sqrt(np.trace(laplace.covariance, axis1=1, axis2=2))
         stdout.print(

@@ -42,6 +42,7 @@ from core.gp import (
     KERNELS,
     check_drift_variance,
     check_placement_variance,
+    check_shift_creep,
     check_shift_variance,
 )
 from core.recognition import check_exponent, check_latent_covariance
@@ -173,6 +174,11 @@ def calibration_fields(model: ManifoldModel) -> dict[str, Any]:
     if model.shift_variance is not None:
         fields["input_shift"] = {
             "variance": [float(v) for v in model.shift_variance],
+            **(
+                {}
+                if model.shift_creep_variance is None
+                else {"creep": [float(v) for v in model.shift_creep_variance]}
+            ),
             "space": "action",
             "estimator": (
                 "non-negative least squares on the cross-products of leave-one-placement-out "
@@ -419,6 +425,8 @@ _CALIBRATIONS: tuple[tuple[str, str, str, Callable[[ManifoldModel, Any], Any]], 
     # After the placement effect: σ_b² + σ_d² must stay below σ_n².
     ("drift_effect", "variance", "drift_variance", check_drift_variance),
     ("input_shift", "variance", "shift_variance", check_shift_variance),
+    # Optional within the field (documents before the creep have none).
+    ("input_shift", "creep?", "shift_creep_variance", check_shift_creep),
 )
 
 
@@ -437,6 +445,10 @@ def _read_calibration(
     field = document.get(name)
     if field is None:
         return None
+    if key.endswith("?"):  # an optional key
+        key = key[:-1]
+        if key not in field:
+            return None
     try:
         return check(_field(field, key, name))
     except InvalidInputError as exc:

@@ -201,10 +201,20 @@ def check_objects(objects: Mapping[str, int] | list[tuple[str, int]]) -> None:
             )
 
 
+#: The run a placement gets when there are fewer than two touches per placement: the touches
+#: beyond one per placement go into runs of this length. Three, not two: a trial's touches of
+#: one placement creep apart from touch to touch, and only runs of three or more show by how
+#: much (docs/calibration.md, "The input shift's creep"); pairs show only the shared shift.
+RUN_LENGTH = 3
+
+
 def placement_runs(n_touches: int, placements: int) -> list[range]:
     """Split an object's ``n_touches`` touches (in design order) into ``placements`` runs.
 
-    The runs differ in length by at most one (the first ones take the remainder).
+    With two touches per placement or more, the runs differ in length by at most one (the
+    first ones take the remainder). With fewer, the touches beyond one per placement go into
+    runs of :data:`RUN_LENGTH` (the first runs; one shorter run takes what is left), and the
+    other placements get one touch each.
 
     Raises:
         BadInputError: ``placements`` < 1 or larger than ``n_touches`` (a placement needs a
@@ -217,11 +227,16 @@ def placement_runs(n_touches: int, placements: int) -> list[range]:
             field="placements",
         )
     size, extra = divmod(n_touches, placements)
+    if size >= 2:
+        lengths = [size + (1 if p < extra else 0) for p in range(placements)]
+    else:
+        runs, rest = divmod(n_touches - placements, RUN_LENGTH - 1)
+        lengths = [RUN_LENGTH] * runs + ([1 + rest] if rest else [])
+        lengths += [1] * (placements - len(lengths))
     groups, start = [], 0
-    for p in range(placements):
-        stop = start + size + (1 if p < extra else 0)
-        groups.append(range(start, stop))
-        start = stop
+    for length in lengths:
+        groups.append(range(start, start + length))
+        start += length
     return groups
 
 

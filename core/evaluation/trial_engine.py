@@ -279,6 +279,10 @@ class ModelTrial:
         shift = model.shift_variance
         if shift is not None and (self.shift is None or not self.shared_placement):
             self.shift = np.sqrt(shift) * rng.standard_normal(shift.shape)
+        elif self.shift is not None and model.shift_creep_variance is not None:
+            # A later touch of the placement: the shift has crept since the last one.
+            creep = model.shift_creep_variance
+            self.shift = self.shift + np.sqrt(creep) * rng.standard_normal(creep.shape)
         parts = [
             (part, part_variance)
             for part, part_variance in ((self.offset, variance), (self.drift, drift))

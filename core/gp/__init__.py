@@ -22,7 +22,12 @@ from core.gp.fit_run import (
     fit_structure,
     run_first_stage,
 )
-from core.gp.input_shift import check_shift_variance, estimate_shift_variance, with_input_shift
+from core.gp.input_shift import (
+    check_shift_creep,
+    check_shift_variance,
+    estimate_shift_variance,
+    with_input_shift,
+)
 from core.gp.manifold import (
     FitCancelledError,
     fit_hyperparameters,
@@ -67,6 +72,7 @@ __all__ = [
     "attach_transform",
     "check_drift_variance",
     "check_placement_variance",
+    "check_shift_creep",
     "check_shift_variance",
     "choose_noise_model",
     "condition",

@@ -23,6 +23,14 @@ fit over every pair gives the estimate (:func:`shared_shift_variance`). Only the
 touches' errors that a placement shares identifies it: noise that grows with the slope but is
 drawn afresh at every touch cancels in the cross-products. Without recorded placements there is
 no estimate and the shift changes nothing.
+
+A placement also creeps: every lift-off can leave the object sitting a little differently, so
+the shift wanders from touch to touch as a random walk, δ_t = δ_0 + Σ_{i<t} ε_i with ε_i ~
+N(0, diag(σ_c²)). The t-th and u-th touches of one placement (counted from 0) then share
+diag(σ_δ² + σ_c² min(t, u)), so a trial's later touches share more than its first ones. Pairs
+cannot see σ_c² (their min(t, u) is 0); runs of three touches or more can, and the same
+non-negative least squares fits both from the cross-products (docs/calibration.md, "The
+input shift's creep").
 """
 
 from __future__ import annotations
@@ -42,6 +50,7 @@ from core.validation import FloatArray, as_float_array
 
 __all__ = [
     "ShiftEstimate",
+    "check_shift_creep",
     "check_shift_variance",
     "estimate_shift_variance",
     "mean_jacobian",
@@ -65,13 +74,17 @@ class ShiftEstimate:
     Attributes:
         variance: σ_δ,k², the variance of the shift along each action dimension, in squared
             action units. Shape (dx,).
+        creep: σ_c,k², the variance the shift gains per touch within a placement. Shape (dx,).
         groups: Placements with at least two training touches.
         pairs: Ordered pairs of touches of one placement (each gives dy² cross-products).
+        runs: Placements with three touches or more (the only ones that see the creep).
     """
 
     variance: FloatArray
+    creep: FloatArray
     groups: int
     pairs: int
+    runs: int
 
 
 def mean_jacobian(model: ManifoldModel, latents: FloatArray, actions: FloatArray) -> FloatArray:
@@ -110,18 +123,21 @@ def shift_covariance(
     actions: FloatArray,
     variance: FloatArray,
     shared: bool = True,
+    creep: FloatArray | None = None,
 ) -> FloatArray:
     """The covariance the input shift adds to T touches under one object, feature-major.
 
-    Entry ((a, t), (b, u)) is J_a(x_t) diag(σ_δ²) J_b(x_u)ᵀ when the touches share one placement
-    (``shared``), else only for t = u (each touch its own shift).
+    Entry ((a, t), (b, u)) is J_a(x_t) diag(σ_δ² + σ_c² min(t, u)) J_b(x_u)ᵀ when the touches
+    share one placement in this order (``shared``), else J_a(x_t) diag(σ_δ²) J_b(x_t)ᵀ for t = u
+    only (each touch its own placement, the first of it).
 
     Args:
         model: A conditioned model.
         latent: The object's latent s_l. Shape (ds,).
-        actions: The touches' actions. Shape (T, dx).
+        actions: The touches' actions, in the order they were made. Shape (T, dx).
         variance: σ_δ² (:func:`check_shift_variance`). Shape (dx,).
         shared: Whether the touches met one placement.
+        creep: σ_c², the shift's variance gained per touch (``None``: no creep). Shape (dx,).
 
     Returns:
         Shape (dy·T, dy·T), rows and columns ordered feature-major (a·T + t).
@@ -133,9 +149,11 @@ def shift_covariance(
     jac = mean_jacobian(model, np.tile(s, (t, 1)), x)  # (T, dy, dx)
     rows = np.transpose(jac, (1, 0, 2)).reshape(h.observation_dim * t, h.action_dim)
     cov = (rows * variance[None, :]) @ rows.T
+    touch = np.tile(np.arange(t), h.observation_dim)
     if not shared:
-        touch = np.tile(np.arange(t), h.observation_dim)
         cov = np.where(touch[:, None] == touch[None, :], cov, 0.0)
+    elif creep is not None and t > 1:
+        cov += np.minimum(touch[:, None], touch[None, :]) * ((rows * creep[None, :]) @ rows.T)
     return np.asarray(cov, dtype=np.float64)
 
 
@@ -145,12 +163,23 @@ def check_shift_variance(model: ManifoldModel, variance: object) -> FloatArray:
     Raises:
         InvalidInputError: Wrong length, not finite, or negative.
     """
-    value = as_float_array(variance, "shift_variance", (model.hyperparameters.action_dim,))
-    if np.any(value < 0.0):
-        raise InvalidInputError(
-            f"shift_variance: every σ_δ,k² must be ≥ 0, received {value.tolist()}."
-        )
-    return value
+    return _per_action_variance(model, variance, "shift_variance", "σ_δ,k²")
+
+
+def check_shift_creep(model: ManifoldModel, creep: object) -> FloatArray:
+    """σ_c² as a checked array: dx finite values ≥ 0. Shape (dx,).
+
+    Raises:
+        InvalidInputError: Wrong length, not finite, or negative.
+    """
+    return _per_action_variance(model, creep, "shift_creep_variance", "σ_c,k²")
+
+
+def _per_action_variance(model: ManifoldModel, value: object, name: str, symbol: str) -> FloatArray:
+    checked = as_float_array(value, name, (model.hyperparameters.action_dim,))
+    if np.any(checked < 0.0):
+        raise InvalidInputError(f"{name}: every {symbol} must be ≥ 0, received {checked.tolist()}.")
+    return checked
 
 
 def shared_shift_variance(
@@ -158,23 +187,25 @@ def shared_shift_variance(
     covariances: list[FloatArray],
     jacobians: list[FloatArray],
     action_variance: FloatArray,
-) -> tuple[FloatArray, int]:
-    """σ_δ² ≥ 0 from the leave-placement-out residuals of placements with ≥ 2 touches.
+) -> tuple[FloatArray, FloatArray, int]:
+    """σ_δ² ≥ 0 and σ_c² ≥ 0 from the leave-placement-out residuals of placements with ≥ 2
+    touches, each placement's touches in the order they were made.
 
-    For touches i ≠ j of one placement and features a, b: E[r_ia r_jb] = [a = b] A_a,ij +
-    Σ_k σ_δ,k² J_ia,k J_jb,k. The excess cross-products are fitted by non-negative least squares
-    (Lawson–Hanson), then capped at 4 × ``action_variance`` (a shift beyond twice the design's
-    spread is not a placement's).
+    For touches i ≠ j (positions i, j in their placement) and features a, b: E[r_ia r_jb] =
+    [a = b] A_a,ij + Σ_k (σ_δ,k² + σ_c,k² min(i, j)) J_ia,k J_jb,k. The excess cross-products
+    are fitted by non-negative least squares (Lawson–Hanson) in the 2·dx unknowns, then each is
+    capped at 4 × ``action_variance`` (a shift beyond twice the design's spread is not a
+    placement's). Without runs of three touches no pair has min(i, j) > 0: σ_c² stays 0.
 
     Args:
-        residuals: Per placement, r_G. Shape (n_G, dy) each.
+        residuals: Per placement, r_G in touch order. Shape (n_G, dy) each.
         covariances: Per placement, the model's leave-placement-out covariance A_G per feature.
             Shape (dy, n_G, n_G) each.
         jacobians: Per placement, the slopes J of its touches. Shape (n_G, dy, dx) each.
         action_variance: The training actions' variance per dimension. Shape (dx,).
 
     Returns:
-        ``(σ_δ², pairs)``: shape (dx,), and the number of ordered pairs used.
+        ``(σ_δ², σ_c², pairs)``: shapes (dx,) and (dx,), and the number of ordered pairs used.
     """
     spread = as_float_array(action_variance, "action_variance", (None,))
     design: list[FloatArray] = []
@@ -188,18 +219,24 @@ def shared_shift_variance(
         diagonal = np.arange(r.shape[1])
         expected[:, diagonal, diagonal] = cov[:, first, second].T
         slopes = jac[first][:, :, None, :] * jac[second][:, None, :, :]
-        design.append(slopes.reshape(-1, jac.shape[2]))
+        steps = np.minimum(first, second)[:, None, None, None] * slopes
+        dx = jac.shape[2]
+        design.append(np.hstack([slopes.reshape(-1, dx), steps.reshape(-1, dx)]))
         target.append((products - expected).reshape(-1))
     if not design:
-        return np.zeros_like(spread), 0
+        return np.zeros_like(spread), np.zeros_like(spread), 0
     matrix, vector = np.concatenate(design), np.concatenate(target)
-    variance, _ = scipy.optimize.nnls(matrix, vector)
+    solution, _ = scipy.optimize.nnls(matrix, vector)
     pairs = sum(r.shape[0] * (r.shape[0] - 1) for r in residuals)
-    return np.minimum(variance, _UPPER_FRACTION * spread), int(pairs)
+    cap = _UPPER_FRACTION * spread
+    dx = spread.shape[0]
+    return np.minimum(solution[:dx], cap), np.minimum(solution[dx:], cap), int(pairs)
 
 
 def estimate_shift_variance(model: ManifoldModel) -> ShiftEstimate | None:
-    """σ_δ² from the training touches that share a placement (:func:`shared_shift_variance`).
+    """σ_δ² and σ_c² from the training touches that share a placement
+    (:func:`shared_shift_variance`), each placement's touches in the order of their times
+    (in the data's order when no times were recorded).
 
     Leaving placement G out of the GP conditioned on all the touches gives its residuals
     r_G,a = A_G,a β_G,a with covariance A_G,a = ((K_a⁻¹)_GG)⁻¹ (the block leave-out identities,
@@ -217,23 +254,28 @@ def estimate_shift_variance(model: ManifoldModel) -> ShiftEstimate | None:
     groups = shared_groups(data.object_index, model.raw_data.placement_index)
     if not groups:
         return None
+    times = model.raw_data.touch_times_s
     inverse = model.posterior.gram_inverse  # (dy, N, N)
     beta = model.posterior.beta  # (dy, N)
     residuals: list[FloatArray] = []
     covariances: list[FloatArray] = []
     jacobians: list[FloatArray] = []
+    if times is not None:  # each placement's touches in the order they were made
+        groups = [g[np.argsort(times[g], kind="stable")] for g in groups]
     for g in groups:
         cov = np.asarray(np.linalg.inv(inverse[:, g[:, None], g[None, :]]), dtype=np.float64)
         residuals.append(np.einsum("aij,aj->ia", cov, beta[:, g]))
         covariances.append(cov)
         jacobians.append(mean_jacobian(model, model.latents[data.object_index[g]], data.actions[g]))
     spread = np.maximum(data.actions.var(axis=0), np.finfo(float).tiny)
-    variance, pairs = shared_shift_variance(residuals, covariances, jacobians, spread)
-    return ShiftEstimate(variance=variance, groups=len(groups), pairs=pairs)
+    variance, creep, pairs = shared_shift_variance(residuals, covariances, jacobians, spread)
+    runs = sum(g.size >= 3 for g in groups)
+    return ShiftEstimate(variance, creep, groups=len(groups), pairs=pairs, runs=runs)
 
 
 def with_input_shift(model: ManifoldModel) -> tuple[ManifoldModel, ShiftEstimate | None]:
-    """The model with σ_δ² estimated from its training touches, for scoring trials.
+    """The model with σ_δ² (and σ_c², when runs of three touches show it) estimated from its
+    training touches, for scoring trials.
 
     The fit is left as it is (its σ_n² already holds the average shift its touches saw); the
     shift's covariance enters the object likelihood of a trial's touches
@@ -248,4 +290,8 @@ def with_input_shift(model: ManifoldModel) -> tuple[ManifoldModel, ShiftEstimate
     estimate = estimate_shift_variance(model)
     if estimate is None:
         return model, None
-    return dataclasses.replace(model, shift_variance=estimate.variance), estimate
+    creep = estimate.creep if estimate.runs else None
+    return (
+        dataclasses.replace(model, shift_variance=estimate.variance, shift_creep_variance=creep),
+        estimate,
+    )

@@ -287,6 +287,7 @@ def trial_log_likelihoods(
     variance: FloatArray,
     shift_variance: FloatArray | None = None,
     shared_placement: bool = True,
+    shift_creep: FloatArray | None = None,
 ) -> FloatArray:
     """log p(y_1..y_T | l) of one trial's touches under every object, with a placement effect.
 
@@ -306,6 +307,8 @@ def trial_log_likelihoods(
             trial is then one joint Gaussian over all of them. ``None``: none. Shape (dx,).
         shared_placement: Whether the touches met one placement (the shift is then shared;
             otherwise each touch has its own).
+        shift_creep: σ_c², the shift's variance gained per touch of the placement (``None``:
+            none). Shape (dx,).
 
     Returns:
         Log-likelihood of the trial under each object. Shape (L,).
@@ -332,7 +335,7 @@ def trial_log_likelihoods(
                 for a in range(h.observation_dim)
             ]
             cov = scipy.linalg.block_diag(*blocks) + shift_covariance(
-                model, latent, x, shift_variance, shared_placement
+                model, latent, x, shift_variance, shared_placement, shift_creep
             )
             out[obj] = gaussian_log_density(
                 (y_model - mean).T.reshape(-1), cov, "trial covariance with the input shift"

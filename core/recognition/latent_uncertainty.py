@@ -256,6 +256,7 @@ def trial_log_likelihoods(
     latent_covariance: FloatArray,
     shift_variance: FloatArray | None = None,
     shared_placement: bool = True,
+    shift_creep: FloatArray | None = None,
 ) -> FloatArray:
     """log p(y_1..y_T | l) of one trial's touches with s_l ~ N(s_l*, Σ_l) (docs/method.md (L3)).
 
@@ -273,6 +274,8 @@ def trial_log_likelihoods(
         shift_variance: σ_δ², a placement's shift of the action (:mod:`core.gp.input_shift`),
             its covariance taken at s_l*. ``None``: none. Shape (dx,).
         shared_placement: Whether the touches met one placement (the shift is then shared).
+        shift_creep: σ_c², the shift's variance gained per touch of the placement (``None``:
+            none). Shape (dx,).
 
     Returns:
         Log-likelihood of the trial under each object. Shape (L,).
@@ -296,7 +299,7 @@ def trial_log_likelihoods(
         )
         if shift_variance is not None:
             cov = cov + shift_covariance(
-                model, model.latents[obj], x, shift_variance, shared_placement
+                model, model.latents[obj], x, shift_variance, shared_placement, shift_creep
             )
         residual = target - mean.T.reshape(-1)
         out[obj] = gaussian_log_density(residual, cov + noise, "trial covariance")

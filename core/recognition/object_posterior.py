@@ -63,9 +63,11 @@ def object_log_likelihoods(
     moments over all touches and features at once, in either setting.
 
     A model with ``shift_variance`` σ_δ² (:mod:`core.gp.input_shift`) adds, under object l, the
-    covariance J_l(x_t) diag(σ_δ²) J_l(x_u)ᵀ of a placement's shift of the action, J_l the slope
-    of the predictive mean at s_l: between every pair of touches when they met one placement
-    (``shared_placement``), within each touch otherwise. ``"joint"`` only.
+    covariance J_l(x_t) diag(σ_δ² + σ_c² min(t, u)) J_l(x_u)ᵀ of a placement's shift of the
+    action (σ_c², ``shift_creep_variance``, its creep from touch to touch), J_l the slope of the
+    predictive mean at s_l: between every pair of touches when they met one placement
+    (``shared_placement``, the touches in the order they were made), within each touch
+    otherwise. ``"joint"`` only.
 
     A model with ``tempering`` = β (:mod:`core.recognition.tempering`, a last resort fitted on the
     training touches) returns β times the value: the posterior becomes p(D_t | l)^β, normalised.
@@ -139,6 +141,7 @@ def _untempered_log_likelihoods(
                 model.latent_covariance,
                 model.shift_variance,
                 shared_placement,
+                model.shift_creep_variance,
             )
         zero = np.zeros(model.hyperparameters.observation_dim)
         return np.asarray(
@@ -151,7 +154,15 @@ def _untempered_log_likelihoods(
             dtype=np.float64,
         )
     if trial_likelihood == "joint":
-        return trial_log_likelihoods(model, x, y, variance, model.shift_variance, shared_placement)
+        return trial_log_likelihoods(
+            model,
+            x,
+            y,
+            variance,
+            model.shift_variance,
+            shared_placement,
+            model.shift_creep_variance,
+        )
     # Queries ordered (touch, object): every touch under every learned latent.
     latents = np.tile(model.latents, (x.shape[0], 1))
     queries = np.repeat(x, n_objects, axis=0)

@@ -24,13 +24,23 @@ def test_latent_covariance_and_tempering_round_trip() -> None:
     model = experiment1_at_true_latents(seed=0, touches_per_object=6)
     covariance = np.array([[[0.01]], [[0.02]], [[0.03]], [[0.04]]])
     richer = dataclasses.replace(
-        model, latent_covariance=covariance, tempering=0.6, shift_variance=np.array([0.04])
+        model,
+        latent_covariance=covariance,
+        tempering=0.6,
+        shift_variance=np.array([0.04]),
+        shift_creep_variance=np.array([0.01]),
     )
     document = json.loads(json.dumps(model_to_document(richer)))
     loaded = model_from_document(document)
     np.testing.assert_array_equal(loaded.latent_covariance, covariance)
     assert loaded.tempering == 0.6
     np.testing.assert_array_equal(loaded.shift_variance, [0.04])
+    np.testing.assert_array_equal(loaded.shift_creep_variance, [0.01])
+    # A shift without creep (as documents written before the creep have it).
+    del document["input_shift"]["creep"]
+    older = model_from_document(document)
+    np.testing.assert_array_equal(older.shift_variance, [0.04])
+    assert older.shift_creep_variance is None
     # A document without the fields: latents taken as known, no tempering, no shift.
     plain = model_from_document(model_to_document(model))
     assert plain.latent_covariance is None
@@ -52,6 +62,8 @@ def test_latent_covariance_and_tempering_round_trip() -> None:
         ("tempering", {"exponent": "high"}, "tempering"),
         ("input_shift", {"variance": [-0.1]}, "shift_variance"),
         ("input_shift", {"variance": [0.1, 0.2]}, "shift_variance"),
+        ("input_shift", {"variance": [0.1], "creep": [-0.1]}, "shift_creep_variance"),
+        ("input_shift", {"variance": [0.1], "creep": "slow"}, "shift_creep_variance"),
     ],
 )
 def test_bad_fields_are_refused(field: str, value: object, fragment: str) -> None:

@@ -240,5 +240,15 @@ def test_fit_estimates_the_placement_effect_into_the_document(tmp_path: Path) ->
 def test_placement_runs_split_unevenly_and_refuse_empty_placements() -> None:
     assert placement_runs(7, 3) == [range(0, 3), range(3, 5), range(5, 7)]
     assert placement_runs(4, 4) == [range(k, k + 1) for k in range(4)]
+    # Fewer than two touches per placement: runs of three first, then single touches.
+    lengths = [len(r) for r in placement_runs(100, 75)]
+    assert lengths == [3] * 12 + [2] + [1] * 62
+    assert [len(r) for r in placement_runs(7, 4)] == [3, 2, 1, 1]
+    assert [len(r) for r in placement_runs(8, 4)] == [2, 2, 2, 2]  # two per placement: even
+    assert [len(r) for r in placement_runs(5, 4)] == [2, 1, 1, 1]
+    for n, p in ((100, 75), (8, 4), (5, 4), (9, 5), (3, 2)):
+        runs = placement_runs(n, p)
+        assert len(runs) == p
+        assert [k for r in runs for k in r] == list(range(n))  # every touch once, in order
     with pytest.raises(BadInputError, match="placements"):
         placement_runs(2, 3)

@@ -19,6 +19,7 @@ from core.gp.input_shift import (
     mean_jacobian,
     shared_shift_variance,
     shift_covariance,
+    with_input_shift,
 )
 from core.gp.placement_effect import predictive_covariance
 from core.gp.posterior import condition, predict_model_space
@@ -87,8 +88,12 @@ def test_the_covariance_is_the_slope_times_the_shift_shared_or_per_touch() -> No
 
 def test_the_trial_likelihood_is_the_direct_gaussian_with_the_shift() -> None:
     model = two_action_model()
+    creep = np.array([0.03, 0.01])
     shifted = dataclasses.replace(
-        model, shift_variance=np.array([0.05, 0.2]), placement_variance=np.array([0.004, 0.01])
+        model,
+        shift_variance=np.array([0.05, 0.2]),
+        shift_creep_variance=creep,
+        placement_variance=np.array([0.004, 0.01]),
     )
     rng = np.random.default_rng(3)
     actions = rng.normal(size=(4, 2))
@@ -105,7 +110,7 @@ def test_the_trial_likelihood_is_the_direct_gaussian_with_the_shift() -> None:
             cov = scipy.linalg.block_diag(
                 *[cov_f[a] + sigma_b[a] + noise[a] * np.eye(4) for a in range(2)]
             )
-            cov += shift_covariance(model, latent, actions, np.array([0.05, 0.2]), shared)
+            cov += shift_covariance(model, latent, actions, np.array([0.05, 0.2]), shared, creep)
             expected = scipy.stats.multivariate_normal(mean.T.reshape(-1), cov).logpdf(
                 observations.T.reshape(-1)
             )
@@ -135,14 +140,67 @@ def test_pairs_recover_a_known_shared_shift() -> None:
         plain.append(rng.multivariate_normal(np.zeros(dy * 3), full).reshape(dy, 3).T)
         covariances.append(base)
         jacobians.append(jac)
-    estimate, pairs = shared_shift_variance(residuals, covariances, jacobians, np.ones(dx))
+    estimate, creep, pairs = shared_shift_variance(residuals, covariances, jacobians, np.ones(dx))
     assert pairs == 1500 * 6
     np.testing.assert_allclose(estimate, true, rtol=0.15)
-    estimate, _ = shared_shift_variance(plain, covariances, jacobians, np.ones(dx))
+    assert np.all(creep < 0.02)  # a shared shift that does not creep
+    estimate, creep, _ = shared_shift_variance(plain, covariances, jacobians, np.ones(dx))
     assert np.all(estimate < 0.02)
+    assert np.all(creep < 0.02)
     # Capped at twice the design's spread.
-    capped, _ = shared_shift_variance(residuals, covariances, jacobians, np.full(dx, 0.01))
+    capped, _, _ = shared_shift_variance(residuals, covariances, jacobians, np.full(dx, 0.01))
     np.testing.assert_allclose(capped, [0.04, 0.04])
+
+
+def test_runs_of_four_recover_a_known_creep_and_pairs_cannot_see_it() -> None:
+    """Residuals of placements of four touches whose shift creeps as a random walk: the
+    cross-products give σ_δ² and σ_c² back; the first two touches of each alone give σ_δ² and
+    no creep (min(t, u) = 0 for every pair)."""
+    rng = np.random.default_rng(8)
+    dy, dx, n = 3, 2, 4
+    shift, creep = np.array([0.2, 0.05]), np.array([0.08, 0.02])
+    touch = np.tile(np.arange(n), dy)
+    steps = np.minimum(touch[:, None], touch[None, :])
+    residuals, covariances, jacobians = [], [], []
+    for _ in range(2000):
+        jac = rng.normal(size=(n, dy, dx))
+        base = rng.uniform(0.2, 1.0, size=(dy, 1, 1)) * (np.eye(n) + 0.3)
+        rows = np.transpose(jac, (1, 0, 2)).reshape(dy * n, dx)
+        shared = (rows * shift) @ rows.T + steps * ((rows * creep) @ rows.T)
+        draw = rng.multivariate_normal(np.zeros(dy * n), scipy.linalg.block_diag(*base) + shared)
+        residuals.append(draw.reshape(dy, n).T)
+        covariances.append(base)
+        jacobians.append(jac)
+    variance, crept, pairs = shared_shift_variance(residuals, covariances, jacobians, np.ones(dx))
+    assert pairs == 2000 * 12
+    np.testing.assert_allclose(variance, shift, rtol=0.15)
+    np.testing.assert_allclose(crept, creep, rtol=0.2)
+    first = [r[:2] for r in residuals]
+    bases = [c[:, :2, :2] for c in covariances]
+    slopes = [j[:2] for j in jacobians]
+    variance, crept, _ = shared_shift_variance(first, bases, slopes, np.ones(dx))
+    np.testing.assert_allclose(variance, shift, rtol=0.2)
+    np.testing.assert_array_equal(crept, 0.0)
+
+
+def test_the_creep_adds_the_slope_times_min_t_u_times_its_variance() -> None:
+    model = two_action_model()
+    latent = np.array([-0.4])
+    actions = np.array([[0.1, -0.4], [1.2, 0.3], [-0.7, 0.9], [0.5, 0.5]])
+    variance, creep = np.array([0.04, 0.09]), np.array([0.02, 0.01])
+    jac = mean_jacobian(model, np.tile(latent, (4, 1)), actions)
+    cov = shift_covariance(model, latent, actions, variance, creep=creep)
+    for a in range(2):
+        for b in range(2):
+            for t in range(4):
+                for u in range(4):
+                    expected = jac[t, a] @ np.diag(variance + creep * min(t, u)) @ jac[u, b]
+                    assert cov[a * 4 + t, b * 4 + u] == pytest.approx(expected, abs=1e-14)
+    # Each touch placed anew: every touch is a placement's first, no creep.
+    np.testing.assert_array_equal(
+        shift_covariance(model, latent, actions, variance, shared=False, creep=creep),
+        shift_covariance(model, latent, actions, variance, shared=False),
+    )
 
 
 def experiment1_with_shift(shift_std: float, shared: bool, seed: int) -> ManifoldModel:
@@ -231,3 +289,89 @@ def test_a_shift_variance_must_be_dx_values_at_least_zero() -> None:
         check_shift_variance(model, [0.1, -0.5])
     with pytest.raises(InvalidInputError, match="shift_variance"):
         check_shift_variance(model, [0.1])
+
+
+def test_the_model_world_creeps_the_shift_from_touch_to_touch() -> None:
+    """Touches 2 and 3 of a trial covary by J₂ (Σ + σ_c²) J₃ᵀ, touches 1 and 3 by J₁ Σ J₃ᵀ."""
+    shift, creep = np.array([0.5, 0.3]), np.array([0.6, 0.4])
+    model = dataclasses.replace(
+        two_action_model(), shift_variance=shift, shift_creep_variance=creep
+    )
+    actions = np.array([[0.4, -0.2], [-0.5, 0.8], [0.1, 0.3]])
+    rng = np.random.default_rng(9)
+    draws = np.empty((3000, 3, 2))
+    for i in range(draws.shape[0]):
+        trial = ModelTrial(model, "c")
+        draws[i] = [trial.touch(a, rng).observation for a in actions]
+    jac = mean_jacobian(model, np.tile(model.latents[2], (3, 1)), actions)
+    centred = draws - draws.mean(axis=0)
+    _, variance = predict_model_space(model, np.tile(model.latents[2], (3, 1)), actions)
+    for t, u in ((0, 2), (1, 2)):
+        expected = jac[t] @ np.diag(shift + creep * min(t, u)) @ jac[u].T
+        got = np.einsum("na,nb->ab", centred[:, t], centred[:, u]) / draws.shape[0]
+        scale = np.sqrt(np.outer(variance[t], variance[u]) + np.abs(expected))
+        np.testing.assert_allclose(got, expected, atol=5 * scale.max() / np.sqrt(draws.shape[0]))
+    crept = jac[1] @ np.diag(creep) @ jac[2].T
+    assert np.abs(crept).max() > 10 * scale.max() / np.sqrt(draws.shape[0])
+
+
+def experiment1_with_creep(seed: int, reverse_rows: bool) -> ManifoldModel:
+    """Experiment 1 with placements of four touches whose shift (std 0.2) creeps by std 0.2 per
+    touch; the touches' times give their order (the rows reversed when ``reverse_rows``)."""
+    rng = np.random.default_rng(seed)
+    theta = np.asarray(EXPERIMENT1_THETAS)
+    n = 160
+    obj = np.repeat(np.arange(4), n)
+    placement = np.tile(np.arange(n) // 4, 4)
+    position = np.tile(np.arange(n) % 4, 4)
+    start = 0.2 * rng.normal(size=(4, n // 4, 1))  # δ_0 of each placement
+    crept = np.cumsum(0.2 * rng.normal(size=(4, n // 4, 3)), axis=2)  # Σ_{i<t} ε_i, t = 1..3
+    walk = np.concatenate([start, start + crept], axis=2)  # (object, placement, position)
+    shift = walk[obj, placement, position][:, None]
+    actions = rng.normal(size=(4 * n, 1))
+    observations = np.vstack(
+        [experiment1_h(float(theta[o]), actions[i : i + 1] + shift[i]) for i, o in enumerate(obj)]
+    )
+    observations += 0.1 * rng.normal(size=observations.shape)
+    times = np.arange(4 * n, dtype=np.float64)
+    rows = np.arange(4 * n)[::-1] if reverse_rows else np.arange(4 * n)
+    data = TrainingData(
+        ("o1", "o2", "o3", "o4"),
+        obj[rows],
+        actions[rows],
+        observations[rows],
+        placement_index=placement[rows],
+        touch_times_s=times[rows],
+    )
+    centred = (theta - theta.mean())[:, None]
+    hyper = Hyperparameters(
+        signal_variance=np.array([0.18, 0.2, 0.27]),
+        noise_variance=np.full(3, 0.02),
+        latent_lengthscales=np.array([[1.9], [100.0], [8.0]]),
+        action_lengthscales=np.array([[0.84], [0.88], [0.92]]),
+    )
+    return condition(data, centred / np.sqrt(np.mean(centred**2)), hyper)
+
+
+def test_runs_of_four_touches_show_the_creep_in_the_order_of_their_times() -> None:
+    estimate = estimate_shift_variance(experiment1_with_creep(0, reverse_rows=False))
+    assert estimate is not None
+    assert (estimate.groups, estimate.runs, estimate.pairs) == (160, 160, 160 * 12)
+    assert 0.04 / 3 < estimate.variance[0] < 3 * 0.04
+    assert 0.04 / 3 < estimate.creep[0] < 3 * 0.04
+    # The same touches written last to first: their times put them back in order.
+    reversed_rows = estimate_shift_variance(experiment1_with_creep(0, reverse_rows=True))
+    assert reversed_rows is not None
+    np.testing.assert_allclose(reversed_rows.creep, estimate.creep, rtol=1e-8)
+    np.testing.assert_allclose(reversed_rows.variance, estimate.variance, rtol=1e-8)
+    # Scoring with the estimate: with_input_shift carries the creep into the model.
+    model, _ = with_input_shift(experiment1_with_creep(0, reverse_rows=False))
+    assert model.shift_creep_variance is not None
+    np.testing.assert_array_equal(model.shift_creep_variance, estimate.creep)
+
+
+def test_pairs_alone_leave_the_model_without_creep() -> None:
+    model, estimate = with_input_shift(experiment1_with_shift(0.25, True, 0))
+    assert estimate is not None
+    assert estimate.runs == 0
+    assert model.shift_creep_variance is None
