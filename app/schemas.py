@@ -634,13 +634,13 @@ class CollectionCreate(BaseModel):
         ),
     )
     press_depth: bool = Field(
-        default=False,
+        default=True,
         description=(
-            "Add the press-depth component as the actions' last dimension (dx = 7): it flexes "
+            "The press-depth component as the actions' last dimension (dx = 7): it flexes "
             "the finger 0.25° deeper per unit while pressing and is drawn like the other "
             "components, so that a fit learns how a placement's tilt moves the touches. A "
             "model fitted to such a collection is touched with the same actions in rig trials "
-            "and evaluations."
+            "and evaluations. False: the six DMP components alone (dx = 6)."
         ),
     )
 

@@ -39,7 +39,7 @@ separate benches and are named as not run here.
 
 Run: ``python -m bench.trust_acceptance (--table cushions | --table-file F) [--trials 200]
 [--workers 2] [--steps 6] [--touches 100] [--heldout-touches 100] [--heldout-sessions 4] [--seed 0]
-[--press-depth] [--workdir DIR] [--json OUT]``. Exit code 1 when a criterion fails.
+[--no-press-depth] [--workdir DIR] [--json OUT]``. Exit code 1 when a criterion fails.
 """
 
 from __future__ import annotations
@@ -378,7 +378,7 @@ def run(args: argparse.Namespace, workdir: Path) -> dict[str, dict[str, Any]]:
     train, heldout, model = workdir / "train.csv", workdir / "heldout.csv", workdir / "model.json"
     seed = str(args.seed)
     placements = [] if args.placements is None else ["--placements", str(args.placements)]
-    press = ["--press-depth"] if args.press_depth else []
+    press = [] if args.press_depth else ["--no-press-depth"]
     _run(
         [exe, "collect", "--sim", *table, "--touches", str(args.touches), *placements, *press,
          "--seed", seed, "--out", str(train)],
@@ -466,9 +466,10 @@ def main(argv: list[str] | None = None) -> None:
         help="collect --placements of the training collection (default: collect's default).",
     )
     parser.add_argument(
-        "--press-depth",
-        action="store_true",
-        help="collect --press-depth (training and held-out): actions with the press depth.",
+        "--no-press-depth",
+        dest="press_depth",
+        action="store_false",
+        help="collect --no-press-depth (training and held-out): the six DMP components alone.",
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workdir", type=Path, help="Keep (and reuse) every file here.")

@@ -341,12 +341,13 @@ def collect_command(
     press_depth: Annotated[
         bool,
         typer.Option(
-            "--press-depth",
-            help="Add the press-depth component as a 7th action dimension (x_7 flexes the "
-            "finger x_7 · 0.25° deeper while pressing, drawn like the others): the fit then "
-            "learns how a placement's tilt moves the touches (docs/calibration.md).",
+            "--press-depth/--no-press-depth",
+            help="The press-depth component as a 7th action dimension (x_7 flexes the finger "
+            "x_7 · 0.25° deeper while pressing, drawn like the others): the fit then learns how "
+            "a placement's tilt moves the touches (docs/method.md (S4)). --no-press-depth: the "
+            "six DMP components alone.",
         ),
-    ] = False,
+    ] = True,
     as_json: AsJson = False,
 ) -> None:
     """Collect a training set on the rig: touch each object, write the training CSV."""

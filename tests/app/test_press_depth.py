@@ -100,19 +100,22 @@ def test_a_models_dx_picks_the_actions() -> None:
 
 
 @pytest.mark.usefixtures("cli_rig_rest")
-def test_collect_with_press_depth_writes_seven_action_columns(tmp_path: Path) -> None:
+@pytest.mark.parametrize(("option", "dx"), [([], 7), (["--no-press-depth"], 6)])
+def test_collect_has_the_press_depth_unless_told(
+    tmp_path: Path, option: list[str], dx: int
+) -> None:
     out = tmp_path / "data.csv"
     result = runner.invoke(
         app,
         ["collect", "--sim", "--duration", "5", "--object", "paper_cup", "--object",
          "foam_sponge", "--design", "random", "--touches", "2", "--placements", "2",
-         "--press-depth", "--out", str(out), "--json"],
+         *option, "--out", str(out), "--json"],
     )  # fmt: skip
     assert result.exit_code == 0, result.output
-    assert json.loads(result.stdout)["action_dim"] == 7
+    assert json.loads(result.stdout)["action_dim"] == dx
     data = read_training_csv(out.read_text())
-    assert data.action_dim == 7
-    assert np.all(data.actions[:, 6] != 0.0)  # drawn like the other components
+    assert data.action_dim == dx
+    assert np.all(data.actions[:, dx - 1] != 0.0)  # drawn like the other components
 
 
 def test_a_rig_evaluation_touches_with_the_models_press_depth(press_model: ManifoldModel) -> None:
@@ -139,14 +142,18 @@ def test_the_server_collects_and_touches_with_the_press_depth(
         "samples_per_object": 2,
         "action_design": "random",
         "placements": 2,
-        "press_depth": True,
     }
     created = client.post(f"{API}/collections", json=body)
     assert created.status_code == 201, created.text
     run = wait_until(client, f"{API}/collections/{created.json()['id']}", finished)
     assert run["status"] == "completed", run
-    assert run["params"]["press_depth"] is True
+    assert run["params"]["press_depth"] is True  # the default
     assert client.get(f"{API}/datasets/{run['dataset_id']}").json()["action_dim"] == 7
+    plain = client.post(f"{API}/collections", json={**body, "press_depth": False})
+    assert plain.status_code == 201, plain.text
+    run = wait_until(client, f"{API}/collections/{plain.json()['id']}", finished)
+    assert run["status"] == "completed", run
+    assert client.get(f"{API}/datasets/{run['dataset_id']}").json()["action_dim"] == 6
 
     imported = client.post(f"{API}/models/import", json=model_to_document(press_model))
     assert imported.status_code == 201, imported.text

@@ -94,7 +94,7 @@ def test_collection_then_rig_trial_hold_the_rig(client: TestClient) -> None:
     assert finished["done"] == 4
     dataset = client.get(f"{API}/datasets/{finished['dataset_id']}").json()
     assert dataset["status"] == "ready"
-    assert (dataset["n_samples"], dataset["action_dim"], dataset["observation_dim"]) == (4, 6, 5)
+    assert (dataset["n_samples"], dataset["action_dim"], dataset["observation_dim"]) == (4, 7, 5)
     assert dataset["objects"] == CUPS
     registry = {o["name"]: o for o in client.get(f"{API}/objects").json()["data"]}
     assert registry["bumpy_glass"]["slot"] == 1
@@ -144,7 +144,7 @@ def test_collection_then_rig_trial_hold_the_rig(client: TestClient) -> None:
     assert done["status"] == "completed", done
     assert done["n_steps"] == 2
     step = done["steps"][0]
-    assert len(step["action"]) == 6
+    assert len(step["action"]) == 7  # with the press depth
     assert len(step["observation"]) == 5
     assert step["trajectory"]["slot"] == 1
     assert len(step["trajectory"]["commanded_deg"][0]) == 2
