@@ -27,10 +27,13 @@ no estimate and the shift changes nothing.
 A placement also creeps: every lift-off can leave the object sitting a little differently, so
 the shift wanders from touch to touch as a random walk, δ_t = δ_0 + Σ_{i<t} ε_i with ε_i ~
 N(0, diag(σ_c²)). The t-th and u-th touches of one placement (counted from 0) then share
-diag(σ_δ² + σ_c² min(t, u)), so a trial's later touches share more than its first ones. Pairs
-cannot see σ_c² (their min(t, u) is 0); runs of three touches or more can, and the same
-non-negative least squares fits both from the cross-products (docs/calibration.md, "The
-input shift's creep").
+diag(σ_δ² + σ_c² min(t, u)), so a trial's later touches share more than its first ones. The
+creep moves the object the way a placement does, only by less: σ_c² = κ σ_δ², one κ ≥ 0 for all
+action dimensions (fitted per dimension, runs of three touches from a training collection gave
+σ_c² at its cap along a direction where the slopes are nearly zero: noise, not creep). Pairs
+cannot see κ (their min(t, u) is 0); runs of three touches or more can: for each κ the
+cross-products give σ_δ² by non-negative least squares, and κ is the one whose fit leaves the
+least residual (docs/method.md (S3)).
 """
 
 from __future__ import annotations
@@ -62,6 +65,9 @@ __all__ = [
 #: Largest σ_δ,k² relative to the training actions' variance along k: twice the design's spread.
 _UPPER_FRACTION = 4.0
 
+#: Largest κ = σ_c² / σ_δ²: a touch's creep at most twice the placement's own shift variance.
+_KAPPA_MAX = 2.0
+
 #: Queries per block of :func:`mean_jacobian`.
 _QUERY_CHUNK = 512
 
@@ -74,7 +80,8 @@ class ShiftEstimate:
     Attributes:
         variance: σ_δ,k², the variance of the shift along each action dimension, in squared
             action units. Shape (dx,).
-        creep: σ_c,k², the variance the shift gains per touch within a placement. Shape (dx,).
+        creep: σ_c,k² = κ σ_δ,k², the variance the shift gains per touch within a placement.
+            Shape (dx,).
         groups: Placements with at least two training touches.
         pairs: Ordered pairs of touches of one placement (each gives dy² cross-products).
         runs: Placements with three touches or more (the only ones that see the creep).
@@ -188,14 +195,15 @@ def shared_shift_variance(
     jacobians: list[FloatArray],
     action_variance: FloatArray,
 ) -> tuple[FloatArray, FloatArray, int]:
-    """σ_δ² ≥ 0 and σ_c² ≥ 0 from the leave-placement-out residuals of placements with ≥ 2
-    touches, each placement's touches in the order they were made.
+    """σ_δ² ≥ 0 and σ_c² = κ σ_δ² from the leave-placement-out residuals of placements with
+    ≥ 2 touches, each placement's touches in the order they were made.
 
     For touches i ≠ j (positions i, j in their placement) and features a, b: E[r_ia r_jb] =
-    [a = b] A_a,ij + Σ_k (σ_δ,k² + σ_c,k² min(i, j)) J_ia,k J_jb,k. The excess cross-products
-    are fitted by non-negative least squares (Lawson–Hanson) in the 2·dx unknowns, then each is
-    capped at 4 × ``action_variance`` (a shift beyond twice the design's spread is not a
-    placement's). Without runs of three touches no pair has min(i, j) > 0: σ_c² stays 0.
+    [a = b] A_a,ij + Σ_k σ_δ,k² (1 + κ min(i, j)) J_ia,k J_jb,k. For a given κ the excess
+    cross-products are linear in σ_δ², fitted by non-negative least squares (Lawson–Hanson);
+    κ ∈ [0, :data:`_KAPPA_MAX`] minimises the residual norm (bounded Brent, against κ = 0). σ_δ²
+    is then capped at 4 × ``action_variance`` (a shift beyond twice the design's spread is not a
+    placement's). Without runs of three touches no pair has min(i, j) > 0: κ = 0.
 
     Args:
         residuals: Per placement, r_G in touch order. Shape (n_G, dy) each.
@@ -209,6 +217,7 @@ def shared_shift_variance(
     """
     spread = as_float_array(action_variance, "action_variance", (None,))
     design: list[FloatArray] = []
+    creep: list[FloatArray] = []
     target: list[FloatArray] = []
     for r, cov, jac in zip(residuals, covariances, jacobians, strict=True):
         n = r.shape[0]
@@ -219,18 +228,27 @@ def shared_shift_variance(
         diagonal = np.arange(r.shape[1])
         expected[:, diagonal, diagonal] = cov[:, first, second].T
         slopes = jac[first][:, :, None, :] * jac[second][:, None, :, :]
-        steps = np.minimum(first, second)[:, None, None, None] * slopes
-        dx = jac.shape[2]
-        design.append(np.hstack([slopes.reshape(-1, dx), steps.reshape(-1, dx)]))
+        design.append(slopes.reshape(-1, jac.shape[2]))
+        creep.append(
+            (np.minimum(first, second)[:, None, None, None] * slopes).reshape(design[-1].shape)
+        )
         target.append((products - expected).reshape(-1))
     if not design:
         return np.zeros_like(spread), np.zeros_like(spread), 0
-    matrix, vector = np.concatenate(design), np.concatenate(target)
-    solution, _ = scipy.optimize.nnls(matrix, vector)
+    shared, steps, vector = np.concatenate(design), np.concatenate(creep), np.concatenate(target)
+
+    def misfit(kappa: float) -> float:
+        return float(scipy.optimize.nnls(shared + kappa * steps, vector)[1])
+
+    kappa = 0.0
+    if np.any(steps != 0.0):
+        best = scipy.optimize.minimize_scalar(misfit, bounds=(0.0, _KAPPA_MAX), method="bounded")
+        if best.fun < misfit(0.0):
+            kappa = float(best.x)
+    variance, _ = scipy.optimize.nnls(shared + kappa * steps, vector)
     pairs = sum(r.shape[0] * (r.shape[0] - 1) for r in residuals)
-    cap = _UPPER_FRACTION * spread
-    dx = spread.shape[0]
-    return np.minimum(solution[:dx], cap), np.minimum(solution[dx:], cap), int(pairs)
+    variance = np.minimum(variance, _UPPER_FRACTION * spread)
+    return variance, kappa * variance, int(pairs)
 
 
 def estimate_shift_variance(model: ManifoldModel) -> ShiftEstimate | None:
@@ -290,7 +308,7 @@ def with_input_shift(model: ManifoldModel) -> tuple[ManifoldModel, ShiftEstimate
     estimate = estimate_shift_variance(model)
     if estimate is None:
         return model, None
-    creep = estimate.creep if estimate.runs else None
+    creep = estimate.creep if np.any(estimate.creep > 0.0) else None
     return (
         dataclasses.replace(model, shift_variance=estimate.variance, shift_creep_variance=creep),
         estimate,

@@ -153,8 +153,8 @@ def test_pairs_recover_a_known_shared_shift() -> None:
 
 
 def test_runs_of_four_recover_a_known_creep_and_pairs_cannot_see_it() -> None:
-    """Residuals of placements of four touches whose shift creeps as a random walk: the
-    cross-products give σ_δ² and σ_c² back; the first two touches of each alone give σ_δ² and
+    """Residuals of placements of four touches whose shift creeps as a random walk (σ_c² =
+    0.4 σ_δ²): the cross-products give σ_δ² and σ_c² back; the first two touches of each alone give σ_δ² and
     no creep (min(t, u) = 0 for every pair)."""
     rng = np.random.default_rng(8)
     dy, dx, n = 3, 2, 4
@@ -175,6 +175,7 @@ def test_runs_of_four_recover_a_known_creep_and_pairs_cannot_see_it() -> None:
     assert pairs == 2000 * 12
     np.testing.assert_allclose(variance, shift, rtol=0.15)
     np.testing.assert_allclose(crept, creep, rtol=0.2)
+    np.testing.assert_allclose(crept / variance, crept[0] / variance[0])  # σ_c² = κ σ_δ²
     first = [r[:2] for r in residuals]
     bases = [c[:, :2, :2] for c in covariances]
     slopes = [j[:2] for j in jacobians]
