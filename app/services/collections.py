@@ -105,10 +105,12 @@ def default_placements(sizes: list[int]) -> int:
     the pressure by as much as one cup differs from the next, a model from fresh placements was
     sure and wrong in 15-17 % of its sure answers. Touches placed anew, on the other hand, show
     the GP more placements: on the textures a fresh placement per touch was 7-10 points more
-    accurate than pairs. P = N - ⌊N/4⌋ (at least one pair) puts half the touches in pairs, which
-    measure the offset, and places the other half anew; over the three built-in tables it passed
-    more of the acceptance than either (docs/calibration.md, "Three placements for every four
-    touches"). The fit puts the estimated effect in its likelihood
+    accurate than pairs. P = N - ⌊N/4⌋ (at least one pair) gives N/4 touches beyond one per
+    placement; :func:`placement_runs` puts them in runs of three (about a third of the touches),
+    which measure the offset and how it creeps, and places the rest anew; over the three
+    built-in tables it passed more of the acceptance than either (docs/calibration.md, "Three
+    placements for every four touches", measured with pairs; "Press depth by default" with
+    runs of three). The fit puts the estimated effect in its likelihood
     (``core.gp.with_placement_effect``), so the runs' shared offsets are not learned as
     responses to the actions. At least one placement per stage of the design.
 

@@ -154,8 +154,8 @@ def test_pairs_recover_a_known_shared_shift() -> None:
 
 def test_runs_of_four_recover_a_known_creep_and_pairs_cannot_see_it() -> None:
     """Residuals of placements of four touches whose shift creeps as a random walk (σ_c² =
-    0.4 σ_δ²): the cross-products give σ_δ² and σ_c² back; the first two touches of each alone give σ_δ² and
-    no creep (min(t, u) = 0 for every pair)."""
+    0.4 σ_δ²): the cross-products give σ_δ² and σ_c² back; the first two touches of each alone
+    give σ_δ² and no creep (min(t, u) = 0 for every pair)."""
     rng = np.random.default_rng(8)
     dy, dx, n = 3, 2, 4
     shift, creep = np.array([0.2, 0.05]), np.array([0.08, 0.02])
