@@ -447,10 +447,14 @@ def fit(
             f"{escape(np.array2string(np.sqrt(shift.variance), precision=3))} per action "
             "dimension"
         )
-        if shift.runs:
+        if shift.runs and np.any(shift.creep > 0.0):
             stdout.print(
                 f"its creep from {shift.runs:d} placements of three touches or more: σ_c = "
                 f"{escape(np.array2string(np.sqrt(shift.creep), precision=3))} per touch"
+            )
+        elif shift.runs:
+            stdout.print(
+                f"no creep of the shift found in {shift.runs:d} placements of three touches or more"
             )
     if laplace is not None:
         spread = np.sqrt(np.trace(laplace.covariance, axis1=1, axis2=2))

@@ -127,3 +127,23 @@ def test_the_server_keeps_them_through_an_import_and_a_restart(tmp_path: Path) -
     np.testing.assert_array_equal(rebuilt.latent_covariance, covariance)
     assert rebuilt.tempering == 0.6
     np.testing.assert_array_equal(rebuilt.shift_variance, [0.04])
+
+
+def test_fit_reports_the_creep_from_runs_of_four_and_keeps_it(tmp_path: Path) -> None:
+    from tests.core.test_input_shift import experiment1_with_creep
+
+    data = experiment1_with_creep(0, reverse_rows=False).data
+    csv_path, out = tmp_path / "runs.csv", tmp_path / "model.json"
+    csv_path.write_text(write_training_csv(data))
+    result = runner.invoke(
+        app,
+        ["fit", str(csv_path), "--latent-dim", "1", "--restarts", "0", "--noise-model",
+         "independent", "--out", str(out)],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    said = " ".join(result.output.split())
+    assert "its creep from 160 placements of three touches or more: σ_c = [" in said
+    shift = json.loads(out.read_text())["input_shift"]
+    assert shift["creep"][0] > 0.0
+    model = model_from_document(json.loads(out.read_text()))
+    assert model.shift_creep_variance is not None
