@@ -605,9 +605,8 @@ class CollectionCreate(BaseModel):
     table's own spread on the mock rig (its ``action_std``), 1.0 on a real rig; the run's
     ``params`` record the spread used. ``placements`` (P per object, each touched about
     ``samples_per_object`` / P times in a row; every stored sample records its placement, and a
-    fit estimates the placement effect from them; with fewer than two touches per placement,
-    the touches beyond one per placement go into runs of three): left out, three placements for
-    every four touches, about a third of the touches in runs of three and the rest placed anew
+    fit estimates the placement effect from them): left out, three placements for every four
+    touches, half the touches in pairs and half placed anew
     (:func:`app.services.collections.default_placements`); the run's ``params`` record the
     placements used.
     """
@@ -627,11 +626,9 @@ class CollectionCreate(BaseModel):
             "samples_per_object / P times in a row at each placement, and every sample records "
             "its placement, so that a fit estimates how much one placement shifts a trial's "
             "touches alike (the model's placement_effect). Null: three placements for every four "
-            "touches (P = samples_per_object - samples_per_object // 4, at least one pair: about "
-            "a third of the touches in runs of three, the rest placed anew); P = "
-            "samples_per_object places every touch anew. With fewer than two touches per "
-            "placement, the touches beyond one per placement go into runs of three (runs of "
-            "three show how a placement creeps from touch to touch). "
+            "touches (P = samples_per_object - samples_per_object // 4, at least one pair: half "
+            "the touches in pairs, half placed anew); P = samples_per_object places every touch "
+            "anew. "
             "At least one per stage of the design (the adaptive design touches in up to 3 "
             "stages, each with placements of its own)."
         ),

@@ -23,11 +23,9 @@ than 3 touches), said in a note and in the summary's ``design_note``
 (:func:`app.services.collections.default_design`).
 
 Every touch records its placement in the CSV's ``placement`` column. ``--placements P`` places
-each object P times and touches it N/P times in a row at each (with fewer than two touches per
-placement, the touches beyond one per placement go into runs of three and the rest are placed
-once: :func:`app.services.collections.placement_runs`); by default P = N - N//4, three
-placements for every four touches: about a third of the touches in runs of three, the rest
-placed anew (:func:`app.services.collections.default_placements`): a recognition trial places its
+each object P times and touches it N/P times in a row at each; by default P = N - N//4, three
+placements for every four touches: half the touches in pairs, half placed anew
+(:func:`app.services.collections.default_placements`): a recognition trial places its
 object once and touches it several times, and the fit estimates from such runs how much one
 placement (and the drift of its minutes) shifts a trial's touches alike (docs/calibration.md,
 "Fix 1" and "Three placements for every four touches"). ``--placements N`` places every touch
@@ -335,11 +333,9 @@ def collect_command(
             "--placements",
             help="Place each object P times and touch it touches/P times in a row per "
             "placement (recorded in a 'placement' column; fit estimates from such runs how much "
-            "one placement shifts a trial's touches alike). With fewer than two touches per "
-            "placement, the touches beyond one per placement go into runs of three. Default: P = "
-            "--touches - --touches // 4 (three placements for every four touches: about a third "
-            "of the touches in runs of three, the rest placed anew); P = --touches places every "
-            "touch anew.",
+            "one placement shifts a trial's touches alike). Default: P = --touches - --touches // "
+            "4 (three placements for every four touches: half the touches in pairs, half "
+            "placed anew); P = --touches places every touch anew.",
         ),
     ] = None,
     press_depth: Annotated[

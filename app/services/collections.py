@@ -105,12 +105,10 @@ def default_placements(sizes: list[int]) -> int:
     the pressure by as much as one cup differs from the next, a model from fresh placements was
     sure and wrong in 15-17 % of its sure answers. Touches placed anew, on the other hand, show
     the GP more placements: on the textures a fresh placement per touch was 7-10 points more
-    accurate than pairs. P = N - ⌊N/4⌋ (at least one pair) gives N/4 touches beyond one per
-    placement; :func:`placement_runs` puts them in runs of three (about a third of the touches),
-    which measure the offset and how it creeps, and places the rest anew; over the three
-    built-in tables it passed more of the acceptance than either (docs/calibration.md, "Three
-    placements for every four touches", measured with pairs; "Press depth by default" with
-    runs of three). The fit puts the estimated effect in its likelihood
+    accurate than pairs. P = N - ⌊N/4⌋ (at least one pair) puts half the touches in pairs, which
+    measure the offset, and places the other half anew; over the three built-in tables it passed
+    more of the acceptance than either (docs/calibration.md, "Three placements for every four
+    touches"). The fit puts the estimated effect in its likelihood
     (``core.gp.with_placement_effect``), so the runs' shared offsets are not learned as
     responses to the actions. At least one placement per stage of the design.
 
@@ -204,10 +202,11 @@ def check_objects(objects: Mapping[str, int] | list[tuple[str, int]]) -> None:
 
 
 #: The run a placement gets when there are fewer than two touches per placement: the touches
-#: beyond one per placement go into runs of this length. Three, not two: a trial's touches of
-#: one placement creep apart from touch to touch, and only runs of three or more show by how
-#: much (docs/calibration.md, "The input shift's creep"); pairs show only the shared shift.
-RUN_LENGTH = 3
+#: beyond one per placement go into runs of this length. Two: runs of three would show how a
+#: placement creeps from touch to touch (docs/method.md (S3)), but on the look-alike cups they
+#: made the planners sure and wrong far more often (docs/calibration.md, "Press depth by
+#: default, and runs of three"); pairs stay the default until that is understood.
+RUN_LENGTH = 2
 
 
 def placement_runs(n_touches: int, placements: int) -> list[range]:

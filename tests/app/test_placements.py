@@ -15,6 +15,7 @@ from app.documents.errors import DocumentError
 from app.documents.model import model_from_document, model_to_document
 from app.documents.training_csv import read_training_csv, write_training_csv
 from app.errors import BadInputError
+from app.services import collections
 from app.services.collections import (
     default_placements,
     placement_runs,
@@ -240,7 +241,12 @@ def test_fit_estimates_the_placement_effect_into_the_document(tmp_path: Path) ->
 def test_placement_runs_split_unevenly_and_refuse_empty_placements() -> None:
     assert placement_runs(7, 3) == [range(0, 3), range(3, 5), range(5, 7)]
     assert placement_runs(4, 4) == [range(k, k + 1) for k in range(4)]
-    # Fewer than two touches per placement: runs of three first, then single touches.
+    # Fewer than two touches per placement: pairs first, then single touches.
+    assert [len(r) for r in placement_runs(100, 75)] == [2] * 25 + [1] * 50
+
+
+def test_placement_runs_of_three_leave_the_rest_single(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(collections, "RUN_LENGTH", 3)
     lengths = [len(r) for r in placement_runs(100, 75)]
     assert lengths == [3] * 12 + [2] + [1] * 62
     assert [len(r) for r in placement_runs(7, 4)] == [3, 2, 1, 1]
