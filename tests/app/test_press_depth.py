@@ -23,7 +23,7 @@ from app.rig.press_depth import PressDepth
 from core.errors import InvalidInputError
 from core.types import ManifoldModel
 from tests.app.conftest import RIG_OBJECTS, fitted_on_the_rig
-from tests.app.waits import finished, wait_until
+from tests.app.waits import completed_collection, wait_until
 
 API = "/api/v1"
 runner = CliRunner()
@@ -143,16 +143,10 @@ def test_the_server_collects_and_touches_with_the_press_depth(
         "action_design": "random",
         "placements": 2,
     }
-    created = client.post(f"{API}/collections", json=body)
-    assert created.status_code == 201, created.text
-    run = wait_until(client, f"{API}/collections/{created.json()['id']}", finished)
-    assert run["status"] == "completed", run
+    run = completed_collection(client, body)
     assert run["params"]["press_depth"] is True  # the default
     assert client.get(f"{API}/datasets/{run['dataset_id']}").json()["action_dim"] == 7
-    plain = client.post(f"{API}/collections", json={**body, "press_depth": False})
-    assert plain.status_code == 201, plain.text
-    run = wait_until(client, f"{API}/collections/{plain.json()['id']}", finished)
-    assert run["status"] == "completed", run
+    run = completed_collection(client, {**body, "press_depth": False})
     assert client.get(f"{API}/datasets/{run['dataset_id']}").json()["action_dim"] == 6
 
     imported = client.post(f"{API}/models/import", json=model_to_document(press_model))

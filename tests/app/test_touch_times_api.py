@@ -17,7 +17,7 @@ from app.services.datasets import training_data
 from core.types import TrainingData
 from tests.app.conftest import TestClient, experiment1_csv
 from tests.app.test_raw_touches import raw_file
-from tests.app.waits import finished, wait_until
+from tests.app.waits import completed_collection
 from tests.conftest import SETTLE_S
 
 API = "/api/v1"
@@ -47,10 +47,7 @@ def test_a_collection_stores_each_touch_time_since_its_first(client: TestClient)
         "action_design": "random",
         "action_scale": 0.5,
     }
-    created = client.post(f"{API}/collections", json=body)
-    assert created.status_code == 201, created.text
-    run = wait_until(client, f"{API}/collections/{created.json()['id']}", finished)
-    assert run["status"] == "completed", run
+    run = completed_collection(client, body)
     dataset_id = run["dataset_id"]
     text = client.get(f"{API}/datasets/{dataset_id}/export").text
     assert text.startswith("object,placement,time_s,x_1")

@@ -48,3 +48,14 @@ def wait_until(
 def finished(body: dict[str, Any]) -> bool:
     """Whether a run (trial, collection, evaluation) has reached a final status."""
     return body["status"] not in UNFINISHED
+
+
+def completed_collection(client: Any, body: dict[str, Any]) -> dict[str, Any]:
+    """Start ``POST /api/v1/collections`` with ``body`` and wait until it completed; the run."""
+    created = client.post("/api/v1/collections", json=body)
+    assert created.status_code == 201, created.text
+    run: dict[str, Any] = wait_until(
+        client, f"/api/v1/collections/{created.json()['id']}", finished
+    )
+    assert run["status"] == "completed", run
+    return run

@@ -249,6 +249,23 @@ def test_the_estimate_sees_a_shift_the_placement_shares_and_not_one_each_touch_d
     assert estimate_shift_variance(unplaced) is None
 
 
+def model_world_draws(
+    model: ManifoldModel,
+    target: str,
+    actions: np.ndarray,
+    trials: int,
+    rng: np.random.Generator,
+    shared_placement: bool = True,
+) -> np.ndarray:
+    """The observations of ``trials`` model-world trials touching ``target`` at ``actions``.
+    Shape (trials, T, dy)."""
+    draws = np.empty((trials, actions.shape[0], model.hyperparameters.observation_dim))
+    for i in range(trials):
+        trial = ModelTrial(model, target, shared_placement=shared_placement)
+        draws[i] = [trial.touch(a, rng).observation for a in actions]
+    return draws
+
+
 def test_the_model_world_draws_the_shift_once_per_placement() -> None:
     """Across many model-world trials the two touches' model-space draws covary by J₁ Σ J₂ᵀ (the
     model has no placement or drift variance, so nothing else is shared)."""
@@ -256,10 +273,7 @@ def test_the_model_world_draws_the_shift_once_per_placement() -> None:
     model = dataclasses.replace(two_action_model(), shift_variance=shift)
     actions = np.array([[0.4, -0.2], [-0.5, 0.8]])
     rng = np.random.default_rng(6)
-    draws = np.empty((2000, 2, 2))
-    for i in range(draws.shape[0]):
-        trial = ModelTrial(model, "b")
-        draws[i] = [trial.touch(a, rng).observation for a in actions]
+    draws = model_world_draws(model, "b", actions, 2000, rng)
     jac = mean_jacobian(model, np.tile(model.latents[1], (2, 1)), actions)
     expected = jac[0] @ np.diag(shift) @ jac[1].T  # (dy, dy)
     centred = draws - draws.mean(axis=0)
@@ -269,10 +283,7 @@ def test_the_model_world_draws_the_shift_once_per_placement() -> None:
     np.testing.assert_allclose(got, expected, atol=5 * scale.max() / np.sqrt(draws.shape[0]))
     assert np.abs(expected).max() > 10 * scale.max() / np.sqrt(draws.shape[0])
     # Placed anew before every touch: nothing shared.
-    fresh = np.empty_like(draws)
-    for i in range(fresh.shape[0]):
-        trial = ModelTrial(model, "b", shared_placement=False)
-        fresh[i] = [trial.touch(a, rng).observation for a in actions]
+    fresh = model_world_draws(model, "b", actions, 2000, rng, shared_placement=False)
     centred = fresh - fresh.mean(axis=0)
     got = np.einsum("na,nb->ab", centred[:, 0], centred[:, 1]) / fresh.shape[0]
     np.testing.assert_allclose(got, 0.0, atol=5 * scale.max() / np.sqrt(fresh.shape[0]))
@@ -300,10 +311,7 @@ def test_the_model_world_creeps_the_shift_from_touch_to_touch() -> None:
     )
     actions = np.array([[0.4, -0.2], [-0.5, 0.8], [0.1, 0.3]])
     rng = np.random.default_rng(9)
-    draws = np.empty((3000, 3, 2))
-    for i in range(draws.shape[0]):
-        trial = ModelTrial(model, "c")
-        draws[i] = [trial.touch(a, rng).observation for a in actions]
+    draws = model_world_draws(model, "c", actions, 3000, rng)
     jac = mean_jacobian(model, np.tile(model.latents[2], (3, 1)), actions)
     centred = draws - draws.mean(axis=0)
     _, variance = predict_model_space(model, np.tile(model.latents[2], (3, 1)), actions)
