@@ -243,7 +243,9 @@ def touch(
     as_json: AsJson = False,
 ) -> None:
     """Execute one touch (action → DMP → trajectory) and print its observation y."""
-    press_depth = len(action.split(",")) == 7
+    from app.rig.press_depth import has_press_depth
+
+    press_depth = has_press_depth(len(action.split(","))) is True
     actions = touch_actions(duration_s, press_depth)
     x = _parse_action(action, actions.action_dim)
 

@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING
 
 from app.errors import BadInputError
 from app.evaluation.context import rig_tables, synthetic_world
-from app.rig.press_depth import RIG_ACTION_DIMS
+from app.rig.press_depth import rig_action_dim
 from core.evaluation import WORLD_NAMES
 from core.types import ManifoldModel, TrainingData
 from hardware.sim.materials import table_name
@@ -94,7 +94,7 @@ def _check_rig_channels(objects: tuple[str, ...], model: ManifoldModel) -> None:
     h = model.hyperparameters
     frames = table_channel_names(objects)
     # The rig's actions: the DMP components, and the press depth if the model was trained with it.
-    dx = h.action_dim if h.action_dim in RIG_ACTION_DIMS else RIG_ACTION_DIMS[0]
+    dx = rig_action_dim(h.action_dim)
     if model.features is None:
         if (h.action_dim, h.observation_dim) != (dx, len(frames)):
             raise _dims_error("world", "the simulated rig", dx, len(frames), model)

@@ -17,7 +17,12 @@ import numpy as np
 import numpy.typing as npt
 
 from app.errors import BadInputError
-from app.rig.press_depth import DEFAULT_DEG_PER_UNIT, PressDepth
+from app.rig.press_depth import (
+    DEFAULT_DEG_PER_UNIT,
+    DMP_ACTION_DIM,
+    PressDepth,
+    has_press_depth,
+)
 from core.recognition import BasisResponses, DMPActionSpace, action_space, basis_responses, fit_dmp
 from core.recognition import trajectory_for_action as dmp_trajectory
 from core.validation import as_float_array
@@ -100,16 +105,15 @@ class TouchActions:
         Raises:
             BadInputError: ``action_dim`` is neither.
         """
-        base = cls.from_teaching(dt_s=dt_s, duration_s=duration_s)
-        if action_dim == base.action_dim:
-            return base
-        if action_dim == base.action_dim + 1:
-            return cls.from_teaching(dt_s=dt_s, duration_s=duration_s, press_depth=True)
-        raise BadInputError(
-            f"world: the rig's actions have dx={base.action_dim} (or {base.action_dim + 1} with "
-            f"the press depth) but the model has dx={action_dim}.",
-            field="world",
-        )
+        press_depth = has_press_depth(action_dim)
+        if press_depth is None:
+            raise BadInputError(
+                f"world: the rig's actions have dx={DMP_ACTION_DIM} (or {DMP_ACTION_DIM + 1} with "
+                "the press depth) "
+                f"but the model has dx={action_dim}.",
+                field="world",
+            )
+        return cls.from_teaching(dt_s=dt_s, duration_s=duration_s, press_depth=press_depth)
 
     @property
     def action_dim(self) -> int:

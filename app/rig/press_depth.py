@@ -29,13 +29,24 @@ FloatArray = npt.NDArray[np.float64]
 #: is off during the approach and complete before the finger meets the object.
 ENVELOPE_FRACTIONS = (0.47, 0.70)
 
-#: The rig's action dimensions: the DMP components (2 joints × 3 dominant weights), and those
-#: with the press depth.
-RIG_ACTION_DIMS = (6, 7)
+#: dx of the rig's DMP components alone (2 joints × 3 dominant weights); the press depth adds one.
+DMP_ACTION_DIM = 6
 
 #: Degrees of flexion per unit of x_p: the size of a placement's tilt on the simulated rig, so a
 #: design's spread of x_p reaches a few tilts either side.
 DEFAULT_DEG_PER_UNIT = 0.25
+
+
+def has_press_depth(action_dim: int) -> bool | None:
+    """Whether actions of dx = ``action_dim`` carry the press depth: False for the DMP
+    components alone, True for those and the press depth, None for a dx the rig cannot make."""
+    return {DMP_ACTION_DIM: False, DMP_ACTION_DIM + 1: True}.get(int(action_dim))
+
+
+def rig_action_dim(action_dim: int) -> int:
+    """dx of the rig's actions for a model of dx = ``action_dim``: that dx if the rig makes it,
+    else the DMP components' (the dx an error message names)."""
+    return DMP_ACTION_DIM if has_press_depth(action_dim) is None else int(action_dim)
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ from app.documents.raw_touches import record_observation
 from app.errors import ConflictError, DeviceUnavailableError
 from app.rig.actions import TouchActions
 from app.rig.build import RigHandle, RigPorts, SimulationMode, missing_ports, open_rig
+from app.rig.press_depth import has_press_depth, rig_action_dim
 from app.schemas import RigPublic
 from app.services.events import EventBus
 from app.services.jobs import JobRunner
@@ -173,13 +174,12 @@ class RigService:
 
     def actions_for(self, model: ManifoldModel) -> TouchActions:
         """The action map a model was trained on: with the press depth if its dx has it."""
-        return self.actions(model.hyperparameters.action_dim == self.action_dim + 1)
+        return self.actions(has_press_depth(model.hyperparameters.action_dim) is True)
 
     def rig_action_dim(self, model: ManifoldModel) -> int:
         """dx of the rig's actions for ``model``: the model's if the rig can make it (with or
         without the press depth), else the plain DMP actions' (for the error message)."""
-        dx = model.hyperparameters.action_dim
-        return dx if dx in (self.action_dim, self.action_dim + 1) else self.action_dim
+        return rig_action_dim(model.hyperparameters.action_dim)
 
     @property
     def sim_table(self) -> tuple[str, ...]:

@@ -19,7 +19,7 @@ from app.errors import BadInputError
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
 from app.rig.actions import TouchActions
-from app.rig.press_depth import PressDepth
+from app.rig.press_depth import DMP_ACTION_DIM, PressDepth, has_press_depth, rig_action_dim
 from core.errors import InvalidInputError
 from core.types import ManifoldModel
 from tests.app.conftest import RIG_OBJECTS, fitted_on_the_rig
@@ -91,6 +91,10 @@ def test_the_press_depth_moves_only_the_pressing_flexion() -> None:
 
 
 def test_a_models_dx_picks_the_actions() -> None:
+    assert TouchActions.from_teaching().action_dim == DMP_ACTION_DIM
+    assert TouchActions.from_teaching(press_depth=True).action_dim == DMP_ACTION_DIM + 1
+    assert [has_press_depth(dx) for dx in (5, 6, 7, 8)] == [None, False, True, None]
+    assert [rig_action_dim(dx) for dx in (5, 6, 7, 8)] == [6, 6, 7, 6]
     assert TouchActions.for_action_dim(6).press is None
     assert TouchActions.for_action_dim(7).press is not None
     with pytest.raises(BadInputError, match=r"dx=6 \(or 7 with the press depth\).*dx=8"):
