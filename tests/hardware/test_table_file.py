@@ -127,8 +127,12 @@ def test_a_built_in_table_written_as_a_file_reads_back_equal(name: str, tmp_path
     assert read_table_file(path) == TABLES[name]
 
 
-def test_the_example_file_reads(tmp_path: Path) -> None:
-    table = read_table_file(PROJECT / "examples" / "objects.toml")
+@pytest.mark.parametrize(
+    "path", sorted((PROJECT / "examples").glob("*.toml")), ids=lambda p: p.name
+)
+def test_every_example_table_file_reads(path: Path) -> None:
+    table = read_table_file(path)
+    assert table.name
     assert len(table.slots) >= 2
     assert all(item.material.stiffness_n_per_mm > 0 for item in table.slots)
 
