@@ -26,7 +26,7 @@ import dataclasses
 import functools
 import reprlib
 from collections.abc import Callable, Mapping
-from typing import Any, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -256,10 +256,10 @@ def read_calibrations(record: Mapping[str, Any], model: ManifoldModel) -> Manifo
         DocumentError: (column: the field's name) a malformed field, or a value that does not
             fit the model (e.g. σ_b² of another length than dy or outside [0, σ_n²)).
     """
-    for name, key, attribute, check in _CALIBRATIONS:
-        value = _read_calibration(record, name, key, functools.partial(check, model))
+    for entry in _CALIBRATIONS:
+        value = _read_calibration(record, entry, functools.partial(entry.check, model))
         if value is not None:
-            model = dataclasses.replace(model, **{attribute: value})
+            model = dataclasses.replace(model, **{entry.attribute: value})
     return model
 
 
@@ -406,49 +406,63 @@ def _field(document: Mapping[str, Any], name: str, where: str = "model document"
     return document[name]
 
 
-#: The optional calibration fields of a model document: (field, its key, the
-#: :class:`ManifoldModel` attribute it sets, the check of its value against the model so far).
-_CALIBRATIONS: tuple[tuple[str, str, str, Callable[[ManifoldModel, Any], Any]], ...] = (
-    (
+class _Calibration(NamedTuple):
+    """One optional calibration value of a model document: ``document[field][key]``."""
+
+    field: str
+    key: str
+    #: The :class:`ManifoldModel` attribute it sets.
+    attribute: str
+    #: The check of its value against the model read so far.
+    check: Callable[[ManifoldModel, Any], Any]
+    #: Whether ``key`` may be absent when ``field`` is present (added after the field was).
+    key_optional: bool = False
+
+
+#: The optional calibration fields of a model document, in the order they are read.
+_CALIBRATIONS: tuple[_Calibration, ...] = (
+    _Calibration(
         "latent_uncertainty",
         "covariance",
         "latent_covariance",
         lambda model, value: check_latent_covariance(model, np.asarray(value, dtype=np.float64)),
     ),
-    ("tempering", "exponent", "tempering", lambda _model, value: check_exponent(value)),
-    (
+    _Calibration("tempering", "exponent", "tempering", lambda _model, value: check_exponent(value)),
+    _Calibration(
         "placement_effect",
         "variance",
         "placement_variance",
         lambda model, value: check_placement_variance(model, np.asarray(value, dtype=np.float64)),
     ),
     # After the placement effect: σ_b² + σ_d² must stay below σ_n².
-    ("drift_effect", "variance", "drift_variance", check_drift_variance),
-    ("input_shift", "variance", "shift_variance", check_shift_variance),
-    # Optional within the field (documents before the creep have none).
-    ("input_shift", "creep?", "shift_creep_variance", check_shift_creep),
+    _Calibration("drift_effect", "variance", "drift_variance", check_drift_variance),
+    _Calibration("input_shift", "variance", "shift_variance", check_shift_variance),
+    # Documents written before the creep have none.
+    _Calibration(
+        "input_shift", "creep", "shift_creep_variance", check_shift_creep, key_optional=True
+    ),
 )
 
 
 def _read_calibration(
-    document: Mapping[str, Any], name: str, key: str, check: Callable[[Any], _T]
+    document: Mapping[str, Any], entry: _Calibration, check: Callable[[Any], _T]
 ) -> _T | None:
-    """The optional field ``name`` (``{key: …}``) of a model document, through ``check``.
+    """The optional value ``entry`` of a model document, through ``check``.
 
     Returns:
-        What ``check`` makes of the value at ``key``; ``None`` when the field is absent.
+        What ``check`` makes of the value at ``entry.key``; ``None`` when the field is absent
+        (or the key, if it may be).
 
     Raises:
         DocumentError: (column ``name``) ``key`` is missing, ``check`` refused the value
             (its message), or the value is malformed.
     """
+    name, key = entry.field, entry.key
     field = document.get(name)
     if field is None:
         return None
-    if key.endswith("?"):  # an optional key
-        key = key[:-1]
-        if key not in field:
-            return None
+    if entry.key_optional and isinstance(field, Mapping) and key not in field:
+        return None
     try:
         return check(_field(field, key, name))
     except InvalidInputError as exc:
