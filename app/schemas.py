@@ -184,6 +184,20 @@ class ModelCreate(BaseModel):
             "held-out training touches (reported in features.explanation)."
         ),
     )
+    latent_uncertainty: bool = Field(
+        default=True,
+        description=(
+            "Carry each object's latent covariance (Laplace) into the object likelihood "
+            "(docs/method.md (L1)-(L3))."
+        ),
+    )
+    tempering: bool = Field(
+        default=False,
+        description=(
+            "A last resort: an exponent β ≤ 1 on the object likelihood, fitted by "
+            "cross-validation on the training touches (docs/calibration.md, 'Fix 6')."
+        ),
+    )
     workers: Annotated[int, Field(ge=1, le=256)] | None = Field(
         default=None,
         description=(

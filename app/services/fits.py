@@ -48,10 +48,8 @@ from core.gp import (
     fit_structure,
     iter_fit,
     refit_warm,
-    with_drift_effect,
-    with_input_shift,
-    with_placement_effect,
 )
+from core.recognition import calibrate
 from core.selection import (
     DEFAULT_FOLDS,
     DEFAULT_MAX_LATENT_DIM,
@@ -382,9 +380,9 @@ def run_fit(
     if fitted is None:
         raise ValueError("the fit ended without a model")
     job.checkpoint()
-    fitted, _ = with_placement_effect(fitted, options)
-    fitted, _ = with_drift_effect(fitted)
-    fitted, _ = with_input_shift(fitted)
+    fitted, _ = calibrate(
+        fitted, options, rng, latent_uncertainty=body.latent_uncertainty, tempering=body.tempering
+    )
     if pipeline is not None:
         fitted = dataclasses.replace(fitted, features=pipeline)
     return fitted, selection, time.perf_counter() - started

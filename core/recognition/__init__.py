@@ -4,11 +4,13 @@
 ``moments`` (predicting an observation from a Gaussian belief, the mutual information, the
 belief update), ``information_gradient``, ``object_information``, ``object_posterior`` (the
 posterior over the learned objects), ``latent_uncertainty`` and ``tempering`` (options of the
-object likelihood, docs/method.md (L1)–(L3)), ``planning`` (the policies: ``POLICIES``),
+object likelihood, docs/method.md (L1)–(L3)), ``calibrated`` (everything a fitted model learns
+from its training touches after the fit, in one step), ``planning`` (the policies: ``POLICIES``),
 ``session`` (a recognition session: :class:`RecognitionSession`) and ``dmp`` (actions as offsets
 of the DMPs of a teaching trajectory).
 """
 
+from core.recognition.calibrated import Calibrations, calibrate
 from core.recognition.dmp import (
     BasisResponses,
     DMPActionSpace,
@@ -62,6 +64,7 @@ __all__ = [
     "ActionBox",
     "ActivePolicy",
     "BasisResponses",
+    "Calibrations",
     "DMPActionSpace",
     "ObjectMixture",
     "Planner",
@@ -75,6 +78,7 @@ __all__ = [
     "action_space",
     "action_statistics",
     "basis_responses",
+    "calibrate",
     "check_exponent",
     "check_latent_covariance",
     "default_prior",

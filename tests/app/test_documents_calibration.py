@@ -74,22 +74,30 @@ def test_bad_fields_are_refused(field: str, value: object, fragment: str) -> Non
         model_from_document(document)
 
 
-def test_fit_computes_them_only_when_asked(tmp_path: Path) -> None:
+def test_fit_computes_the_latent_uncertainty_by_default_and_tempering_when_asked(
+    tmp_path: Path,
+) -> None:
     data = experiment1_at_true_latents(seed=1, touches_per_object=10).data
     csv_path = tmp_path / "train.csv"
     csv_path.write_text(write_training_csv(data))
     common = ["fit", str(csv_path), "--latent-dim", "1", "--restarts", "0"]
     common += ["--noise-model", "independent"]
-    plain, rich = tmp_path / "plain.json", tmp_path / "rich.json"
-    result = runner.invoke(app, [*common, "--out", str(plain)])
+    plain, default, rich = (tmp_path / f"{name}.json" for name in ("plain", "default", "rich"))
+    result = runner.invoke(app, [*common, "--no-latent-uncertainty", "--out", str(plain)])
     assert result.exit_code == 0, result.output
     document = json.loads(plain.read_text())
     assert "latent_uncertainty" not in document
     assert "tempering" not in document
+    result = runner.invoke(app, [*common, "--out", str(default)])
+    assert result.exit_code == 0, result.output
+    assert "latent uncertainty (Laplace)" in result.output
+    document = json.loads(default.read_text())
+    assert "tempering" not in document
+    assert model_from_document(document).latent_covariance is not None
     # The input shift needs touches that share a placement; these record none.
     assert "input_shift" not in document
     assert "input shift" not in result.output
-    options = ["--latent-uncertainty", "--tempering", "--out", str(rich)]
+    options = ["--tempering", "--out", str(rich)]
     result = runner.invoke(app, [*common, *options])
     assert result.exit_code == 0, result.output
     assert "latent uncertainty (Laplace)" in result.output

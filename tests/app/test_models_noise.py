@@ -95,3 +95,33 @@ def test_a_model_without_transform_reports_identity(client: TestClient) -> None:
     assert created.status_code == 201
     assert created.json()["noise_model"]["kind"] == "identity"
     assert created.json()["latent_selection"] is None
+
+
+def test_a_server_fit_carries_the_latent_uncertainty_unless_asked_not_to(
+    client: TestClient,
+) -> None:
+    """The server's fits calibrate as ``activetouch fit`` does (core.recognition.calibrate)."""
+    dataset_id = upload(client)
+    exported = {}
+    for latent_uncertainty, tempering in ((True, True), (False, False)):
+        accepted = client.post(
+            f"{API}/models",
+            json={"dataset_id": dataset_id, "latent_dim": 1, "restarts": 0, "seed": 0,
+                  "noise_model": "independent", "latent_uncertainty": latent_uncertainty,
+                  "tempering": tempering},
+        )  # fmt: skip
+        assert accepted.status_code == 202
+        model = wait_ready(client, accepted.json()["id"])
+        assert model["status"] == "ready", model["reason"]
+        exported[latent_uncertainty] = client.get(f"{API}/models/{model['id']}/export").json()
+    covariance = np.asarray(exported[True]["latent_uncertainty"]["covariance"])
+    assert covariance.shape == (4, 1, 1)
+    assert np.all(covariance > 0)
+    assert 0 < exported[True]["tempering"]["exponent"] <= 1
+    assert "latent_uncertainty" not in exported[False]
+    assert "tempering" not in exported[False]
+    default = client.post(f"{API}/models", json={"dataset_id": dataset_id, "latent_dim": 1})
+    assert default.status_code == 202
+    assert wait_ready(client, default.json()["id"])["status"] == "ready"
+    document = client.get(f"{API}/models/{default.json()['id']}/export").json()
+    assert "latent_uncertainty" in document

@@ -1,0 +1,75 @@
+"""What a fitted model learns from its training touches after the fit, before it recognises.
+
+The fit (docs/method.md (M2)) gives the latents and hyperparameters. The object likelihood a trial
+is scored with also needs what the fit cannot see in isolated touches, each estimated from the
+training collection alone, in this order (each uses the model the previous one left):
+
+1. the placement effect σ_b² (:mod:`core.gp.placement_effect`, refitted with it),
+2. the drift effect σ_d² (:mod:`core.gp.drift_effect`),
+3. the input shift σ_δ² and its creep (:mod:`core.gp.input_shift`),
+4. the uncertainty Σ_l of each object's latent point (:mod:`core.recognition.latent_uncertainty`,
+   docs/method.md (L1)–(L3)), on by default,
+5. tempering β (:mod:`core.recognition.tempering`), a last resort, off by default.
+
+The first three apply only when the touches record placements and times. ``activetouch fit`` and
+the server's fits both go through :func:`calibrate`, so a model means the same from either.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from core.gp.drift_effect import DriftEstimate, with_drift_effect
+from core.gp.fit_options import FitOptions
+from core.gp.input_shift import ShiftEstimate, with_input_shift
+from core.gp.placement_effect import PlacementEstimate, with_placement_effect
+from core.recognition.latent_uncertainty import LatentLaplace, with_latent_uncertainty
+from core.recognition.tempering import TemperingFit, fit_tempering
+from core.types import ManifoldModel
+
+
+@dataclass(frozen=True)
+class Calibrations:
+    """What :func:`calibrate` estimated; ``None`` for what did not apply or was not asked for."""
+
+    placement: PlacementEstimate | None = None
+    drift: DriftEstimate | None = None
+    shift: ShiftEstimate | None = None
+    laplace: LatentLaplace | None = None
+    tempering: TemperingFit | None = None
+
+
+def calibrate(
+    model: ManifoldModel,
+    options: FitOptions,
+    rng: np.random.Generator,
+    *,
+    latent_uncertainty: bool = True,
+    tempering: bool = False,
+) -> tuple[ManifoldModel, Calibrations]:
+    """The fitted ``model`` with every effect of its training touches (module docstring).
+
+    Args:
+        model: A model as the fit left it.
+        options: The fit's options (the placement effect's refits use them).
+        rng: Source of tempering's cross-validation folds (unused without tempering).
+        latent_uncertainty: Carry each object's Laplace Σ_l into the object likelihood.
+        tempering: Fit β ≤ 1 on the training touches' held-out log-loss (a last resort).
+
+    Returns:
+        The calibrated model, and what was estimated.
+    """
+    model, placement = with_placement_effect(model, options)
+    model, drift = with_drift_effect(model)
+    model, shift = with_input_shift(model)
+    laplace = None
+    if latent_uncertainty:
+        model, laplace = with_latent_uncertainty(model)
+    tempered = None
+    if tempering:
+        tempered = fit_tempering(model, rng)
+        model = dataclasses.replace(model, tempering=tempered.exponent)
+    return model, Calibrations(placement, drift, shift, laplace, tempered)
