@@ -8,11 +8,11 @@ l-th object's training touches: docs/method.md, "Latent uncertainty in the objec
 * (L1) **Laplace approximation.** Given the hyperparameters and the other objects' latents, the
   conditional posterior of s_l (flat prior) is approximated by N(s_l*, Σ_l) with
   Σ_l = H_l⁻¹, H_l the ds × ds Hessian of -log p(Y | S, X, γ) (docs/method.md (M2)) with respect
-  to s_l at the fitted latents. H_l is the central difference of the analytic gradient
-  (:func:`core.gp.likelihood.negative_log_likelihood_and_gradient`). Eigenvalues of H_l below
-  1 / ``max_variance`` (a flat or non-convex direction: a latent direction no feature resolves)
-  are raised to it: the latent is then no more uncertain than the spread of all objects
-  (normalised latents have RMS distance 1 from their centre).
+  to s_l at the fitted latents, in closed form (:func:`latent_hessians`; tested against central
+  differences of :func:`core.gp.likelihood.negative_log_likelihood_and_gradient`). Eigenvalues
+  of H_l below 1 / ``max_variance`` (a flat or non-convex direction: a latent direction no
+  feature resolves) are raised to it: the latent is then no more uncertain than the spread of
+  all objects (normalised latents have RMS distance 1 from their centre).
 * (L2) **The predictive for object l integrates over s_l**: the touches' joint distribution under
   s_l ~ N(s_l*, Σ_l) is matched by a Gaussian with the exact first two moments, the Gaussian-input
   moments of docs/method.md (M3) extended to several actions at once (cross-covariances between
@@ -28,6 +28,7 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 
 from core.errors import InvalidInputError
 from core.gp.input_shift import shift_covariance
@@ -64,9 +65,17 @@ class LatentLaplace:
 def latent_hessians(model: ManifoldModel) -> FloatArray:
     """H_l = ∂²(-log p(Y | S, X, γ)) / ∂s_l ∂s_lᵀ at the fitted latents, hyperparameters fixed.
 
-    Central differences of the analytic gradient (one pair of gradient evaluations per latent
-    coordinate), step 1e-3 × the smallest latent length-scale; symmetrised. Always the exact
-    dense likelihood of the training touches in the model's space (O(dy N³) per evaluation).
+    Analytic (docs/method.md (L1)): per feature, with K the training covariance, M = K⁻¹,
+    α = M y and K_d = ∂K/∂s_l,d,
+
+        H_de = (K_d α)ᵀ M (K_e α) − ½ αᵀ K_de α + ½ tr(M K_de) − ½ tr(M K_d M K_e),
+
+    summed over the features. K_d is non-zero only between object l's touches R and the others C
+    (within R the latents cancel), K_d = [[0, B_d], [B_dᵀ, 0]], so with M = [[A, G], [Gᵀ, D]]
+    the last trace is 2 tr(A B_d D B_eᵀ) + 2 tr(G B_dᵀ G B_eᵀ). One inverse per feature and
+    O(ds N³) products in all, where central differences of the gradient took 2 L ds evaluations
+    of (M2) (O(L ds N³)). Always the exact dense likelihood of the training touches in the
+    model's space, with the fitted noise on the diagonal.
 
     Args:
         model: A fitted model (its latents at an optimum of (M2)).
@@ -74,6 +83,68 @@ def latent_hessians(model: ManifoldModel) -> FloatArray:
     Returns:
         One ds × ds matrix per object. Shape (L, ds, ds).
     """
+    h = model.hyperparameters
+    data = model.data
+    latents = np.array(model.latents, dtype=np.float64)
+    n_objects, ds = latents.shape
+    touch_latents = latents[data.object_index]
+    actions = data.actions - data.actions.mean(axis=0)
+    centred = data.observations - data.observation_mean
+    rows = [np.flatnonzero(data.object_index == obj) for obj in range(n_objects)]
+    others = [np.flatnonzero(data.object_index != obj) for obj in range(n_objects)]
+    out = np.zeros((n_objects, ds, ds))
+    for a in range(h.observation_dim):
+        ls2 = h.latent_lengthscales[a] ** 2
+        gram = h.signal_variance[a] * (
+            squared_exponential(touch_latents, touch_latents, h.latent_lengthscales[a])
+            * squared_exponential(actions, actions, h.action_lengthscales[a])
+        )
+        cov = gram + h.noise_variance[a] * np.eye(gram.shape[0])
+        factor = scipy.linalg.cho_factor(cov, lower=True)
+        inverse = scipy.linalg.cho_solve(factor, np.eye(cov.shape[0]))
+        alpha = inverse @ centred[:, a]
+        for obj in range(n_objects):
+            r, c = rows[obj], others[obj]
+            k_rc = gram[np.ix_(r, c)]
+            delta = latents[obj][None, :] - touch_latents[c]  # (|C|, ds)
+            # ∂k/∂s_l,d = -k Δ_d / ℓ_d², on the R × C block.
+            slopes = [-k_rc * (delta[:, d] / ls2[d])[None, :] for d in range(ds)]
+            m_rr, m_rc = inverse[np.ix_(r, r)], inverse[np.ix_(r, c)]
+            m_cc = inverse[np.ix_(c, c)]
+            # K_d α and the products the trace needs, once per dimension.
+            k_alpha = []
+            for b in slopes:
+                v = np.zeros_like(alpha)
+                v[r] = b @ alpha[c]
+                v[c] = b.T @ alpha[r]
+                k_alpha.append(v)
+            a_b = [m_rr @ b for b in slopes]
+            d_bt = [m_cc @ b.T for b in slopes]
+            g_bt = [m_rc @ b.T for b in slopes]
+            for d in range(ds):
+                for e in range(d, ds):
+                    # ∂²k/∂s_l,d ∂s_l,e = k (Δ_d Δ_e / (ℓ_d² ℓ_e²) − δ_de / ℓ_d²).
+                    curvature = (delta[:, d] * delta[:, e]) / (ls2[d] * ls2[e])
+                    if d == e:
+                        curvature = curvature - 1.0 / ls2[d]
+                    k_de = k_rc * curvature[None, :]
+                    value = (
+                        k_alpha[d] @ inverse @ k_alpha[e]
+                        - alpha[r] @ k_de @ alpha[c]
+                        + np.sum(m_rc * k_de)
+                        - np.sum(a_b[d] * d_bt[e].T)
+                        - np.trace(g_bt[d] @ g_bt[e])
+                    )
+                    out[obj, d, e] += value
+                    if e != d:
+                        out[obj, e, d] += value
+    return out
+
+
+def latent_hessians_by_differences(model: ManifoldModel) -> FloatArray:
+    """:func:`latent_hessians` by central differences of the analytic gradient (2 L ds
+    evaluations of (M2), step 1e-3 × the smallest latent length-scale; symmetrised): the
+    reference the analytic Hessian is tested against. Shape (L, ds, ds)."""
     h = model.hyperparameters
     latents = np.array(model.latents, dtype=np.float64)
     n_objects, ds = latents.shape

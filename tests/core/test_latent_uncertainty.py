@@ -18,6 +18,7 @@ from core.recognition.latent_uncertainty import (
     check_latent_covariance,
     laplace_latents,
     latent_hessians,
+    latent_hessians_by_differences,
     trial_log_likelihoods,
     trial_moments,
     with_latent_uncertainty,
@@ -72,6 +73,30 @@ def test_hessian_matches_second_differences_of_the_likelihood(model: ManifoldMod
                 numeric[i, j] = total / (4 * step**2)
         np.testing.assert_allclose(hessian[obj], numeric, atol=1e-4 * np.abs(numeric).max())
         np.testing.assert_array_equal(hessian[obj], hessian[obj].T)
+
+
+def test_analytic_hessian_equals_differences_of_the_gradient(model: ManifoldModel) -> None:
+    """Against central differences of the analytic gradient, on the fixture and on a world with
+    unequal touch counts, dx = 2, ds = 3 and three features."""
+    rng = np.random.default_rng(5)
+    index = np.repeat(np.arange(4), [5, 9, 7, 12])
+    x = rng.normal(size=(index.size, 2))
+    latents = rng.normal(size=(4, 3))
+    y = np.stack(
+        [np.sin(x[:, 0] + latents[index, 0]), x[:, 1] * latents[index, 1], latents[index, 2]],
+        axis=1,
+    ) + 0.1 * rng.normal(size=(index.size, 3))
+    hyper = Hyperparameters(
+        signal_variance=np.array([0.8, 0.5, 1.2]),
+        noise_variance=np.array([0.01, 0.02, 0.015]),
+        latent_lengthscales=rng.uniform(0.6, 2.0, size=(3, 3)),
+        action_lengthscales=rng.uniform(0.8, 1.5, size=(3, 2)),
+    )
+    other = condition(TrainingData(("a", "b", "c", "d"), index, x, y), latents, hyper)
+    for case in (model, other):
+        analytic, numeric = latent_hessians(case), latent_hessians_by_differences(case)
+        assert analytic.shape == numeric.shape
+        np.testing.assert_allclose(analytic, numeric, rtol=1e-5, atol=1e-6 * np.abs(numeric).max())
 
 
 def test_laplace_covariance_is_the_inverse_hessian_with_a_floor(model: ManifoldModel) -> None:
