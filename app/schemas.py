@@ -312,6 +312,18 @@ class FeaturesPublic(BaseModel):
     explanation: str | None = Field(description="How dy was chosen, when it was.")
 
 
+class LatentUncertaintyPublic(BaseModel):
+    """Σ_l, the Laplace uncertainty of each object's latent point that the object likelihood
+    integrates over (the model document's ``latent_uncertainty``; docs/method.md (L1))."""
+
+    std: list[list[float]] = Field(
+        description=(
+            "Per object (in the order of 'objects'), the standard deviation of its latent point "
+            "along each latent axis, normalised latent units (the objects' RMS spread is 1)."
+        )
+    )
+
+
 class PlacementEffectPublic(BaseModel):
     """σ_b², the variance of the offset the touches of one placement share (the model document's
     ``placement_effect``), estimated at fit time from a dataset that records placements."""
@@ -383,6 +395,13 @@ class ModelPublic(BaseModel):
         default=None,
         description="The feature pipeline that makes y of a raw touch; null: y is given as "
         "recorded (a training CSV, or a rig touch's channel means).",
+    )
+    latent_uncertainty: LatentUncertaintyPublic | None = Field(
+        default=None,
+        description=(
+            "Each object's latent uncertainty, computed at fit time (the default). Null: the "
+            "object likelihood uses the latent points as exact."
+        ),
     )
     placement_effect: PlacementEffectPublic | None = Field(
         default=None,

@@ -42,6 +42,7 @@ from app.schemas import (
     FeatureHyperparameters,
     FeaturesPublic,
     LatentSelectionPublic,
+    LatentUncertaintyPublic,
     ModelPosterior,
     ModelPublic,
     NoiseModelPublic,
@@ -198,6 +199,19 @@ def _features_public(row: ModelRecord) -> FeaturesPublic | None:
     )
 
 
+def _latent_uncertainty_public(row: ModelRecord) -> LatentUncertaintyPublic | None:
+    field = row.posterior.get("latent_uncertainty") if isinstance(row.posterior, dict) else None
+    if field is None or row.status != "ready":
+        return None
+    try:
+        covariance = np.asarray(field["covariance"], dtype=np.float64)
+        std = np.sqrt(np.diagonal(covariance, axis1=1, axis2=2))
+    except (KeyError, TypeError, ValueError):  # changed behind the server's back; load() says so
+        logger.warning("model %d: malformed latent_uncertainty record %r", row.id, field)
+        return None
+    return LatentUncertaintyPublic(std=std.tolist())
+
+
 def _placement_effect_public(row: ModelRecord) -> PlacementEffectPublic | None:
     field = row.posterior.get("placement_effect") if isinstance(row.posterior, dict) else None
     if field is None or row.status != "ready" or row.noise_variance is None:
@@ -281,6 +295,7 @@ def to_public(row: ModelRecord, queue_position: int | None = None) -> ModelPubli
         latent_selection=_latent_selection_public(row),
         features=_features_public(row),
         placement_effect=_placement_effect_public(row),
+        latent_uncertainty=_latent_uncertainty_public(row),
         created_at=row.created_at,
         finished_at=row.finished_at,
     )

@@ -102,7 +102,7 @@ def test_a_server_fit_carries_the_latent_uncertainty_unless_asked_not_to(
 ) -> None:
     """The server's fits calibrate as ``activetouch fit`` does (core.recognition.calibrate)."""
     dataset_id = upload(client)
-    exported = {}
+    exported, model_ids = {}, {}
     for latent_uncertainty, tempering in ((True, True), (False, False)):
         accepted = client.post(
             f"{API}/models",
@@ -114,9 +114,13 @@ def test_a_server_fit_carries_the_latent_uncertainty_unless_asked_not_to(
         model = wait_ready(client, accepted.json()["id"])
         assert model["status"] == "ready", model["reason"]
         exported[latent_uncertainty] = client.get(f"{API}/models/{model['id']}/export").json()
+        model_ids[latent_uncertainty] = model["id"]
     covariance = np.asarray(exported[True]["latent_uncertainty"]["covariance"])
     assert covariance.shape == (4, 1, 1)
     assert np.all(covariance > 0)
+    public = client.get(f"{API}/models/{model_ids[True]}").json()["latent_uncertainty"]
+    np.testing.assert_allclose(public["std"], np.sqrt(covariance[:, :, 0]))
+    assert client.get(f"{API}/models/{model_ids[False]}").json()["latent_uncertainty"] is None
     assert 0 < exported[True]["tempering"]["exponent"] <= 1
     assert "latent_uncertainty" not in exported[False]
     assert "tempering" not in exported[False]
