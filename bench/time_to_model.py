@@ -14,7 +14,8 @@ starts of every fit as tasks of their own; the cluster's start-up is included). 
 the selection as before warm folds: every fold's candidates fitted nested from scratch, then a
 complete final fit.
 
-Printed per dy and worker count: the wall seconds of the selection and of the final fit, the ds
+Printed per dy and worker count: the wall seconds of the selection, of the final fit and of the
+calibration that follows every fit (here the latent uncertainty's Laplace step), the ds
 chosen, the final log-likelihood, and whether the cluster chose the same ds with the same fold
 scores as the serial run; serially also the likelihood evaluations in units of one evaluation
 with gradient on all N touches (``bench.fit_n800.full_equivalents``: deterministic, the fair
@@ -46,6 +47,7 @@ from app.services.fit_tasks import FitEngine, FoldFit
 from bench.fit_n800 import _COUNTS, full_equivalents, instrument
 from core.evaluation.worlds import random_experiment2_world, sample_dataset
 from core.gp import FitOptions, iter_fit
+from core.recognition import calibrate
 from core.selection import LatentSelection, select_latent_dim, serial_map, serial_warm_map
 from core.types import ManifoldModel, TrainingData
 
@@ -77,10 +79,12 @@ def time_to_model(
     seed: int,
     fixed_ds: int | None = None,
     cold: bool = False,
-) -> tuple[LatentSelection | None, float, float, float, int, dict[str, float]]:
-    """(selection, selection seconds, final-fit seconds, final log-likelihood, ds, evaluation
-    equivalents by stage — counted in this process only, so serially) of one run (no
-    selection at ``fixed_ds``)."""
+) -> tuple[LatentSelection | None, float, float, float, float, int, dict[str, float]]:
+    """(selection, selection seconds, final-fit seconds, calibration seconds, final
+    log-likelihood, ds, evaluation equivalents by stage — counted in this process only, so
+    serially) of one run (no selection at ``fixed_ds``). The calibration is the step that
+    follows every fit (:func:`core.recognition.calibrate`: here, without placements or times,
+    the latent uncertainty)."""
     rng = np.random.default_rng(seed)
     counts: dict[str, float] = {}
     _COUNTS.clear()
@@ -122,10 +126,13 @@ def time_to_model(
             model = event.model if event.model is not None else model
         assert model is not None
         counts["final"] = _equivalents(data)
+        fitted = time.perf_counter()
+        calibrate(model, options, rng)
     return (
         selection,
         selected - started,
-        time.perf_counter() - selected,
+        fitted - selected,
+        time.perf_counter() - fitted,
         float(model.log_likelihood),
         ds,
         counts,
@@ -177,13 +184,16 @@ def run(args: argparse.Namespace, options: FitOptions) -> None:
         f"{os.cpu_count()} cores, {args.threads} feature thread(s), data seed {args.seed}, "
         f"{'cold' if args.cold else 'warm'} folds, kernels {args.kernels}"
     )
-    print(" dy workers  select_s  final_s  total_s  chosen  log-lik    same  load before/after")
+    print(
+        " dy workers  select_s  final_s  calib_s  total_s  chosen  log-lik    same"
+        "  load before/after"
+    )
     for dy in args.dy:
         data = make_data(args.objects, args.touches, dy, args.seed)
         serial: LatentSelection | None = None
         for workers in args.workers:
             before = os.getloadavg()[0]
-            selection, select_s, final_s, log_likelihood, ds, counts = time_to_model(
+            selection, select_s, final_s, calib_s, log_likelihood, ds, counts = time_to_model(
                 data,
                 options,
                 workers,
@@ -198,8 +208,8 @@ def run(args: argparse.Namespace, options: FitOptions) -> None:
                 serial = selection
             same = "-" if serial is None or workers == 0 else str(selection == serial)
             print(
-                f"{dy:3d} {workers:7d} {select_s:9.1f} {final_s:8.1f} "
-                f"{select_s + final_s:8.1f} {ds:7d} {log_likelihood:9.2f} "
+                f"{dy:3d} {workers:7d} {select_s:9.1f} {final_s:8.1f} {calib_s:8.1f} "
+                f"{select_s + final_s + calib_s:8.1f} {ds:7d} {log_likelihood:9.2f} "
                 f"{same:>5s}  {before:.1f}/{after:.1f}",
                 flush=True,
             )
