@@ -466,6 +466,8 @@ def fit(
                 else ""
             )
         )
+    for note in found.notes:
+        stdout.print(escape(note))
     if tempering_fit is not None:
         stdout.print(
             f"tempering β = {tempering_fit.exponent:.3f} (held-out log-loss "

@@ -8,7 +8,9 @@ training collection alone, in this order (each uses the model the previous one l
 2. the drift effect σ_d² (:mod:`core.gp.drift_effect`),
 3. the input shift σ_δ² and its creep (:mod:`core.gp.input_shift`),
 4. the uncertainty Σ_l of each object's latent point (:mod:`core.recognition.latent_uncertainty`,
-   docs/method.md (L1)–(L3)), on by default,
+   docs/method.md (L1)–(L3)), on by default; a sparse model (more than
+   :data:`core.gp.posterior.AUTO_SPARSE_ABOVE` touches) keeps point latents, since the Laplace
+   step is dense (O(N³) per feature),
 5. tempering β (:mod:`core.recognition.tempering`), a last resort, off by default.
 
 The first three apply only when the touches record placements and times. ``activetouch fit`` and
@@ -33,13 +35,15 @@ from core.types import ManifoldModel
 
 @dataclass(frozen=True)
 class Calibrations:
-    """What :func:`calibrate` estimated; ``None`` for what did not apply or was not asked for."""
+    """What :func:`calibrate` estimated; ``None`` for what did not apply or was not asked for,
+    and why a step that was asked for did not run (``notes``)."""
 
     placement: PlacementEstimate | None = None
     drift: DriftEstimate | None = None
     shift: ShiftEstimate | None = None
     laplace: LatentLaplace | None = None
     tempering: TemperingFit | None = None
+    notes: tuple[str, ...] = ()
 
 
 def calibrate(
@@ -66,10 +70,16 @@ def calibrate(
     model, drift = with_drift_effect(model)
     model, shift = with_input_shift(model)
     laplace = None
-    if latent_uncertainty:
+    notes: list[str] = []
+    if latent_uncertainty and model.posterior.inducing is not None:
+        notes.append(
+            f"latent uncertainty not computed: a sparse model ({model.data.n_touches} touches) "
+            "keeps point latents (the Laplace step is dense)"
+        )
+    elif latent_uncertainty:
         model, laplace = with_latent_uncertainty(model)
     tempered = None
     if tempering:
         tempered = fit_tempering(model, rng)
         model = dataclasses.replace(model, tempering=tempered.exponent)
-    return model, Calibrations(placement, drift, shift, laplace, tempered)
+    return model, Calibrations(placement, drift, shift, laplace, tempered, tuple(notes))

@@ -6,6 +6,7 @@ import numpy as np
 
 from core.evaluation.reference_model import experiment1_at_true_latents
 from core.gp import FitOptions
+from core.gp.posterior import condition
 from core.recognition import calibrate, fit_tempering, with_latent_uncertainty
 
 
@@ -31,3 +32,19 @@ def test_calibrate_is_the_steps_it_names() -> None:
     )
     assert found.tempering is not None
     assert tempered.tempering == fit_tempering(model, np.random.default_rng(3)).exponent
+
+
+def test_a_sparse_model_keeps_point_latents_and_says_so() -> None:
+    reference = experiment1_at_true_latents(seed=0, touches_per_object=8)
+    sparse = condition(
+        reference.data,
+        reference.latents,
+        reference.hyperparameters,
+        structure="sparse",
+        n_inducing=8,
+    )
+    calibrated, found = calibrate(sparse, FitOptions(), np.random.default_rng(0))
+    assert calibrated.latent_covariance is None
+    assert found.laplace is None
+    assert len(found.notes) == 1
+    assert "sparse model (32 touches)" in found.notes[0]
