@@ -9,7 +9,7 @@ l-th object's training touches: docs/method.md, "Latent uncertainty in the objec
   conditional posterior of s_l (flat prior) is approximated by N(s_l*, Σ_l) with
   Σ_l = H_l⁻¹, H_l the ds × ds Hessian of -log p(Y | S, X, γ) (docs/method.md (M2)) with respect
   to s_l at the fitted latents, in closed form (:func:`latent_hessians`; tested against central
-  differences of :func:`core.gp.likelihood.negative_log_likelihood_and_gradient`). Eigenvalues
+  differences of the analytic gradient of (M2) in the tests). Eigenvalues
   of H_l below 1 / ``max_variance`` (a flat or non-convex direction: a latent direction no
   feature resolves) are raised to it: the latent is then no more uncertain than the spread of
   all objects (normalised latents have RMS distance 1 from their centre).
@@ -28,13 +28,11 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
 from core.errors import InvalidInputError
 from core.gp.input_shift import shift_covariance
 from core.gp.kernels import squared_exponential
-from core.gp.likelihood import negative_log_likelihood_and_gradient
-from core.gp.linalg import gaussian_log_density
+from core.gp.linalg import cholesky_with_jitter, gaussian_log_density, inverse_from_cholesky
 from core.gp.posterior import support_points
 from core.recognition.moments import BeliefTerms, action_kernels, belief_terms, object_indicator
 from core.types import GaussianBelief, ManifoldModel
@@ -42,9 +40,6 @@ from core.validation import FloatArray, as_float_array
 
 #: Largest variance of a latent direction, normalised latent units (the objects' own spread).
 MAX_LATENT_VARIANCE = 1.0
-
-#: Central-difference step, as a fraction of the smallest latent length-scale of the model.
-_STEP_FRACTION = 1e-3
 
 
 @dataclass(frozen=True)
@@ -100,8 +95,9 @@ def latent_hessians(model: ManifoldModel) -> FloatArray:
             * squared_exponential(actions, actions, h.action_lengthscales[a])
         )
         cov = gram + h.noise_variance[a] * np.eye(gram.shape[0])
-        factor = scipy.linalg.cho_factor(cov, lower=True)
-        inverse = scipy.linalg.cho_solve(factor, np.eye(cov.shape[0]))
+        lower, _ = cholesky_with_jitter(cov, what="training covariance")
+        upper_inverse = inverse_from_cholesky(np.asfortranarray(lower.T))  # upper triangle
+        inverse = np.triu(upper_inverse) + np.triu(upper_inverse, 1).T
         alpha = inverse @ centred[:, a]
         for obj in range(n_objects):
             r, c = rows[obj], others[obj]
@@ -139,27 +135,6 @@ def latent_hessians(model: ManifoldModel) -> FloatArray:
                     if e != d:
                         out[obj, e, d] += value
     return out
-
-
-def latent_hessians_by_differences(model: ManifoldModel) -> FloatArray:
-    """:func:`latent_hessians` by central differences of the analytic gradient (2 L ds
-    evaluations of (M2), step 1e-3 × the smallest latent length-scale; symmetrised): the
-    reference the analytic Hessian is tested against. Shape (L, ds, ds)."""
-    h = model.hyperparameters
-    latents = np.array(model.latents, dtype=np.float64)
-    n_objects, ds = latents.shape
-    step = _STEP_FRACTION * float(np.min(h.latent_lengthscales))
-    out = np.empty((n_objects, ds, ds))
-    for obj in range(n_objects):
-        for d in range(ds):
-            gradients = []
-            for sign in (1.0, -1.0):
-                moved = latents.copy()
-                moved[obj, d] += sign * step
-                _, gradient = negative_log_likelihood_and_gradient(model.data, moved, h)
-                gradients.append(gradient.latents[obj])
-            out[obj, :, d] = (gradients[0] - gradients[1]) / (2.0 * step)
-    return np.asarray(0.5 * (out + np.swapaxes(out, 1, 2)), dtype=np.float64)
 
 
 def laplace_latents(
