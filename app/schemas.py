@@ -191,6 +191,14 @@ class ModelCreate(BaseModel):
             "(docs/method.md (L1)-(L3))."
         ),
     )
+    object_placement: bool = Field(
+        default=True,
+        description=(
+            "When the touches record placements: score each object's trials with its own "
+            "placement variance, shrunk towards the pooled one (docs/calibration.md, 'Each "
+            "object's placement variance')."
+        ),
+    )
     tempering: bool = Field(
         default=False,
         description=(
@@ -342,6 +350,15 @@ class PlacementEffectPublic(BaseModel):
         description=(
             "Whether the fit also has σ_b² in its own likelihood (the training touches of one "
             "placement share the offset); false: σ_b² only scores trials."
+        ),
+    )
+    by_object: list[list[float]] | None = Field(
+        default=None,
+        description=(
+            "Each object's own σ_b² per feature (shrunk towards the pooled one; one row per "
+            "object, in the model's object order), which scores a trial under that object in "
+            "place of ``variance``; null when the fit did not estimate them "
+            "(docs/calibration.md, 'Each object's placement variance')."
         ),
     )
 

@@ -437,6 +437,10 @@ class ManifoldModel:
             conditioned with (touches of one training placement share an offset,
             :func:`core.gp.posterior.condition`); ``False``: the training touches' noise was
             taken as independent and σ_b² only enters the scoring of a trial.
+        object_placement_variance: σ_b,l,a², each object's own placement variance
+            (:mod:`core.gp.object_placement`, shrunk towards ``placement_variance``): a trial is
+            scored under object l with row l in place of σ_b²; the training covariance keeps the
+            pooled σ_b². ``None``: every object has ``placement_variance``. Shape (L, dy).
         latent_covariance: Σ_l, the Laplace covariance of every object's latent point
             (:mod:`core.recognition.latent_uncertainty`, docs/method.md (L1)); ``None``: the latents
             are taken as known and the object likelihood uses them as points. Shape (L, ds, ds).
@@ -475,6 +479,7 @@ class ManifoldModel:
     drift_variance: FloatArray | None = None
     shift_variance: FloatArray | None = None
     shift_creep_variance: FloatArray | None = None
+    object_placement_variance: FloatArray | None = None
 
     @property
     def raw_data(self) -> TrainingData:

@@ -321,6 +321,15 @@ def fit(
             "trials on the rig (docs/calibration.md).",
         ),
     ] = True,
+    object_placement: Annotated[
+        bool,
+        typer.Option(
+            "--object-placement/--no-object-placement",
+            help="When the touches record placements: score each object's trials with its own "
+            "placement variance, shrunk towards the pooled one (docs/calibration.md, 'Each "
+            "object's placement variance'). On by default.",
+        ),
+    ] = True,
     tempering: Annotated[
         bool,
         typer.Option(
@@ -392,6 +401,7 @@ def fit(
             np.random.default_rng(seed),
             latent_uncertainty=latent_uncertainty,
             tempering=tempering,
+            object_placement=object_placement,
         )
     except refusals as exc:
         raise fail(str(exc)) from None
@@ -433,6 +443,15 @@ def fit(
             f"placement effect from {placement.groups:d} placements: σ_b² / σ_n² = "
             f"{escape(np.array2string(share, precision=2))} per feature"
             + (f" (clipped from {escape(', '.join(clipped))})" if clipped else "")
+        )
+    if found.object_placement is not None:
+        by_object = found.object_placement.variance / model.hyperparameters.noise_variance
+        stdout.print(
+            "each object's own σ_b² / σ_n² (shrunk towards the pooled value): "
+            + ", ".join(
+                f"{escape(name)} {escape(np.array2string(row, precision=2))}"
+                for name, row in zip(model.object_names, by_object, strict=True)
+            )
         )
     if drift is not None:
         drift_share = drift.variance / model.hyperparameters.noise_variance

@@ -8,7 +8,9 @@ how ``--latent-dim auto`` chose ds. ``placement_effect`` (optional) holds σ_b²
 the offset shared by one placement's touches (docs/calibration.md), estimated at fit time from
 ``training_data.placements`` (optional, the placement number of every touch; ``times_s``, also
 optional, when each touch was made); a document without
-it scores a trial's touches as independent (σ_b² = 0). ``drift_effect`` (optional) holds σ_d²,
+it scores a trial's touches as independent (σ_b² = 0); its ``by_object`` (optional, L × dy) holds
+each object's own σ_b,l² (:mod:`core.gp.object_placement`), which scores a trial under that
+object in place of the pooled σ_b². ``drift_effect`` (optional) holds σ_d²,
 the variance of the slow drift a trial's touches share whatever the placement, estimated at fit
 time from the training touches' times (:mod:`core.gp.drift_effect`); without it, σ_d² = 0.
 ``latent_uncertainty`` (optional) holds
@@ -41,6 +43,7 @@ from core.errors import InvalidInputError
 from core.gp import (
     KERNELS,
     check_drift_variance,
+    check_object_placement_variance,
     check_placement_variance,
     check_shift_creep,
     check_shift_variance,
@@ -162,6 +165,8 @@ def calibration_fields(model: ManifoldModel) -> dict[str, Any]:
         fields["placement_effect"] = placement_effect_field(
             model.placement_variance, model.placement_in_fit
         )
+        if model.object_placement_variance is not None:
+            fields["placement_effect"]["by_object"] = model.object_placement_variance.tolist()
     if model.drift_variance is not None:
         fields["drift_effect"] = {
             "variance": [float(v) for v in model.drift_variance],
@@ -436,6 +441,14 @@ _CALIBRATIONS: tuple[_Calibration, ...] = (
     ),
     # After the placement effect: σ_b² + σ_d² must stay below σ_n².
     _Calibration("drift_effect", "variance", "drift_variance", check_drift_variance),
+    # After the drift (σ_b,l² + σ_d² below σ_n²); documents written before it have none.
+    _Calibration(
+        "placement_effect",
+        "by_object",
+        "object_placement_variance",
+        check_object_placement_variance,
+        key_optional=True,
+    ),
     _Calibration("input_shift", "variance", "shift_variance", check_shift_variance),
     # Documents written before the creep have none.
     _Calibration(

@@ -381,7 +381,12 @@ def run_fit(
         raise ValueError("the fit ended without a model")
     job.checkpoint()
     fitted, _ = calibrate(
-        fitted, options, rng, latent_uncertainty=body.latent_uncertainty, tempering=body.tempering
+        fitted,
+        options,
+        rng,
+        latent_uncertainty=body.latent_uncertainty,
+        tempering=body.tempering,
+        object_placement=body.object_placement,
     )
     if pipeline is not None:
         fitted = dataclasses.replace(fitted, features=pipeline)

@@ -219,6 +219,8 @@ def _placement_effect_public(row: ModelRecord) -> PlacementEffectPublic | None:
     try:
         variance = np.asarray(field["variance"], dtype=np.float64)
         ratio = variance / row.noise_variance
+        rows = field.get("by_object")
+        by_object = None if rows is None else np.asarray(rows, dtype=np.float64).tolist()
     except (KeyError, TypeError, ValueError):  # changed behind the server's back; load() says so
         logger.warning("model %d: malformed placement_effect record %r", row.id, field)
         return None
@@ -226,6 +228,7 @@ def _placement_effect_public(row: ModelRecord) -> PlacementEffectPublic | None:
         variance=variance.tolist(),
         noise_ratio=ratio.tolist(),
         in_training_covariance=field.get("in_training_covariance") is True,
+        by_object=by_object,
     )
 
 

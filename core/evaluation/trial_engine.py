@@ -246,7 +246,8 @@ class ModelTrial:
 
     Per model-space feature a, y'_ta = f_a(s_l, x_t) + b_a + ε_ta with one offset
     b_a ~ N(0, σ_b,a²) per placement and ε_ta of variance v_a − σ_b,a² (docs/calibration.md
-    (C1); σ_b² the model's ``placement_variance``). With ``shared_placement`` the trial places its
+    (C1); σ_b² the model's ``placement_variance``, or the target's own row of
+    ``object_placement_variance``). With ``shared_placement`` the trial places its
     object once (the offset is drawn at the first touch and kept), otherwise anew before every
     touch. A model with a drift variance σ_d² also draws one drift offset d ~ N(0, σ_d²) at the
     first touch and keeps it for the trial (:mod:`core.gp.drift_effect`). A model with a shift
@@ -271,6 +272,8 @@ class ModelTrial:
         """A draw at ``action`` (dx,) for the target."""
         model = self.samples.model
         variance = model.placement_variance
+        if model.object_placement_variance is not None:
+            variance = model.object_placement_variance[self.index]
         if variance is not None and (self.offset is None or not self.shared_placement):
             self.offset = np.sqrt(variance) * rng.standard_normal(variance.shape)
         drift = model.drift_variance

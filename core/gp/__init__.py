@@ -6,7 +6,8 @@ likelihood (``likelihood``; with tied kernels ``tied_likelihood``) and the poste
 conditions (``posterior``). Its fit: options and
 progress (``fit_options``), the optimisation (``fit_run``, ``hyperparameter_fit``,
 ``optimiser_stream``), starting latents (``initialisation``), the entry points (``manifold``), the
-noise model (``noise_model``), the placement effect (``placement_effect``), the drift effect
+noise model (``noise_model``), the placement effect (``placement_effect``; each object's own:
+``object_placement``), the drift effect
 (``drift_effect``) and a placement's shift of the action (``input_shift``).
 
 Callers outside ``core`` use the names below; tests and benchmarks may reach the modules.
@@ -41,6 +42,12 @@ from core.gp.noise_model import (
     choose_noise_model,
     transform_data,
 )
+from core.gp.object_placement import (
+    ObjectPlacementEstimate,
+    check_object_placement_variance,
+    estimate_object_placement_variance,
+    with_object_placement,
+)
 from core.gp.placement_effect import (
     check_placement_variance,
     estimate_placement_variance,
@@ -64,6 +71,7 @@ __all__ = [
     "FitProgress",
     "Kernels",
     "NoiseModelChoice",
+    "ObjectPlacementEstimate",
     "StartMap",
     "StartPlan",
     "StartResult",
@@ -71,6 +79,7 @@ __all__ = [
     "Structure",
     "attach_transform",
     "check_drift_variance",
+    "check_object_placement_variance",
     "check_placement_variance",
     "check_shift_creep",
     "check_shift_variance",
@@ -78,6 +87,7 @@ __all__ = [
     "condition",
     "condition_sparse",
     "estimate_drift_variance",
+    "estimate_object_placement_variance",
     "estimate_placement_variance",
     "estimate_shift_variance",
     "fit_hyperparameters",
@@ -93,5 +103,6 @@ __all__ = [
     "transform_data",
     "with_drift_effect",
     "with_input_shift",
+    "with_object_placement",
     "with_placement_effect",
 ]

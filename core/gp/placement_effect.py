@@ -58,9 +58,12 @@ __all__ = [
     "MAX_PLACEMENT_FRACTION",
     "PLACEMENT_ROUNDS",
     "PlacementEstimate",
+    "PlacementMoments",
     "check_placement_variance",
     "estimate_placement_variance",
+    "object_rows",
     "placement_groups",
+    "placement_moments",
     "predictive_covariance",
     "trial_log_likelihoods",
     "with_placement_effect",
@@ -83,6 +86,63 @@ class PlacementEstimate:
     raw_variance: FloatArray
     groups: int
     pairs: int
+
+
+@dataclass(frozen=True)
+class PlacementMoments:
+    """Every placement's term of the method-of-moments sum of :func:`estimate_placement_variance`.
+
+    Attributes:
+        objects: The object of each placement with two touches or more. Shape (G,).
+        pairs: Its ordered pairs of touches, n_G (n_G − 1). Shape (G,).
+        contributions: Σ_{i≠j∈G} (r_i r_j − A_G,ij) per feature, the placement's part of the
+            sum (eq. (C4)). Shape (G, dy).
+        in_fit: The σ_b,0² already in the training covariance (zeros for none), which the
+            sum's mean estimates σ_b² less of. Shape (dy,).
+    """
+
+    objects: IntArray
+    pairs: IntArray
+    contributions: FloatArray
+    in_fit: FloatArray
+
+
+def placement_moments(model: ManifoldModel, placement_index: IntArray) -> PlacementMoments:
+    """The placements' terms of eq. (C4) from the leave-one-placement-out residuals
+    (:func:`estimate_placement_variance` says how; O(N³) per feature).
+
+    Args:
+        model: A fitted model.
+        placement_index: Placement number of every training touch. Shape (N,), integers.
+    """
+    data = model.data
+    h = model.hyperparameters
+    dy = h.observation_dim
+    groups = shared_groups(data.object_index, placement_index)
+    current = model.placement_variance if model.placement_in_fit else None
+    in_fit = np.zeros(dy) if current is None else np.asarray(current, dtype=np.float64)
+    objects = np.array([data.object_index[g[0]] for g in groups], dtype=np.int64)
+    pairs = np.array([g.size * (g.size - 1) for g in groups], dtype=np.int64)
+    contributions = np.zeros((len(groups), dy))
+    if not groups:
+        return PlacementMoments(objects, pairs, contributions, in_fit)
+    training = dataclasses.replace(data, placement_index=placement_index)
+    centred = data.observations - data.observation_mean
+    identity = np.eye(data.n_touches)
+    for a in range(dy):
+        factor, _ = cholesky_with_jitter(
+            gram_matrix(training, model.latents, h, a, current),
+            what=f"Gram matrix of feature {a}",
+        )
+        inverse = scipy.linalg.cho_solve((factor, True), identity, check_finite=False)
+        beta = inverse @ centred[:, a]
+        for k, g in enumerate(groups):
+            held_out_cov = np.linalg.inv(inverse[np.ix_(g, g)])
+            residual = held_out_cov @ beta[g]
+            cross = float(residual.sum() ** 2 - residual @ residual)
+            expected = float(held_out_cov.sum() - np.trace(held_out_cov))
+            contributions[k, a] = cross - expected
+    return PlacementMoments(objects, pairs, contributions, in_fit)
 
 
 def estimate_placement_variance(
@@ -129,36 +189,18 @@ def estimate_placement_variance(
             f"placement_index: expected {data.n_touches} integers, received dtype "
             f"{placement.dtype} with shape {placement.shape}."
         )
-    groups = shared_groups(data.object_index, placement)
     h = model.hyperparameters
-    dy = h.observation_dim
-    pairs = int(sum(g.size * (g.size - 1) for g in groups))
-    if not groups:
-        zero = np.zeros(dy)
+    moments = placement_moments(model, placement)
+    if moments.pairs.size == 0:
+        zero = np.zeros(h.observation_dim)
         return PlacementEstimate(variance=zero, raw_variance=zero.copy(), groups=0, pairs=0)
-    current = model.placement_variance if model.placement_in_fit else None
-    training = dataclasses.replace(data, placement_index=placement)
-    centred = data.observations - data.observation_mean
-    identity = np.eye(data.n_touches)
-    raw = np.empty(dy)
-    for a in range(dy):
-        factor, _ = cholesky_with_jitter(
-            gram_matrix(training, model.latents, h, a, current),
-            what=f"Gram matrix of feature {a}",
-        )
-        inverse = scipy.linalg.cho_solve((factor, True), identity, check_finite=False)
-        beta = inverse @ centred[:, a]
-        total = 0.0
-        for g in groups:
-            held_out_cov = np.linalg.inv(inverse[np.ix_(g, g)])
-            residual = held_out_cov @ beta[g]
-            cross = float(residual.sum() ** 2 - residual @ residual)
-            expected = float(held_out_cov.sum() - np.trace(held_out_cov))
-            total += cross - expected
-        raw[a] = total / pairs + (0.0 if current is None else float(current[a]))
+    pairs = int(moments.pairs.sum())
+    raw = moments.contributions.sum(axis=0) / pairs + moments.in_fit
     upper = MAX_PLACEMENT_FRACTION * h.noise_variance if within_noise else np.inf
     variance = np.clip(raw, 0.0, upper)
-    return PlacementEstimate(variance=variance, raw_variance=raw, groups=len(groups), pairs=pairs)
+    return PlacementEstimate(
+        variance=variance, raw_variance=raw, groups=int(moments.pairs.size), pairs=pairs
+    )
 
 
 def with_placement_effect(
@@ -242,6 +284,17 @@ def check_placement_variance(model: ManifoldModel, variance: FloatArray) -> Floa
     return checked_placement_variance(variance, h.noise_variance, h.observation_dim)
 
 
+def object_rows(model: ManifoldModel, variance: FloatArray) -> FloatArray:
+    """A trial's shared variance under each object: ``variance`` (dy,) repeated for every
+    object, or (L, dy) as given, each row checked (:func:`check_placement_variance`).
+    Shape (L, dy)."""
+    n_objects = model.latents.shape[0]
+    array = np.asarray(variance, dtype=np.float64)
+    if array.ndim == 2 and array.shape[0] == n_objects:
+        return np.stack([check_placement_variance(model, row) for row in array])
+    return np.tile(check_placement_variance(model, array), (n_objects, 1))
+
+
 def predictive_covariance(
     model: ManifoldModel, latent: FloatArray, actions: FloatArray
 ) -> FloatArray:
@@ -301,7 +354,8 @@ def trial_log_likelihoods(
         model: A conditioned model.
         actions: The trial's actions. Shape (T, dx).
         observations: Their raw observations. Shape (T, dy).
-        variance: σ_b,a² in model space (:func:`check_placement_variance`). Shape (dy,).
+        variance: σ_b,a² in model space (:func:`check_placement_variance`). Shape (dy,), or
+            (L, dy): each object's own (:mod:`core.gp.object_placement`), row l under object l.
         shift_variance: σ_δ², a placement's shift of the action (:mod:`core.gp.input_shift`):
             its covariance J_l diag(σ_δ²) J_lᵀ couples the touches and the features, so the
             trial is then one joint Gaussian over all of them. ``None``: none. Shape (dx,).
@@ -316,16 +370,17 @@ def trial_log_likelihoods(
     h = model.hyperparameters
     x = as_float_array(actions, "actions", (None, h.action_dim))
     y = as_float_array(observations, "observations", (x.shape[0], h.observation_dim))
-    sigma_b = check_placement_variance(model, variance)
+    rows = object_rows(model, variance)
     n_objects, t = model.latents.shape[0], x.shape[0]
     if t == 0:
         return np.zeros(n_objects)
     y_model = model.to_model_space(y)
-    within = h.noise_variance - sigma_b
     jacobian = 0.0 if model.transform is None else model.transform.log_jacobian
     ones = np.ones((t, t))
     out = np.empty(n_objects)
     for obj in range(n_objects):
+        sigma_b = rows[obj]
+        within = h.noise_variance - sigma_b
         latent = model.latents[obj]
         mean, _ = predict_model_space(model, np.tile(latent, (t, 1)), x)
         cov_f = predictive_covariance(model, latent, x)

@@ -6,14 +6,16 @@ training collection alone, in this order (each uses the model the previous one l
 
 1. the placement effect σ_b² (:mod:`core.gp.placement_effect`, refitted with it),
 2. the drift effect σ_d² (:mod:`core.gp.drift_effect`),
-3. the input shift σ_δ² and its creep (:mod:`core.gp.input_shift`),
-4. the uncertainty Σ_l of each object's latent point (:mod:`core.recognition.latent_uncertainty`,
+3. each object's own placement variance σ_b,l² (:mod:`core.gp.object_placement`, shrunk towards
+   the pooled σ_b²; scores trials only), on by default,
+4. the input shift σ_δ² and its creep (:mod:`core.gp.input_shift`),
+5. the uncertainty Σ_l of each object's latent point (:mod:`core.recognition.latent_uncertainty`,
    docs/method.md (L1)–(L3)), on by default; a sparse model (more than
    :data:`core.gp.posterior.AUTO_SPARSE_ABOVE` touches) keeps point latents, since the Laplace
    step is dense (O(N³) per feature),
-5. tempering β (:mod:`core.recognition.tempering`), a last resort, off by default.
+6. tempering β (:mod:`core.recognition.tempering`), a last resort, off by default.
 
-The first three apply only when the touches record placements and times. ``activetouch fit`` and
+The first four apply only when the touches record placements and times. ``activetouch fit`` and
 the server's fits both go through :func:`calibrate`, so a model means the same from either.
 """
 
@@ -27,6 +29,7 @@ import numpy as np
 from core.gp.drift_effect import DriftEstimate, with_drift_effect
 from core.gp.fit_options import FitOptions
 from core.gp.input_shift import ShiftEstimate, with_input_shift
+from core.gp.object_placement import ObjectPlacementEstimate, with_object_placement
 from core.gp.placement_effect import PlacementEstimate, with_placement_effect
 from core.recognition.latent_uncertainty import LatentLaplace, with_latent_uncertainty
 from core.recognition.tempering import TemperingFit, fit_tempering
@@ -44,6 +47,7 @@ class Calibrations:
     laplace: LatentLaplace | None = None
     tempering: TemperingFit | None = None
     notes: tuple[str, ...] = ()
+    object_placement: ObjectPlacementEstimate | None = None
 
 
 def calibrate(
@@ -53,6 +57,7 @@ def calibrate(
     *,
     latent_uncertainty: bool = True,
     tempering: bool = False,
+    object_placement: bool = True,
 ) -> tuple[ManifoldModel, Calibrations]:
     """The fitted ``model`` with every effect of its training touches (module docstring).
 
@@ -62,12 +67,16 @@ def calibrate(
         rng: Source of tempering's cross-validation folds (unused without tempering).
         latent_uncertainty: Carry each object's Laplace Σ_l into the object likelihood.
         tempering: Fit β ≤ 1 on the training touches' held-out log-loss (a last resort).
+        object_placement: Score each object's trials with its own placement variance.
 
     Returns:
         The calibrated model, and what was estimated.
     """
     model, placement = with_placement_effect(model, options)
     model, drift = with_drift_effect(model)
+    by_object = None
+    if object_placement:
+        model, by_object = with_object_placement(model)
     model, shift = with_input_shift(model)
     laplace = None
     notes: list[str] = []
@@ -82,4 +91,4 @@ def calibrate(
     if tempering:
         tempered = fit_tempering(model, rng)
         model = dataclasses.replace(model, tempering=tempered.exponent)
-    return model, Calibrations(placement, drift, shift, laplace, tempered, tuple(notes))
+    return model, Calibrations(placement, drift, shift, laplace, tempered, tuple(notes), by_object)

@@ -33,6 +33,7 @@ from core.errors import InvalidInputError
 from core.gp.input_shift import shift_covariance
 from core.gp.kernels import squared_exponential
 from core.gp.linalg import cholesky_with_jitter, gaussian_log_density, inverse_from_cholesky
+from core.gp.placement_effect import object_rows
 from core.gp.posterior import support_points
 from core.recognition.moments import BeliefTerms, action_kernels, belief_terms, object_indicator
 from core.types import GaussianBelief, ManifoldModel
@@ -315,7 +316,8 @@ def trial_log_likelihoods(
         model: A conditioned model.
         actions: The trial's actions. Shape (T, dx).
         observations: Their raw observations. Shape (T, dy).
-        placement_variance: σ_b,a², model space (zeros for none). Shape (dy,).
+        placement_variance: σ_b,a², model space (zeros for none). Shape (dy,), or (L, dy):
+            each object's own (:mod:`core.gp.object_placement`), row l under object l.
         latent_covariance: Σ_l. Shape (L, ds, ds).
         shift_variance: σ_δ², a placement's shift of the action (:mod:`core.gp.input_shift`),
             its covariance taken at s_l*. ``None``: none. Shape (dx,).
@@ -329,13 +331,12 @@ def trial_log_likelihoods(
     h = model.hyperparameters
     x = as_float_array(actions, "actions", (None, h.action_dim))
     y = as_float_array(observations, "observations", (x.shape[0], h.observation_dim))
-    sigma_b = as_float_array(placement_variance, "placement_variance", (h.observation_dim,))
+    rows = object_rows(model, placement_variance)
     covariances = check_latent_covariance(model, latent_covariance)
     n_objects, t = model.latents.shape[0], x.shape[0]
     if t == 0:
         return np.zeros(n_objects)
     target = model.to_model_space(y).T.reshape(-1)  # feature-major
-    noise = trial_noise(h.noise_variance, sigma_b, t)
     jacobian = 0.0 if model.transform is None else model.transform.log_jacobian
     action_terms = trial_action_terms(model, x)
     out = np.empty(n_objects)
@@ -348,6 +349,7 @@ def trial_log_likelihoods(
                 model, model.latents[obj], x, shift_variance, shared_placement, shift_creep
             )
         residual = target - mean.T.reshape(-1)
+        noise = trial_noise(h.noise_variance, rows[obj], t)
         out[obj] = gaussian_log_density(residual, cov + noise, "trial covariance")
         out[obj] += t * jacobian
     return out

@@ -108,9 +108,13 @@ def object_log_likelihoods(
 def shared_variance(model: ManifoldModel, shared_placement: bool = True) -> FloatArray:
     """The variance of the offset all of a trial's touches share, per model-space feature: the
     drift's σ_d² (:mod:`core.gp.drift_effect`), plus the placement's σ_b² when the touches met one
-    placement. Zeros for a model with neither. Shape (dy,)."""
+    placement — each object's own σ_b,l² (:mod:`core.gp.object_placement`) when the model has
+    them, one row per object. Zeros for a model with neither. Shape (dy,), or (L, dy) with each
+    object's own."""
     variance = np.zeros(model.hyperparameters.observation_dim)
-    if shared_placement and model.placement_variance is not None:
+    if shared_placement and model.object_placement_variance is not None:
+        variance = variance + model.object_placement_variance
+    elif shared_placement and model.placement_variance is not None:
         variance = variance + model.placement_variance
     if model.drift_variance is not None:
         variance = variance + model.drift_variance

@@ -1,5 +1,5 @@
-"""The model document keeps the latent covariance, the tempering exponent and the input shift,
-and refuses bad ones naming the field."""
+"""The model document keeps the latent covariance, the tempering exponent, the input shift and
+each object's placement variance, and refuses bad ones naming the field."""
 
 from __future__ import annotations
 
@@ -46,6 +46,32 @@ def test_latent_covariance_and_tempering_round_trip() -> None:
     assert plain.latent_covariance is None
     assert plain.tempering is None
     assert plain.shift_variance is None
+
+
+def test_each_objects_placement_variance_round_trips_and_bad_rows_are_refused() -> None:
+    model = experiment1_at_true_latents(seed=0, touches_per_object=6)
+    noise = model.hyperparameters.noise_variance
+    pooled = 0.3 * noise
+    rows = np.outer([0.1, 0.2, 0.5, 0.8], noise)
+    placed = dataclasses.replace(model, placement_variance=pooled, object_placement_variance=rows)
+    document = json.loads(json.dumps(model_to_document(placed)))
+    assert np.array(document["placement_effect"]["by_object"]).shape == (4, 3)
+    loaded = model_from_document(document)
+    np.testing.assert_array_equal(loaded.object_placement_variance, rows)
+    np.testing.assert_array_equal(loaded.placement_variance, pooled)
+    # Documents written before it have the pooled value only.
+    del document["placement_effect"]["by_object"]
+    assert model_from_document(document).object_placement_variance is None
+    for bad, fragment in (
+        ((rows * -1).tolist(), "σ_b,l,a²"),
+        (np.tile(noise, (4, 1)).tolist(), "σ_b,l,a²"),
+        (rows[:3].tolist(), "object_placement_variance"),
+        ("large", "object_placement_variance: could not be read"),
+    ):
+        document["placement_effect"]["by_object"] = bad
+        with pytest.raises(DocumentError, match=fragment) as caught:
+            model_from_document(document)
+        assert caught.value.column == "placement_effect"
 
 
 @pytest.mark.parametrize(

@@ -192,6 +192,10 @@ def test_a_server_fit_estimates_the_placement_effect(tmp_path: Path) -> None:
         np.testing.assert_allclose(effect["noise_ratio"], np.array(effect["variance"]) / noise)
         assert effect["in_training_covariance"] is True
         assert np.any(np.array(effect["variance"]) > 0)
+        # Each object's own σ_b² (core.gp.object_placement), one row per object.
+        rows = np.array(effect["by_object"])
+        assert rows.shape == (len(model["objects"]), noise.size)
+        assert np.all((rows >= 0) & (rows < noise))
         document = client.get(f"{API}/models/{model['id']}/export").json()
         plain = client.post(f"{API}/datasets", content=experiment1_csv(touches_per_object=8),
                             headers=CSV).json()  # fmt: skip
