@@ -192,11 +192,11 @@ class ModelCreate(BaseModel):
         ),
     )
     object_placement: bool = Field(
-        default=True,
+        default=False,
         description=(
             "When the touches record placements: score each object's trials with its own "
-            "placement variance, shrunk towards the pooled one (docs/calibration.md, 'Each "
-            "object's placement variance')."
+            "placement variance, shrunk towards the pooled one. Off by default: measured, it "
+            "cost accuracy (docs/calibration.md, 'Each object's placement variance')."
         ),
     )
     tempering: bool = Field(

@@ -29,6 +29,12 @@ to [0, :func:`object_placement_ceiling`], so a trial's shared offset stays below
 noise. Every touch keeps its own predictive density: only how much of its noise a trial's touches
 share changes with the object (docs/calibration.md (C3) with σ_b,l² in place of σ_b²). The
 training covariance keeps the pooled σ_b²: this scores trials only.
+
+Not adopted (off unless asked, :func:`core.recognition.calibrate`): on the unseen workshop table
+it cost every policy 12-18 points of accuracy at touch 6. From 25 placements of two touches per
+object the estimates differ between look-alike objects by more than they truly do, and a trial's
+likelihood reads the difference as evidence: a trial whose touches share an offset is given to
+the look-alike with the larger σ_b,l² (docs/calibration.md, "Each object's placement variance").
 """
 
 from __future__ import annotations

@@ -166,11 +166,11 @@ def test_raw_touches_keep_their_placement(client: TestClient) -> None:
         assert needle in refused.text
 
 
-def fit(client: TestClient, dataset_id: int) -> dict[str, Any]:
+def fit(client: TestClient, dataset_id: int, **options: Any) -> dict[str, Any]:
     accepted = client.post(
         f"{API}/models",
         json={"dataset_id": dataset_id, "latent_dim": 1, "restarts": 0, "seed": 0,
-              "noise_model": "independent"},
+              "noise_model": "independent", **options},
     )  # fmt: skip
     assert accepted.status_code == 202, accepted.text
     model = wait_until(
@@ -192,8 +192,10 @@ def test_a_server_fit_estimates_the_placement_effect(tmp_path: Path) -> None:
         np.testing.assert_allclose(effect["noise_ratio"], np.array(effect["variance"]) / noise)
         assert effect["in_training_covariance"] is True
         assert np.any(np.array(effect["variance"]) > 0)
+        assert effect["by_object"] is None  # each object's own only when asked
+        asked = fit(client, placed["id"], object_placement=True)["placement_effect"]
         # Each object's own σ_b² (core.gp.object_placement), one row per object.
-        rows = np.array(effect["by_object"])
+        rows = np.array(asked["by_object"])
         assert rows.shape == (len(model["objects"]), noise.size)
         assert np.all((rows >= 0) & (rows < noise))
         document = client.get(f"{API}/models/{model['id']}/export").json()

@@ -196,19 +196,19 @@ def test_with_object_placement_needs_placements_and_a_pooled_effect(
     assert with_object_placement(no_pooled) == (no_pooled, None)
 
 
-def test_calibrate_adds_it_by_default_and_not_when_asked(placed: ManifoldModel) -> None:
+def test_calibrate_adds_it_only_when_asked(placed: ManifoldModel) -> None:
     options = FitOptions()
     # The placement step refits; the fixture is a conditioned model at the true latents, so
     # start from it without the pooled value, as a fit would.
     raw = dataclasses.replace(placed, placement_variance=None)
-    calibrated, found = calibrate(raw, options, np.random.default_rng(0), latent_uncertainty=False)
+    calibrated, found = calibrate(
+        raw, options, np.random.default_rng(0), latent_uncertainty=False, object_placement=True
+    )
     assert found.object_placement is not None
     np.testing.assert_array_equal(
         calibrated.object_placement_variance, found.object_placement.variance
     )
-    without, none = calibrate(
-        raw, options, np.random.default_rng(0), latent_uncertainty=False, object_placement=False
-    )
+    without, none = calibrate(raw, options, np.random.default_rng(0), latent_uncertainty=False)
     assert without.object_placement_variance is None
     assert none.object_placement is None
 
