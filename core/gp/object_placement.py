@@ -75,7 +75,7 @@ class ObjectPlacementEstimate:
 def estimate_object_placement_variance(
     model: ManifoldModel, placement_index: IntArray
 ) -> ObjectPlacementEstimate | None:
-    """σ_l,a² of every object from its placements' leave-one-placement-out residuals.
+    """σ_b,l,a² of every object from its placements' leave-one-placement-out residuals.
 
     Args:
         model: A fitted model (its pooled σ_b², if in its training covariance, is accounted
@@ -85,8 +85,18 @@ def estimate_object_placement_variance(
     Returns:
         The estimate, or ``None`` when fewer than two objects have two placements of two
         touches or more (nothing to tell the objects apart by).
+
+    Raises:
+        InvalidInputError: ``placement_index`` is not N integers.
     """
-    moments = placement_moments(model, np.asarray(placement_index))
+    placement = np.asarray(placement_index)
+    n_touches = model.data.n_touches
+    if placement.shape != (n_touches,) or not np.issubdtype(placement.dtype, np.integer):
+        raise InvalidInputError(
+            f"placement_index: expected {n_touches} integers, received dtype {placement.dtype} "
+            f"with shape {placement.shape}."
+        )
+    moments = placement_moments(model, placement)
     n_objects = model.data.n_objects
     dy = model.hyperparameters.observation_dim
     raw = np.full((n_objects, dy), np.nan)
@@ -107,7 +117,9 @@ def estimate_object_placement_variance(
     if model.placement_variance is not None:
         pooled = np.asarray(model.placement_variance, dtype=np.float64)
     between, mean = _random_effects(raw[known], error[known], np.maximum(pooled, 0.0))
-    weight = np.where(np.isfinite(error), between / (between + error**2), 0.0)
+    # between / (between + se²): 0 without an estimate (se = inf), 1 for an exact one (se = 0).
+    spread = between + np.where(np.isfinite(error), error**2, np.inf)
+    weight = np.divide(between, spread, out=np.ones_like(error), where=spread > 0)
     shrunk = mean + weight * (np.nan_to_num(raw) - mean)
     upper = object_placement_ceiling(model, mean)
     return ObjectPlacementEstimate(

@@ -214,6 +214,10 @@ def test_calibrate_adds_it_only_when_asked(placed: ManifoldModel) -> None:
 
 
 def test_bad_rows_are_refused(placed: ManifoldModel) -> None:
+    with pytest.raises(InvalidInputError, match="placement_index"):
+        estimate_object_placement_variance(placed, np.zeros(3, dtype=np.int64))
+    with pytest.raises(InvalidInputError, match="placement_index"):
+        estimate_object_placement_variance(placed, np.zeros(placed.data.n_touches))
     assert placed.placement_variance is not None
     noise = placed.hyperparameters.noise_variance
     with pytest.raises(InvalidInputError, match="object_placement_variance"):
