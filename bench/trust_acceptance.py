@@ -31,7 +31,9 @@ module only reads the reports.
 
 It prints, per world, policy and touch: accuracy with its 95 % interval, ECE and the answers
 given with p ≥ 0.95 that were wrong; then one PASS/FAIL line per criterion of the acceptance
-(:func:`assess`): sure answers ≥ 95 % right and ECE ≤ 0.05 for every policy (rig and replay);
+(:func:`assess`): sure answers ≥ 95 % right and ECE ≤ 0.05 for every policy (rig and replay;
+each ECE with its over- and under-confident parts, :func:`confidence_gaps`, which say which way
+a failing one misses);
 active and discriminative never below passive beyond the intervals (rig; active on replay); on
 the cushions ≥ 90 % at T and ≥ 15 points ahead of passive at some touch ≤ 5; world model vs
 rig within 10 points at T for every policy. ``paper exp1`` and ``bench/correlated_noise`` are
@@ -123,7 +125,9 @@ def calibration_criteria(document: Mapping[str, Any], world: str) -> list[Criter
         sure_parts.append(f"{policy} {wrong}/{sure}" + (f" ({100 * share:.1f} %)" if sure else ""))
         ece = scored["ece"]
         ece_ok &= ece is not None and ece <= MAX_ECE
-        ece_parts.append(f"{policy} {'—' if ece is None else f'{ece:.3f}'}{_null(scored)}")
+        ece_parts.append(
+            f"{policy} {'—' if ece is None else f'{ece:.3f}'}{_direction(scored)}{_null(scored)}"
+        )
     return [
         Criterion(
             f"{world}: of the answers with p ≥ {SURE:g}, ≥ {100 * (1 - MAX_SHARE_WRONG):.0f} % "
@@ -290,6 +294,33 @@ def session_lines(sessions: Sequence[Mapping[str, Any]]) -> list[str]:
 def _ece_text(scored: Mapping[str, Any]) -> str:
     """A calibration summary's ECE to three decimals, "—" when it has none (no answers)."""
     return "—" if scored["ece"] is None else f"{scored['ece']:.3f}"
+
+
+def confidence_gaps(scored: Mapping[str, Any]) -> tuple[float, float] | None:
+    """(over, under): the ECE's part from reliability bins whose answers were stated surer than
+    they were right, and from those stated less sure, Σ_b (n_b / n) max(0, ±(confidence_b −
+    accuracy_b)); over + under is the ECE. ``None`` when the summary has no reliability table
+    or no answers."""
+    table = scored.get("reliability")
+    if not table:
+        return None
+    total = sum(int(b["count"]) for b in table)
+    if total == 0:
+        return None
+    over = under = 0.0
+    for b in table:
+        if b["count"] and b["accuracy"] is not None and b["mean_confidence"] is not None:
+            gap = float(b["mean_confidence"]) - float(b["accuracy"])
+            share = int(b["count"]) / total
+            over += share * max(gap, 0.0)
+            under += share * max(-gap, 0.0)
+    return over, under
+
+
+def _direction(scored: Mapping[str, Any]) -> str:
+    """ " [over 0.xxx, under 0.xxx]": which way the answers miss, when the report has bins."""
+    gaps = confidence_gaps(scored)
+    return "" if gaps is None else f" [over {gaps[0]:.3f}, under {gaps[1]:.3f}]"
 
 
 def _null(scored: Mapping[str, Any]) -> str:

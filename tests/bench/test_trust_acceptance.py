@@ -8,7 +8,15 @@ from typing import Any
 
 import pytest
 
-from bench.trust_acceptance import POLICIES, assess, pooled_report, session_lines, touch_table
+from bench.trust_acceptance import (
+    POLICIES,
+    assess,
+    confidence_gaps,
+    pooled_report,
+    session_lines,
+    touch_table,
+)
+from core.evaluation.calibration import calibration
 from core.evaluation.records import TrialRecord
 from core.evaluation.summary import summarise
 
@@ -199,3 +207,18 @@ def test_sessions_of_different_models_do_not_pool() -> None:
     without_trials = {**first, "trials": []}
     with pytest.raises(ValueError, match="hold no trials"):
         pooled_report([without_trials])
+
+
+def test_the_ece_splits_into_over_and_under_confidence() -> None:
+    # Bin 0.7-0.8: stated 0.75, right 3 of 4 (0.75); bin 0.9-1.0: stated 0.95, right 1 of 2;
+    # bin 0.5-0.6: stated 0.55, right 2 of 2. Over: 2/8 · 0.45; under: 2/8 · 0.45.
+    p = [0.75, 0.75, 0.75, 0.75, 0.95, 0.95, 0.55, 0.55]
+    right = [1, 1, 1, 0, 1, 0, 1, 1]
+    probabilities = [[q, 1 - q] for q in p]
+    labels = [0 if r else 1 for r in right]
+    scored = calibration(probabilities, labels, 0.95).to_dict()
+    gaps = confidence_gaps(scored)
+    assert gaps is not None
+    assert gaps == pytest.approx((2 / 8 * 0.45, 2 / 8 * 0.45))
+    assert sum(gaps) == pytest.approx(scored["ece"])
+    assert confidence_gaps({"ece": 0.02}) is None  # a summary without bins
