@@ -10,7 +10,6 @@ import pytest
 
 from core.errors import InvalidInputError
 from core.evaluation.trial_engine import ModelTrial
-from core.evaluation.worlds import EXPERIMENT1_THETAS, sample_experiment1
 from core.gp import FitOptions
 from core.gp.object_placement import (
     check_object_placement_variance,
@@ -23,40 +22,20 @@ from core.gp.placement_effect import (
     placement_moments,
     trial_log_likelihoods,
 )
-from core.gp.posterior import condition
 from core.recognition import calibrate, with_latent_uncertainty
 from core.recognition.latent_uncertainty import trial_log_likelihoods as latent_trials
 from core.recognition.object_posterior import object_log_likelihoods
-from core.types import Hyperparameters, ManifoldModel, TrainingData
+from core.types import ManifoldModel
+from tests.core.test_placement_effect import placed_experiment1
 
 #: The offset's standard deviation per placement of each of Experiment 1's four objects.
 OFFSET_STD = (0.02, 0.02, 0.15, 0.15)
 
 
 def _placed(seed: int, offset_std: tuple[float, ...] = OFFSET_STD) -> ManifoldModel:
-    """Experiment 1, 100 touches per object in placements of 4, each sharing an offset whose
-    spread depends on the object; the pooled σ_b² in the model, as the fit would leave it."""
-    rng = np.random.default_rng(seed)
-    base = sample_experiment1(rng, touches_per_object=100, noise_std=0.1)
-    placement = np.zeros(base.n_touches, dtype=np.int64)
-    observations = base.observations.copy()
-    for obj in range(base.n_objects):
-        rows = np.flatnonzero(base.object_index == obj)
-        placement[rows] = np.arange(rows.size) // 4
-        for p in range(25):
-            shared = rng.normal(0.0, offset_std[obj], size=3)
-            observations[rows[placement[rows] == p]] += shared
-    data = TrainingData(base.object_names, base.object_index, base.actions, observations, placement)
-    theta = np.asarray(EXPERIMENT1_THETAS)[:, None]
-    centred = theta - theta.mean()
-    mean_offset = float(np.mean(np.square(offset_std)))
-    hyper = Hyperparameters(
-        signal_variance=np.array([0.18, 0.2, 0.27]),
-        noise_variance=np.full(3, 0.01 + mean_offset),
-        latent_lengthscales=np.array([[1.9], [100.0], [8.0]]),
-        action_lengthscales=np.array([[0.84], [0.88], [0.92]]),
-    )
-    model = condition(data, centred / np.sqrt(np.mean(centred**2)), hyper)
+    """Experiment 1 in placements of 4 whose offsets' spread depends on the object, with the
+    pooled σ_b² in the model, as the fit would leave it."""
+    model, placement = placed_experiment1(offset_std, seed, run=4)
     pooled = estimate_placement_variance(model, placement)
     return dataclasses.replace(model, placement_variance=pooled.variance)
 

@@ -176,23 +176,27 @@ def test_negative_or_too_large_variance_is_refused(model: ManifoldModel) -> None
             trial_log_likelihoods(model, x, y, bad)
 
 
-def _placed(offset_std: float, seed: int) -> tuple[ManifoldModel, np.ndarray]:
-    """Experiment 1, 100 touches per object in placements of 5, each sharing an offset."""
+def placed_experiment1(
+    offset_std: float | tuple[float, ...], seed: int, run: int = 5
+) -> tuple[ManifoldModel, np.ndarray]:
+    """Experiment 1, 100 touches per object in placements of ``run``, each sharing an offset of
+    spread ``offset_std`` (one for every object, or one per object)."""
     rng = np.random.default_rng(seed)
     base = sample_experiment1(rng, touches_per_object=100, noise_std=0.1)
+    spread = np.broadcast_to(np.asarray(offset_std, dtype=np.float64), (base.n_objects,))
     placement = np.zeros(base.n_touches, dtype=np.int64)
     observations = base.observations.copy()
     for obj in range(base.n_objects):
         rows = np.flatnonzero(base.object_index == obj)
-        placement[rows] = np.arange(rows.size) // 5
-        for p in range(20):
-            observations[rows[placement[rows] == p]] += rng.normal(0.0, offset_std, size=3)
+        placement[rows] = np.arange(rows.size) // run
+        for p in range(rows.size // run):
+            observations[rows[placement[rows] == p]] += rng.normal(0.0, spread[obj], size=3)
     data = TrainingData(base.object_names, base.object_index, base.actions, observations, placement)
     theta = np.asarray(EXPERIMENT1_THETAS)[:, None]
     centred = theta - theta.mean()
     hyper = Hyperparameters(
         signal_variance=np.array([0.18, 0.2, 0.27]),
-        noise_variance=np.full(3, 0.01 + offset_std**2),
+        noise_variance=np.full(3, 0.01 + float(np.mean(spread**2))),
         latent_lengthscales=np.array([[1.9], [100.0], [8.0]]),
         action_lengthscales=np.array([[0.84], [0.88], [0.92]]),
     )
@@ -200,7 +204,7 @@ def _placed(offset_std: float, seed: int) -> tuple[ManifoldModel, np.ndarray]:
 
 
 def test_estimator_recovers_the_placement_variance() -> None:
-    model, placement = _placed(0.1, 7)
+    model, placement = placed_experiment1(0.1, 7)
     estimate = estimate_placement_variance(model, placement)
     assert estimate.groups == 80
     assert estimate.pairs == 80 * 5 * 4
@@ -210,7 +214,7 @@ def test_estimator_recovers_the_placement_variance() -> None:
 
 
 def test_estimator_finds_no_effect_without_offsets() -> None:
-    model, placement = _placed(0.0, 8)
+    model, placement = placed_experiment1(0.0, 8)
     estimate = estimate_placement_variance(model, placement)
     assert np.all(np.abs(estimate.raw_variance) < 0.002)
 
@@ -219,7 +223,7 @@ def test_with_placement_effect_uses_the_recorded_placements(model: ManifoldModel
     unchanged, none = with_placement_effect(model)
     assert unchanged is model
     assert none is None
-    placed, placement = _placed(0.1, 9)
+    placed, placement = placed_experiment1(0.1, 9)
     fitted, estimate = with_placement_effect(placed)
     assert estimate is not None
     np.testing.assert_array_equal(fitted.placement_variance, estimate.variance)
