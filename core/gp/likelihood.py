@@ -132,6 +132,21 @@ class LikelihoodGradient:
     log_action_lengthscales: FloatArray
 
 
+@dataclass(frozen=True)
+class ProductSums:
+    """The O(N²) sums of one row's X = tril(W) ∘ K_f behind the kernel gradient.
+
+    Attributes:
+        diagonal: X's diagonal, in the internal order. Shape (N,).
+        lower_blocks: Pᵀ X P, X's block sums per pair of objects. Shape (L, L).
+        action_terms: Σ_ij X_ij (x_id - x_jd)² per action dimension. Shape (dx,).
+    """
+
+    diagonal: FloatArray
+    lower_blocks: FloatArray
+    action_terms: FloatArray
+
+
 class ManifoldLikelihood:
     """-log p(Y | S, X, γ) and its gradient at packed parameter vectors (see
     :mod:`core.gp.parameters`), with the data-only terms computed once.
@@ -269,40 +284,53 @@ class ManifoldLikelihood:
             Shape (R, N, N).
         """
         rows = log_sf.shape[0]
-        n, dx = self._actions.shape
-        ds = latents.shape[1]
+        n = self._actions.shape[0]
         centred_latents = (latents - latents.mean(axis=0))[self._touch_object]  # (N, ds)
         exponent = np.empty((rows, n, n))
+
+        def row(r: int) -> None:
+            self._gram_row(
+                exponent[r], centred_latents, log_sf[r], log_ls[r], log_lx[r], lower_only
+            )
+
+        # A row each on the feature threads (a fifth of an evaluation at N = 800): the same
+        # calls on any thread, so the same numbers on any number of threads.
+        self._per_feature(row, rows)
+        return exponent
+
+    def _gram_row(
+        self,
+        out: FloatArray,
+        centred_latents: FloatArray,
+        log_sf: float,
+        log_ls: FloatArray,
+        log_lx: FloatArray,
+        lower_only: bool,
+    ) -> None:
+        """One row of :meth:`gram_rows` into ``out`` (N, N): the exponent by one GEMM of the
+        augmented rows, the diagonal set exactly, then the exponentials."""
+        n, dx = self._actions.shape
+        ds = centred_latents.shape[1]
         left = np.empty((n, dx + ds + 2))
         right = np.empty((n, dx + ds + 2))
         left[:, -1] = 1.0
         right[:, -2] = 1.0
-        for r in range(rows):
-            z = left[:, : dx + ds]
-            np.multiply(self._actions, np.exp(-log_lx[r]), out=z[:, :dx])
-            np.multiply(centred_latents, np.exp(-log_ls[r]), out=z[:, dx:])
-            half = -0.5 * np.einsum("nd,nd->n", z, z)
-            right[:, : dx + ds] = z
-            right[:, -1] = half
-            left[:, -2] = half + log_sf[r]
-            np.matmul(left, right.T, out=exponent[r])
+        z = left[:, : dx + ds]
+        np.multiply(self._actions, np.exp(-log_lx), out=z[:, :dx])
+        np.multiply(centred_latents, np.exp(-log_ls), out=z[:, dx:])
+        half = -0.5 * np.einsum("nd,nd->n", z, z)
+        right[:, : dx + ds] = z
+        right[:, -1] = half
+        left[:, -2] = half + log_sf
+        np.matmul(left, right.T, out=out)
         cutoff = log_sf + LOG_KERNEL_FLOOR
-        parts = lower_blocks(n) if lower_only else ((0, n, n),)
-
-        def exponentials(a: int) -> None:
-            matrix = exponent[a]
-            matrix.ravel()[self._diag] = log_sf[a]
-            for first, stop, width in parts:
-                part = matrix[first:stop, :width]
-                np.minimum(part, log_sf[a], out=part)
-                # Entries below the floor become exact zeros (exp(-inf)), not subnormal numbers.
-                np.copyto(part, -np.inf, where=part < cutoff[a])
-                np.exp(part, out=part)
-
-        # The exponentials (a fifth of an evaluation at N = 800) on the feature threads, a
-        # feature's matrix each: entrywise, so the same numbers on any number of threads.
-        self._per_feature(exponentials, rows)
-        return exponent
+        out.ravel()[self._diag] = log_sf
+        for first, stop, width in lower_blocks(n) if lower_only else ((0, n, n),):
+            part = out[first:stop, :width]
+            np.minimum(part, log_sf, out=part)
+            # Entries below the floor become exact zeros (exp(-inf)), not subnormal numbers.
+            np.copyto(part, -np.inf, where=part < cutoff)
+            np.exp(part, out=part)
 
     def _noisy(self, gram_free: FloatArray, noise: float, feature: int) -> FloatArray:
         """K_a: a copy of K_f,a plus σ_n² I, and with a placement variance σ_b² Z Zᵀ (on the
@@ -414,9 +442,9 @@ class ManifoldLikelihood:
         n = self.data.n_touches
         dy = layout.observation_dim
 
-        def feature(a: int) -> tuple[float, float, float]:
-            """Feature a's term of -log p, its ∂/∂log σ_n² and the jitter; gram_free[a]
-            becomes X_a."""
+        def feature(a: int) -> tuple[float, float, float, ProductSums]:
+            """Feature a's term of -log p, its ∂/∂log σ_n², the jitter and the sums of X_a
+            (gram_free[a] becomes X_a)."""
             inverse, beta, log_det, jitter = self._inverse(gram_free[a], float(noise[a]), a)
             y = self._centred[a]
             # docs/method.md eq. (M2)
@@ -427,15 +455,17 @@ class ManifoldLikelihood:
             half = inverse.T
             g_sn_a = 0.5 * noise[a] * float(half.ravel()[self._diag].sum())
             gram_free[a] *= half  # X_a = tril(W_a) ∘ K_f,a, in place of K_f,a
-            return term, g_sn_a, jitter
+            return term, g_sn_a, jitter, self.product_sums(gram_free[a])
 
         g_sn = np.empty(dy)
         total = 0.0
-        for a, (term, g_sn_a, jitter) in enumerate(self._per_feature(feature)):
+        sums = []
+        for a, (term, g_sn_a, jitter, sums_a) in enumerate(self._per_feature(feature)):
             total += term  # summed in feature order, whichever thread computed it
             g_sn[a] = g_sn_a
+            sums.append(sums_a)
             self.max_jitter = max(self.max_jitter, jitter)
-        g_latents, g_sf, g_ls, g_lx = self.kernel_gradient(gram_free, latents, inv_ls2, inv_lx2)
+        g_latents, g_sf, g_ls, g_lx = self.gradient_from_sums(sums, latents, inv_ls2, inv_lx2)
         grad = layout.join(g_latents, g_sf, g_sn, g_ls, g_lx)
         return total, grad
 
@@ -454,18 +484,40 @@ class ManifoldLikelihood:
             ∂/∂S (L, ds) summed over rows, ½ Σ M_r per row (R,) (∂/∂log σ_f² of a feature's
             own row), ∂/∂log ℓ^s (R, ds) and ∂/∂log ℓ^x (R, dx).
         """
-        rows, n = products.shape[0], products.shape[1]
-        halves = products.reshape(rows, n * n)
-        diagonals = halves[:, self._diag]  # (R, N)
-        partial = np.add.reduceat(products, self._starts, axis=2)  # X P, (R, N, L)
-        lower_blocks = np.add.reduceat(partial, self._starts, axis=1)  # Pᵀ X P, (R, L, L)
-        g_sf = np.sum(lower_blocks, axis=(1, 2)) - 0.5 * np.sum(diagonals, axis=1)
+        sums = self._per_feature(lambda r: self.product_sums(products[r]), products.shape[0])
+        return self.gradient_from_sums(sums, latents, inv_ls2, inv_lx2)
+
+    def product_sums(self, product: FloatArray) -> ProductSums:
+        """The O(N²) sums of one row's X = tril(W) ∘ K_f that the gradient needs (on the
+        feature thread that formed X, while X is still in its cache).
+
+        Args:
+            product: X. Shape (N, N).
+        """
+        partial = np.add.reduceat(product, self._starts, axis=1)  # X P, (N, L)
         # Σ_ij X_ij (x_id - x_jd)² = Σ_i (r_i + c_i) x_id² - 2 x_dᵀ X x_d, r and c the row and
         # column sums of X (zero diagonal of Δ: X's diagonal adds nothing).
         x = self._actions
-        g_lx = (np.sum(partial, axis=2) + np.sum(products, axis=1)) @ x**2
-        g_lx -= 2.0 * np.einsum("and,nd->ad", products @ x, x)
-        g_lx *= inv_lx2
+        line_sums = np.sum(partial, axis=1) + np.sum(product, axis=0)
+        quadratic = np.einsum("nd,nd->d", product @ x, x)
+        return ProductSums(
+            diagonal=product.ravel()[self._diag],
+            lower_blocks=np.add.reduceat(partial, self._starts, axis=0),  # Pᵀ X P
+            action_terms=line_sums @ x**2 - 2.0 * quadratic,
+        )
+
+    def gradient_from_sums(
+        self,
+        sums: list[ProductSums],
+        latents: FloatArray,
+        inv_ls2: FloatArray,
+        inv_lx2: FloatArray,
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """:meth:`kernel_gradient` from every row's :meth:`product_sums` (in row order)."""
+        diagonals = np.stack([row.diagonal for row in sums])  # (R, N)
+        lower_blocks = np.stack([row.lower_blocks for row in sums])  # (R, L, L)
+        g_sf = np.sum(lower_blocks, axis=(1, 2)) - 0.5 * np.sum(diagonals, axis=1)
+        g_lx = np.stack([row.action_terms for row in sums]) * inv_lx2
         blocks = lower_blocks + np.swapaxes(lower_blocks, 1, 2)  # B = Pᵀ M P
         diagonal_blocks = np.add.reduceat(diagonals, self._starts, axis=1)  # (R, L)
         blocks -= diagonal_blocks[:, :, None] * np.eye(self.layout.n_objects)
