@@ -235,13 +235,8 @@ class ManifoldLikelihood:
         Rows and columns are in the internal (object-sorted) order (:meth:`gram_rows`).
         Shape (dy, N, N).
         """
-        return self._gram(vector, lower_only=False)
-
-    def _gram(self, vector: FloatArray, lower_only: bool = True) -> FloatArray:
-        """:meth:`noise_free_gram`, by default only its lower triangle (what an evaluation
-        reads: :meth:`gram_rows`)."""
         latents, log_sf, _, log_ls, log_lx = self.layout.split(vector)
-        return self.gram_rows(latents, log_sf, log_ls, log_lx, lower_only=lower_only)
+        return self.gram_rows(latents, log_sf, log_ls, log_lx)
 
     def gram_rows(
         self,
@@ -285,7 +280,7 @@ class ManifoldLikelihood:
         """
         rows = log_sf.shape[0]
         n = self._actions.shape[0]
-        centred_latents = (latents - latents.mean(axis=0))[self._touch_object]  # (N, ds)
+        centred_latents = self._touch_latents(latents)
         exponent = np.empty((rows, n, n))
 
         def row(r: int) -> None:
@@ -297,6 +292,32 @@ class ManifoldLikelihood:
         # calls on any thread, so the same numbers on any number of threads.
         self._per_feature(row, rows)
         return exponent
+
+    def _touch_latents(self, latents: FloatArray) -> FloatArray:
+        """Each touch's latent, S centred (differences are shift invariant), in the internal
+        order. Shape (N, ds)."""
+        centred: FloatArray = (latents - latents.mean(axis=0))[self._touch_object]
+        return centred
+
+    def _feature_gram(
+        self, vector: FloatArray, lower_only: bool = True
+    ) -> Callable[[int], FloatArray]:
+        """A function of feature a giving K_f,a (:meth:`gram_rows`'s row a; by default only
+        its lower triangle, what an evaluation reads), for the feature thread that factorises
+        it. The rows share one (dy, N, N) array allocated here: glibc then serves the
+        per-feature N × N copies from its heap, where N × N arrays of their own would each be
+        a fresh ``mmap`` faulted in page by page (a tenth of an evaluation at N = 800)."""
+        latents, log_sf, _, log_ls, log_lx = self.layout.split(vector)
+        touch_latents = self._touch_latents(latents)
+        n = self._actions.shape[0]
+        grams = np.empty((log_sf.shape[0], n, n))
+
+        def gram(a: int) -> FloatArray:
+            out: FloatArray = grams[a]
+            self._gram_row(out, touch_latents, log_sf[a], log_ls[a], log_lx[a], lower_only)
+            return out
+
+        return gram
 
     def _gram_row(
         self,
@@ -404,11 +425,11 @@ class ManifoldLikelihood:
         """-log p at a packed vector (no gradient: one Cholesky factor per feature)."""
         self.evaluations += 1
         _, _, log_sn, _, _ = self.layout.split(vector)
-        gram_free = self._gram(vector)
+        gram = self._feature_gram(vector)
         n = self.data.n_touches
 
         def feature(a: int) -> tuple[float, float]:
-            upper, jitter = self._factor(gram_free[a], float(np.exp(log_sn[a])), a)
+            upper, jitter = self._factor(gram(a), float(np.exp(log_sn[a])), a)
             # α = U⁻ᵀ y, so yᵀ K⁻¹ y = |α|²
             alpha, info = scipy.linalg.lapack.dtrtrs(upper, self._centred[a], lower=0, trans=1)
             if info:  # pragma: no cover - the factor came from a successful Cholesky
@@ -438,14 +459,15 @@ class ManifoldLikelihood:
         noise = np.exp(log_sn)
         inv_ls2 = np.exp(-2.0 * log_ls)  # (dy, ds)
         inv_lx2 = np.exp(-2.0 * log_lx)  # (dy, dx)
-        gram_free = self._gram(vector)
+        gram = self._feature_gram(vector)
         n = self.data.n_touches
         dy = layout.observation_dim
 
         def feature(a: int) -> tuple[float, float, float, ProductSums]:
-            """Feature a's term of -log p, its ∂/∂log σ_n², the jitter and the sums of X_a
-            (gram_free[a] becomes X_a)."""
-            inverse, beta, log_det, jitter = self._inverse(gram_free[a], float(noise[a]), a)
+            """Feature a's term of -log p, its ∂/∂log σ_n², the jitter and the sums of
+            X_a = tril(W_a) ∘ K_f,a: the whole of feature a's work, on one thread."""
+            gram_free = gram(a)
+            inverse, beta, log_det, jitter = self._inverse(gram_free, float(noise[a]), a)
             y = self._centred[a]
             # docs/method.md eq. (M2)
             term = 0.5 * float(y @ beta) + 0.5 * log_det + 0.5 * n * _LOG_2PI
@@ -454,8 +476,8 @@ class ManifoldLikelihood:
             inverse = scipy.linalg.blas.dsyr(-1.0, beta, lower=0, a=inverse, overwrite_a=1)
             half = inverse.T
             g_sn_a = 0.5 * noise[a] * float(half.ravel()[self._diag].sum())
-            gram_free[a] *= half  # X_a = tril(W_a) ∘ K_f,a, in place of K_f,a
-            return term, g_sn_a, jitter, self.product_sums(gram_free[a])
+            gram_free *= half  # X_a = tril(W_a) ∘ K_f,a, in place of K_f,a
+            return term, g_sn_a, jitter, self.product_sums(gram_free)
 
         g_sn = np.empty(dy)
         total = 0.0

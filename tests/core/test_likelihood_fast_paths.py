@@ -8,6 +8,8 @@ contracts it blockwise; :mod:`bench.direct_likelihood` builds every ∂K/∂θ d
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pytest
 import scipy.linalg
@@ -287,12 +289,12 @@ def test_the_lower_only_gram_is_the_kernel_on_and_below_the_diagonal() -> None:
     assert not np.any(np.isclose(lower[:, far], full[:, far]))
 
 
-_LOWER_GRAM = ManifoldLikelihood._gram
+_LOWER_GRAM = ManifoldLikelihood._feature_gram
 
 
 def _whole_gram(
     self: ManifoldLikelihood, vector: np.ndarray, lower_only: bool = True
-) -> np.ndarray:
+) -> Callable[[int], np.ndarray]:
     """The evaluations' Gram matrices made whole (what they were before the lower triangle)."""
     return _LOWER_GRAM(self, vector, lower_only=False)
 
@@ -336,7 +338,7 @@ def test_evaluations_on_the_lower_triangle_give_the_full_grams_numbers(
         value, gradient = lower.value_and_gradient(at)
         plain = lower.value(at)
         with monkeypatch.context() as patch:
-            patch.setattr(ManifoldLikelihood, "_gram", _whole_gram)
+            patch.setattr(ManifoldLikelihood, "_feature_gram", _whole_gram)
             full = ManifoldLikelihood(touches, 2, placement_variance=shared)
             expected_value, expected_gradient = full.value_and_gradient(at)
             assert full.value(at) == plain
