@@ -199,6 +199,15 @@ class ModelCreate(BaseModel):
             "cost accuracy (docs/calibration.md, 'Each object's placement variance')."
         ),
     )
+    placement_pooling: Literal["mean", "median"] = Field(
+        default="mean",
+        description=(
+            "When the touches record placements: the placement variance every trial is scored "
+            "with is the mean over all placements, or the median over the objects of each one's "
+            "own estimate (measured, not adopted: docs/calibration.md, 'The typical object's "
+            "placement variance')."
+        ),
+    )
     tempering: bool = Field(
         default=False,
         description=(

@@ -59,6 +59,15 @@ class Optimizer(StrEnum):
     de = "de"
 
 
+class PoolingChoice(StrEnum):
+    """How a fit pools the objects' placements into one placement variance
+    (:data:`core.gp.placement_effect.PLACEMENT_POOLINGS`, listed here so that ``--help`` does not
+    load the numerics)."""
+
+    mean = "mean"
+    median = "median"
+
+
 class WorldName(StrEnum):
     """Simulated worlds a trial or a dataset can come from
     (:data:`core.evaluation.worlds.WORLD_NAMES`, listed here so that ``--help`` does not load the
@@ -330,6 +339,15 @@ def fit(
             "cost accuracy (docs/calibration.md, 'Each object's placement variance').",
         ),
     ] = False,
+    placement_pooling: Annotated[
+        PoolingChoice,
+        typer.Option(
+            help="When the touches record placements: the placement variance every trial is "
+            "scored with is the mean over all placements, or the median over the objects of "
+            "each one's own estimate (measured, not adopted: docs/calibration.md, 'The typical "
+            "object's placement variance').",
+        ),
+    ] = PoolingChoice.mean,
     tempering: Annotated[
         bool,
         typer.Option(
@@ -402,6 +420,7 @@ def fit(
             latent_uncertainty=latent_uncertainty,
             tempering=tempering,
             object_placement=object_placement,
+            placement_pooling=placement_pooling.value,
         )
     except refusals as exc:
         raise fail(str(exc)) from None
@@ -440,7 +459,8 @@ def fit(
             for a in np.flatnonzero(placement.raw_variance != placement.variance)
         ]
         stdout.print(
-            f"placement effect from {placement.groups:d} placements: σ_b² / σ_n² = "
+            f"placement effect ({placement.pooling} over the objects) from "
+            f"{placement.groups:d} placements: σ_b² / σ_n² = "
             f"{escape(np.array2string(share, precision=2))} per feature"
             + (f" (clipped from {escape(', '.join(clipped))})" if clipped else "")
         )

@@ -387,6 +387,7 @@ def run_fit(
         latent_uncertainty=body.latent_uncertainty,
         tempering=body.tempering,
         object_placement=body.object_placement,
+        placement_pooling=body.placement_pooling,
     )
     if pipeline is not None:
         fitted = dataclasses.replace(fitted, features=pipeline)

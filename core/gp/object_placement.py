@@ -45,7 +45,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.errors import InvalidInputError
-from core.gp.placement_effect import MAX_PLACEMENT_FRACTION, placement_moments
+from core.gp.placement_effect import (
+    MAX_PLACEMENT_FRACTION,
+    object_moment_estimates,
+    placement_moments,
+)
 from core.types import ManifoldModel
 from core.validation import FloatArray, IntArray, as_float_array
 
@@ -99,14 +103,14 @@ def estimate_object_placement_variance(
     moments = placement_moments(model, placement)
     n_objects = model.data.n_objects
     dy = model.hyperparameters.observation_dim
-    raw = np.full((n_objects, dy), np.nan)
     error = np.full((n_objects, dy), np.inf)
     counts = np.bincount(moments.objects, minlength=n_objects)
+    raw = object_moment_estimates(moments, n_objects)
+    raw[counts < 2] = np.nan  # no standard error from one placement
     for obj in np.flatnonzero(counts >= 2):
         mine = moments.objects == obj
         terms, pairs = moments.contributions[mine], moments.pairs[mine].astype(np.float64)
         total = pairs.sum()
-        raw[obj] = terms.sum(axis=0) / total + moments.in_fit
         spread = terms - np.outer(pairs, (raw[obj] - moments.in_fit))
         m = int(mine.sum())
         error[obj] = np.sqrt(m / (m - 1) * np.sum(spread**2, axis=0)) / total

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 import scipy.linalg
@@ -54,13 +55,22 @@ MAX_PLACEMENT_FRACTION = 0.95
 #: Rounds of (refit with σ_b² in the likelihood, estimate σ_b² again) after the first estimate.
 PLACEMENT_ROUNDS = 2
 
+PlacementPooling = Literal["mean", "median"]
+
+#: How the objects' placements make one σ_b² (:func:`estimate_placement_variance`).
+PLACEMENT_POOLINGS: tuple[PlacementPooling, ...] = ("mean", "median")
+
 __all__ = [
     "MAX_PLACEMENT_FRACTION",
+    "PLACEMENT_POOLINGS",
     "PLACEMENT_ROUNDS",
     "PlacementEstimate",
     "PlacementMoments",
+    "PlacementPooling",
+    "check_placement_pooling",
     "check_placement_variance",
     "estimate_placement_variance",
+    "object_moment_estimates",
     "object_rows",
     "placement_groups",
     "placement_moments",
@@ -80,12 +90,14 @@ class PlacementEstimate:
         raw_variance: The moment estimate before clipping (may be negative). Shape (dy,).
         groups: Placements with at least two touches (those that inform the estimate).
         pairs: Ordered pairs (i ≠ j) of touches sharing a placement, Σ_G n_G (n_G − 1).
+        pooling: How the objects' placements were pooled (:data:`PLACEMENT_POOLINGS`).
     """
 
     variance: FloatArray
     raw_variance: FloatArray
     groups: int
     pairs: int
+    pooling: PlacementPooling = "mean"
 
 
 @dataclass(frozen=True)
@@ -145,8 +157,49 @@ def placement_moments(model: ManifoldModel, placement_index: IntArray) -> Placem
     return PlacementMoments(objects, pairs, contributions, in_fit)
 
 
+def object_moment_estimates(moments: PlacementMoments, n_objects: int) -> FloatArray:
+    """Each object's own moment estimate of σ_b², from its placements' terms alone:
+
+        σ̂_l,a² = Σ_{G of l} c_G,a / Σ_{G of l} n_G (n_G − 1)   (+ the σ_b,0² in the fit).
+
+    Args:
+        moments: The placements' terms (:func:`placement_moments`).
+        n_objects: L.
+
+    Returns:
+        σ̂_l,a², NaN for an object without a placement of two touches. Shape (L, dy).
+    """
+    dy = moments.contributions.shape[1]
+    pairs = np.bincount(moments.objects, weights=moments.pairs, minlength=n_objects)
+    raw = np.full((n_objects, dy), np.nan)
+    known = pairs > 0
+    for a in range(dy):
+        sums = np.bincount(
+            moments.objects, weights=moments.contributions[:, a], minlength=n_objects
+        )
+        raw[known, a] = sums[known] / pairs[known] + moments.in_fit[a]
+    return raw
+
+
+def check_placement_pooling(pooling: object) -> PlacementPooling:
+    """``pooling`` if it is one of :data:`PLACEMENT_POOLINGS`.
+
+    Raises:
+        InvalidInputError: Anything else.
+    """
+    for known in PLACEMENT_POOLINGS:
+        if pooling == known:
+            return known
+    raise InvalidInputError(
+        f"placement_pooling: expected one of {list(PLACEMENT_POOLINGS)}, received {pooling!r}."
+    )
+
+
 def estimate_placement_variance(
-    model: ManifoldModel, placement_index: IntArray, within_noise: bool = True
+    model: ManifoldModel,
+    placement_index: IntArray,
+    within_noise: bool = True,
+    pooling: PlacementPooling = "mean",
 ) -> PlacementEstimate:
     """σ_b,a² from the leave-one-placement-out residuals of the training touches.
 
@@ -163,6 +216,17 @@ def estimate_placement_variance(
     clipped to [0, MAX_PLACEMENT_FRACTION · σ_n,a²]. Leaving the whole placement out matters:
     leaving one touch out would let its placement-mates' shared offset leak into the prediction.
 
+    ``pooling`` says whose placements the one σ_b² describes. ``"mean"`` (the default) is the
+    sum above: a pair-weighted mean over the objects. ``"median"`` is the median over the
+    objects of each one's own estimate (:func:`object_moment_estimates`, the same sum over its
+    placements alone): how much a placement moves the touches is a property of the object (a
+    stiff plate's force moves with the contact point, a cloth's hardly), and one
+    placement-sensitive object lifts the mean for every trial; the median is the typical
+    object's, still one value for every object so that the estimates' noise never counts as
+    evidence. Not the default: measured on the unseen workshop through the whole calibration,
+    the input shift estimated after it takes back what σ_b² gives up, and the answers came out
+    less sure, not more (docs/calibration.md, "The typical object's placement variance").
+
     A model whose training covariance already holds a σ_b,0² (``placement_in_fit``) has it in
     A_G's within-placement entries, so the sum estimates σ_b² − σ_b,0² and σ_b,0² is added back;
     the other placements' touches are then predicted with their own offsets accounted for.
@@ -175,13 +239,16 @@ def estimate_placement_variance(
         within_noise: Clip to [0, MAX_PLACEMENT_FRACTION · σ_n,a²], for a split of the fitted
             σ_n,a² (σ_b² for scoring only, eq. (C2)); ``False``: only to ≥ 0, for a refit that
             fits σ_w,a² beside it (:func:`with_placement_effect`).
+        pooling: ``"median"`` or ``"mean"`` over the objects (above).
 
     Returns:
         The estimate; ``variance`` is zero when no placement has two touches.
 
     Raises:
-        InvalidInputError: ``placement_index`` is not N integers ≥ 0.
+        InvalidInputError: ``placement_index`` is not N integers ≥ 0, or an unknown
+            ``pooling``.
     """
+    pooling = check_placement_pooling(pooling)
     data = model.data
     placement = np.asarray(placement_index)
     if placement.shape != (data.n_touches,) or not np.issubdtype(placement.dtype, np.integer):
@@ -193,18 +260,31 @@ def estimate_placement_variance(
     moments = placement_moments(model, placement)
     if moments.pairs.size == 0:
         zero = np.zeros(h.observation_dim)
-        return PlacementEstimate(variance=zero, raw_variance=zero.copy(), groups=0, pairs=0)
+        return PlacementEstimate(
+            variance=zero, raw_variance=zero.copy(), groups=0, pairs=0, pooling=pooling
+        )
     pairs = int(moments.pairs.sum())
-    raw = moments.contributions.sum(axis=0) / pairs + moments.in_fit
+    if pooling == "median":
+        by_object = object_moment_estimates(moments, data.n_objects)
+        raw = np.median(by_object[~np.isnan(by_object[:, 0])], axis=0)
+    else:
+        raw = moments.contributions.sum(axis=0) / pairs + moments.in_fit
     upper = MAX_PLACEMENT_FRACTION * h.noise_variance if within_noise else np.inf
     variance = np.clip(raw, 0.0, upper)
     return PlacementEstimate(
-        variance=variance, raw_variance=raw, groups=int(moments.pairs.size), pairs=pairs
+        variance=variance,
+        raw_variance=raw,
+        groups=int(moments.pairs.size),
+        pairs=pairs,
+        pooling=pooling,
     )
 
 
 def with_placement_effect(
-    model: ManifoldModel, options: FitOptions = FitOptions(), rounds: int = PLACEMENT_ROUNDS
+    model: ManifoldModel,
+    options: FitOptions = FitOptions(),
+    rounds: int = PLACEMENT_ROUNDS,
+    pooling: PlacementPooling = "mean",
 ) -> tuple[ManifoldModel, PlacementEstimate | None]:
     """The model with the placement effect of its training touches, if they record placements.
 
@@ -224,6 +304,7 @@ def with_placement_effect(
             stall rule).
         rounds: Refits with σ_b² in the likelihood (0: σ_b² split off the fitted σ_n² for
             scoring trials only, eq. (C2), the fit left as it is).
+        pooling: How the objects' placements make σ_b² (:func:`estimate_placement_variance`).
 
     Returns:
         The model and the last estimate; the model unchanged and ``None`` when the training
@@ -231,10 +312,11 @@ def with_placement_effect(
         nothing to estimate from, and the model stays as without placements).
 
     Raises:
-        InvalidInputError: ``rounds`` is not an integer ≥ 0.
+        InvalidInputError: ``rounds`` is not an integer ≥ 0, or an unknown ``pooling``.
     """
     if isinstance(rounds, bool) or not isinstance(rounds, int) or rounds < 0:
         raise InvalidInputError(f"rounds: expected an integer ≥ 0, received {rounds!r}.")
+    pooling = check_placement_pooling(pooling)
     placement = model.raw_data.placement_index
     if placement is None:
         return model, None
@@ -244,7 +326,7 @@ def with_placement_effect(
         or options.structure in ("kronecker", "sparse")
         or options.kernels == "tied"
     )
-    estimate = estimate_placement_variance(model, placement, within_noise=scoring_only)
+    estimate = estimate_placement_variance(model, placement, scoring_only, pooling)
     if estimate.groups == 0:
         return model, None
     if scoring_only:
@@ -252,7 +334,7 @@ def with_placement_effect(
     diagnostics = model.diagnostics  # the fit's own (its starts), not the refits'
     for _ in range(rounds):
         model = refit_warm(model.raw_data, model, options, placement_variance=estimate.variance)
-        estimate = estimate_placement_variance(model, placement, within_noise=False)
+        estimate = estimate_placement_variance(model, placement, False, pooling)
     model = dataclasses.replace(model, diagnostics=diagnostics)
     return _conditioned_with(model, estimate.variance), estimate
 

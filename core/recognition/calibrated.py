@@ -31,7 +31,7 @@ from core.gp.drift_effect import DriftEstimate, with_drift_effect
 from core.gp.fit_options import FitOptions
 from core.gp.input_shift import ShiftEstimate, with_input_shift
 from core.gp.object_placement import ObjectPlacementEstimate, with_object_placement
-from core.gp.placement_effect import PlacementEstimate, with_placement_effect
+from core.gp.placement_effect import PlacementEstimate, PlacementPooling, with_placement_effect
 from core.recognition.latent_uncertainty import LatentLaplace, with_latent_uncertainty
 from core.recognition.tempering import TemperingFit, fit_tempering
 from core.types import ManifoldModel
@@ -59,6 +59,7 @@ def calibrate(
     latent_uncertainty: bool = True,
     tempering: bool = False,
     object_placement: bool = False,
+    placement_pooling: PlacementPooling = "mean",
 ) -> tuple[ManifoldModel, Calibrations]:
     """The fitted ``model`` with every effect of its training touches (module docstring).
 
@@ -70,11 +71,15 @@ def calibrate(
         tempering: Fit β ≤ 1 on the training touches' held-out log-loss (a last resort).
         object_placement: Score each object's trials with its own placement variance (not
             adopted: off by default).
+        placement_pooling: How the objects' placements make the one σ_b² every trial is scored
+            with: the ``"mean"`` over every placement (the default) or the ``"median"`` of
+            each object's own estimate (measured, not adopted:
+            :func:`core.gp.placement_effect.estimate_placement_variance`).
 
     Returns:
         The calibrated model, and what was estimated.
     """
-    model, placement = with_placement_effect(model, options)
+    model, placement = with_placement_effect(model, options, pooling=placement_pooling)
     model, drift = with_drift_effect(model)
     by_object = None
     if object_placement:

@@ -198,6 +198,12 @@ def test_a_server_fit_estimates_the_placement_effect(tmp_path: Path) -> None:
         rows = np.array(asked["by_object"])
         assert rows.shape == (len(model["objects"]), noise.size)
         assert np.all((rows >= 0) & (rows < noise))
+        refused = client.post(
+            f"{API}/models",
+            json={"dataset_id": placed["id"], "latent_dim": 1, "placement_pooling": "mode"},
+        )
+        assert refused.status_code == 422, refused.text
+        assert "placement_pooling" in refused.text
         document = client.get(f"{API}/models/{model['id']}/export").json()
         plain = client.post(f"{API}/datasets", content=experiment1_csv(touches_per_object=8),
                             headers=CSV).json()  # fmt: skip
