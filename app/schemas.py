@@ -208,6 +208,15 @@ class ModelCreate(BaseModel):
             "placement variance')."
         ),
     )
+    shift_along: Literal["auto", "all"] = Field(
+        default="auto",
+        description=(
+            "When the touches record placements: the action dimensions the input shift is "
+            "estimated along. 'auto': the press depth alone when the actions are the rig's with "
+            "it (dx = 7), every dimension otherwise; 'all': every dimension (docs/calibration.md, "
+            "'The shift along the press depth only')."
+        ),
+    )
     tempering: bool = Field(
         default=False,
         description=(

@@ -68,6 +68,14 @@ class PoolingChoice(StrEnum):
     median = "median"
 
 
+class ShiftAlong(StrEnum):
+    """Which action dimensions a fit lets a placement shift
+    (:data:`app.rig.press_depth.SHIFT_ALONG`)."""
+
+    auto = "auto"
+    all = "all"
+
+
 class WorldName(StrEnum):
     """Simulated worlds a trial or a dataset can come from
     (:data:`core.evaluation.worlds.WORLD_NAMES`, listed here so that ``--help`` does not load the
@@ -348,6 +356,15 @@ def fit(
             "object's placement variance').",
         ),
     ] = PoolingChoice.mean,
+    shift_along: Annotated[
+        ShiftAlong,
+        typer.Option(
+            help="When the touches record placements: the action dimensions the input shift is "
+            "estimated along. auto: the press depth alone when the actions are the rig's with "
+            "it (dx = 7), every dimension otherwise; all: every dimension (docs/calibration.md, "
+            "'The shift along the press depth only').",
+        ),
+    ] = ShiftAlong.auto,
     tempering: Annotated[
         bool,
         typer.Option(
@@ -365,6 +382,7 @@ def fit(
     from app.cli.raw_data import training_touches
     from app.config import available_cores
     from app.documents.model import latent_selection_dict, model_to_document
+    from app.rig.press_depth import shift_dimensions
     from core.errors import CoreError
     from core.gp import FitOptions
     from core.recognition import calibrate
@@ -421,6 +439,7 @@ def fit(
             tempering=tempering,
             object_placement=object_placement,
             placement_pooling=placement_pooling.value,
+            shift_dimensions=shift_dimensions(data.action_dim, shift_along.value),
         )
     except refusals as exc:
         raise fail(str(exc)) from None

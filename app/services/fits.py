@@ -29,6 +29,7 @@ from app.db import Database
 from app.db.tables import utc_now
 from app.documents.model import latent_selection_dict
 from app.errors import BadInputError, ConflictError
+from app.rig.press_depth import shift_dimensions
 from app.schemas import ModelAccepted, ModelCreate, ModelPublic
 from app.services import datasets
 from app.services.events import EventBus
@@ -388,6 +389,7 @@ def run_fit(
         tempering=body.tempering,
         object_placement=body.object_placement,
         placement_pooling=body.placement_pooling,
+        shift_dimensions=shift_dimensions(data.action_dim, body.shift_along),
     )
     if pipeline is not None:
         fitted = dataclasses.replace(fitted, features=pipeline)

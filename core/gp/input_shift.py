@@ -49,7 +49,7 @@ from core.gp.kernels import squared_exponential
 from core.gp.placement_groups import shared_groups
 from core.gp.posterior import support_points
 from core.types import ManifoldModel
-from core.validation import FloatArray, as_float_array
+from core.validation import FloatArray, IntArray, as_float_array
 
 __all__ = [
     "ShiftEstimate",
@@ -251,10 +251,20 @@ def shared_shift_variance(
     return variance, kappa * variance, int(pairs)
 
 
-def estimate_shift_variance(model: ManifoldModel) -> ShiftEstimate | None:
+def estimate_shift_variance(
+    model: ManifoldModel, dimensions: IntArray | None = None
+) -> ShiftEstimate | None:
     """σ_δ² and σ_c² from the training touches that share a placement
     (:func:`shared_shift_variance`), each placement's touches in the order of their times
     (in the data's order when no times were recorded).
+
+    ``dimensions`` are the action dimensions a placement can shift; σ_δ² is estimated along
+    those alone and is zero along the others. On the rig that is the press depth: a placement
+    tilts the object, so a press lands deeper or shallower, which the press-depth component
+    describes and the DMP's shape components do not (:mod:`app.rig.press_depth`). Left free,
+    the least-squares fit also puts variance on shape components where the training touches'
+    slopes are small; the planners' touches, which go where the slopes are large, then share
+    more than they do (docs/calibration.md, "The shift along the press depth only").
 
     Leaving placement G out of the GP conditioned on all the touches gives its residuals
     r_G,a = A_G,a β_G,a with covariance A_G,a = ((K_a⁻¹)_GG)⁻¹ (the block leave-out identities,
@@ -262,10 +272,20 @@ def estimate_shift_variance(model: ManifoldModel) -> ShiftEstimate | None:
     σ_b² included when the fit has it, so only what a constant offset does not describe is
     left); J at each touch is the slope of the full posterior's mean at the object's latent.
 
+    Args:
+        model: A conditioned model whose training touches record placements.
+        dimensions: Indices of the action dimensions the shift may move, distinct, in
+            0..dx-1; ``None``: every dimension. Shape (k,).
+
     Returns:
         The estimate; ``None`` when the touches record no placement with two touches, or for a
         sparse posterior (no K⁻¹ over the touches).
+
+    Raises:
+        InvalidInputError: ``dimensions`` empty, repeated or out of range.
     """
+    dx = model.data.action_dim
+    along = checked_shift_dimensions(dimensions, dx)
     if model.posterior.inducing is not None:
         return None
     data = model.data
@@ -286,12 +306,42 @@ def estimate_shift_variance(model: ManifoldModel) -> ShiftEstimate | None:
         covariances.append(cov)
         jacobians.append(mean_jacobian(model, model.latents[data.object_index[g]], data.actions[g]))
     spread = np.maximum(data.actions.var(axis=0), np.finfo(float).tiny)
-    variance, creep, pairs = shared_shift_variance(residuals, covariances, jacobians, spread)
+    free, free_creep, pairs = shared_shift_variance(
+        residuals, covariances, [j[:, :, along] for j in jacobians], spread[along]
+    )
+    variance, creep = np.zeros(dx), np.zeros(dx)
+    variance[along], creep[along] = free, free_creep
     runs = sum(g.size >= 3 for g in groups)
     return ShiftEstimate(variance, creep, groups=len(groups), pairs=pairs, runs=runs)
 
 
-def with_input_shift(model: ManifoldModel) -> tuple[ManifoldModel, ShiftEstimate | None]:
+def checked_shift_dimensions(dimensions: IntArray | None, action_dim: int) -> IntArray:
+    """The action dimensions a shift may move, as sorted indices (all of them for ``None``).
+
+    Raises:
+        InvalidInputError: Empty, not integers, repeated, or outside 0..action_dim-1.
+    """
+    if dimensions is None:
+        return np.arange(action_dim)
+    values = np.asarray(dimensions)
+    if (
+        values.ndim != 1
+        or values.size == 0
+        or not np.issubdtype(values.dtype, np.integer)
+        or np.unique(values).size != values.size
+        or values.min() < 0
+        or values.max() >= action_dim
+    ):
+        raise InvalidInputError(
+            f"shift_dimensions: expected distinct action dimensions in 0..{action_dim - 1}, "
+            f"received {dimensions!r}."
+        )
+    return np.sort(values.astype(np.int64))
+
+
+def with_input_shift(
+    model: ManifoldModel, dimensions: IntArray | None = None
+) -> tuple[ManifoldModel, ShiftEstimate | None]:
     """The model with σ_δ² (and σ_c², when runs of three touches show it) estimated from its
     training touches, for scoring trials.
 
@@ -301,11 +351,16 @@ def with_input_shift(model: ManifoldModel) -> tuple[ManifoldModel, ShiftEstimate
     samples (:class:`core.evaluation.trial_engine.ModelTrial`). Run it after the placement and
     drift effects, so the residuals are taken under the model that scores.
 
+    Args:
+        model: A conditioned model.
+        dimensions: The action dimensions a placement may shift (:func:`estimate_shift_variance`);
+            ``None``: all.
+
     Returns:
         The model and the estimate; the model unchanged and ``None`` without placements of two
         touches or for a sparse posterior.
     """
-    estimate = estimate_shift_variance(model)
+    estimate = estimate_shift_variance(model, dimensions)
     if estimate is None:
         return model, None
     creep = estimate.creep if np.any(estimate.creep > 0.0) else None

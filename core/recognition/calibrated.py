@@ -9,7 +9,8 @@ training collection alone, in this order (each uses the model the previous one l
 3. each object's own placement variance σ_b,l² (:mod:`core.gp.object_placement`, shrunk towards
    the pooled σ_b²; scores trials only), only when asked: measured on the unseen workshop table
    it cost 12-18 points of accuracy (docs/calibration.md, "Each object's placement variance"),
-4. the input shift σ_δ² and its creep (:mod:`core.gp.input_shift`),
+4. the input shift σ_δ² and its creep (:mod:`core.gp.input_shift`), along the action dimensions
+   a placement can shift (all unless told),
 5. the uncertainty Σ_l of each object's latent point (:mod:`core.recognition.latent_uncertainty`,
    docs/method.md (L1)–(L3)), on by default; a sparse model (more than
    :data:`core.gp.posterior.AUTO_SPARSE_ABOVE` touches) keeps point latents, since the Laplace
@@ -35,6 +36,7 @@ from core.gp.placement_effect import PlacementEstimate, PlacementPooling, with_p
 from core.recognition.latent_uncertainty import LatentLaplace, with_latent_uncertainty
 from core.recognition.tempering import TemperingFit, fit_tempering
 from core.types import ManifoldModel
+from core.validation import IntArray
 
 
 @dataclass(frozen=True)
@@ -60,6 +62,7 @@ def calibrate(
     tempering: bool = False,
     object_placement: bool = False,
     placement_pooling: PlacementPooling = "mean",
+    shift_dimensions: IntArray | None = None,
 ) -> tuple[ManifoldModel, Calibrations]:
     """The fitted ``model`` with every effect of its training touches (module docstring).
 
@@ -75,6 +78,8 @@ def calibrate(
             with: the ``"mean"`` over every placement (the default) or the ``"median"`` of
             each object's own estimate (measured, not adopted:
             :func:`core.gp.placement_effect.estimate_placement_variance`).
+        shift_dimensions: The action dimensions a placement can shift
+            (:func:`core.gp.input_shift.estimate_shift_variance`); ``None``: all of them.
 
     Returns:
         The calibrated model, and what was estimated.
@@ -84,7 +89,7 @@ def calibrate(
     by_object = None
     if object_placement:
         model, by_object = with_object_placement(model)
-    model, shift = with_input_shift(model)
+    model, shift = with_input_shift(model, shift_dimensions)
     laplace = None
     notes: list[str] = []
     if latent_uncertainty and model.posterior.inducing is not None:

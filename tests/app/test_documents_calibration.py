@@ -112,6 +112,9 @@ def test_fit_computes_the_latent_uncertainty_by_default_and_tempering_when_asked
     result = runner.invoke(app, [*common, "--placement-pooling", "mode"])
     assert result.exit_code == 2
     assert "--placement-pooling" in result.output
+    result = runner.invoke(app, [*common, "--shift-along", "depth"])
+    assert result.exit_code == 2
+    assert "--shift-along" in result.output
     result = runner.invoke(app, [*common, "--no-latent-uncertainty", "--out", str(plain)])
     assert result.exit_code == 0, result.output
     document = json.loads(plain.read_text())

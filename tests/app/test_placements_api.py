@@ -204,6 +204,12 @@ def test_a_server_fit_estimates_the_placement_effect(tmp_path: Path) -> None:
         )
         assert refused.status_code == 422, refused.text
         assert "placement_pooling" in refused.text
+        refused = client.post(
+            f"{API}/models",
+            json={"dataset_id": placed["id"], "latent_dim": 1, "shift_along": "depth"},
+        )
+        assert refused.status_code == 422, refused.text
+        assert "shift_along" in refused.text
         document = client.get(f"{API}/models/{model['id']}/export").json()
         plain = client.post(f"{API}/datasets", content=experiment1_csv(touches_per_object=8),
                             headers=CSV).json()  # fmt: skip

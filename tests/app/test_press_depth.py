@@ -19,7 +19,13 @@ from app.errors import BadInputError
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
 from app.rig.actions import TouchActions
-from app.rig.press_depth import DMP_ACTION_DIM, PressDepth, has_press_depth, rig_action_dim
+from app.rig.press_depth import (
+    DMP_ACTION_DIM,
+    PressDepth,
+    has_press_depth,
+    rig_action_dim,
+    shift_dimensions,
+)
 from core.errors import InvalidInputError
 from core.types import ManifoldModel
 from tests.app.conftest import RIG_OBJECTS, fitted_on_the_rig
@@ -173,3 +179,12 @@ def test_the_server_collects_and_touches_with_the_press_depth(
         np.testing.assert_allclose(
             step["trajectory"]["commanded_deg"], actions.trajectory(step["action"]), atol=1e-9
         )
+
+
+def test_the_shift_is_estimated_along_the_press_depth_of_the_rigs_actions() -> None:
+    np.testing.assert_array_equal(shift_dimensions(DMP_ACTION_DIM + 1), [DMP_ACTION_DIM])
+    assert shift_dimensions(DMP_ACTION_DIM) is None  # the DMP components alone: every one
+    assert shift_dimensions(3) is None  # not the rig's actions
+    assert shift_dimensions(DMP_ACTION_DIM + 1, "all") is None
+    with pytest.raises(BadInputError, match="shift_along"):
+        shift_dimensions(DMP_ACTION_DIM + 1, "depth")

@@ -384,3 +384,56 @@ def test_pairs_alone_leave_the_model_without_creep() -> None:
     assert estimate is not None
     assert estimate.runs == 0
     assert model.shift_creep_variance is None
+
+
+def experiment1_with_a_second_action(seed: int) -> ManifoldModel:
+    """Experiment 1 with a second action dimension that the response follows smoothly and that no
+    placement shifts: pairs share a shift of std 0.25 along the first dimension only."""
+    rng = np.random.default_rng(seed)
+    theta = np.asarray(EXPERIMENT1_THETAS)
+    obj = np.repeat(np.arange(4), 100)
+    placement = np.tile(np.arange(100) // 2, 4)
+    actions = rng.normal(size=(400, 2))
+    landed = actions[:, :1] + 0.25 * rng.normal(size=(4, 50, 1))[obj, placement]
+    observations = np.vstack(
+        [experiment1_h(float(theta[o]), landed[i : i + 1]) for i, o in enumerate(obj)]
+    )
+    observations += 0.3 * np.sin(actions[:, 1:2]) + 0.1 * rng.normal(size=observations.shape)
+    data = TrainingData(
+        ("o1", "o2", "o3", "o4"), obj, actions, observations, placement_index=placement
+    )
+    centred = (theta - theta.mean())[:, None]
+    hyper = Hyperparameters(
+        signal_variance=np.array([0.25, 0.25, 0.3]),
+        noise_variance=np.full(3, 0.015),
+        latent_lengthscales=np.array([[1.9], [100.0], [8.0]]),
+        action_lengthscales=np.array([[0.84, 1.5], [0.88, 1.5], [0.92, 1.5]]),
+    )
+    return condition(data, centred / np.sqrt(np.mean(centred**2)), hyper)
+
+
+def test_the_shift_estimated_along_chosen_dimensions_only() -> None:
+    model = experiment1_with_a_second_action(1)
+    free = estimate_shift_variance(model)
+    every = estimate_shift_variance(model, np.array([1, 0]))
+    first = estimate_shift_variance(model, np.array([0]))
+    assert free is not None
+    assert every is not None
+    assert first is not None
+    # Every dimension named is the default, to the bit.
+    np.testing.assert_array_equal(every.variance, free.variance)
+    # Along the first alone: the placements' shift recovered, nothing on the other dimension.
+    assert first.variance[1] == 0.0
+    assert 0.25**2 / 3 < first.variance[0] < 3 * 0.25**2
+    assert first.pairs == free.pairs
+    shifted, estimate = with_input_shift(model, np.array([0]))
+    assert estimate is not None
+    assert shifted.shift_variance is not None
+    np.testing.assert_array_equal(shifted.shift_variance, first.variance)
+
+
+@pytest.mark.parametrize("dimensions", [[], [0, 0], [2], [-1], [0.5]])
+def test_shift_dimensions_must_be_distinct_action_dimensions(dimensions: list[float]) -> None:
+    model = experiment1_with_a_second_action(1)
+    with pytest.raises(InvalidInputError, match=r"shift_dimensions: expected distinct .* 0\.\.1"):
+        estimate_shift_variance(model, np.array(dimensions))
