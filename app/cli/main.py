@@ -382,7 +382,7 @@ def fit(
     from app.cli.raw_data import training_touches
     from app.config import available_cores
     from app.documents.model import latent_selection_dict, model_to_document
-    from app.rig.press_depth import shift_dimensions
+    from app.rig.action_layout import shift_dimensions
     from core.errors import CoreError
     from core.gp import FitOptions
     from core.recognition import calibrate
@@ -478,8 +478,8 @@ def fit(
             for a in np.flatnonzero(placement.raw_variance != placement.variance)
         ]
         stdout.print(
-            f"placement effect ({placement.pooling} over the objects) from "
-            f"{placement.groups:d} placements: σ_b² / σ_n² = "
+            f"placement effect from {placement.groups:d} placements "
+            f"({escape(placement.pooling)} over the objects): σ_b² / σ_n² = "
             f"{escape(np.array2string(share, precision=2))} per feature"
             + (f" (clipped from {escape(', '.join(clipped))})" if clipped else "")
         )

@@ -243,7 +243,7 @@ def touch(
     as_json: AsJson = False,
 ) -> None:
     """Execute one touch (action → DMP → trajectory) and print its observation y."""
-    from app.rig.press_depth import has_press_depth
+    from app.rig.action_layout import has_press_depth
 
     press_depth = has_press_depth(len(action.split(","))) is True
     actions = touch_actions(duration_s, press_depth)

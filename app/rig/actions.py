@@ -17,12 +17,8 @@ import numpy as np
 import numpy.typing as npt
 
 from app.errors import BadInputError
-from app.rig.press_depth import (
-    DEFAULT_DEG_PER_UNIT,
-    DMP_ACTION_DIM,
-    PressDepth,
-    has_press_depth,
-)
+from app.rig.action_layout import DMP_ACTION_DIM, has_press_depth
+from app.rig.press_depth import DEFAULT_DEG_PER_UNIT, PressDepth
 from core.recognition import BasisResponses, DMPActionSpace, action_space, basis_responses, fit_dmp
 from core.recognition import trajectory_for_action as dmp_trajectory
 from core.validation import as_float_array

@@ -29,7 +29,7 @@ from app.db import Database
 from app.db.tables import utc_now
 from app.documents.model import latent_selection_dict
 from app.errors import BadInputError, ConflictError
-from app.rig.press_depth import shift_dimensions
+from app.rig.action_layout import shift_dimensions
 from app.schemas import ModelAccepted, ModelCreate, ModelPublic
 from app.services import datasets
 from app.services.events import EventBus

@@ -23,9 +23,10 @@ import numpy as np
 from app.config import Settings
 from app.documents.raw_touches import record_observation
 from app.errors import ConflictError, DeviceUnavailableError
+from app.rig.action_layout import has_press_depth
 from app.rig.actions import TouchActions
 from app.rig.build import RigHandle, RigPorts, SimulationMode, missing_ports, open_rig
-from app.rig.press_depth import has_press_depth, rig_action_dim
+from app.rig.press_depth import rig_action_dim
 from app.schemas import RigPublic
 from app.services.events import EventBus
 from app.services.jobs import JobRunner

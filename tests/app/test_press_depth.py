@@ -18,14 +18,9 @@ from app.documents.training_csv import read_training_csv
 from app.errors import BadInputError
 from app.evaluation.runner import run_evaluation
 from app.evaluation.spec import EvaluationSpec
+from app.rig.action_layout import DMP_ACTION_DIM, has_press_depth, shift_dimensions
 from app.rig.actions import TouchActions
-from app.rig.press_depth import (
-    DMP_ACTION_DIM,
-    PressDepth,
-    has_press_depth,
-    rig_action_dim,
-    shift_dimensions,
-)
+from app.rig.press_depth import PressDepth, rig_action_dim
 from core.errors import InvalidInputError
 from core.types import ManifoldModel
 from tests.app.conftest import RIG_OBJECTS, fitted_on_the_rig
@@ -186,5 +181,5 @@ def test_the_shift_is_estimated_along_the_press_depth_of_the_rigs_actions() -> N
     assert shift_dimensions(DMP_ACTION_DIM) is None  # the DMP components alone: every one
     assert shift_dimensions(3) is None  # not the rig's actions
     assert shift_dimensions(DMP_ACTION_DIM + 1, "all") is None
-    with pytest.raises(BadInputError, match="shift_along"):
+    with pytest.raises(InvalidInputError, match="shift_along"):
         shift_dimensions(DMP_ACTION_DIM + 1, "depth")
