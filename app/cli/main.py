@@ -70,7 +70,7 @@ class PoolingChoice(StrEnum):
 
 class ShiftAlong(StrEnum):
     """Which action dimensions a fit lets a placement shift
-    (:data:`app.rig.press_depth.SHIFT_ALONG`)."""
+    (:data:`app.rig.action_layout.SHIFT_ALONG`)."""
 
     auto = "auto"
     all = "all"

@@ -261,7 +261,7 @@ def estimate_shift_variance(
     ``dimensions`` are the action dimensions a placement can shift; σ_δ² is estimated along
     those alone and is zero along the others. On the rig that is the press depth: a placement
     tilts the object, so a press lands deeper or shallower, which the press-depth component
-    describes and the DMP's shape components do not (:mod:`app.rig.press_depth`). Left free,
+    describes and the DMP's shape components do not (docs/method.md, "The input shift"). Left free,
     the least-squares fit also puts variance on shape components where the training touches'
     slopes are small; the planners' touches, which go where the slopes are large, then share
     more than they do (docs/calibration.md, "The shift along the press depth only").
