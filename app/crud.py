@@ -142,6 +142,7 @@ def create_dataset(
     object_names: Sequence[str],
     action_dim: int,
     observation_dim: int,
+    touch_duration_s: float | None = None,
 ) -> Dataset:
     """Add an empty dataset row (flushed, so it has an id)."""
     return _added(
@@ -154,6 +155,7 @@ def create_dataset(
             action_dim=action_dim,
             observation_dim=observation_dim,
             n_samples=0,
+            touch_duration_s=touch_duration_s,
         ),
     )
 

@@ -111,6 +111,14 @@ class DatasetCreate(BaseModel):
 
     name: Annotated[str, Field(max_length=MAX_NAME_CHARACTERS)] = ""
     samples: Annotated[list[SampleIn], Field(min_length=1, max_length=200_000)]
+    touch_duration_s: Annotated[FiniteFloat, Field(gt=0)] | None = Field(
+        default=None,
+        description=(
+            "How long every touch lasted as planned, in seconds: an action means a trajectory "
+            "of that duration, so a model of these touches recognises with touches as long. "
+            "Null: not recorded (the rig's default duration is then assumed)."
+        ),
+    )
 
 
 class DatasetPublic(BaseModel):
@@ -124,6 +132,7 @@ class DatasetPublic(BaseModel):
     n_samples: int
     action_dim: int
     observation_dim: int
+    touch_duration_s: float | None = None
     created_at: datetime
 
 

@@ -7,6 +7,7 @@ observation dimension (features), ``ds`` latent dimension.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -35,6 +36,10 @@ class TrainingData:
         touch_times_s: When each touch was made, in seconds on one clock (any origin), or
             ``None`` when not recorded. The slow drift of the sensor and the room is shared by
             touches made close together (:mod:`core.gp.drift_effect`). Shape (N,), finite.
+        touch_duration_s: How long each touch lasted as planned, in seconds (the time scaling
+            that turns an action into a trajectory; the same for every touch), or ``None`` when
+            not recorded. The same action at another duration is another touch, so whoever
+            touches to recognise (the rig world, the server's rig) must use this one.
         min_touches_per_object: The fewest touches an object may have: 2 for objects to learn
             (their latent needs more than one touch), 1 for the pseudo-objects of
             :mod:`core.gp.placement_latent` (one per placement, which may be touched once).
@@ -46,6 +51,7 @@ class TrainingData:
     observations: FloatArray
     placement_index: IntArray | None = None
     touch_times_s: FloatArray | None = None
+    touch_duration_s: float | None = None
     min_touches_per_object: int = field(default=2, compare=False)
 
     def __post_init__(self) -> None:
@@ -102,6 +108,17 @@ class TrainingData:
         if self.touch_times_s is not None:
             times = as_float_array(self.touch_times_s, "touch_times_s", (n,))
             store_read_only(self, touch_times_s=times)
+        if self.touch_duration_s is not None:
+            duration = self.touch_duration_s
+            if isinstance(duration, bool) or not isinstance(duration, int | float | np.floating):
+                raise InvalidInputError(
+                    f"touch_duration_s: expected a number of seconds, received {duration!r}."
+                )
+            if not (math.isfinite(duration) and duration > 0):
+                raise InvalidInputError(
+                    f"touch_duration_s: must be a finite number > 0, received {duration!r}."
+                )
+            object.__setattr__(self, "touch_duration_s", float(duration))
 
     @property
     def n_objects(self) -> int:

@@ -35,7 +35,10 @@ anew. The adaptive design's stages each get placements of their own
 Every touch also records when it was made in the CSV's ``time_s`` column: seconds from the start
 of the collection's first touch to the start of this one, on the rig's clock (simulated seconds
 with ``--sim``). The slow drift of the sensor and the room is shared by touches made close
-together; ``fit`` estimates it from these times (:mod:`core.gp.drift_effect`).
+together; ``fit`` estimates it from these times (:mod:`core.gp.drift_effect`). Its ``duration_s``
+column records ``--duration`` on every row: an action means a trajectory of that duration, so
+the model keeps it and every later touch to recognise with it (``evaluate --world rig``, the
+server's trials) lasts as long.
 
 Each touch is appended to the CSV (and, with ``--raw``, its raw tactile series to a raw-touch
 file, JSON lines as ``docs/raw-touches.md`` describes, with the frame times and joint series
@@ -455,6 +458,7 @@ def _collect(
             len(handle.rig.tactile.config.channel_names),
             placements=True,
             times=True,
+            duration_s=actions.duration_s,
         )
         _sync(csv_file)
         with progress_bar() as bar:
@@ -488,6 +492,7 @@ def _collect(
                             index=touch.index,
                             placement=touch.placement,
                             time_s=touch.time_s,
+                            duration_s=actions.duration_s,
                             observation=touch.record.observation.tolist(),
                             **motion_series(touch.record),
                         )

@@ -106,6 +106,8 @@ class Dataset(Base):
     action_dim: Mapped[int] = mapped_column(Integer)
     observation_dim: Mapped[int] = mapped_column(Integer)
     n_samples: Mapped[int] = mapped_column(Integer, default=0)
+    # How long every touch lasted as planned (s): an action means a trajectory of that duration.
+    touch_duration_s: Mapped[float | None] = mapped_column(Float, default=None)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utc_now)
 
     samples: Mapped[list[Sample]] = relationship(

@@ -7,7 +7,8 @@ The training data are included; β and K⁻¹ are recomputed on load, conditione
 how ``--latent-dim auto`` chose ds. ``placement_effect`` (optional) holds σ_b², the variance of
 the offset shared by one placement's touches (docs/calibration.md), estimated at fit time from
 ``training_data.placements`` (optional, the placement number of every touch; ``times_s``, also
-optional, when each touch was made); a document without
+optional, when each touch was made; ``duration_s``, also optional, how long every touch lasted as
+planned, which recognition on the rig touches with); a document without
 it scores a trial's touches as independent (σ_b² = 0); its ``by_object`` (optional, L × dy) holds
 each object's own σ_b,l² (:mod:`core.gp.object_placement`), which scores a trial under that
 object in place of the pooled σ_b². ``drift_effect`` (optional) holds σ_d²,
@@ -132,6 +133,8 @@ def model_to_document(
         document["training_data"]["placements"] = data.placement_index.tolist()
     if data.touch_times_s is not None:
         document["training_data"]["times_s"] = data.touch_times_s.tolist()
+    if data.touch_duration_s is not None:
+        document["training_data"]["duration_s"] = data.touch_duration_s
     document.update(calibration_fields(model))
     noise = noise_model_field(model.transform)
     if noise is not None:
@@ -282,6 +285,19 @@ def _check_number(document: Mapping[str, Any], name: str, minimum: float | None 
         raise DocumentError(
             f"model document: {name} must be ≥ {minimum}, found {value}.", column=name
         )
+
+
+def _duration_s(value: Any) -> float | None:
+    """``training_data.duration_s``: absent (``None``) or a finite number of seconds > 0."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
+        raise DocumentError(
+            "model document: training_data.duration_s must be a number of seconds > 0, found "
+            f"{reprlib.repr(value)}.",
+            column="training_data.duration_s",
+        )
+    return float(value)
 
 
 def _name(value: Any, where: str) -> str:
@@ -540,6 +556,7 @@ def model_from_document(document: Any) -> ManifoldModel:
                 if training.get("times_s") is None
                 else _array("training_data.times_s", training["times_s"])
             ),
+            touch_duration_s=_duration_s(training.get("duration_s")),
         )
         per_feature = {
             name: [_field(f, name, f"hyperparameters[{a}]") for a, f in enumerate(hyper)]

@@ -13,7 +13,9 @@ every line or on none) says which placement of its object the touch met, as the 
 ``placement`` column does; the fit estimates the placement effect from it. An optional ``time_s``
 (a finite number, on every line or on none) says when the touch was made, in seconds since the
 collection's first touch, as the training CSV's ``time_s`` column does; the fit estimates the
-drift shared by touches made close together from it (:mod:`core.gp.drift_effect`). Other keys
+drift shared by touches made close together from it (:mod:`core.gp.drift_effect`). An optional
+``duration_s`` (seconds > 0, the same on every line, or on none) says how long each touch lasted
+as planned, as the training CSV's ``duration_s`` column does. Other keys
 (``collect --raw`` adds the frame times, joint series and the channel means) are kept by nobody
 and ignored here.
 
@@ -63,6 +65,8 @@ class RawTouchSet:
             Shape (N,).
         touch_times_s: When each touch was made (seconds, one clock), when every line gave it.
             Shape (N,).
+        touch_duration_s: How long every touch lasted as planned (seconds), when every line
+            gave it.
     """
 
     object_names: tuple[str, ...]
@@ -72,6 +76,7 @@ class RawTouchSet:
     lines: tuple[int, ...]
     placement_index: IntArray | None = None
     touch_times_s: FloatArray | None = None
+    touch_duration_s: float | None = None
 
     @property
     def channel_names(self) -> tuple[str, ...]:
@@ -183,9 +188,10 @@ def read_raw_touches(text: str) -> RawTouchSet:
         DocumentError: A line that is not a JSON object, a missing or empty object name, an
             action of another length than the first line's or not finite, a channel set or
             width different from the first touch's, a missing sample rate, NaN/inf or ragged
-            series, a ``placement`` that is not an integer ≥ 0 or a ``time_s`` that is not a
-            finite number, either given on some lines but not on others. The message names the
-            line and the channel (or key).
+            series, a ``placement`` that is not an integer ≥ 0, a ``time_s`` that is not a
+            finite number or a ``duration_s`` that is not one > 0, any of them given on some
+            lines but not on others, or durations that differ. The message names the line and
+            the channel (or key).
     """
     names: list[str] = []
     index: list[int] = []
@@ -194,6 +200,7 @@ def read_raw_touches(text: str) -> RawTouchSet:
     lines: list[int] = []
     placements: list[int | None] = []
     times_s: list[float | None] = []
+    durations_s: list[float | None] = []
     for line, content in enumerate(text.splitlines(), start=1):
         if not content.strip():
             continue
@@ -239,6 +246,16 @@ def read_raw_touches(text: str) -> RawTouchSet:
         _check_all_or_none("placement", "a placement", placement, placements, line, lines)
         time_s = _time_s(item.get("time_s"), line)
         _check_all_or_none("time_s", "a time", time_s, times_s, line, lines)
+        duration_s = _duration_s(item.get("duration_s"), line)
+        _check_all_or_none("duration_s", "a duration", duration_s, durations_s, line, lines)
+        if durations_s and duration_s != durations_s[0]:
+            raise _line_error(
+                line,
+                f"'duration_s' is {duration_s!r} here but {durations_s[0]!r} on line {lines[0]}; "
+                "every touch of a training set must last the same (an action means a "
+                "trajectory of that duration).",
+                "duration_s",
+            )
         name = name.strip()
         if name not in names:
             names.append(name)
@@ -248,6 +265,7 @@ def read_raw_touches(text: str) -> RawTouchSet:
         lines.append(line)
         placements.append(placement)
         times_s.append(time_s)
+        durations_s.append(duration_s)
     if not touches:
         raise DocumentError("raw touches: the file holds no touch.", row=1)
     return RawTouchSet(
@@ -258,6 +276,7 @@ def read_raw_touches(text: str) -> RawTouchSet:
         tuple(lines),
         None if placements[0] is None else np.asarray(placements, dtype=np.int64),
         None if times_s[0] is None else np.asarray(times_s, dtype=np.float64),
+        durations_s[0],
     )
 
 
@@ -274,20 +293,40 @@ def _placement(value: Any, line: int) -> int | None:
     return value
 
 
+def _seconds(value: Any) -> float:
+    """``value`` as a float, NaN for anything that is not a finite-able number."""
+    try:
+        return float(value) if not isinstance(value, bool | str) else math.nan
+    except (TypeError, ValueError, OverflowError):  # a list, an object, an int beyond a float
+        return math.nan
+
+
 def _time_s(value: Any, line: int) -> float | None:
     """A line's ``time_s``: ``None`` (absent or null) or a finite number of seconds."""
     if value is None:
         return None
-    try:
-        number = float(value) if not isinstance(value, bool | str) else math.nan
-    except (TypeError, ValueError, OverflowError):  # a list, an object, an int beyond a float
-        number = math.nan
+    number = _seconds(value)
     if not math.isfinite(number):
         raise _line_error(
             line,
             f"'time_s' must be a finite number of seconds (or left out), received "
             f"{reprlib.repr(value)}.",
             "time_s",
+        )
+    return number
+
+
+def _duration_s(value: Any, line: int) -> float | None:
+    """A line's ``duration_s``: ``None`` (absent or null) or a finite number of seconds > 0."""
+    if value is None:
+        return None
+    number = _seconds(value)
+    if not (math.isfinite(number) and number > 0):
+        raise _line_error(
+            line,
+            f"'duration_s' must be a finite number of seconds > 0 (or left out), received "
+            f"{reprlib.repr(value)}.",
+            "duration_s",
         )
     return number
 
@@ -313,6 +352,7 @@ def featurise(touches: RawTouchSet, pipeline: FeaturePipeline) -> TrainingData:
             observations=np.asarray(rows, dtype=np.float64),
             placement_index=touches.placement_index,
             touch_times_s=touches.touch_times_s,
+            touch_duration_s=touches.touch_duration_s,
         )
     except InvalidInputError as exc:
         raise DocumentError(f"raw touches: {exc}") from exc

@@ -5,7 +5,11 @@ object each touch met (``activetouch collect --placements``); the fit estimates 
 effect from it (docs/calibration.md). An optional ``time_s`` column after those (finite seconds,
 on every row or on none) records when each touch was made, in seconds since the collection's
 first touch (``activetouch collect`` and the server's collections write it); the fit estimates
-the drift shared by touches made close together from it (:mod:`core.gp.drift_effect`).
+the drift shared by touches made close together from it (:mod:`core.gp.drift_effect`). An
+optional ``duration_s`` column after those (the same finite seconds > 0 on every row, or none)
+records how long each touch lasted as planned: an action means a trajectory of that duration,
+so a model keeps it and recognition touches with it (``activetouch collect`` and the server's
+collections write it).
 
 :func:`read_training_csv` parses and checks a file; :class:`TrainingCsvWriter` appends rows as
 touches arrive (a collection keeps what it recorded); :func:`write_training_csv` renders a whole
@@ -65,11 +69,14 @@ def _oversized_field(text: str, line_number: int, columns: list[str]) -> Documen
 PLACEMENT_COLUMN = "placement"
 #: The optional column of touch times (seconds since the collection's first touch).
 TIME_COLUMN = "time_s"
+#: The optional column of the touches' planned duration (seconds, one value for the file).
+DURATION_COLUMN = "duration_s"
+#: The optional columns, in the order they come after ``object``.
+OPTIONAL_COLUMNS = (PLACEMENT_COLUMN, TIME_COLUMN, DURATION_COLUMN)
 
 
-def _check_header(header: list[str]) -> tuple[int, int, bool, bool]:
-    """Validate the CSV header; return (dx, dy, whether it has the placement column, whether it
-    has the time column)."""
+def _check_header(header: list[str]) -> tuple[int, int, frozenset[str]]:
+    """Validate the CSV header; return (dx, dy, the optional columns it has)."""
     names = [h.strip() for h in header]
     if not names or names[0] != "object":
         raise DocumentError(
@@ -77,18 +84,17 @@ def _check_header(header: list[str]) -> tuple[int, int, bool, bool]:
             row=1,
             column=names[0] if names else None,
         )
-    placed = len(names) > 1 and names[1] == PLACEMENT_COLUMN
-    if placed:
-        names = [names[0], *names[2:]]
-    timed = len(names) > 1 and names[1] == TIME_COLUMN
-    if timed:
-        names = [names[0], *names[2:]]
-    for optional in (PLACEMENT_COLUMN, TIME_COLUMN):
+    present = []
+    for optional in OPTIONAL_COLUMNS:
+        if len(names) > 1 and names[1] == optional:
+            present.append(optional)
+            names = [names[0], *names[2:]]
+    for optional in OPTIONAL_COLUMNS:
         if optional in names[1:]:
+            order = "".join(f"[,{c}]" for c in OPTIONAL_COLUMNS)
             raise DocumentError(
-                f"CSV header: column {optional!r} must come right after 'object' (and "
-                f"'{PLACEMENT_COLUMN}' before '{TIME_COLUMN}'): expected "
-                f"object[,{PLACEMENT_COLUMN}][,{TIME_COLUMN}],x_1..x_dx,y_1..y_dy.",
+                f"CSV header: column {optional!r} must come right after 'object' (in the order "
+                f"{', '.join(OPTIONAL_COLUMNS)}): expected object{order},x_1..x_dx,y_1..y_dy.",
                 row=1,
                 column=optional,
             )
@@ -115,7 +121,7 @@ def _check_header(header: list[str]) -> tuple[int, int, bool, bool]:
             else "object,x_1..x_dx,y_1..y_dy with at least one x and one y"
         )
         raise DocumentError(f"CSV header: expected {wanted}, found {','.join(names)}.", row=1)
-    return len(actions), len(observations), placed, timed
+    return len(actions), len(observations), frozenset(present)
 
 
 def read_training_csv(text: str) -> TrainingData:
@@ -134,23 +140,28 @@ def read_training_csv(text: str) -> TrainingData:
         raise DocumentError("CSV: the file is empty; expected a header line.", row=1) from None
     except csv.Error:
         raise _oversized_field(text, reader.line_num, columns) from None
-    dx, dy, placed, timed = _check_header(header)
+    dx, dy, optional = _check_header(header)
     columns = [h.strip() for h in header]
     try:
-        return _read_rows(reader, columns, dx, dy, placed, timed)
+        return _read_rows(reader, columns, dx, dy, optional)
     except csv.Error:
         raise _oversized_field(text, reader.line_num, columns) from None
 
 
 def _read_rows(
-    rows: Iterator[list[str]], columns: list[str], dx: int, dy: int, placed: bool, timed: bool
+    rows: Iterator[list[str]], columns: list[str], dx: int, dy: int, optional: frozenset[str]
 ) -> TrainingData:
-    """The data rows after the header (line 2 on), checked; ``placed``: a placement column,
-    ``timed``: a time column (read with x and y: a finite number on every row)."""
+    """The data rows after the header (line 2 on), checked; ``optional``: the optional columns
+    the header has (the time and duration columns are read with x and y: a finite number on
+    every row)."""
+    placed = PLACEMENT_COLUMN in optional
+    timed = TIME_COLUMN in optional
+    durated = DURATION_COLUMN in optional
     names: list[str] = []
     index: list[int] = []
     placements: list[int] = []
     values: list[list[float]] = []
+    line_numbers: list[int] = []
     for line_number, row in enumerate(rows, start=2):
         if not row or all(not cell.strip() for cell in row):
             continue
@@ -206,10 +217,12 @@ def _read_rows(
             names.append(name)
         index.append(names.index(name))
         values.append(numbers)
+        line_numbers.append(line_number)
     if not values:
         raise DocumentError("CSV: no data rows after the header.", row=2)
     array = np.asarray(values, dtype=np.float64)
-    first = 1 if timed else 0
+    first = int(timed) + int(durated)
+    duration_s = _duration(array[:, first - 1], line_numbers) if durated else None
     try:
         return TrainingData(
             object_names=tuple(names),
@@ -218,6 +231,7 @@ def _read_rows(
             observations=array[:, first + dx : first + dx + dy],
             placement_index=np.asarray(placements, dtype=np.int64) if placed else None,
             touch_times_s=array[:, 0] if timed else None,
+            touch_duration_s=duration_s,
         )
     except DocumentError:
         raise
@@ -225,15 +239,46 @@ def _read_rows(
         raise DocumentError(f"CSV: {exc}") from exc
 
 
+def _duration(durations_s: npt.NDArray[np.float64], line_numbers: list[int]) -> float:
+    """The file's touch duration from its ``duration_s`` column (rows in file order, on lines
+    ``line_numbers``): one value > 0, the same on every row (an action means another touch at
+    another duration)."""
+    first = float(durations_s[0])
+    if not first > 0:
+        raise DocumentError(
+            f"CSV row {line_numbers[0]}, column {DURATION_COLUMN}: {first!r} is not a "
+            "duration > 0 seconds.",
+            row=line_numbers[0],
+            column=DURATION_COLUMN,
+        )
+    differs = np.flatnonzero(durations_s != first)
+    if differs.size:
+        line = line_numbers[int(differs[0])]
+        raise DocumentError(
+            f"CSV row {line}, column {DURATION_COLUMN}: {float(durations_s[differs[0]])!r} "
+            f"differs from row {line_numbers[0]}'s {first!r}; every touch of a training set "
+            "must last the same (an action means a trajectory of that duration).",
+            row=line,
+            column=DURATION_COLUMN,
+        )
+    return first
+
+
 def training_csv_header(
-    action_dim: int, observation_dim: int, placements: bool = False, times: bool = False
+    action_dim: int,
+    observation_dim: int,
+    placements: bool = False,
+    times: bool = False,
+    durations: bool = False,
 ) -> list[str]:
     """The CSV header ``object,x_1..x_dx,y_1..y_dy`` (``object,placement,…`` with placements,
-    ``object[,placement],time_s,…`` with times)."""
+    ``object[,placement],time_s,…`` with times, ``…[,time_s],duration_s,…`` with the touch
+    duration)."""
     return (
         ["object"]
         + ([PLACEMENT_COLUMN] if placements else [])
         + ([TIME_COLUMN] if times else [])
+        + ([DURATION_COLUMN] if durations else [])
         + [f"x_{i + 1}" for i in range(action_dim)]
         + [f"y_{i + 1}" for i in range(observation_dim)]
     )
@@ -252,6 +297,8 @@ class TrainingCsvWriter:
         observation_dim: dy.
         placements: Write the ``placement`` column (every :meth:`write` then gives one).
         times: Write the ``time_s`` column (every :meth:`write` then gives one).
+        duration_s: The touches' planned duration: written in the ``duration_s`` column of
+            every row (``None``: no such column).
     """
 
     def __init__(
@@ -261,11 +308,18 @@ class TrainingCsvWriter:
         observation_dim: int,
         placements: bool = False,
         times: bool = False,
+        duration_s: float | None = None,
     ) -> None:
         if action_dim < 1 or observation_dim < 1:
             raise DocumentError(
                 f"CSV: needs dx ≥ 1 and dy ≥ 1, received dx={action_dim}, dy={observation_dim}."
             )
+        if duration_s is not None and not (math.isfinite(duration_s) and duration_s > 0):
+            raise DocumentError(
+                f"CSV: {DURATION_COLUMN} must be a finite number > 0, received {duration_s!r}.",
+                column=DURATION_COLUMN,
+            )
+        self.duration_s = None if duration_s is None else float(duration_s)
         self.action_dim = int(action_dim)
         self.observation_dim = int(observation_dim)
         self.placements = bool(placements)
@@ -273,7 +327,13 @@ class TrainingCsvWriter:
         self.rows = 0
         self._writer = csv.writer(stream, lineterminator="\n")
         self._writer.writerow(
-            training_csv_header(self.action_dim, self.observation_dim, self.placements, self.times)
+            training_csv_header(
+                self.action_dim,
+                self.observation_dim,
+                self.placements,
+                self.times,
+                self.duration_s is not None,
+            )
         )
 
     def write(
@@ -322,17 +382,21 @@ class TrainingCsvWriter:
         lead = [name] if placement is None else [name, str(int(placement))]
         if time_s is not None:
             lead.append(repr(float(time_s)))
+        if self.duration_s is not None:
+            lead.append(repr(self.duration_s))
         self._writer.writerow([*lead, *map(repr, map(float, x)), *map(repr, map(float, y))])
         self.rows += 1
 
 
 def write_training_csv(data: TrainingData) -> str:
     """Render training data as CSV text (floats written with ``repr``, so they round-trip), with
-    the ``placement`` and ``time_s`` columns when the data records them."""
+    the ``placement``, ``time_s`` and ``duration_s`` columns when the data records them."""
     out = io.StringIO()
     placed = data.placement_index is not None
     timed = data.touch_times_s is not None
-    writer = TrainingCsvWriter(out, data.action_dim, data.observation_dim, placed, timed)
+    writer = TrainingCsvWriter(
+        out, data.action_dim, data.observation_dim, placed, timed, data.touch_duration_s
+    )
     placements: list[int | None] = (
         data.placement_index.tolist()
         if data.placement_index is not None

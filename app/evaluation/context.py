@@ -144,7 +144,10 @@ class TrialContext:
         if actions is None:
             from app.rig.actions import TouchActions
 
-            actions = TouchActions.for_action_dim(self.model.hyperparameters.action_dim)
+            actions = TouchActions.for_action_dim(
+                self.model.hyperparameters.action_dim,
+                duration_s=self.model.raw_data.touch_duration_s,
+            )
             self._local.rig_actions = actions
         return actions
 

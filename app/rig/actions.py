@@ -88,7 +88,7 @@ class TouchActions:
 
     @classmethod
     def for_action_dim(
-        cls, action_dim: int, *, dt_s: float = 0.02, duration_s: float = PAPER_TOUCH_DURATION_S
+        cls, action_dim: int, *, dt_s: float = 0.02, duration_s: float | None = None
     ) -> TouchActions:
         """The rig's actions for a model of dx = ``action_dim``: the DMP components alone, or
         with the press depth when the model has one more dimension.
@@ -96,7 +96,9 @@ class TouchActions:
         Args:
             action_dim: The model's dx.
             dt_s: Period of the generated trajectories.
-            duration_s: Duration of a touch.
+            duration_s: Duration of a touch: the one the model's training touches lasted
+                (``TrainingData.touch_duration_s``); ``None`` (not recorded): the teaching
+                trajectory's, :data:`hardware.teaching.PAPER_TOUCH_DURATION_S`.
 
         Raises:
             BadInputError: ``action_dim`` is neither.
@@ -109,7 +111,11 @@ class TouchActions:
                 f"but the model has dx={action_dim}.",
                 field="world",
             )
-        return cls.from_teaching(dt_s=dt_s, duration_s=duration_s, press_depth=press_depth)
+        return cls.from_teaching(
+            dt_s=dt_s,
+            duration_s=PAPER_TOUCH_DURATION_S if duration_s is None else duration_s,
+            press_depth=press_depth,
+        )
 
     @property
     def action_dim(self) -> int:

@@ -520,7 +520,8 @@ class CollectionService:
         holder = self._rig.holder
         if holder is not None:
             raise ConflictError(f"The rig is in use by {holder}.", held_by=holder)
-        dx, dy = self._rig.actions(body.press_depth).action_dim, self._rig.observation_dim
+        actions = self._rig.actions(body.press_depth)
+        dx, dy = actions.action_dim, self._rig.observation_dim
         dataset = crud.create_dataset(
             session,
             name=body.name or "rig collection",
@@ -529,6 +530,7 @@ class CollectionService:
             object_names=[o.name for o in body.objects],
             action_dim=dx,
             observation_dim=dy,
+            touch_duration_s=actions.duration_s,
         )
         for item in body.objects:
             crud.set_object_slot(session, item.name, item.slot)

@@ -63,7 +63,7 @@ def store_training_data(
     raw: Sequence[dict[str, Any]] | None = None,
 ) -> Dataset:
     """Add a complete dataset holding ``data`` (not committed), with each touch's placement
-    and time when ``data`` records them.
+    and time, and the touches' duration, when ``data`` records them.
 
     ``raw``: each sample's raw record (its channels), kept so it can be featurised again.
     """
@@ -75,6 +75,7 @@ def store_training_data(
         object_names=data.object_names,
         action_dim=data.action_dim,
         observation_dim=data.observation_dim,
+        touch_duration_s=data.touch_duration_s,
     )
     records: Sequence[dict[str, Any] | None] = (
         [None] * len(data.object_index) if raw is None else raw
@@ -136,8 +137,11 @@ def create_from_csv(session: Session, events: EventBus, text: str, name: str) ->
     return _commit_and_announce(session, events, data, name, "upload")
 
 
-def training_data_from_samples(samples: list[SampleIn]) -> TrainingData:
-    """Check a JSON upload's samples and build training data.
+def training_data_from_samples(
+    samples: list[SampleIn], touch_duration_s: float | None = None
+) -> TrainingData:
+    """Check a JSON upload's samples and build training data (their touches lasted
+    ``touch_duration_s``, when recorded).
 
     Raises:
         BadInputError: Ragged action/observation lengths (naming ``samples[i].field``), a
@@ -181,6 +185,7 @@ def training_data_from_samples(samples: list[SampleIn]) -> TrainingData:
             observations=np.asarray([s.observation for s in samples], dtype=np.float64),
             placement_index=placement_index([s.placement for s in samples]),
             touch_times_s=touch_times([s.time_s for s in samples]),
+            touch_duration_s=touch_duration_s,
         )
     except InvalidInputError as exc:
         raise BadInputError(f"samples: {exc}", field="samples") from exc
@@ -247,7 +252,8 @@ def export_raw(session: Session, dataset_id: int) -> str:
     Samples uploaded as raw touches keep their channels; samples a rig collection recorded
     keep their frames, regrouped into channels by name (``docs/raw-touches.md``). A sample
     that recorded its placement writes it as the line's ``placement``, one that recorded its
-    time as the line's ``time_s``.
+    time as the line's ``time_s``, and a dataset that recorded its touches' duration writes it
+    as every line's ``duration_s``.
 
     Raises:
         BadInputError: (→ 422) a sample without its raw series (uploaded as y only).
@@ -272,13 +278,15 @@ def export_raw(session: Session, dataset_id: int) -> str:
             line["placement"] = placement
         if time_s is not None:
             line["time_s"] = time_s
+        if dataset.touch_duration_s is not None:
+            line["duration_s"] = dataset.touch_duration_s
         lines.append(json.dumps(line))
     return "".join(line + "\n" for line in lines)
 
 
 def create_from_json(session: Session, events: EventBus, body: DatasetCreate) -> DatasetPublic:
     """Store a JSON upload."""
-    data = training_data_from_samples(body.samples)
+    data = training_data_from_samples(body.samples, body.touch_duration_s)
     return _commit_and_announce(session, events, data, body.name, "upload")
 
 
@@ -320,9 +328,9 @@ def training_data(session: Session, dataset_id: int) -> TrainingData:
 
 def _training_data(session: Session, dataset: Dataset) -> TrainingData:
     """The samples as training data, with ``placement_index`` when every sample recorded its
-    placement (the fit then estimates the placement effect) and ``touch_times_s`` when every
+    placement (the fit then estimates the placement effect), ``touch_times_s`` when every
     sample recorded its time (the drift shared by touches made close together,
-    :mod:`core.gp.drift_effect`)."""
+    :mod:`core.gp.drift_effect`) and ``touch_duration_s`` when the dataset recorded it."""
     rows = crud.dataset_samples(session, dataset.id)
     names = list(dataset.object_names)
     position = {name: i for i, name in enumerate(names)}
@@ -338,6 +346,7 @@ def _training_data(session: Session, dataset: Dataset) -> TrainingData:
             ),
             placement_index=placement_index([row[3] for row in rows]),
             touch_times_s=touch_times([row[4] for row in rows]),
+            touch_duration_s=dataset.touch_duration_s,
         )
     except InvalidInputError as exc:
         raise BadInputError(
@@ -403,8 +412,9 @@ def featurised_data(session: Session, dataset_id: int, pipeline: FeaturePipeline
 
 def export_csv(session: Session, dataset_id: int) -> str:
     """The dataset as training CSV (floats written with ``repr``: exact round trip), with the
-    ``placement`` column when every sample recorded its placement and the ``time_s`` column
-    when every sample recorded its time.
+    ``placement`` column when every sample recorded its placement, the ``time_s`` column
+    when every sample recorded its time and the ``duration_s`` column when the dataset recorded
+    its touches' duration.
 
     Written touch by touch by :class:`app.documents.training_csv.TrainingCsvWriter`, so a
     partial dataset (a collection in progress or interrupted, which is not yet training data)
@@ -416,7 +426,12 @@ def export_csv(session: Session, dataset_id: int) -> str:
     timed = touch_times([row[4] for row in rows]) is not None
     out = io.StringIO()
     writer = TrainingCsvWriter(
-        out, dataset.action_dim, dataset.observation_dim, placements=placed, times=timed
+        out,
+        dataset.action_dim,
+        dataset.observation_dim,
+        placements=placed,
+        times=timed,
+        duration_s=dataset.touch_duration_s,
     )
     for name, action, observation, placement, time_s in rows:
         writer.write(
@@ -427,13 +442,14 @@ def export_csv(session: Session, dataset_id: int) -> str:
 
 def export_json(session: Session, dataset_id: int) -> DatasetCreate:
     """The dataset in the JSON upload format (each sample's ``placement`` when every sample
-    recorded one, its ``time_s`` likewise)."""
+    recorded one, its ``time_s`` likewise, and the touches' duration when recorded)."""
     dataset = require(session, dataset_id)
     rows = crud.dataset_samples(session, dataset.id)
     placed = placement_index([row[3] for row in rows]) is not None
     timed = touch_times([row[4] for row in rows]) is not None
     return DatasetCreate(
         name=dataset.name,
+        touch_duration_s=dataset.touch_duration_s,
         samples=[
             SampleIn(
                 object=name,

@@ -38,6 +38,7 @@ from hardware.errors import HardwareError, RigBusy
 from hardware.records import TouchRecord
 from hardware.rig import RigConfig, RigLease, RigState
 from hardware.sim.materials import Table
+from hardware.teaching import PAPER_TOUCH_DURATION_S
 
 OPERATOR = "operator"
 
@@ -125,7 +126,7 @@ class RigService:
         self.simulated_table: Table = settings.simulated_table()
         self._lock = threading.Lock()
         self._handle: RigHandle | None = None
-        self._actions: dict[bool, TouchActions] = {}
+        self._actions: dict[tuple[bool, float], TouchActions] = {}
 
     # --- construction -------------------------------------------------------------------------
 
@@ -165,17 +166,27 @@ class RigService:
             ports=RigPorts(s.turntable_port, s.finger_port, s.tactile_port), rig_config=config
         )
 
-    def actions(self, press_depth: bool = False) -> TouchActions:
+    def actions(self, press_depth: bool = False, duration_s: float | None = None) -> TouchActions:
         """Action → trajectory map of the rig (DMPs of the teaching trajectory), with the
-        press-depth component as the last dimension if ``press_depth``."""
+        press-depth component as the last dimension if ``press_depth``, for touches of
+        ``duration_s`` (``None``: the teaching trajectory's, which the server's collections
+        use)."""
+        duration = PAPER_TOUCH_DURATION_S if duration_s is None else float(duration_s)
         with self._lock:
-            if press_depth not in self._actions:
-                self._actions[press_depth] = TouchActions.from_teaching(press_depth=press_depth)
-            return self._actions[press_depth]
+            key = (press_depth, duration)
+            if key not in self._actions:
+                self._actions[key] = TouchActions.from_teaching(
+                    press_depth=press_depth, duration_s=duration
+                )
+            return self._actions[key]
 
     def actions_for(self, model: ManifoldModel) -> TouchActions:
-        """The action map a model was trained on: with the press depth if its dx has it."""
-        return self.actions(has_press_depth(model.hyperparameters.action_dim) is True)
+        """The action map a model was trained on: with the press depth if its dx has it, for
+        touches as long as its training touches (when they recorded it)."""
+        return self.actions(
+            has_press_depth(model.hyperparameters.action_dim) is True,
+            model.raw_data.touch_duration_s,
+        )
 
     def rig_action_dim(self, model: ManifoldModel) -> int:
         """dx of the rig's actions for ``model``: the model's if the rig can make it (with or

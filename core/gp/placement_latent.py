@@ -96,6 +96,7 @@ def placements_of(data: TrainingData) -> Placements:
         # Each pseudo-object is one placement (for a placement variance in the fit).
         placement_index=np.zeros(data.n_touches, dtype=np.int64),
         touch_times_s=data.touch_times_s,
+        touch_duration_s=data.touch_duration_s,
         min_touches_per_object=1,
     )
     return Placements(data=touches, placement_object=owner)

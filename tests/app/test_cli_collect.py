@@ -321,7 +321,9 @@ def test_a_fault_mid_collection_keeps_what_was_recorded(
     assert 1 <= summary["recorded"] < summary["planned"] == 12
     assert "collection stopped" in said(result)
     rows = out.read_text().splitlines()
-    assert rows[0] == "object,placement,time_s,x_1,x_2,x_3,x_4,x_5,x_6,x_7,y_1,y_2,y_3,y_4,y_5"
+    assert rows[0] == (
+        "object,placement,time_s,duration_s,x_1,x_2,x_3,x_4,x_5,x_6,x_7,y_1,y_2,y_3,y_4,y_5"
+    )
     assert len(rows) == 1 + summary["recorded"]
     assert len(raw.read_text().splitlines()) == summary["recorded"]
     # The rig stopped safely: the faulty servo and the other one are switched off.

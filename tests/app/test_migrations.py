@@ -1,6 +1,7 @@
 """Alembic migrations: head matches the tables of :mod:`app.db.tables`; 0002 (``models.posterior``)
 upgrades a database with models of revision 0001, which keep loading as before, and downgrades;
-0006 (``samples.placement``) and 0007 (``samples.time_s``) likewise.
+0006 (``samples.placement``) and 0007 (``samples.time_s``) likewise, and 0008
+(``datasets.touch_duration_s``) without losing a sample of the parent table it changes.
 """
 
 from __future__ import annotations
@@ -143,3 +144,39 @@ def test_a_samples_column_downgrades_and_upgrades(
 
 def sample_columns(database: Database) -> set[str]:
     return {c["name"] for c in inspect(database.engine).get_columns("samples")}
+
+
+def test_the_datasets_duration_downgrades_and_upgrades_keeping_every_sample(
+    tmp_path: Path,
+) -> None:
+    """``datasets`` is the parent of ``samples`` (ON DELETE CASCADE): undoing 0008 must change it
+    in place, not drop and copy it (which, with foreign keys on, deletes every sample)."""
+    settings = make_settings(tmp_path)
+    database = Database(settings.database_url)
+    data = dataclasses.replace(
+        sample_experiment1(np.random.default_rng(5), touches_per_object=3), touch_duration_s=8.5
+    )
+    try:
+        upgrade_to_head(database.engine, settings.migrations_dir)
+        with database.session() as session:
+            dataset_id = store_training_data(session, data, "timed", "upload").id
+            session.commit()
+        with database.session() as session:
+            assert training_data(session, dataset_id).touch_duration_s == 8.5
+        migrate(database, settings.migrations_dir, "0007_sample_time", down=True)
+        assert "touch_duration_s" not in dataset_columns(database)
+        with database.engine.connect() as connection:
+            samples = connection.execute(text("SELECT count(*) FROM samples")).scalar()
+            datasets = connection.execute(text("SELECT count(*) FROM datasets")).scalar()
+        assert (samples, datasets) == (data.n_touches, 1)
+        migrate(database, settings.migrations_dir, "head")
+        with database.session() as session:
+            again = training_data(session, dataset_id)
+        assert again.touch_duration_s is None
+        assert again.actions.tolist() == data.actions.tolist()
+    finally:
+        database.dispose()
+
+
+def dataset_columns(database: Database) -> set[str]:
+    return {c["name"] for c in inspect(database.engine).get_columns("datasets")}

@@ -175,8 +175,9 @@ def test_collect_writes_each_touch_time_since_the_first(tmp_path: Path) -> None:
          "--out", str(out), "--raw", str(raw)],
     )  # fmt: skip
     assert result.exit_code == 0, result.output
-    assert out.read_text().splitlines()[0].startswith("object,placement,time_s,x_1")
+    assert out.read_text().splitlines()[0].startswith("object,placement,time_s,duration_s,x_1")
     data = read_training_csv(out.read_text())
+    assert data.touch_duration_s == 5.0
     assert data.touch_times_s is not None
     times_s = data.touch_times_s
     assert times_s[0] == 0.0
@@ -186,6 +187,7 @@ def test_collect_writes_each_touch_time_since_the_first(tmp_path: Path) -> None:
     assert np.all(np.diff(times_s) >= SETTLE_S + 5.0)
     lines = [json.loads(line) for line in raw.read_text().splitlines()]
     assert [line["time_s"] for line in lines] == times_s.tolist()
+    assert {line["duration_s"] for line in lines} == {5.0}
 
 
 def test_raw_touch_times_are_read_on_every_line_or_none() -> None:

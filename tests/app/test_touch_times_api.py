@@ -50,7 +50,7 @@ def test_a_collection_stores_each_touch_time_since_its_first(client: TestClient)
     run = completed_collection(client, body)
     dataset_id = run["dataset_id"]
     text = client.get(f"{API}/datasets/{dataset_id}/export").text
-    assert text.startswith("object,placement,time_s,x_1")
+    assert text.startswith("object,placement,time_s,duration_s,x_1")
     data = read_training_csv(text)
     times_s = data.touch_times_s
     assert times_s is not None
