@@ -57,7 +57,7 @@ def test_collect_with_placements_touches_each_placement_in_a_row(tmp_path: Path)
     )
     assert result.exit_code == 0, result.output
     assert json.loads(result.stdout)["placements"] == 2
-    assert out.read_text().splitlines()[0].startswith("object,placement,time_s,x_1")
+    assert out.read_text().splitlines()[0].startswith("object,placement,time_s,duration_s,x_1")
     data = read_training_csv(out.read_text())
     assert data.placement_index is not None
     # Placement by placement in rounds over the objects, two touches in a row at each.

@@ -39,7 +39,7 @@ def collected(client: TestClient, **fields: Any) -> tuple[dict[str, Any], Traini
     run = wait_until(client, f"{API}/collections/{created.json()['id']}", finished)
     assert run["status"] == "completed", run
     text = client.get(f"{API}/datasets/{run['dataset_id']}/export").text
-    assert text.startswith("object,placement,time_s,x_1")
+    assert text.startswith("object,placement,time_s,duration_s,x_1")
     return run, read_training_csv(text)
 
 
