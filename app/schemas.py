@@ -720,6 +720,14 @@ class CollectionCreate(BaseModel):
             "and evaluations. False: the six DMP components alone (dx = 6)."
         ),
     )
+    touch_duration_s: Annotated[float, Field(ge=1.0, le=600.0)] | None = Field(
+        default=None,
+        description=(
+            "How long each touch lasts, in seconds (the DMP's time scaling, as `activetouch "
+            "collect --duration`). The dataset records it, and its models touch for as long in "
+            "rig trials and evaluations. Null: the teaching trajectory's 14.4 s."
+        ),
+    )
 
 
 class RunPublic(BaseModel):

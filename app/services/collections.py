@@ -520,7 +520,7 @@ class CollectionService:
         holder = self._rig.holder
         if holder is not None:
             raise ConflictError(f"The rig is in use by {holder}.", held_by=holder)
-        actions = self._rig.actions(body.press_depth)
+        actions = self._rig.actions(body.press_depth, body.touch_duration_s)
         dx, dy = actions.action_dim, self._rig.observation_dim
         dataset = crud.create_dataset(
             session,
@@ -598,7 +598,7 @@ class CollectionService:
                 self._announce(run)
                 touches = iter_stages(
                     lease,
-                    self._rig.actions(body.press_depth),
+                    self._rig.actions(body.press_depth, body.touch_duration_s),
                     slots,
                     design,
                     stages,

@@ -154,6 +154,29 @@ def test_the_servers_collections_record_and_its_trials_use_the_duration(
     np.testing.assert_allclose(commanded, six_seconds.trajectory(step["action"]), atol=1e-9)
 
 
+def test_a_collection_touches_for_the_duration_it_is_given(client: TestClient) -> None:
+    body: dict[str, Any] = {
+        "objects": [{"name": "paper_cup", "slot": 0}, {"name": "foam_sponge", "slot": 6}],
+        "samples_per_object": 2,
+        "action_design": "random",
+        "touch_duration_s": 8.0,
+    }
+    run = completed_collection(client, body)
+    assert run["params"]["touch_duration_s"] == 8.0
+    dataset = client.get(f"{API}/datasets/{run['dataset_id']}").json()
+    assert dataset["touch_duration_s"] == 8.0
+    raw = client.get(f"{API}/datasets/{run['dataset_id']}/raw-touches").text.splitlines()
+    for line in map(json.loads, raw):
+        assert line["duration_s"] == 8.0
+        # The sensor is read over the trajectory, so each series spans the touch: 8 s, not 14.4.
+        for channel in line["channels"].values():
+            spanned_s = len(channel["samples"]) / channel["rate_hz"]
+            assert 7.5 < spanned_s < 8.5, spanned_s
+    too_short = client.post(f"{API}/collections", json={**body, "touch_duration_s": 0.5})
+    assert too_short.status_code == 422
+    assert "touch_duration_s" in too_short.text
+
+
 def test_a_json_upload_keeps_the_duration_in_and_out(client: TestClient) -> None:
     data = data_lasting(None)
     samples = [
