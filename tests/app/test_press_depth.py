@@ -24,7 +24,7 @@ from app.rig.press_depth import PressDepth, rig_action_dim
 from core.errors import InvalidInputError
 from core.types import ManifoldModel
 from tests.app.conftest import RIG_OBJECTS, fitted_on_the_rig
-from tests.app.waits import completed_collection, wait_until
+from tests.app.waits import completed_collection, completed_rig_trial
 
 API = "/api/v1"
 runner = CliRunner()
@@ -154,20 +154,9 @@ def test_the_server_collects_and_touches_with_the_press_depth(
     run = completed_collection(client, {**body, "press_depth": False})
     assert client.get(f"{API}/datasets/{run['dataset_id']}").json()["action_dim"] == 6
 
-    imported = client.post(f"{API}/models/import", json=model_to_document(press_model))
-    assert imported.status_code == 201, imported.text
-    trial = client.post(
-        f"{API}/trials",
-        json={"model_id": imported.json()["id"], "mode": "simulated", "target": "paper_cup",
-              "max_steps": 2, "tolerance": 0.0, "seed": 1, "simulation": {"world": "rig"}},
-    )  # fmt: skip
-    assert trial.status_code == 201, trial.text
-    done = wait_until(
-        client,
-        f"{API}/trials/{trial.json()['id']}",
-        lambda t: t["status"] not in ("queued", "running"),
+    done = completed_rig_trial(
+        client, model_to_document(press_model), target="paper_cup", max_steps=2
     )
-    assert done["status"] == "completed", done
     actions = TouchActions.from_teaching(press_depth=True)
     for step in done["steps"]:
         assert len(step["action"]) == 7

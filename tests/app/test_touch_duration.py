@@ -25,7 +25,7 @@ from core.features.pipeline import means_pipeline
 from core.types import ManifoldModel, TrainingData
 from hardware.teaching import PAPER_TOUCH_DURATION_S
 from tests.app.test_raw_touches import raw_file
-from tests.app.waits import completed_collection, wait_until
+from tests.app.waits import completed_collection, completed_rig_trial
 
 API = "/api/v1"
 
@@ -133,20 +133,8 @@ def test_the_servers_collections_record_and_its_trials_use_the_duration(
     exported = client.get(f"{API}/datasets/{dataset_id}/export").text
     assert read_training_csv(exported).touch_duration_s == PAPER_TOUCH_DURATION_S
 
-    imported = client.post(f"{API}/models/import", json=model_to_document(lasting(rig_model, 6.0)))
-    assert imported.status_code == 201, imported.text
-    trial = client.post(
-        f"{API}/trials",
-        json={"model_id": imported.json()["id"], "mode": "simulated", "target": "paper_cup",
-              "max_steps": 1, "tolerance": 0.0, "seed": 1, "simulation": {"world": "rig"}},
-    )  # fmt: skip
-    assert trial.status_code == 201, trial.text
-    done = wait_until(
-        client,
-        f"{API}/trials/{trial.json()['id']}",
-        lambda t: t["status"] not in ("queued", "running"),
-    )
-    assert done["status"] == "completed", done
+    document = model_to_document(lasting(rig_model, 6.0))
+    done = completed_rig_trial(client, document, target="paper_cup", max_steps=1)
     six_seconds = TouchActions.from_teaching(duration_s=6.0)
     (step,) = done["steps"]
     commanded = np.asarray(step["trajectory"]["commanded_deg"])

@@ -59,3 +59,17 @@ def completed_collection(client: Any, body: dict[str, Any]) -> dict[str, Any]:
     )
     assert run["status"] == "completed", run
     return run
+
+
+def completed_rig_trial(client: Any, document: dict[str, Any], **fields: Any) -> dict[str, Any]:
+    """Import the model ``document``, run a simulated trial of it on the rig world with
+    ``fields`` (target, max_steps, ...), wait until it completed; the trial."""
+    imported = client.post("/api/v1/models/import", json=document)
+    assert imported.status_code == 201, imported.text
+    body = {"model_id": imported.json()["id"], "mode": "simulated", "tolerance": 0.0, "seed": 1,
+            "simulation": {"world": "rig"}, **fields}  # fmt: skip
+    created = client.post("/api/v1/trials", json=body)
+    assert created.status_code == 201, created.text
+    trial: dict[str, Any] = wait_until(client, f"/api/v1/trials/{created.json()['id']}", finished)
+    assert trial["status"] == "completed", trial
+    return trial
