@@ -169,8 +169,8 @@ class RigService:
     def actions(self, press_depth: bool = False, duration_s: float | None = None) -> TouchActions:
         """Action → trajectory map of the rig (DMPs of the teaching trajectory), with the
         press-depth component as the last dimension if ``press_depth``, for touches of
-        ``duration_s`` (``None``: the teaching trajectory's, which the server's collections
-        use)."""
+        ``duration_s`` (``None``: the teaching trajectory's 14.4 s, what a collection uses unless
+        it is given one and a model assumes unless its data recorded one)."""
         duration = PAPER_TOUCH_DURATION_S if duration_s is None else float(duration_s)
         with self._lock:
             key = (press_depth, duration)
