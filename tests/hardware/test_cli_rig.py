@@ -97,7 +97,9 @@ def test_estop_on_real_ports_resets_grbl_and_frees_the_servos() -> None:
         # Each emulator serves its port on its own thread: wait for both to have acted.
         deadline = time.monotonic() + 5.0
         while time.monotonic() < deadline and (
-            devices.plant.joint_state(0)[3] or b"\x18" not in devices.grbl.received
+            devices.plant.joint_state(0)[3]
+            or devices.plant.joint_state(1)[3]
+            or b"\x18" not in devices.grbl.received
         ):
             time.sleep(0.01)
         assert b"\x18" in devices.grbl.received
